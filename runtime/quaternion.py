@@ -1,0 +1,133 @@
+"""Batched quaternion maths in numpy. Quaternions are (..., 4) arrays ordered (w, x, y, z)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a * b (apply b first, then a)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
+def qinv(q: np.ndarray) -> np.ndarray:
+    """Inverse of a unit quaternion (its conjugate)."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
+
+
+def qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors v (..., 3) by unit quaternions q (..., 4); shapes broadcast."""
+    w = q[..., :1]
+    u = q[..., 1:]
+    uv = np.cross(u, v)
+    return v + 2.0 * (w * uv + np.cross(u, uv))
+
+
+def qnormalize(q: np.ndarray) -> np.ndarray:
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def qfrom_axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Quaternion turning by `angle` radians about unit `axis` (..., 3)."""
+    half = 0.5 * np.asarray(angle)[..., None]
+    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
+
+
+def qyaw(angle: np.ndarray) -> np.ndarray:
+    """Quaternion turning by `angle` radians about +Y (counter-clockwise seen from above)."""
+    angle = np.asarray(angle, dtype=np.float64)
+    zeros = np.zeros_like(angle)
+    return np.stack([np.cos(0.5 * angle), zeros, np.sin(0.5 * angle), zeros], axis=-1)
+
+
+def qbetween(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotation taking direction u to direction v (..., 3); w >= 0.
+
+    Opposite directions have no unique shortest arc: the half-turn about an axis
+    perpendicular to u is returned.
+    """
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    v = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    w = 1.0 + np.sum(u * v, axis=-1, keepdims=True)
+    xyz = np.cross(u, v)
+    opposite = w[..., 0] < 1e-9
+    if np.any(opposite):
+        uo = u[opposite]
+        # Any axis perpendicular to u: cross with the coordinate axis u is least aligned with.
+        helper = np.eye(3)[np.argmin(np.abs(uo), axis=-1)]
+        axis = np.cross(uo, helper)
+        xyz = xyz.copy()
+        w = w.copy()
+        xyz[opposite] = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+        w[opposite] = 0.0
+    return qnormalize(np.concatenate([w, xyz], axis=-1))
+
+
+def qto_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=-2)
+
+
+def qfrom_matrix(m: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w >= 0) of rotation matrices (..., 3, 3)."""
+    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
+    # Four candidate solutions; use the numerically largest pivot for each matrix.
+    candidates = np.stack([
+        np.stack([1 + m00 + m11 + m22, m[..., 2, 1] - m[..., 1, 2],
+                  m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
+        np.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m00 - m11 - m22,
+                  m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
+        np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0],
+                  1 - m00 + m11 - m22, m[..., 1, 2] + m[..., 2, 1]], -1),
+        np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0],
+                  m[..., 1, 2] + m[..., 2, 1], 1 - m00 - m11 + m22], -1),
+    ], axis=-2)  # (..., 4, 4)
+    pivots = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22,
+                       1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+    best = np.argmax(pivots, axis=-1)
+    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+    q = qnormalize(q)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def qto_cont6d(q: np.ndarray) -> np.ndarray:
+    """Continuous 6D representation: the first two columns of the rotation matrix."""
+    m = qto_matrix(q)
+    return np.concatenate([m[..., :, 0], m[..., :, 1]], axis=-1)
+
+
+def cont6d_to_matrix(d6: np.ndarray) -> np.ndarray:
+    """Rotation matrices from 6D rotations by Gram-Schmidt (Zhou et al. 2019)."""
+    a = d6[..., 0:3]
+    b = d6[..., 3:6]
+    x = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b - np.sum(x * b, axis=-1, keepdims=True) * x
+    y = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    z = np.cross(x, y)
+    return np.stack([x, y, z], axis=-1)
+
+
+def qslerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Spherical interpolation from a to b at fraction t (broadcast over leading axes)."""
+    t = np.asarray(t, dtype=np.float64)[..., None]
+    dot = np.sum(a * b, axis=-1, keepdims=True)
+    b = np.where(dot < 0, -b, b)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_theta = np.sin(theta)
+    near = sin_theta < 1e-6
+    safe = np.where(near, 1.0, sin_theta)
+    wa = np.where(near, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
+    wb = np.where(near, t, np.sin(t * theta) / safe)
+    return qnormalize(wa * a + wb * b)
