@@ -1,0 +1,126 @@
+import numpy as np
+import pytest
+
+from mogo.runtime.features import (canonicalize, facing_directions, features_to_joints,
+                                   joints_to_features)
+from mogo.runtime.mirror import mirror_joints, mirror_text
+from mogo.runtime.quaternion import qrot, qyaw
+from mogo.runtime.skeleton import KIT_21, SMPL_22
+
+
+def rest_pose(skeleton):
+    offsets = skeleton.rest_offsets
+    if offsets is None:  # KIT: unit-ish bones along the raw directions
+        offsets = skeleton.raw_offsets * 0.25
+    pose = np.zeros((skeleton.num_joints, 3))
+    for joint, parent in enumerate(skeleton.parents):
+        if parent >= 0:
+            pose[joint] = pose[parent] + offsets[joint]
+    pose[:, 1] -= pose[:, 1].min()
+    return pose
+
+
+def travelling_clip(rng, skeleton=SMPL_22, frames=120, turn_degrees=180.0, backwards=False,
+                    jitter=0.02):
+    """A jittered rest pose travelling along a curve while turning by `turn_degrees`."""
+    facing = np.radians(turn_degrees) * np.linspace(0, 1, frames) ** 2 + rng.uniform(-np.pi, np.pi)
+    step = 0.06 * (-1 if backwards else 1)
+    heading = np.stack([np.sin(facing), np.zeros(frames), np.cos(facing)], -1)
+    root = np.cumsum(step * heading, axis=0) + rng.normal(size=3) * [3, 0, 3]
+    root[:, 1] = 0.03 * np.sin(np.arange(frames) / 3)
+    body = rest_pose(skeleton)[None] + rng.normal(scale=jitter, size=(frames, skeleton.num_joints, 3))
+    return qrot(qyaw(facing)[:, None], body) + root[:, None]
+
+
+@pytest.mark.parametrize("turn,backwards", [(0.0, False), (180.0, False), (180.0, True),
+                                            (-400.0, True), (720.0, False)])
+def test_round_trip_recovers_canonical_joints(turn, backwards):
+    rng = np.random.default_rng(int(turn) % 97 + backwards)
+    clip = travelling_clip(rng, turn_degrees=turn, backwards=backwards)
+    features, canonical = joints_to_features(clip)
+    assert features.shape == (clip.shape[0] - 1, 263) and features.dtype == np.float32
+    recovered = features_to_joints(features)
+    assert np.abs(recovered - canonical[:-1]).max() < 1e-4
+
+
+def test_canonical_clip_is_on_floor_at_origin_facing_z():
+    clip = travelling_clip(np.random.default_rng(1), turn_degrees=90.0)
+    canonical = canonicalize(clip, SMPL_22)
+    assert abs(canonical[..., 1].min()) < 1e-9
+    np.testing.assert_allclose(canonical[0, 0, [0, 2]], 0.0, atol=1e-9)
+    np.testing.assert_allclose(facing_directions(canonical, SMPL_22)[0], [0, 0, 1], atol=1e-9)
+    # Canonicalising preserves the shape of the motion (a rigid transform).
+    np.testing.assert_allclose(np.linalg.norm(canonical[:, 7] - canonical[:, 0], axis=-1),
+                               np.linalg.norm(clip[:, 7] - clip[:, 0], axis=-1), atol=1e-9)
+
+
+def test_kit_skeleton_round_trip():
+    clip = travelling_clip(np.random.default_rng(2), KIT_21, turn_degrees=200.0, backwards=True)
+    features, canonical = joints_to_features(clip, KIT_21)
+    assert features.shape[-1] == 251
+    assert np.abs(features_to_joints(features) - canonical[:-1]).max() < 1e-4
+
+
+def test_recovery_is_batched():
+    rng = np.random.default_rng(3)
+    batch = np.stack([joints_to_features(travelling_clip(rng, frames=40))[0] for _ in range(3)])
+    np.testing.assert_allclose(features_to_joints(batch),
+                               np.stack([features_to_joints(f) for f in batch]), atol=1e-6)
+
+
+def test_feature_blocks_mean_what_the_format_says():
+    clip = np.repeat(rest_pose(SMPL_22)[None], 30, axis=0)
+    clip += np.linspace(0, 1, 30)[:, None, None] * [0.0, 0.0, 1.2]  # glide forward 1.2 m
+    features, _ = joints_to_features(clip)
+    np.testing.assert_allclose(features[:, 0], 0.0, atol=1e-7)  # no turning
+    np.testing.assert_allclose(features[:, 2], 1.2 / 29, atol=1e-6)  # forward speed per frame
+    np.testing.assert_allclose(features[:, 3], rest_pose(SMPL_22)[0, 1], atol=1e-6)
+    contacts = features[:, -4:]
+    assert np.all(contacts == 1.0)  # 4 cm per frame is under the HumanML3D threshold
+    fast = clip * [1, 1, 10]
+    assert np.all(joints_to_features(fast)[0][:, -4:] == 0.0)
+
+
+def test_turning_left_gives_positive_facing_change():
+    clip = travelling_clip(np.random.default_rng(4), turn_degrees=90.0, jitter=0.0)
+    features, canonical = joints_to_features(clip)
+    assert features[:, 0].sum() < 0  # the half-angle of the world->facing rotation
+    raw = facing_directions(canonical, SMPL_22, facing_sigma=0)
+    turned = np.degrees(np.arctan2(raw[-1, 0], raw[-1, 2]) - np.arctan2(raw[0, 0], raw[0, 2]))
+    assert abs(turned - 90.0) < 1e-3  # +90 degrees (left) turns +Z toward +X
+
+
+@pytest.mark.parametrize("bad,message", [
+    (np.zeros((10, 21, 3)), "joints must be"),
+    (np.zeros((1, 22, 3)), "at least 2 frames"),
+    (np.full((5, 22, 3), np.nan), "NaN"),
+])
+def test_bad_joints_are_rejected(bad, message):
+    with pytest.raises(ValueError, match=message):
+        joints_to_features(bad)
+
+
+def test_unknown_feature_dim_is_rejected():
+    with pytest.raises(ValueError, match="no skeleton has 100-dim"):
+        features_to_joints(np.zeros((5, 100)))
+
+
+def test_mirroring_twice_is_identity():
+    clip = travelling_clip(np.random.default_rng(5))
+    for skeleton, data in [(SMPL_22, clip),
+                           (KIT_21, travelling_clip(np.random.default_rng(6), KIT_21))]:
+        np.testing.assert_array_equal(mirror_joints(mirror_joints(data, skeleton), skeleton), data)
+    text = "A person waves the left hand, then turns right, spinning clockwise. LEFT!"
+    assert mirror_text(mirror_text(text)) == text
+    assert mirror_text(text) == ("A person waves the right hand, then turns left, "
+                                 "spinning counterclockwise. RIGHT!")
+
+
+def test_mirrored_clip_turns_the_other_way():
+    clip = travelling_clip(np.random.default_rng(7), turn_degrees=120.0)
+    features, _ = joints_to_features(clip)
+    mirrored, _ = joints_to_features(mirror_joints(clip, SMPL_22))
+    np.testing.assert_allclose(mirrored[:, 0], -features[:, 0], atol=1e-5)
+    left_wrist, right_wrist = SMPL_22.index("left_wrist"), SMPL_22.index("right_wrist")
+    np.testing.assert_allclose(mirror_joints(clip, SMPL_22)[:, left_wrist, 0],
+                               -clip[:, right_wrist, 0])
