@@ -36,7 +36,8 @@ def _cmd_data_show(args: argparse.Namespace) -> None:
 def _cmd_data_convert(args: argparse.Namespace) -> None:
     from mogo.export.convert import convert_joint_folder
 
-    convert_joint_folder(Path(args.joints), Path(args.out), skeleton_name=args.skeleton, progress=True)
+    convert_joint_folder(Path(args.joints), Path(args.out), skeleton_name=args.skeleton,
+                         source_fps=args.fps, progress=True)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -64,6 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("--joints", required=True, help="folder of .npy joint positions")
     convert.add_argument("--out", required=True, help="output folder (HumanML3D layout)")
     convert.add_argument("--skeleton", default="humanml3d", choices=["humanml3d", "kit"])
+    convert.add_argument("--fps", type=float, default=None,
+                         help="frame rate of the source clips; resampled to the skeleton's "
+                              "(20 for humanml3d, 12.5 for kit) when given")
     convert.set_defaults(run=_cmd_data_convert)
 
     return parser
