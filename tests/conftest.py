@@ -1,0 +1,40 @@
+import numpy as np
+import pytest
+
+CLIP_FRAMES = [40 + 3 * k for k in range(12)]  # 40 .. 73 feature rows
+SPLITS = {"train": range(0, 8), "val": range(8, 10), "test": range(10, 12)}
+
+
+def caption_lines(k: int) -> list[str]:
+    """Every clip: one whole-clip caption; even clips: a 0.5-2.5 s span (rows 10..50);
+    every third clip: NaN times and no tokens (whole clip); clip 1: a 1 s span (20 rows)."""
+    lines = ["a person walks forward.#a/DET person/NOUN walk/VERB forward/ADV#0.0#0.0"]
+    if k % 2 == 0:
+        lines.append("the person waves.#the/DET person/NOUN wave/VERB#0.5#2.5")
+    if k % 3 == 0:
+        lines.append("someone jumps.##nan#nan")
+    if k == 1:
+        lines.append("a short kick.#a/DET short/ADJ kick/NOUN#0.0#1.0")
+    return lines
+
+
+@pytest.fixture
+def tiny_humanml3d(tmp_path):
+    """A 12-clip HumanML3D-layout folder of random 263-dim features (IDs 000000..000011)."""
+    root = tmp_path / "tiny"
+    (root / "new_joint_vecs").mkdir(parents=True)
+    (root / "texts").mkdir()
+    rng = np.random.default_rng(0)
+    clips = []
+    for k, frames in enumerate(CLIP_FRAMES):
+        features = rng.normal(scale=0.05, size=(frames, 263)).astype(np.float32)
+        features[:, 3] += 0.9  # root height
+        np.save(root / "new_joint_vecs" / f"{k:06d}.npy", features)
+        (root / "texts" / f"{k:06d}.txt").write_text("\n".join(caption_lines(k)) + "\n")
+        clips.append(features)
+    stacked = np.concatenate(clips)
+    np.save(root / "Mean.npy", stacked.mean(0))
+    np.save(root / "Std.npy", stacked.std(0))
+    for name, ks in SPLITS.items():
+        (root / f"{name}.txt").write_text("".join(f"{k:06d}\n" for k in ks))
+    return root
