@@ -7,7 +7,6 @@ Whole splits are held in memory, normalised, as the standard HumanML3D loaders d
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,55 +14,10 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from mogo.export.text_format import Caption, DatasetError, parse_caption_line
 from mogo.runtime.skeleton import Skeleton, skeleton_for_feature_dim
 
 SPLITS = ("train", "val", "test")
-
-
-class DatasetError(ValueError):
-    """A dataset folder that breaks the HumanML3D layout; the message names the file."""
-
-
-@dataclass(frozen=True)
-class Caption:
-    text: str
-    tokens: tuple[tuple[str, str], ...]  # (word, part of speech) pairs; may be empty
-    start_frame: int
-    end_frame: int | None  # exclusive; None: to the end of the clip
-
-
-def parse_caption_line(line: str, fps: float, where: str) -> Caption:
-    """Parse `caption#word/POS word/POS ...#start#end` (start/end in seconds).
-
-    As in the standard loaders, a NaN time counts as 0.0 and 0.0#0.0 means the whole clip;
-    otherwise the caption covers feature rows [int(start * fps), int(end * fps)).
-    `where` ("path:line") prefixes every error.
-    """
-    fields = line.rstrip("\r\n").rsplit("#", 3)
-    if len(fields) != 4 or not fields[0].strip():
-        raise DatasetError(f"{where}: expected 'caption#word/POS ...#start#end', got {line!r}")
-    text, tokens_field, start_field, end_field = fields
-    tokens = []
-    for token in tokens_field.split():
-        word, slash, pos = token.rpartition("/")
-        if not slash or not word or not pos:
-            raise DatasetError(f"{where}: token {token!r} is not word/POS")
-        tokens.append((word, pos))
-    times = []
-    for name, field in (("start", start_field), ("end", end_field)):
-        try:
-            seconds = float(field)
-        except ValueError:
-            raise DatasetError(f"{where}: {name} time {field!r} is not a number") from None
-        if math.isnan(seconds):
-            seconds = 0.0
-        if not math.isfinite(seconds) or seconds < 0:
-            raise DatasetError(f"{where}: {name} time {field!r} is not a time in seconds")
-        times.append(seconds)
-    start, end = times
-    if start == 0.0 and end == 0.0:
-        return Caption(text.strip(), tuple(tokens), 0, None)
-    return Caption(text.strip(), tuple(tokens), int(start * fps), int(end * fps))
 
 
 class HumanML3DFolder:

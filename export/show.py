@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mogo.export.text_format import parse_caption_line
 from mogo.runtime.features import features_to_joints
 from mogo.runtime.render import save_gif
 
@@ -43,7 +44,7 @@ def _first_caption(path: Path) -> str:
     """The caption text of the first line of a HumanML3D text file ("" if there is none)."""
     if not path.is_file():
         return ""
-    for line in path.read_text(encoding="utf-8").splitlines():
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
         if line.strip():
-            return line.rsplit("#", 3)[0].strip()
+            return parse_caption_line(line, fps=20.0, where=f"{path}:{number}").text
     return ""
