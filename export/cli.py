@@ -41,7 +41,8 @@ def _cmd_data_convert(args: argparse.Namespace) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mogo", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="mogo", description="MOGO: text to 3D human motion, token by token, on a CPU.")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     data = commands.add_parser("data", help="make, inspect and convert motion data")
