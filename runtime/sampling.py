@@ -1,0 +1,83 @@
+"""Token sampling, specified exactly so that every path picks the same tokens (numpy only).
+
+The torch reference generator and the CPU runtime both call `choose_token`, so given the same
+logits they pick the same token. For one level at one step, in float64:
+
+    logits -> guidance: uncond + s * (cond - uncond)    (skipped when s == 1)
+           -> forbidden class set to -inf               (the end token while a length is forced)
+           -> temperature 0: argmax (first maximum); else divide by temperature
+           -> sort descending, stable (ties: lower id first)
+           -> top-k: keep the first k                   (0 = off)
+           -> softmax: exp(z - max), cumulative sum c   (never normalised; c[-1] is the total)
+           -> top-p: keep entries whose preceding mass c - p is < top_p * c[-1]   (1 = off)
+           -> inverse CDF: the first kept entry with c > uniform * c[-1]
+
+Uniforms come from numpy.random.Generator(PCG64(seed)): at the start of every step,
+`rng.random(num_levels)`, drawn whether or not every level ends up sampled; level l uses
+entry l. A greedy run draws them too, so the stream never depends on the settings.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Sampling:
+    temperature: float = 1.0  # 0: argmax
+    top_k: int = 0  # 0: off
+    top_p: float = 1.0  # 1: off
+    guidance_scale: float = 1.0  # 1: conditional logits only (no unconditional pass)
+
+    def __post_init__(self):
+        if not self.temperature >= 0:
+            raise ValueError(f"temperature must be >= 0, got {self.temperature}")
+        if self.top_k < 0:
+            raise ValueError(f"top_k must be >= 0 (0 = off), got {self.top_k}")
+        if not 0 < self.top_p <= 1:
+            raise ValueError(f"top_p must be in (0, 1] (1 = off), got {self.top_p}")
+
+    @property
+    def guided(self) -> bool:
+        """Whether the unconditional logits are needed."""
+        return self.guidance_scale != 1.0
+
+
+def make_rng(seed: int) -> np.random.Generator:
+    return np.random.Generator(np.random.PCG64(seed))
+
+
+def step_uniforms(rng: np.random.Generator, num_levels: int) -> np.ndarray:
+    """The uniforms of one time step, (num_levels,) float64 in [0, 1)."""
+    return rng.random(num_levels)
+
+
+def choose_token(cond: np.ndarray, uncond: np.ndarray | None, uniform: float,
+                 sampling: Sampling, forbid: int | None = None) -> int:
+    """One token id from one level's logits (K,): see the module docstring for the exact rule."""
+    z = np.asarray(cond, dtype=np.float64)
+    if sampling.guided:
+        if uncond is None:
+            raise ValueError(f"guidance_scale {sampling.guidance_scale} needs unconditional logits")
+        u = np.asarray(uncond, dtype=np.float64)
+        z = u + sampling.guidance_scale * (z - u)
+    if forbid is not None:
+        z = z.copy()
+        z[forbid] = -np.inf
+    if sampling.temperature == 0:
+        return int(np.argmax(z))
+    z = z / sampling.temperature
+    order = np.argsort(-z, kind="stable")
+    z = z[order]
+    keep = int(np.count_nonzero(np.isfinite(z)))
+    if sampling.top_k:
+        keep = min(keep, sampling.top_k)
+    z = z[:keep]
+    p = np.exp(z - z[0])
+    c = np.cumsum(p)
+    if sampling.top_p < 1:
+        keep = int(np.count_nonzero(c - p < sampling.top_p * c[-1]))
+        c = c[:keep]
+    index = int(np.searchsorted(c, uniform * c[-1], side="right"))
+    return int(order[min(index, keep - 1)])
