@@ -1,0 +1,163 @@
+"""The token loop on onnxruntime: one session per level graph, a KV cache per stream.
+
+One step = every level once, coarse to fine, at the next position: position 0 is the prompt
+prefix (the first step is the prefill), position n >= 1 holds the tokens of step n - 1 and
+predicts step n. Each level's presents are fed back as its pasts on the next step, untouched;
+the cache is only copied when slots are dropped. Guidance runs a batch of two rows,
+conditional and unconditional. The rules (uniforms, end token, window) are those of the torch
+reference `mogo.export.generate_torch.generate`, so both give the same tokens.
+
+Graph names come from the exporter's dict (mogo.export.onnx_t2m, later the bundle manifest),
+by role: the first five inputs are prompt, uncond, token_ids, positions, past_positions, then
+past key/value pairs layer by layer; output 0 is the logits, then the matching presents.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from mogo.runtime.sampling import Sampling, choose_token, make_rng, step_uniforms
+from mogo.runtime._session import cpu_session
+
+Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
+
+
+class TokenGenerator:
+    """The level graphs of one model; `start` opens a stream on them (streams share sessions)."""
+
+    def __init__(self, level_paths: Sequence[str | os.PathLike], graphs: Sequence[dict],
+                 end_token: int, intra_op_threads: int = 1):
+        """graphs[l]: inputs, outputs (names in protocol order), heads, head_dim of level l."""
+        if len(level_paths) != len(graphs):
+            raise ValueError(f"{len(level_paths)} graph files for {len(graphs)} graph entries")
+        self.sessions = [cpu_session(path, intra_op_threads) for path in level_paths]
+        for level, (session, graph) in enumerate(zip(self.sessions, graphs)):
+            names = ([i.name for i in session.get_inputs()],
+                     [o.name for o in session.get_outputs()])
+            if names != (list(graph["inputs"]), list(graph["outputs"])):
+                raise ValueError(f"level {level}: the graph has inputs and outputs {names}, "
+                                 f"the manifest says {graph['inputs']}, {graph['outputs']}")
+        self.graphs = list(graphs)
+        self.end_token = end_token
+        self.num_levels = len(graphs)
+
+    def start(self, prompt_embedding: np.ndarray, seed: int = 0,
+              sampling: Sampling = Sampling(), window: int | None = None,
+              allow_end: bool = True) -> TokenStream:
+        """A new stream; see `TokenStream`."""
+        return TokenStream(self, prompt_embedding, seed, sampling, window, allow_end)
+
+    def generate(self, prompt_embedding: np.ndarray, num_frames: int | None = None,
+                 max_frames: int = 196, sampling: Sampling = Sampling(), seed: int = 0,
+                 window: int | None = None) -> np.ndarray:
+        """prompt_embedding (text_dim,) -> token ids (T, L) int64. num_frames given: exactly that
+        many steps, the end token masked. None: until level 0 draws the end token or max_frames."""
+        stream = self.start(prompt_embedding, seed, sampling, window, num_frames is None)
+        rows = []
+        while len(rows) < (max_frames if num_frames is None else num_frames):
+            row = stream.step()
+            if row is None:
+                break
+            rows.append(row)
+        return np.array(rows, dtype=np.int64).reshape(-1, self.num_levels)
+
+    def run(self, level: int, prompt: np.ndarray, uncond: np.ndarray, token_ids: np.ndarray,
+            positions: np.ndarray, past_positions: np.ndarray,
+            past: Cache) -> tuple[np.ndarray, Cache]:
+        """One call of a level graph -> logits of the last position (batch, K[+1]), presents."""
+        graph = self.graphs[level]
+        feed = dict(zip(graph["inputs"], [prompt, uncond, token_ids, positions, past_positions,
+                                          *past]))
+        logits, *presents = self.sessions[level].run(graph["outputs"], feed)
+        return logits, presents
+
+    def empty_cache(self, level: int, batch: int) -> Cache:
+        """The past of a prefill: every layer's key and value with no slots."""
+        graph = self.graphs[level]
+        empty = np.zeros((batch, graph["heads"], 0, graph["head_dim"]), np.float32)
+        return [empty] * (2 * graph["num_layers"])
+
+
+class TokenStream:
+    """One generation: its prompt, sampler state and cache. `step()` until it returns None.
+
+    The cache holds slots at `positions` (absolute, shared by all levels), the prefix at slot 0.
+    With `window` W, once it holds more than the prefix and W steps the oldest step slots are
+    dropped, so memory and step time stay constant; distances to the kept slots stay exact.
+    allow_end=False forces the length (the caller stops): level 0 never draws the end token,
+    which it otherwise may from the second step on.
+    """
+
+    def __init__(self, generator: TokenGenerator, prompt_embedding: np.ndarray, seed: int,
+                 sampling: Sampling, window: int | None, allow_end: bool):
+        if window is not None and window < 1:
+            raise ValueError(f"window must be >= 1 steps, got {window}")
+        self.generator, self.sampling = generator, sampling
+        self.window, self.allow_end = window, allow_end
+        self.rng = make_rng(seed)
+        self.uncond = np.array([False, True][:2 if sampling.guided else 1])
+        self.prompt = self._batch(prompt_embedding)
+        L = generator.num_levels
+        self.caches = [generator.empty_cache(level, len(self.uncond)) for level in range(L)]
+        self.positions = np.zeros(0, np.int64)  # (P,) position of every cache slot
+        self.slot_tokens = np.zeros((0, L), np.int64)  # (P, L) the tokens each slot holds
+        self.last = np.zeros(L, np.int64)  # tokens of the latest step (none yet: any valid id)
+        self.steps = 0  # steps drawn
+        self.ended = False
+
+    def step(self) -> np.ndarray | None:
+        """The tokens (L,) of the next step, or None once level 0 has drawn the end token.
+        The first step is the prefill: the prompt prefix at position 0 predicts step 0."""
+        if self.ended:
+            return None
+        g, n = self.generator, self.steps
+        uniforms = step_uniforms(self.rng, g.num_levels)
+        token_ids = np.repeat(self.last[None, None], len(self.uncond), axis=0)  # (B, 1, L)
+        position = np.array([n], np.int64)
+        end_allowed = self.allow_end and n > 0
+        row, caches = np.zeros(g.num_levels, np.int64), []
+        for level in range(g.num_levels):
+            logits, present = g.run(level, self.prompt, self.uncond, token_ids, position,
+                                    self.positions, self.caches[level])
+            forbid = None if level > 0 or end_allowed else g.end_token
+            token = choose_token(logits[0], logits[1] if self.sampling.guided else None,
+                                 uniforms[level], self.sampling, forbid)
+            if token == g.end_token:
+                self.ended = True
+                return None
+            row[level] = token
+            caches.append(present)
+        self.caches = caches
+        self.positions = np.append(self.positions, n)
+        self.slot_tokens = np.concatenate([self.slot_tokens, self.last[None]])
+        self.last, self.steps = row, n + 1
+        if self.window is not None and len(self.positions) > 1 + self.window:
+            self._keep(np.r_[0, len(self.positions) - self.window:len(self.positions)])
+        return row
+
+    def set_prompt(self, prompt_embedding: np.ndarray) -> None:
+        """Condition the following steps on a new prompt: one prefill of every cache slot, the
+        prefix under the new prompt and the kept steps with their tokens, so the model then sees
+        exactly what it would if the stream had been those steps under that prompt."""
+        g = self.generator
+        self.prompt = self._batch(prompt_embedding)
+        if not len(self.positions):  # before the first step: nothing cached yet
+            return
+        token_ids = np.repeat(self.slot_tokens[None], len(self.uncond), axis=0)
+        none = np.zeros(0, np.int64)
+        self.caches = [g.run(level, self.prompt, self.uncond, token_ids, self.positions, none,
+                             g.empty_cache(level, len(self.uncond)))[1]
+                       for level in range(g.num_levels)]
+
+    def _keep(self, slots: np.ndarray) -> None:
+        """Keep only these cache slots (copies every cache tensor)."""
+        self.positions = self.positions[slots]
+        self.slot_tokens = self.slot_tokens[slots]
+        self.caches = [[np.take(t, slots, axis=2) for t in cache] for cache in self.caches]
+
+    def _batch(self, prompt_embedding: np.ndarray) -> np.ndarray:
+        """(text_dim,) -> (B, text_dim) float32, one row per guidance branch."""
+        prompt = np.asarray(prompt_embedding, np.float32).reshape(1, -1)
+        return np.repeat(prompt, len(self.uncond), axis=0)
