@@ -1,0 +1,189 @@
+"""What every training run shares: the process group, seeds, batches, the learning-rate
+schedule, checkpoints and the JSONL metrics log.
+
+One code path serves a single process and `torchrun --nproc_per_node N`: torchrun sets
+RANK / WORLD_SIZE / LOCAL_RANK, and then each process joins the group (gloo on CPU, nccl on
+CUDA), sees its own shard of every epoch, and only rank 0 writes files.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import nn
+from torch.utils.data import DataLoader, Dataset, DistributedSampler
+
+CHECKPOINT_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class Process:
+    rank: int
+    world_size: int
+    device: torch.device
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    @property
+    def distributed(self) -> bool:
+        return self.world_size > 1
+
+
+def start_process(device: str = "auto") -> Process:
+    """This process's place in the run; joins the process group when launched by torchrun."""
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError("--device cuda was asked for, but torch sees no CUDA device")
+    if device not in ("cpu", "cuda") and not device.startswith("cuda:"):
+        raise ValueError(f"unknown device {device!r}; use auto, cpu or cuda")
+    world_size = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    if world_size > 1:
+        if device.startswith("cuda"):
+            local_rank = int(os.environ.get("LOCAL_RANK", "0"))
+            torch.cuda.set_device(local_rank)
+            device = f"cuda:{local_rank}"
+        dist.init_process_group("nccl" if device.startswith("cuda") else "gloo")
+    return Process(rank, world_size, torch.device(device))
+
+
+def end_process(process: Process) -> None:
+    if process.distributed and dist.is_initialized():
+        dist.destroy_process_group()
+
+
+def seed_everything(seed: int) -> None:
+    """The same seed on every rank: identical initial weights without a broadcast."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def wrap_model(model: nn.Module, process: Process) -> nn.Module:
+    """DistributedDataParallel when there are several processes, the model itself otherwise."""
+    model.to(process.device)
+    if not process.distributed:
+        return model
+    device_ids = [process.device.index] if process.device.type == "cuda" else None
+    return nn.parallel.DistributedDataParallel(model, device_ids=device_ids)
+
+
+def unwrap_model(model: nn.Module) -> nn.Module:
+    return model.module if isinstance(model, nn.parallel.DistributedDataParallel) else model
+
+
+def batches(dataset: Dataset, batch_size: int, process: Process, seed: int,
+            collate_fn: Callable | None = None, start_epoch: int = 0) -> Iterator:
+    """Endless shuffled batches, this rank's shard of each epoch. The order depends only on
+    (seed, epoch), so a resumed run sees the batches it would have seen."""
+    if len(dataset) < batch_size * process.world_size:
+        raise ValueError(f"the training split has {len(dataset)} items, fewer than one batch "
+                         f"of {batch_size} per process ({process.world_size} processes)")
+    sampler = DistributedSampler(dataset, num_replicas=process.world_size, rank=process.rank,
+                                 shuffle=True, seed=seed, drop_last=True)
+    loader = DataLoader(dataset, batch_size=batch_size, sampler=sampler, drop_last=True,
+                        collate_fn=collate_fn)
+    epoch = start_epoch
+    while True:
+        sampler.set_epoch(epoch)
+        if hasattr(dataset, "set_epoch"):
+            dataset.set_epoch(epoch)
+        yield from loader
+        epoch += 1
+
+
+def steps_per_epoch(dataset: Dataset, batch_size: int, process: Process) -> int:
+    return len(dataset) // process.world_size // batch_size
+
+
+def warmup_cosine(step: int, warmup: int, total: int, peak: float, final: float) -> float:
+    """Linear warm-up to `peak` over `warmup` steps, then cosine decay to `final` at `total`."""
+    if step < warmup:
+        return peak * (step + 1) / warmup
+    progress = min(1.0, (step - warmup) / max(1, total - warmup))
+    return final + 0.5 * (peak - final) * (1 + math.cos(math.pi * progress))
+
+
+def set_learning_rate(optimizer: torch.optim.Optimizer, lr: float) -> None:
+    for group in optimizer.param_groups:
+        group["lr"] = lr
+
+
+def save_checkpoint(path: Path, model: nn.Module, optimizer: torch.optim.Optimizer | None,
+                    step: int, config: dict, **extra) -> None:
+    """Tensors, numbers, strings and containers only, so `load_checkpoint` can refuse anything
+    else (weights_only=True). Written to a temporary file and renamed: a run killed mid-save
+    keeps its previous checkpoint."""
+    state = dict(format=CHECKPOINT_FORMAT, step=step, config=config,
+                 model=unwrap_model(model).state_dict(),
+                 optimizer=optimizer.state_dict() if optimizer is not None else None,
+                 torch_rng=torch.get_rng_state(), **extra)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + ".partial")
+    torch.save(state, partial)
+    os.replace(partial, path)
+
+
+def load_checkpoint(path: Path) -> dict:
+    """A checkpoint written by `save_checkpoint`, loaded without running any pickled code."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint at {path}")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises several types for truncated or foreign files
+        raise ValueError(f"{path}: not a readable mogo checkpoint ({error})") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not a mogo checkpoint of format {CHECKPOINT_FORMAT}")
+    return state
+
+
+class MetricsLog:
+    """One JSON object per line in RUN/metrics.jsonl (rank 0 only); appends, so a resumed run
+    continues the same log."""
+
+    def __init__(self, path: Path, enabled: bool = True):
+        self.path = Path(path)
+        self.enabled = enabled
+        self.start = time.perf_counter()
+        if enabled:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+
+    def write(self, kind: str, step: int, **values: float) -> None:
+        if not self.enabled:
+            return
+        record = dict(kind=kind, step=step, seconds=round(time.perf_counter() - self.start, 3),
+                      **{k: _plain(v) for k, v in values.items()})
+        with self.path.open("a") as log:
+            log.write(json.dumps(record) + "\n")
+
+
+def all_reduce_mean(values: dict[str, float], process: Process) -> dict[str, float]:
+    """The mean of each value over all ranks (for logging losses and validation metrics)."""
+    if not process.distributed:
+        return values
+    names = sorted(values)
+    tensor = torch.tensor([float(values[n]) for n in names], dtype=torch.float64,
+                          device=process.device)
+    dist.all_reduce(tensor)
+    return {n: float(v) / process.world_size for n, v in zip(names, tensor.tolist())}
+
+
+def _plain(value):
+    if isinstance(value, torch.Tensor):
+        return value.item() if value.numel() == 1 else value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value
