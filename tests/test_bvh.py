@@ -1,0 +1,82 @@
+import numpy as np
+import pytest
+
+from mogo.runtime.bvh import read_bvh, save_bvh
+from mogo.runtime.quaternion import qfrom_axis_angle, qmul, qrot, qyaw
+from mogo.runtime.skeleton import SMPL_22
+
+FRAMES = 120
+
+
+def _random_clip(seed: int, swing_degrees: float, jitter_m: float = 0.0) -> np.ndarray:
+    """Forward kinematics of smooth random local rotations up to `swing_degrees` per joint,
+    with a root that turns two full circles (so it faces backwards twice) while travelling."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 1.0, FRAMES)[:, None]
+    axes = rng.normal(size=(22, 3))
+    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+    phases, speeds = rng.uniform(0, 2 * np.pi, 22), rng.uniform(1, 4, 22)
+    angles = np.radians(swing_degrees) * np.sin(2 * np.pi * speeds * t + phases)  # (T, J)
+    local = qfrom_axis_angle(axes[None], angles)  # (T, J, 4)
+    local[:, 0] = qmul(qyaw(4 * np.pi * t[:, 0]), local[:, 0])
+    offsets = SMPL_22.rest_offsets[None] + jitter_m * rng.normal(size=(FRAMES, 22, 3))
+    world = np.zeros((FRAMES, 22, 4))
+    joints = np.zeros((FRAMES, 22, 3))
+    world[:, 0] = local[:, 0]
+    joints[:, 0] = np.stack([np.sin(3 * t[:, 0]), 0.9 + 0.05 * t[:, 0], 2 * t[:, 0]], -1)
+    for j in range(1, 22):
+        p = SMPL_22.parents[j]
+        joints[:, j] = joints[:, p] + qrot(world[:, p], offsets[:, j])
+        world[:, j] = qmul(world[:, p], local[:, j])
+    return joints
+
+
+def _round_trip(tmp_path, joints: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    path = tmp_path / "clip.bvh"
+    save_bvh(path, joints, SMPL_22, fps=20.0, scale=scale)
+    clip = read_bvh(path)
+    assert clip.fps == pytest.approx(20.0) and clip.positions.shape == joints.shape
+    order = [SMPL_22.joint_names.index(name) for name in clip.names]
+    back = np.empty_like(joints)
+    back[:, order] = clip.positions / scale
+    return back
+
+
+@pytest.mark.parametrize("swing", [30.0, 100.0])
+def test_rigid_clips_come_back_exactly_whatever_the_facing(tmp_path, swing):
+    joints = _random_clip(seed=int(swing), swing_degrees=swing)
+    np.testing.assert_allclose(_round_trip(tmp_path, joints), joints, atol=1e-5)
+
+
+def test_bone_length_jitter_stays_within_a_centimetre(tmp_path):
+    joints = _random_clip(seed=1, swing_degrees=60.0, jitter_m=0.001)
+    error = np.linalg.norm(_round_trip(tmp_path, joints, scale=100.0) - joints, axis=-1)
+    assert error.max() < 0.01
+
+
+def test_file_is_a_well_formed_hierarchy(tmp_path):
+    path = tmp_path / "clip.bvh"
+    save_bvh(path, _random_clip(seed=2, swing_degrees=20.0), SMPL_22, fps=20.0)
+    text = path.read_text()
+    assert text.startswith("HIERARCHY\nROOT pelvis\n")
+    assert text.count("{") == text.count("}")
+    assert text.count("JOINT ") == 21 and text.count("End Site") == 5
+    assert f"Frames: {FRAMES}\nFrame Time: 0.05000000\n" in text
+    motion = text.split("Frame Time: 0.05000000\n")[1].splitlines()
+    assert len(motion) == FRAMES and all(len(line.split()) == 6 + 3 * 21 for line in motion)
+
+
+def test_bad_input_is_refused(tmp_path):
+    joints = _random_clip(seed=3, swing_degrees=20.0)
+    with pytest.raises(ValueError, match="must be"):
+        save_bvh(tmp_path / "a.bvh", joints[:, :21], SMPL_22, fps=20.0)
+    broken = joints.copy()
+    broken[5, 3] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        save_bvh(tmp_path / "a.bvh", broken, SMPL_22, fps=20.0)
+    with pytest.raises(ValueError, match="fps"):
+        save_bvh(tmp_path / "a.bvh", joints, SMPL_22, fps=0.0)
+    assert not (tmp_path / "a.bvh").exists()
+    (tmp_path / "b.bvh").write_text("not a bvh")
+    with pytest.raises(ValueError, match="not a BVH"):
+        read_bvh(tmp_path / "b.bvh")
