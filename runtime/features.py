@@ -27,33 +27,73 @@ FACING_SMOOTHING_FRAMES = 20.0  # Gaussian sigma on the facing direction, as in 
 def features_to_joints(features: np.ndarray, skeleton: Skeleton | None = None) -> np.ndarray:
     """Recover joint positions (..., T, J, 3) from features (..., T, D)."""
     features = np.asarray(features)
+    skeleton = _checked_skeleton(features, skeleton)
+    f = features.astype(np.float64)
+    zeros = np.zeros(f.shape[:-2])
+    joints = _joints(f, skeleton, zeros, np.zeros(f.shape[:-2] + (2,)))
+    return joints.astype(features.dtype if features.dtype.kind == "f" else np.float32)
+
+
+class JointStream:
+    """`features_to_joints` for features that arrive in pieces: pushing a clip's rows in any
+    chunks gives the joints of one call on the whole clip. The root's yaw and XZ position are
+    carried from chunk to chunk, so a stream can run forever."""
+
+    def __init__(self, skeleton: Skeleton = SMPL_22):
+        self.skeleton = skeleton
+        self.half_angle = 0.0  # root yaw (half-angle) at the next frame
+        self.xz = np.zeros(2)  # root XZ at the next frame
+
+    def push(self, features: np.ndarray) -> np.ndarray:
+        """features (n, D) -> joints (n, J, 3) float32."""
+        f = np.asarray(features, dtype=np.float64)
+        _checked_skeleton(f, self.skeleton)
+        if len(f) == 0:
+            return np.zeros((0, self.skeleton.num_joints, 3), np.float32)
+        joints = _joints(f, self.skeleton, np.float64(self.half_angle), self.xz)
+        self.half_angle += f[:, 0].sum()
+        step = qrot(qinv(qyaw(2 * self.half_angle)), np.array([f[-1, 1], 0.0, f[-1, 2]]))
+        self.xz = joints[-1, 0, [0, 2]] + step[[0, 2]]
+        return joints.astype(np.float32)
+
+
+def _checked_skeleton(features: np.ndarray, skeleton: Skeleton | None) -> Skeleton:
     if features.ndim < 2:
         raise ValueError(f"features must be (..., T, D), got shape {features.shape}")
     skeleton = skeleton or skeleton_for_feature_dim(features.shape[-1])
     if features.shape[-1] != skeleton.feature_dim:
         raise ValueError(f"features have {features.shape[-1]} dims, the {skeleton.name} "
                          f"skeleton needs {skeleton.feature_dim}")
-    f = features.astype(np.float64)
-    root_quat, root_pos = _recover_root(f)
+    return skeleton
+
+
+def _joints(f: np.ndarray, skeleton: Skeleton, start_half_angle: np.ndarray,
+            start_xz: np.ndarray) -> np.ndarray:
+    """Joints (..., T, J, 3) float64 of features f (..., T, D), the root starting at the given
+    yaw half-angle (...,) and XZ position (..., 2)."""
+    root_quat, root_pos = _recover_root(f, start_half_angle, start_xz)
     num_rel = skeleton.num_joints - 1
     relative = f[..., 4:4 + 3 * num_rel].reshape(f.shape[:-1] + (num_rel, 3))
     relative = qrot(qinv(root_quat)[..., None, :], relative)
     relative[..., 0] += root_pos[..., None, 0]
     relative[..., 2] += root_pos[..., None, 2]
-    joints = np.concatenate([root_pos[..., None, :], relative], axis=-2)
-    return joints.astype(features.dtype if features.dtype.kind == "f" else np.float32)
+    return np.concatenate([root_pos[..., None, :], relative], axis=-2)
 
 
-def _recover_root(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _recover_root(f: np.ndarray, start_half_angle: np.ndarray,
+                  start_xz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Root rotation quaternions (..., T, 4) and positions (..., T, 3) from features."""
     half_angle = np.zeros_like(f[..., 0])
     half_angle[..., 1:] = np.cumsum(f[..., :-1, 0], axis=-1)
+    half_angle += np.asarray(start_half_angle)[..., None]
     zeros = np.zeros_like(half_angle)
     root_quat = np.stack([np.cos(half_angle), zeros, np.sin(half_angle), zeros], axis=-1)
     velocity = np.zeros(f.shape[:-1] + (3,))
     velocity[..., 1:, 0] = f[..., :-1, 1]
     velocity[..., 1:, 2] = f[..., :-1, 2]
     root_pos = np.cumsum(qrot(qinv(root_quat), velocity), axis=-2)
+    root_pos[..., 0] += np.asarray(start_xz)[..., None, 0]
+    root_pos[..., 2] += np.asarray(start_xz)[..., None, 1]
     root_pos[..., 1] = f[..., 3]
     return root_quat, root_pos
 

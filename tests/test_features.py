@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from mogo.runtime.features import (canonicalize, facing_directions, features_to_joints,
-                                   joints_to_features)
+from mogo.runtime.features import (JointStream, canonicalize, facing_directions,
+                                   features_to_joints, joints_to_features)
 from mogo.runtime.mirror import mirror_joints, mirror_text
 from mogo.runtime.quaternion import qrot, qyaw
 from mogo.runtime.skeleton import KIT_21, SMPL_22
@@ -124,3 +124,14 @@ def test_mirrored_clip_turns_the_other_way():
     left_wrist, right_wrist = SMPL_22.index("left_wrist"), SMPL_22.index("right_wrist")
     np.testing.assert_allclose(mirror_joints(clip, SMPL_22)[:, left_wrist, 0],
                                -clip[:, right_wrist, 0])
+
+
+def test_joint_stream_equals_one_recovery_whatever_the_chunks():
+    rng = np.random.default_rng(7)
+    features, _ = joints_to_features(travelling_clip(rng, turn_degrees=400.0), SMPL_22)
+    whole = features_to_joints(features)
+    stream = JointStream(SMPL_22)
+    cuts = np.sort(rng.choice(np.arange(1, len(features)), size=9, replace=False))
+    pieces = [stream.push(chunk) for chunk in np.split(features, cuts)]
+    assert stream.push(features[:0]).shape == (0, 22, 3)
+    np.testing.assert_allclose(np.concatenate(pieces), whole, atol=1e-5)
