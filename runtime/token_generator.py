@@ -141,10 +141,29 @@ class TokenStream:
         """Condition the following steps on a new prompt: one prefill of every cache slot, the
         prefix under the new prompt and the kept steps with their tokens, so the model then sees
         exactly what it would if the stream had been those steps under that prompt."""
-        g = self.generator
         self.prompt = self._batch(prompt_embedding)
-        if not len(self.positions):  # before the first step: nothing cached yet
-            return
+        if len(self.positions):  # before the first step there is nothing cached yet
+            self._prefill()
+
+    def continue_from(self, tokens: np.ndarray) -> None:
+        """Take `tokens` (n, L) as the steps drawn so far (a clip to continue), in place of
+        anything drawn before: the next step is step n, seeing them as its past."""
+        tokens = np.asarray(tokens, np.int64)
+        L = self.generator.num_levels
+        if tokens.ndim != 2 or tokens.shape[1] != L or len(tokens) == 0:
+            raise ValueError(f"tokens to continue from must be (n >= 1, {L}), got {tokens.shape}")
+        n = len(tokens)
+        self.positions = np.arange(n, dtype=np.int64)
+        self.slot_tokens = np.concatenate([np.zeros((1, L), np.int64), tokens[:-1]])
+        self.last, self.steps, self.ended = tokens[-1], n, False
+        if self.window is not None and n > 1 + self.window:
+            keep = np.r_[0, n - self.window:n]
+            self.positions, self.slot_tokens = self.positions[keep], self.slot_tokens[keep]
+        self._prefill()
+
+    def _prefill(self) -> None:
+        """Recompute every level's cache for the held slots under the current prompt."""
+        g = self.generator
         token_ids = np.repeat(self.slot_tokens[None], len(self.uncond), axis=0)
         none = np.zeros(0, np.int64)
         self.caches = [g.run(level, self.prompt, self.uncond, token_ids, self.positions, none,

@@ -234,3 +234,23 @@ def test_text_encoder_graph_matches_torch(tmp_path):
         with torch.no_grad():
             expected = encoder.encode(ids, mask).numpy()
         np.testing.assert_allclose(embedding, expected, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("window", [None, 4])
+def test_continue_from_takes_a_clip_as_the_past(model, generator, window):
+    prompt = prompts(model.config, 1, seed=10)[0]
+    sampling = Sampling(**SAMPLED)
+    clip = np.random.default_rng(11).integers(0, model.config.codebook_size, (8, 3))
+    stream = generator.start(prompt.numpy(), seed=12, sampling=sampling, window=window,
+                             allow_end=False)
+    stream.continue_from(clip)
+    for _ in range(len(clip)):  # the recomputation below draws after len(clip) steps' uniforms
+        step_uniforms(stream.rng, model.config.num_levels)
+    rows = np.array([stream.step() for _ in range(10)])
+    if window is None:
+        np.testing.assert_array_equal(
+            rows, recomputed_continuation(model, prompt, clip, 18, sampling, seed=12)[8:])
+    else:
+        np.testing.assert_array_equal(stream.positions, [0, 14, 15, 16, 17])
+    with pytest.raises(ValueError, match="continue from"):
+        stream.continue_from(clip[:, :2])
