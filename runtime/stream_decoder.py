@@ -1,0 +1,126 @@
+"""Streaming VQ decoding: token ids go in as they are generated, motion features come out as
+soon as each frame's receptive field is complete.
+
+The VQ decoder is a stack of convolutions, so the frames of token t depend only on tokens
+[t - left_context, t + lookahead]. Decoding a window of tokens gives exactly the offline
+frames wherever that range lies inside the window, or the window edge is the sequence edge
+(both then see the same zero padding): padding at an inner window edge only disturbs frames
+within reach of it. So each push decodes one window (left context, new frames, lookahead) and
+then forgets every token no later frame can reach: the cost per frame and the memory stay
+constant however long the stream runs.
+
+Contexts are counted in tokens. With temporal downsampling a token decodes to several frames;
+that factor is read off each decode (output length / input length), so any factor works.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import onnxruntime as ort
+
+from mogo.runtime._session import cpu_session
+
+
+class StreamingDecoder:
+    """Decodes a growing stream of token ids (n, L) into normalised features (frames, D).
+
+    `left_context` and `lookahead` are the decoder's receptive field in tokens (from
+    mogo.export.onnx_vq.decoder_context, stored in the bundle manifest); the default names
+    are those mogo.export.onnx_vq writes. A session passed in is used as it is.
+    """
+
+    def __init__(self, session_or_path: ort.InferenceSession | str | os.PathLike,
+                 left_context: int, lookahead: int, codebook_size: int, *,
+                 ids_name: str = "ids", features_name: str = "features",
+                 intra_op_threads: int = 1):
+        if isinstance(session_or_path, ort.InferenceSession):
+            self.session = session_or_path
+        else:
+            self.session = cpu_session(session_or_path, intra_op_threads)
+        if min(left_context, lookahead) < 0 or codebook_size < 1:
+            raise ValueError(f"need left_context, lookahead >= 0 and codebook_size >= 1, got "
+                             f"{left_context}, {lookahead}, {codebook_size}")
+        self.left_context, self.lookahead = left_context, lookahead
+        self.codebook_size = codebook_size
+        self.ids_name, self.features_name = ids_name, features_name
+        self.levels = _static_last_dim(self.session.get_inputs(), ids_name)
+        self.feature_dim = _static_last_dim(self.session.get_outputs(), features_name)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream and start a new one."""
+        self._tokens = np.zeros((0, self.levels), np.int64)
+        self._start = 0  # stream index of self._tokens[0]
+        self.pushed = 0  # tokens pushed so far
+        self.emitted = 0  # tokens whose frames were returned
+
+    @property
+    def buffered_tokens(self) -> int:
+        """Tokens held between calls: at most left_context + lookahead."""
+        return len(self._tokens)
+
+    def push(self, ids: np.ndarray) -> np.ndarray:
+        """Append ids (n, L); return the frames (frames, D) that became final, maybe none."""
+        ids = self._checked(ids)
+        self._tokens = np.concatenate([self._tokens, ids])
+        self.pushed += len(ids)
+        return self._emit(self.pushed - self.lookahead)
+
+    def flush(self) -> np.ndarray:
+        """End the stream: return its remaining frames, decoded with the end padding an offline
+        decode sees, and get ready for a new stream."""
+        frames = self._emit(self.pushed)
+        self.reset()
+        return frames
+
+    def decode_offline(self, ids: np.ndarray) -> np.ndarray:
+        """Decode a whole sequence of ids (n, L) in one go."""
+        return self._decode(self._checked(ids))
+
+    def _emit(self, ready: int) -> np.ndarray:
+        """Return the frames of tokens [emitted, ready) and drop the tokens no later frame
+        needs. The buffer always starts at the first emitted token's left context, so it is
+        exactly the window to decode."""
+        if ready <= self.emitted:
+            return np.zeros((0, self.feature_dim), np.float32)
+        features = self._decode(self._tokens)
+        frames_per_token = len(features) // len(self._tokens)
+        first = (self.emitted - self._start) * frames_per_token
+        frames = features[first:first + (ready - self.emitted) * frames_per_token]
+        self.emitted = ready
+        keep_from = max(0, ready - self.left_context)
+        self._tokens = self._tokens[keep_from - self._start:]
+        self._start = keep_from
+        return frames
+
+    def _decode(self, ids: np.ndarray) -> np.ndarray:
+        if len(ids) == 0:
+            return np.zeros((0, self.feature_dim), np.float32)
+        (features,) = self.session.run([self.features_name], {self.ids_name: ids[None]})
+        if features.shape[1] % len(ids):
+            raise ValueError(f"the decoder made {features.shape[1]} frames from {len(ids)} "
+                             "tokens, not a whole number per token")
+        return features[0]
+
+    def _checked(self, ids: np.ndarray) -> np.ndarray:
+        ids = np.asarray(ids)
+        if not np.issubdtype(ids.dtype, np.integer):
+            raise ValueError(f"token ids must be integers, got dtype {ids.dtype}")
+        if ids.ndim != 2 or ids.shape[1] != self.levels:
+            raise ValueError(f"token ids must be (n, {self.levels}), got shape {ids.shape}")
+        if ids.size and (ids.min() < 0 or ids.max() >= self.codebook_size):
+            raise ValueError(f"token ids must lie in [0, {self.codebook_size}), got "
+                             f"[{ids.min()}, {ids.max()}]")
+        return ids.astype(np.int64)
+
+
+def _static_last_dim(args: list[ort.NodeArg], name: str) -> int:
+    """The fixed size of the last axis of the graph input or output `name`."""
+    shapes = {arg.name: arg.shape for arg in args}
+    if name not in shapes:
+        raise ValueError(f"the decoder graph has no {name!r}; it has {sorted(shapes)}")
+    size = shapes[name][-1]
+    if not isinstance(size, int):
+        raise ValueError(f"the last axis of {name!r} must have a fixed size, got {size!r}")
+    return size
