@@ -32,14 +32,15 @@ KV = tuple[Tensor, Tensor]  # key, value: (B, H, P, head_dim) each
 @dataclass
 class T2MConfig:
     """Defaults are `cpu_default()`: width 256, depth 13 (coarse levels deepest), ~12M
-    parameters, a few ms a step on one CPU core and trainable on a CPU."""
+    parameters, a few ms a step on one CPU core and trainable on a CPU; a 128-d prompt
+    embedding, ample for the procedural corpus's vocabulary and small in a bundle."""
     num_levels: int = 6  # L
     codebook_size: int = 512  # K; level 0 has one more class, the end token (id K)
     dim: int = 256  # D, every level block
     layers: list[int] = field(default_factory=lambda: [4, 3, 2, 2, 1, 1])  # per level
     heads: list[int] = field(default_factory=lambda: [4, 4, 4, 4, 4, 4])  # per level
     head_dim: int = 64  # inner attention width = heads * head_dim (need not equal D)
-    text_dim: int = 256  # size of the prompt embedding the text encoder gives
+    text_dim: int = 128  # size of the prompt embedding the text encoder gives
     max_relative_distance: int = 64  # R: distances >= R share one learned embedding
     dropout: float = 0.1
     cond_drop_prob: float = 0.1  # training: prompt replaced by the null embedding (for CFG)

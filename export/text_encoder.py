@@ -11,14 +11,14 @@ the ids with `Tokenizer.from_file` alone.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import torch
 from torch import Tensor, nn
-from tokenizers import (Tokenizer, decoders, models, normalizers, pre_tokenizers, processors,
-                        trainers)
+from tokenizers import Tokenizer, decoders, models, normalizers, pre_tokenizers, processors
 
 SPECIAL_TOKENS = ("[PAD]", "[UNK]", "[CLS]")  # ids 0, 1, 2
 PAD_ID = 0
@@ -27,16 +27,31 @@ PAD_ID = 0
 def train_tokenizer(captions: Iterable[str], vocab_size: int, max_length: int = 64) -> Tokenizer:
     """WordPiece on NFKD-normalised, accent-stripped, lowercased text split at whitespace and
     punctuation. An encoding is "[CLS] caption" truncated to `max_length` ids; a batch is
-    padded with [PAD] to its longest."""
+    padded with [PAD] to its longest.
+
+    The vocabulary is built here rather than by the `tokenizers` trainer, whose choice among
+    equally frequent merges changes from run to run: every character seen (alone and as a
+    "##" continuation, so any word made of them still encodes), then whole words by falling
+    frequency (ties alphabetical) up to `vocab_size`. The same captions always give the same
+    tokenizer."""
     tokenizer = Tokenizer(models.WordPiece(unk_token="[UNK]"))
     tokenizer.normalizer = normalizers.Sequence(
         [normalizers.NFKD(), normalizers.StripAccents(), normalizers.Lowercase()])
     tokenizer.pre_tokenizer = pre_tokenizers.Whitespace()
+    words = Counter(word for caption in captions
+                    for word, _ in tokenizer.pre_tokenizer.pre_tokenize_str(
+                        tokenizer.normalizer.normalize_str(caption)))
+    characters = sorted({c for word in words for c in word})
+    vocab = list(SPECIAL_TOKENS) + characters + [f"##{c}" for c in characters]
+    known = set(vocab)
+    ranked = sorted((w for w in words if w not in known), key=lambda w: (-words[w], w))
+    vocab += ranked[:max(0, vocab_size - len(vocab))]
+    tokenizer.model = models.WordPiece({token: i for i, token in enumerate(vocab)},
+                                       unk_token="[UNK]")
+    tokenizer.add_special_tokens(list(SPECIAL_TOKENS))  # already ids 0-2; marks them special
     tokenizer.decoder = decoders.WordPiece()
-    trainer = trainers.WordPieceTrainer(vocab_size=vocab_size, special_tokens=list(SPECIAL_TOKENS))
-    tokenizer.train_from_iterator(captions, trainer)
     tokenizer.post_processor = processors.TemplateProcessing(
-        single="[CLS] $A", special_tokens=[("[CLS]", tokenizer.token_to_id("[CLS]"))])
+        single="[CLS] $A", special_tokens=[("[CLS]", vocab.index("[CLS]"))])
     tokenizer.enable_truncation(max_length)
     tokenizer.enable_padding(pad_id=PAD_ID, pad_token="[PAD]")
     return tokenizer

@@ -56,6 +56,9 @@ def start_process(device: str = "auto") -> Process:
             torch.cuda.set_device(local_rank)
             device = f"cuda:{local_rank}"
         dist.init_process_group("nccl" if device.startswith("cuda") else "gloo")
+    if device.startswith("cuda"):
+        torch.backends.cuda.matmul.allow_tf32 = True  # fp32 weights, TF32 matrix products
+        torch.backends.cudnn.allow_tf32 = True
     return Process(rank, world_size, torch.device(device))
 
 
@@ -168,6 +171,59 @@ class MetricsLog:
                       **{k: _plain(v) for k, v in values.items()})
         with self.path.open("a") as log:
             log.write(json.dumps(record) + "\n")
+
+
+def previous_run(out: Path, resume: bool) -> dict | None:
+    """The state of the run in `out` to resume, or None for a new run (which `out` must not
+    already hold)."""
+    checkpoint = Path(out) / "checkpoint.pt"
+    if resume:
+        if not checkpoint.is_file():
+            raise FileNotFoundError(f"--resume: no checkpoint at {checkpoint}")
+        return load_checkpoint(checkpoint)
+    if checkpoint.exists():
+        raise ValueError(f"{out} already holds a run; pass --resume or choose a new --out")
+    return None
+
+
+def merge_recipe(defaults: dict, given: dict, state: dict | None) -> dict:
+    """What defines a run: `defaults` for a new run, the run's own recipe (state["recipe"])
+    on resume, with the values `given` (None: not given) on top. A resumed run keeps its
+    settings, so a given value that differs from it is refused."""
+    base = defaults if state is None else state["recipe"]
+    recipe = dict(base)
+    for name, value in given.items():
+        if value is None:
+            continue
+        if state is not None and value != base[name]:
+            raise ValueError(f"--{name.replace('_', '-')} {value} differs from the run's "
+                             f"{base[name]}; a resumed run keeps its settings")
+        recipe[name] = value
+    return recipe
+
+
+def step_seed(seed: int, rank: int, step: int) -> int:
+    """Every step reseeds torch from (seed, rank, step), so that dropout and other training
+    noise do not depend on what ran before: a resumed run is exact."""
+    return int(np.random.SeedSequence([seed, rank, step]).generate_state(1)[0])
+
+
+def resumed_metrics_log(out: Path, step: int, process: Process) -> MetricsLog:
+    """The run's MetricsLog, without records after `step` (left by a run killed between logging
+    and its next checkpoint), so a resumed log reads as one uninterrupted run."""
+    path = Path(out) / "metrics.jsonl"
+    if process.is_main and path.is_file():
+        kept = [line for line in path.read_text().splitlines()
+                if line.strip() and json.loads(line)["step"] <= step]
+        path.write_text("".join(line + "\n" for line in kept))
+    return MetricsLog(path, enabled=process.is_main)
+
+
+def format_duration(seconds: float) -> str:
+    seconds = int(seconds)
+    if seconds >= 3600:
+        return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+    return f"{seconds // 60}m{seconds % 60:02d}s" if seconds >= 60 else f"{seconds}s"
 
 
 def all_reduce_mean(values: dict[str, float], process: Process) -> dict[str, float]:

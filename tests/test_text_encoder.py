@@ -27,6 +27,14 @@ def test_tokenizer_round_trip_and_specials(tokenizer):
     assert len(tokenizer.encode(" ".join(["walks"] * 50)).ids) == 12
 
 
+def test_tokenizer_training_is_deterministic(tokenizer):
+    again = train_tokenizer(list(reversed(CAPTIONS)), vocab_size=120, max_length=12)
+    assert again.to_str() == tokenizer.to_str()
+    small = train_tokenizer(CAPTIONS, vocab_size=60, max_length=12)
+    assert small.get_vocab_size() == 60
+    assert small.decode(small.encode("a person walks forward.").ids) == "a person walks forward."
+
+
 def test_tokenizer_json_round_trip_gives_identical_ids(tokenizer, tmp_path):
     path = tmp_path / "tokenizer.json"
     tokenizer.save(str(path))

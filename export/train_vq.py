@@ -1,0 +1,209 @@
+"""`mogo train vq`: the MoSA-VQ (mogo.export.vq) on random crops of a HumanML3D-layout folder.
+
+RUN/ holds
+    checkpoint.pt   latest: weights, optimizer, step; "config" is the VQConfig as a dict
+    best.pt         lowest validation MPJPE: weights and config (what `mogo train t2m` and
+                    `mogo export` take)
+    metrics.jsonl   train and val records
+
+Validation decodes whole clips (as the runtime does, not crops), at most `--val-clips` of the
+val split, and measures MPJPE on the recovered joints, root trajectory included.
+
+Resuming is exact (same world size), as for `mogo train t2m`: batches depend only on
+(seed, epoch) and every step reseeds torch from (seed, rank, step). Under torchrun, DDP keeps
+the weights in step; the EMA codebooks are buffers, which DDP broadcasts from rank 0 before
+every forward, so rank 0's codebook updates are the ones that stand.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
+from mogo.export.training import (Process, all_reduce_mean, batches, end_process,
+                                  format_duration, merge_recipe, previous_run,
+                                  resumed_metrics_log, save_checkpoint, seed_everything,
+                                  set_learning_rate, start_process, step_seed, steps_per_epoch,
+                                  warmup_cosine, wrap_model)
+from mogo.export.vq import MoSAVQ, VQConfig, reconstruction_metrics
+
+PRESETS: dict[str, Callable[[], VQConfig]] = dict(
+    tiny=VQConfig.tiny, cpu_default=VQConfig.cpu_default, paper=VQConfig.paper)
+GRAD_CLIP = 1.0
+# What defines a run: fixed at its start, taken from the checkpoint on --resume. The model
+# switches (None: the preset's value) exist for ablations.
+MODEL_SWITCHES = ("levels", "down_factor", "causal", "scale_bias", "decorrelation")
+DEFAULT_RECIPE = dict(preset="cpu_default", batch_size=64, lr=2e-4, warmup=1000, seed=0,
+                      crop_frames=64, **{name: None for name in MODEL_SWITCHES})
+
+
+@dataclass
+class VQTrainOptions:
+    """Recipe fields left None take the run's values on resume, DEFAULT_RECIPE's otherwise."""
+    data: Path
+    out: Path
+    steps: int = 20000
+    preset: str | None = None
+    batch_size: int | None = None
+    lr: float | None = None
+    warmup: int | None = None
+    seed: int | None = None
+    crop_frames: int | None = None
+    levels: int | None = None
+    down_factor: int | None = None
+    causal: bool | None = None
+    scale_bias: bool | None = None
+    decorrelation: float | None = None
+    device: str = "auto"
+    val_every: int = 1000
+    val_clips: int = 256
+    checkpoint_every: int = 1000
+    log_every: int = 100
+    resume: bool = False
+
+
+def train_vq(options: VQTrainOptions) -> None:
+    """Train (or resume) a VQ run; under torchrun every process calls this, rank 0 writes."""
+    for name in ("steps", "val_every", "val_clips", "checkpoint_every", "log_every"):
+        if getattr(options, name) <= 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be positive, "
+                             f"got {getattr(options, name)}")
+    out = Path(options.out)
+    state = previous_run(out, options.resume)
+    recipe = merge_recipe(DEFAULT_RECIPE, {n: getattr(options, n) for n in DEFAULT_RECIPE},
+                          state)
+    if recipe["preset"] not in PRESETS:
+        raise ValueError(f"unknown config {recipe['preset']!r}; use {', '.join(PRESETS)}")
+    if recipe["batch_size"] <= 0 or recipe["lr"] <= 0 or recipe["warmup"] < 0 \
+            or recipe["crop_frames"] < 1:
+        raise ValueError(f"need batch size > 0, lr > 0, warmup >= 0, crop frames >= 1, got "
+                         f"{recipe['batch_size']}, {recipe['lr']}, {recipe['warmup']}, "
+                         f"{recipe['crop_frames']}")
+    folder = HumanML3DFolder(options.data)
+    config = (VQConfig(**state["config"]) if state is not None
+              else vq_config(recipe, folder.feature_dim))
+    if recipe["crop_frames"] % config.down_factor:
+        raise ValueError(f"--crop-frames {recipe['crop_frames']} is not a multiple of the "
+                         f"down factor {config.down_factor}")
+    process = start_process(options.device)
+    try:
+        _train(out, folder, config, recipe, state, options, process)
+    finally:
+        end_process(process)
+
+
+def vq_config(recipe: dict, feature_dim: int) -> VQConfig:
+    """The preset with the recipe's model switches and the data's feature size."""
+    switches = {name: recipe[name] for name in MODEL_SWITCHES if recipe[name] is not None}
+    return replace(PRESETS[recipe["preset"]](), feature_dim=feature_dim, **switches)
+
+
+def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
+           state: dict | None, options: VQTrainOptions, process: Process) -> None:
+    seed, batch_size, steps = recipe["seed"], recipe["batch_size"], options.steps
+    seed_everything(seed)
+    model = MoSAVQ(config, folder.mean, folder.std)
+    ddp = wrap_model(model, process)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=recipe["lr"], betas=(0.9, 0.99),
+                                  weight_decay=0.0)
+    step, best = 0, math.inf
+    if state is not None:
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        step, best = state["step"], state["best_val_mpjpe_mm"]
+
+    train_set = MotionCropDataset(folder, "train", recipe["crop_frames"], seed)
+    val_clips = whole_clips(folder, "val", config.down_factor, options.val_clips)
+    per_epoch = steps_per_epoch(train_set, batch_size, process)
+    epoch, done = divmod(step, max(per_epoch, 1))
+    stream = batches(train_set, batch_size, process, seed, start_epoch=epoch)
+    for _ in range(done):
+        next(stream)
+    log = resumed_metrics_log(out, step, process)
+    extra = dict(recipe=recipe, data=str(folder.root.resolve()), world_size=process.world_size)
+    if process.is_main:
+        lookahead = "causal" if config.causal else "centred"
+        print(f"vq: {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M parameters, "
+              f"{config.levels} levels of {config.codebook_size} codes, {lookahead} decoder; "
+              f"{len(train_set)} train clips, {len(val_clips)} val clips, {per_epoch} steps an "
+              f"epoch; {process.world_size} process(es) on {process.device}; "
+              f"{'resuming at' if step else 'starting at'} step {step} of {steps}", flush=True)
+
+    device = process.device
+    sums: dict[str, float] = {}
+    count, window_start = 0, time.perf_counter()
+    while step < steps:
+        x = next(stream).to(device)
+        torch.manual_seed(step_seed(seed, process.rank, step))
+        lr = warmup_cosine(step, recipe["warmup"], steps, recipe["lr"], recipe["lr"] / 10)
+        set_learning_rate(optimizer, lr)
+        output = ddp(x)
+        optimizer.zero_grad(set_to_none=True)
+        output.losses["total"].backward()
+        nn.utils.clip_grad_norm_(model.parameters(), GRAD_CLIP)
+        optimizer.step()
+        step += 1
+        for name, value in _train_values(output.losses, output.stats).items():
+            sums[name] = sums.get(name, 0.0) + value
+        count += 1
+
+        if step % options.log_every == 0 or step == steps:
+            rate = count / (time.perf_counter() - window_start)
+            values = all_reduce_mean({k: v / count for k, v in sums.items()}, process)
+            log.write("train", step, lr=lr, **values, steps_per_s=round(rate, 3))
+            if process.is_main:
+                print(f"step {step}/{steps}  loss {values['total']:.4f}  recon "
+                      f"{values['recon']:.4f}  joints {values['joints']:.4f}  perplexity "
+                      f"{values['perplexity']:.0f}  lr {lr:.2e}  {rate:.2f} steps/s  "
+                      f"eta {format_duration((steps - step) / rate)}", flush=True)
+            sums, count, window_start = {}, 0, time.perf_counter()
+        if step % options.val_every == 0 or step == steps:
+            if process.is_main:
+                metrics = reconstruction_metrics(model, clip_batches(val_clips, device))
+                improved = metrics["mpjpe_mm"] < best
+                best = min(best, metrics["mpjpe_mm"])
+                log.write("val", step, **metrics)
+                print(f"val {step}  MPJPE {metrics['mpjpe_mm']:.1f} mm  feature L1 "
+                      f"{metrics['feature_l1']:.4f}  by levels "
+                      f"{' '.join(f'{v:.0f}' for v in metrics['mpjpe_mm_by_levels'])} mm"
+                      f"{'  (best)' if improved else ''}", flush=True)
+                if improved:
+                    save_checkpoint(out / "best.pt", model, None, step, asdict(config),
+                                    best_val_mpjpe_mm=best, **extra)
+        if process.is_main and (step % options.checkpoint_every == 0 or step == steps):
+            save_checkpoint(out / "checkpoint.pt", model, optimizer, step, asdict(config),
+                            best_val_mpjpe_mm=best, **extra)
+
+
+def _train_values(losses: dict[str, Tensor], stats: dict[str, Tensor]) -> dict[str, float]:
+    """The numbers a training log line holds: every loss term, mean perplexity and usage,
+    codes re-drawn."""
+    values = {name: float(value.detach()) for name, value in losses.items()}
+    values.update(perplexity=float(stats["perplexity"].mean()),
+                  usage=float(stats["usage"].mean()), dead_codes=float(stats["dead_codes"].sum()))
+    return values
+
+
+def whole_clips(folder: HumanML3DFolder, split: str, down_factor: int,
+                limit: int | None = None) -> list[Tensor]:
+    """The first `limit` clips of a split, normalised, each (1, T, D) cut to whole tokens."""
+    clips = []
+    for clip_id in folder.ids(split)[:limit]:
+        features = folder.normalize(folder.features(clip_id))
+        usable = len(features) - len(features) % down_factor
+        if usable:
+            clips.append(torch.from_numpy(features[:usable].copy())[None])
+    if not clips:
+        raise ValueError(f"{folder.root / f'{split}.txt'}: no clip of at least {down_factor} "
+                         "frames")
+    return clips
+
+
+def clip_batches(clips: list[Tensor], device: torch.device) -> Iterator[Tensor]:
+    return (clip.to(device) for clip in clips)

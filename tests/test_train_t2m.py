@@ -1,0 +1,172 @@
+import json
+import os
+import subprocess
+import sys
+from dataclasses import asdict, replace
+
+import numpy as np
+import pytest
+import torch
+
+from mogo.export import train_t2m
+from mogo.export.cli import main
+from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
+from mogo.export.generate_torch import generate
+from mogo.export.t2m import T2MConfig
+from mogo.export.text_encoder import encode_captions
+from mogo.export.training import MetricsLog, load_checkpoint, save_checkpoint
+from mogo.export.vq import MoSAVQ, VQConfig
+
+TRAIN_SPANS, VAL_SPANS = 13, 4  # the tiny_humanml3d captions of at least 40 frames
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Tiny models on shared cores: one intra-op thread is ~10x faster than two fighting."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def vq_run(tiny_humanml3d, tmp_path):
+    """A tiny MoSA-VQ, untrained but for codebooks initialised from the data (so tokens vary)."""
+    folder = HumanML3DFolder(tiny_humanml3d)
+    torch.manual_seed(0)
+    config = VQConfig.tiny()
+    model = MoSAVQ(config, folder.mean, folder.std)
+    crops = torch.stack(list(MotionCropDataset(folder, "train", crop_frames=40)))
+    with torch.no_grad():
+        model.train()(crops)
+    save_checkpoint(tmp_path / "vq" / "checkpoint.pt", model, None, 0, asdict(config))
+    return tmp_path / "vq"
+
+
+def train(data, vq, out, *extra) -> int:
+    return main(["train", "t2m", "--data", str(data), "--vq", str(vq), "--out", str(out),
+                 "--config", "tiny", "--batch-size", "4", "--log-every", "1", *map(str, extra)])
+
+
+def records(run, kind=None) -> list[dict]:
+    """metrics.jsonl without the timings."""
+    lines = (run / "metrics.jsonl").read_text().splitlines()
+    return [{k: v for k, v in json.loads(line).items() if k not in ("seconds", "steps_per_s")}
+            for line in lines if kind is None or json.loads(line)["kind"] == kind]
+
+
+def test_cli_trains_and_writes_the_run(tiny_humanml3d, vq_run, tmp_path):
+    run = tmp_path / "run"
+    assert train(tiny_humanml3d, vq_run, run, "--steps", 4, "--val-every", 2,
+                 "--checkpoint-every", 2) == 0
+    assert [(r["kind"], r["step"]) for r in records(run)] == [
+        ("train", 1), ("train", 2), ("val", 2), ("train", 3), ("train", 4), ("val", 4)]
+    assert set(records(run)[-1]) == {"kind", "step", "loss", "acc_0", "acc_1", "acc_2"}
+    state = load_checkpoint(run / "checkpoint.pt")
+    assert state["step"] == 4 and state["optimizer"] is not None
+    assert state["config"]["vq"]["sha256"] == train_t2m.file_sha256(vq_run / "checkpoint.pt")
+    assert load_checkpoint(run / "best.pt")["optimizer"] is None
+
+    caches = {split: np.load(run / "tokens" / f"{split}.npz", allow_pickle=False)
+              for split in ("train", "val")}
+    assert len(caches["train"]["captions"]) == TRAIN_SPANS
+    assert len(caches["val"]["captions"]) == VAL_SPANS
+    train_cache = caches["train"]
+    assert train_cache["tokens"].shape[1] == 3 and train_cache["tokens"].max() < 16
+    assert train_cache["offsets"][-1] == len(train_cache["tokens"])
+    assert all(train_cache[name].dtype != object for name in train_cache.files)
+
+    t2m, text_encoder, tokenizer = train_t2m.load_t2m(run)
+    assert not t2m.training and not text_encoder.training
+    with torch.no_grad():
+        prompt = text_encoder.encode(*encode_captions(tokenizer, ["a person walks forward."]))
+    assert generate(t2m, prompt[0], num_frames=3).shape == (3, 3)
+
+
+def test_token_cache_is_reused_until_the_vq_changes(tiny_humanml3d, vq_run, tmp_path):
+    folder = HumanML3DFolder(tiny_humanml3d)
+    vq = train_t2m.load_vq(vq_run)
+    recipe = dict(train_t2m.DEFAULT_RECIPE, preset="tiny")
+    prepare = lambda sha: train_t2m._prepare(tmp_path, folder, vq, recipe, sha, fresh=False,
+                                             device=torch.device("cpu"))
+    cache = tmp_path / "tokens" / "val.npz"
+    prepare("a" * 64)
+    os.utime(cache, (0, 0))
+    prepare("a" * 64)
+    assert cache.stat().st_mtime == 0
+    prepare("b" * 64)
+    assert cache.stat().st_mtime > 0 and str(np.load(cache)["vq_sha256"]) == "b" * 64
+
+
+def test_resume_continues_exactly(tiny_humanml3d, vq_run, tmp_path, monkeypatch):
+    args = ("--steps", 7, "--val-every", 2, "--checkpoint-every", 2)
+    assert train(tiny_humanml3d, vq_run, tmp_path / "whole", *args) == 0
+
+    write = MetricsLog.write
+
+    def killed_after_step_5(self, kind, step, **values):  # logged, but never checkpointed
+        write(self, kind, step, **values)
+        if step == 5:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(MetricsLog, "write", killed_after_step_5)
+    assert train(tiny_humanml3d, vq_run, tmp_path / "split", *args) == 130
+    assert records(tmp_path / "split")[-1]["step"] == 5
+    monkeypatch.undo()
+    # 13 spans, batch 4: 3 steps an epoch, so step 4 resumes mid-epoch
+    assert train(tiny_humanml3d, vq_run, tmp_path / "split", *args, "--resume") == 0
+    assert records(tmp_path / "split") == records(tmp_path / "whole")
+    assert train(tiny_humanml3d, vq_run, tmp_path / "split", *args, "--resume",
+                 "--lr", 1e-3) == 2
+
+
+def test_two_processes_on_gloo(tiny_humanml3d, vq_run, tmp_path):
+    run = tmp_path / "run"
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone",
+               "--nproc_per_node", "2", "-m", "mogo.export.cli", "train", "t2m",
+               "--data", str(tiny_humanml3d), "--vq", str(vq_run), "--out", str(run),
+               "--config", "tiny", "--batch-size", "2", "--steps", "3", "--val-every", "3",
+               "--device", "cpu"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=180,
+                          env=dict(os.environ, OMP_NUM_THREADS="1"))
+    assert done.returncode == 0, done.stderr[-3000:]
+    for name in ("checkpoint.pt", "best.pt", "metrics.jsonl", "tokenizer.json",
+                 "tokens/train.npz", "tokens/val.npz"):
+        assert (run / name).is_file(), name
+    assert load_checkpoint(run / "checkpoint.pt")["config"]["world_size"] == 2
+    assert [(r["kind"], r["step"]) for r in records(run)] == [("train", 3), ("val", 3)]
+
+
+def test_tiny_overfit_loss_drops(tiny_humanml3d, vq_run, tmp_path, monkeypatch):
+    """Memorising 13 sequences, without the token corruption that is there to prevent it."""
+    monkeypatch.setitem(train_t2m.PRESETS, "tiny",
+                        lambda: replace(T2MConfig.tiny(), token_corruption=0.0))
+    run = tmp_path / "run"
+    assert train(tiny_humanml3d, vq_run, run, "--steps", 200, "--lr", 3e-3, "--warmup", 10,
+                 "--val-every", 200, "--log-every", 20) == 0
+    first, *_, last = [r["loss"] for r in records(run, "train")]
+    assert last < 0.5 * first
+
+
+@pytest.mark.parametrize("case, message", [
+    ("no_vq", "no such VQ run folder"),
+    ("empty_data", "folder missing"),
+    ("zero_steps", "--steps must be positive"),
+    ("resume_nothing", "--resume: no checkpoint"),
+])
+def test_bad_inputs_give_one_line_errors(case, message, tiny_humanml3d, vq_run, tmp_path,
+                                         capsys):
+    data, vq, extra = tiny_humanml3d, vq_run, ["--steps", 1]
+    if case == "no_vq":
+        vq = tmp_path / "missing"
+    elif case == "empty_data":
+        data = tmp_path / "empty"
+        data.mkdir()
+    elif case == "zero_steps":
+        extra = ["--steps", 0]
+    else:
+        extra.append("--resume")
+    assert train(data, vq, tmp_path / "run", *extra) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and error.startswith("mogo: error:") and message in error
+    assert not (tmp_path / "run" / "checkpoint.pt").exists()
