@@ -77,7 +77,7 @@ def export_level(model: T2M, level: int, path: str | os.PathLike) -> dict:
                       tuple({0: b, 2: p} for _ in range(2 * layers)))
     past_names, present_names = cache_names(layers)
     names = dict(inputs=LEVEL_INPUTS + past_names, outputs=["logits"] + present_names)
-    _export(LevelStep(model, level), examples, path, names, dynamic_shapes)
+    export_module(LevelStep(model, level), examples, path, names, dynamic_shapes)
     return dict(names, num_layers=layers, heads=heads, head_dim=head_dim)
 
 
@@ -90,14 +90,15 @@ def export_text_encoder(encoder: TextEncoder, path: str | os.PathLike, max_lengt
     attention_mask = torch.ones(2, max_length, dtype=torch.long)
     b, s = Dim("batch"), Dim("seq", max=max_length)
     names = dict(inputs=["token_ids", "attention_mask"], outputs=["prompt_embedding"])
-    _export(EncodeText(encoder), (token_ids, attention_mask), path, names,
+    export_module(EncodeText(encoder), (token_ids, attention_mask), path, names,
             ({0: b, 1: s}, {0: b, 1: s}))
     return names
 
 
-def _export(module: nn.Module, examples: tuple, path: str | os.PathLike, names: dict,
-            dynamic_shapes: tuple) -> None:
-    """Export in eval mode (no dropout, no prompt dropout), leaving the caller's modules in the
+def export_module(module: nn.Module, examples: tuple, path: str | os.PathLike, names: dict,
+                  dynamic_shapes: tuple) -> None:
+    """Export `module` to one self-contained file at OPSET with the given input and output
+    names, in eval mode (no dropout, no prompt dropout), leaving the caller's modules in the
     mode they were in."""
     modes = [(m, m.training) for m in module.modules()]
     try:

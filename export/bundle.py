@@ -1,0 +1,164 @@
+"""`mogo export`: trained models -> a bundle folder the torch-free runtime loads.
+
+The manifest (format in mogo.runtime.bundle) holds everything the runtime needs to know about
+the model: sizes, graph input/output names, fps, skeleton, normalisation files, the decoder's
+context, sampling defaults, how it was trained, and each file's size and sha256.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+from tokenizers import Tokenizer
+
+from mogo.export.onnx_t2m import export_level, export_text_encoder
+from mogo.export.onnx_vq import export_vq_decoder, export_vq_encoder
+from mogo.export.t2m import T2M
+from mogo.runtime.bundle import FORMAT, FORMAT_VERSION, MANIFEST, file_sha256
+from mogo.runtime.sampling import Sampling
+from mogo.runtime.token_generator import TokenGenerator
+
+INT8_MIN_AGREEMENT = 0.98  # share of greedy tokens int8 must keep to replace fp32
+CHECK_STEPS = 40  # steps of each check prompt
+DEFAULTS = dict(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=128, max_seconds=9.8)
+
+
+CHECK_PROMPTS = 16  # distinct val captions the int8 check generates from
+
+
+def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) -> dict:
+    """`mogo export`: the trained runs (their best.pt) -> a bundle folder; returns the manifest."""
+    from mogo.export.train_t2m import (load_t2m, load_vq, read_tokens, t2m_checkpoint,
+                                       vq_checkpoint)
+    from mogo.export.training import load_checkpoint
+    from mogo.runtime.skeleton import skeleton_for_feature_dim
+
+    vq = load_vq(vq_run)
+    t2m, text_encoder, tokenizer = load_t2m(t2m_run)
+    vq_state = load_checkpoint(vq_checkpoint(vq_run))
+    t2m_state = load_checkpoint(t2m_checkpoint(t2m_run))
+    if t2m_state["config"]["vq"]["sha256"] != file_sha256(vq_checkpoint(vq_run)):
+        raise ValueError(f"{t2m_run} was trained on the tokens of another VQ checkpoint than "
+                         f"{vq_checkpoint(vq_run)}")
+    skeleton = skeleton_for_feature_dim(vq.config.feature_dim)
+    captions = dict.fromkeys(str(c) for c in read_tokens(Path(t2m_run) / "tokens" / "val.npz")
+                             ["captions"])
+    provenance = dict(
+        vq=dict(step=vq_state["step"], recipe=vq_state.get("recipe"), data=vq_state.get("data"),
+                best_val_mpjpe_mm=vq_state.get("best_val_mpjpe_mm")),
+        t2m=dict(step=t2m_state["step"], recipe=t2m_state["config"]["recipe"],
+                 data=t2m_state["config"]["data"],
+                 best_val_loss=t2m_state.get("best_val_loss")))
+    return write_bundle(Path(out), vq=vq, t2m=t2m, text_encoder=text_encoder,
+                        tokenizer=tokenizer, fps=skeleton.fps, skeleton=skeleton.name,
+                        provenance=provenance, check_prompts=list(captions)[:CHECK_PROMPTS],
+                        int8=int8)
+
+
+def write_bundle(out: Path, *, vq, t2m: T2M, text_encoder, tokenizer: Tokenizer, fps: float,
+                 skeleton: str, provenance: dict, check_prompts: list[str],
+                 int8: bool = False, defaults: dict | None = None) -> dict:
+    """Export every graph into the new folder `out` and write its manifest; returns it.
+    With `int8`, the level graphs are quantised and kept only if greedy tokens on
+    `check_prompts` agree with fp32 on at least INT8_MIN_AGREEMENT of steps (measured either
+    way and written into the manifest)."""
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out} is not empty; choose a new folder for the bundle")
+    out.mkdir(parents=True, exist_ok=True)
+    tokenizer.save(str(out / "tokenizer.json"))
+    max_length = tokenizer.truncation["max_length"]
+    text = dict(file="text_encoder.onnx", tokenizer="tokenizer.json", max_length=max_length,
+                embedding_dim=text_encoder.output_dim, kind=type(text_encoder).__name__,
+                encoder=dict(file="text_encoder.onnx",
+                             **export_text_encoder(text_encoder, out / "text_encoder.onnx",
+                                                   max_length)))
+    del text["file"]
+    config = t2m.config
+    levels = [dict(file=f"level_{level}.onnx",
+                   **export_level(t2m, level, out / f"level_{level}.onnx"))
+              for level in range(config.num_levels)]
+    vq_encoder = export_vq_encoder(vq, out / "vq_encoder.onnx")
+    vq_decoder = export_vq_decoder(vq, out / "vq_decoder.onnx")
+    np.save(out / "mean.npy", vq.mean.detach().cpu().numpy().astype(np.float32))
+    np.save(out / "std.npy", vq.std.detach().cpu().numpy().astype(np.float32))
+
+    manifest = dict(
+        format=FORMAT, format_version=FORMAT_VERSION,
+        fps=fps, skeleton=skeleton, feature_dim=vq.config.feature_dim,
+        normalization=dict(mean="mean.npy", std="std.npy"),
+        text=text,
+        t2m=dict(config=asdict(config), num_levels=config.num_levels,
+                 codebook_size=config.codebook_size, end_token=config.end_token, levels=levels),
+        vq=dict(config=asdict(vq.config), levels=vq.config.levels,
+                codebook_size=vq.config.codebook_size, down_factor=vq.config.down_factor,
+                encoder=dict(file="vq_encoder.onnx", **vq_encoder),
+                decoder=dict(file="vq_decoder.onnx", **vq_decoder)),
+        defaults=dict(DEFAULTS, **(defaults or {})),
+        training=provenance,
+    )
+    if int8:
+        manifest["int8"] = _quantize_levels(out, levels, config.end_token, text_encoder,
+                                            tokenizer, check_prompts)
+    write_manifest(out, manifest)
+    return manifest
+
+
+def write_manifest(out: Path, manifest: dict) -> None:
+    """Add the size and sha256 of every file in `out` and write manifest.json."""
+    files = {p.name: dict(bytes=p.stat().st_size, sha256=file_sha256(p))
+             for p in sorted(out.iterdir()) if p.is_file() and p.name != MANIFEST}
+    manifest["files"] = files
+    (out / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
+
+
+@torch.no_grad()
+def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder,
+                     tokenizer: Tokenizer, prompts: list[str]) -> dict:
+    """Dynamic int8 (QUInt8 weights, MatMul only: the setting that kept accuracy on a CPU
+    without VNNI, design/onnx-notes.md) of every level graph, checked by token agreement:
+    at every step of fp32's greedy stream, does int8 pick the same tokens given the same
+    past (teacher-forced, so one early difference does not count twice)? The quantised graphs
+    replace the fp32 ones only if they pass."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    if not prompts:
+        raise ValueError("the int8 accuracy check needs at least one prompt")
+    staging = out / "int8"
+    staging.mkdir()
+    for level in levels:
+        prepared = staging / f"pre_{level['file']}"
+        quant_pre_process(str(out / level["file"]), str(prepared), skip_symbolic_shape=True)
+        quantize_dynamic(prepared, staging / level["file"], op_types_to_quantize=["MatMul"],
+                         weight_type=QuantType.QUInt8)
+        prepared.unlink()
+    encoded = tokenizer.encode_batch(prompts)
+    ids = torch.tensor([e.ids for e in encoded])
+    mask = torch.tensor([e.attention_mask for e in encoded])
+    embeddings = text_encoder.encode(ids, mask).numpy()
+    fp32 = TokenGenerator([out / l["file"] for l in levels], levels, end_token)
+    quantised = TokenGenerator([staging / l["file"] for l in levels], levels, end_token)
+    greedy = Sampling(temperature=0.0)
+    same = total = 0
+    for embedding in embeddings:
+        reference = fp32.generate(embedding, num_frames=CHECK_STEPS, sampling=greedy)
+        for n in range(CHECK_STEPS):  # int8's choice at step n given fp32's steps before it
+            stream = quantised.start(embedding, sampling=greedy, allow_end=False)
+            if n:
+                stream.continue_from(reference[:n])
+            same += int(np.sum(stream.step() == reference[n]))
+            total += reference.shape[1]
+    agreement = same / total
+    used = agreement >= INT8_MIN_AGREEMENT
+    if used:
+        for level in levels:
+            shutil.move(staging / level["file"], out / level["file"])
+    shutil.rmtree(staging)
+    return dict(used=used, greedy_token_agreement=round(agreement, 4),
+                threshold=INT8_MIN_AGREEMENT, prompts=len(prompts), steps_per_prompt=CHECK_STEPS,
+                scheme="dynamic QUInt8 weights, MatMul only")

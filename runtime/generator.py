@@ -1,0 +1,295 @@
+"""The public runtime: text in, motion out, on onnxruntime and numpy.
+
+    generator = MotionGenerator.load()                    # the bundle shipped with the package
+    motion = generator.generate("a person walks forward, then waves", seconds=6, seed=0)
+    motion.save_bvh("walk.bvh")
+
+    stream = generator.stream("a person jogs in a circle", seed=1)
+    for frame in stream.frames():                          # (J, 3) joints, forever
+        ...
+        stream.set_prompt("a person jumps")                # from the next step on
+
+Tokens come from the level graphs one step at a time (mogo.runtime.token_generator), frames
+from the VQ decoder as soon as their right context exists (mogo.runtime.stream_decoder), joints
+from the features with the root carried across chunks (mogo.runtime.features.JointStream).
+"""
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+from tokenizers import Tokenizer
+
+from mogo.runtime._session import cpu_session
+from mogo.runtime.bundle import Bundle, BundleError
+from mogo.runtime.features import JointStream
+from mogo.runtime.motion import Motion
+from mogo.runtime.sampling import Sampling
+from mogo.runtime.skeleton import SKELETONS
+from mogo.runtime.stream_decoder import StreamingDecoder
+from mogo.runtime.token_generator import TokenGenerator, TokenStream
+
+DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
+MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
+
+
+class MotionGenerator:
+    """One loaded bundle. Sessions are shared: any number of streams, also in parallel
+    threads, each with its own cache and random state."""
+
+    def __init__(self, bundle: Bundle, threads: int = 1):
+        self.bundle = bundle
+        manifest = bundle.manifest
+        self.skeleton = SKELETONS[manifest["skeleton"]]
+        self.fps = bundle.fps
+        self.defaults = manifest.get("defaults", {})
+        text = manifest["text"]
+        self.tokenizer = Tokenizer.from_file(str(bundle.path(text["tokenizer"])))
+        self._text = _Graph(bundle, text["encoder"], threads)
+        t2m = manifest["t2m"]
+        self.tokens = TokenGenerator([bundle.path(g["file"]) for g in t2m["levels"]],
+                                     t2m["levels"], t2m["end_token"], threads)
+        vq = manifest["vq"]
+        self.down_factor = int(vq["down_factor"])
+        self._decoder = vq["decoder"]
+        self._decoder_session = cpu_session(bundle.path(self._decoder["file"]), threads)
+        self._vq_encoder = _Graph(bundle, vq["encoder"], threads)
+        self.codebook_size = int(vq["codebook_size"])
+
+    @classmethod
+    def load(cls, bundle_dir: str | os.PathLike | None = None, threads: int = 1) -> MotionGenerator:
+        """Load and verify a bundle folder; None: the default bundle shipped with mogo."""
+        if bundle_dir is None:
+            if not (DEFAULT_BUNDLE / "manifest.json").is_file():
+                raise BundleError(f"no default bundle is installed at {DEFAULT_BUNDLE}; "
+                                  "pass the path of a bundle folder")
+            bundle_dir = DEFAULT_BUNDLE
+        if threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        return cls(Bundle.load(bundle_dir), threads)
+
+    # -- text --------------------------------------------------------------------------------
+    def embed(self, texts: Sequence[str]) -> np.ndarray:
+        """Prompt embeddings (B, text_dim) float32."""
+        texts = [_checked_prompt(t) for t in texts]
+        encodings = self.tokenizer.encode_batch(texts)
+        ids = np.array([e.ids for e in encodings], np.int64)
+        mask = np.array([e.attention_mask for e in encodings], np.int64)
+        return self._text.run(ids, mask)
+
+    # -- whole clips ---------------------------------------------------------------------------
+    def generate(self, text: str | Sequence[str], seconds: float | None = None,
+                 seed: int | None = None, temperature: float | None = None,
+                 top_k: int | None = None, top_p: float | None = None,
+                 guidance: float | None = None) -> Motion | list[Motion]:
+        """One Motion per prompt (a list for a list of prompts). seconds=None lets the model
+        end the motion (at most the bundle's max_seconds); seed=None draws a fresh seed,
+        kept in Motion.seed so the result can be reproduced."""
+        texts = [text] if isinstance(text, str) else list(text)
+        if not texts:
+            raise ValueError("no prompt given")
+        sampling = self.sampling(temperature, top_k, top_p, guidance)
+        steps = None if seconds is None else self._steps(seconds)
+        seed = _fresh_seed() if seed is None else _checked_seed(seed)
+        max_steps = self._steps(float(self.defaults.get("max_seconds", 9.8)))
+        motions = []
+        for k, (prompt, embedding) in enumerate(zip(texts, self.embed(texts))):
+            tokens = self.tokens.generate(embedding, steps, max_steps, sampling, seed + k,
+                                          self.defaults.get("window"))
+            frames = None if seconds is None else round(seconds * self.fps)
+            motions.append(self.decode(tokens, [(0, prompt)], frames, seed + k))
+        return motions[0] if isinstance(text, str) else motions
+
+    def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
+             **options) -> Motion:
+        """A list of (prompt, seconds) as one continuous motion, switching prompts on the
+        fly: the same stream, so every switch is a smooth continuation."""
+        if not schedule:
+            raise ValueError("the schedule is empty")
+        seed = _fresh_seed() if seed is None else _checked_seed(seed)
+        for prompt, seconds in schedule:
+            _checked_prompt(prompt)
+            self._steps(seconds)
+        stream = self.stream(schedule[0][0], seed=seed, **options)
+        for k, (prompt, seconds) in enumerate(schedule):
+            if k:
+                stream.set_prompt(prompt)
+            stream.advance(self._steps(seconds))
+        return stream.finish()
+
+    def decode(self, tokens: np.ndarray, prompts: list[tuple[int, str]],
+               frames: int | None = None, seed: int | None = None) -> Motion:
+        """Token steps (n, L) -> Motion (features and joints), cut to `frames` when given."""
+        decoder = self.streaming_decoder()
+        normalised = decoder.decode_offline(tokens)[:frames]
+        features = normalised * self.bundle.std + self.bundle.mean
+        joints = JointStream(self.skeleton).push(features)
+        return Motion(features, joints, self.fps, tokens, self.skeleton, prompts, seed)
+
+    def encode_motion(self, motion: Motion) -> np.ndarray:
+        """A clip's features -> its token steps (n, L), by the bundle's VQ encoder."""
+        features = np.asarray(motion.features, np.float32)
+        if features.ndim != 2 or features.shape[1] != self.bundle.manifest["feature_dim"]:
+            raise ValueError(f"motion features must be (T, {self.bundle.manifest['feature_dim']})"
+                             f", got {features.shape}")
+        if not np.all(np.isfinite(features)):
+            raise ValueError("motion features contain NaN or infinite values")
+        usable = len(features) - len(features) % self.down_factor
+        if usable < self.down_factor:
+            raise ValueError(f"the motion has {len(features)} frames; at least "
+                             f"{self.down_factor} are needed")
+        normalised = (features[:usable] - self.bundle.mean) / self.bundle.std
+        return self._vq_encoder.run(normalised[None])[0]
+
+    # -- streams -------------------------------------------------------------------------------
+    def stream(self, text: str, seed: int | None = None, temperature: float | None = None,
+               top_k: int | None = None, top_p: float | None = None,
+               guidance: float | None = None, window: int | None = None) -> MotionStream:
+        """An endless motion; see MotionStream."""
+        seed = _fresh_seed() if seed is None else _checked_seed(seed)
+        window = self.defaults.get("window") if window is None else window
+        return MotionStream(self, text, seed, self.sampling(temperature, top_k, top_p, guidance),
+                            window)
+
+    def streaming_decoder(self) -> StreamingDecoder:
+        d = self._decoder
+        return StreamingDecoder(self._decoder_session, d["left_context"], d["lookahead"],
+                                self.codebook_size, ids_name=d["inputs"][0],
+                                features_name=d["outputs"][0])
+
+    def sampling(self, temperature=None, top_k=None, top_p=None, guidance=None) -> Sampling:
+        """Sampling options, the bundle's defaults where not given."""
+        d = self.defaults
+
+        def pick(value, name, fallback):
+            return d.get(name, fallback) if value is None else value
+
+        return Sampling(float(pick(temperature, "temperature", 1.0)),
+                        int(pick(top_k, "top_k", 0)), float(pick(top_p, "top_p", 1.0)),
+                        float(pick(guidance, "guidance", 1.0)))
+
+    def _steps(self, seconds: float) -> int:
+        if not isinstance(seconds, (int, float)) or not math.isfinite(seconds) or seconds <= 0:
+            raise ValueError(f"seconds must be a positive number, got {seconds!r}")
+        if seconds > MAX_GENERATE_SECONDS:
+            raise ValueError(f"seconds must be at most {MAX_GENERATE_SECONDS:.0f} in one call, "
+                             f"got {seconds}; use a stream for longer motion")
+        return max(1, math.ceil(round(seconds * self.fps) / self.down_factor))
+
+
+class MotionStream:
+    """One endless motion: `step()` draws one token step and returns the frames that became
+    final (joints (n, J, 3); none while the decoder waits for its right context). Memory and
+    step time stay constant: the KV cache slides over the last `window` steps."""
+
+    def __init__(self, generator: MotionGenerator, text: str, seed: int, sampling: Sampling,
+                 window: int | None):
+        self.generator = generator
+        self.seed = seed
+        self.prompts: list[tuple[int, str]] = [(0, _checked_prompt(text))]
+        embedding = generator.embed([text])[0]
+        self._tokens: TokenStream = generator.tokens.start(embedding, seed, sampling, window,
+                                                           allow_end=False)
+        self._decoder = generator.streaming_decoder()
+        self._joints = JointStream(generator.skeleton)
+        self.frames_emitted = 0
+        self._skip = 0
+        self._record: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+
+    def step(self) -> np.ndarray:
+        row = self._tokens.step()
+        features = self._decoder.push(row[None])
+        return self._emit(row[None], features)
+
+    def frames(self, limit: int | None = None) -> Iterator[np.ndarray]:
+        """Frames (J, 3) one by one, forever or until `limit` frames."""
+        while limit is None or self.frames_emitted < limit:
+            for frame in self.step():
+                yield frame
+
+    def set_prompt(self, text: str) -> None:
+        """Switch the prompt from the next step on (exact: the cache is re-prefilled)."""
+        embedding = self.generator.embed([text])[0]
+        self._tokens.set_prompt(embedding)
+        self.prompts.append((self.frames_emitted + self._pending_frames(), text))
+
+    def continue_from(self, motion: Motion) -> None:
+        """Go on from the end of an existing clip (before the first step): its tokens become
+        the past the model sees, and the decoder's left context."""
+        if self._tokens.steps:
+            raise ValueError("continue_from must come before the first step of a stream")
+        tokens = self.generator.encode_motion(motion)
+        self._tokens.continue_from(tokens)
+        self._joints.push(self._denormalise(self._decoder.push(tokens)))
+        self._skip = self._pending_frames()  # the clip's own last frames: not emitted again
+
+    def advance(self, steps: int) -> None:
+        """Draw `steps` token steps, keeping everything for `finish()`."""
+        if self._record is None:
+            self._record = []
+        for _ in range(steps):
+            self.step()
+
+    def finish(self) -> Motion:
+        """End the stream: the remaining frames (decoded with the end padding) and, if the
+        stream was recorded by `advance`, the whole Motion."""
+        features = self._decoder.flush()
+        self._emit(np.zeros((0, self.generator.tokens.num_levels), np.int64), features)
+        record = self._record or []
+        g = self.generator
+        return Motion(np.concatenate([r[1] for r in record]) if record else
+                      np.zeros((0, g.bundle.manifest["feature_dim"]), np.float32),
+                      np.concatenate([r[2] for r in record]) if record else
+                      np.zeros((0, g.skeleton.num_joints, 3), np.float32),
+                      g.fps, np.concatenate([r[0] for r in record]) if record else
+                      np.zeros((0, g.tokens.num_levels), np.int64),
+                      g.skeleton, list(self.prompts), self.seed)
+
+    def _emit(self, tokens: np.ndarray, normalised: np.ndarray) -> np.ndarray:
+        features = self._denormalise(normalised)
+        joints = self._joints.push(features)
+        skip = min(self._skip, len(joints))
+        features, joints, self._skip = features[skip:], joints[skip:], self._skip - skip
+        self.frames_emitted += len(joints)
+        if self._record is not None:
+            self._record.append((tokens, features.astype(np.float32), joints))
+        return joints
+
+    def _denormalise(self, normalised: np.ndarray) -> np.ndarray:
+        return normalised * self.generator.bundle.std + self.generator.bundle.mean
+
+    def _pending_frames(self) -> int:
+        """Frames drawn as tokens but not yet emitted (the decoder's lookahead)."""
+        return (self._decoder.pushed - self._decoder.emitted) * self.generator.down_factor
+
+
+class _Graph:
+    """A session with its manifest names: inputs in, first output out."""
+
+    def __init__(self, bundle: Bundle, entry: dict, threads: int):
+        self.session = cpu_session(bundle.path(entry["file"]), threads)
+        self.inputs, self.output = list(entry["inputs"]), entry["outputs"][0]
+
+    def run(self, *arrays: np.ndarray) -> np.ndarray:
+        return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]
+
+
+def _checked_prompt(text: str) -> str:
+    if not isinstance(text, str):
+        raise ValueError(f"a prompt must be text, got {type(text).__name__}")
+    if not text.strip():
+        raise ValueError("the prompt is empty")
+    return text.strip()
+
+
+def _checked_seed(seed: int) -> int:
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
+
+
+def _fresh_seed() -> int:
+    return int(np.random.SeedSequence().generate_state(1)[0])
