@@ -119,8 +119,9 @@ def write_manifest(out: Path, manifest: dict) -> None:
 @torch.no_grad()
 def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder,
                      tokenizer: Tokenizer, prompts: list[str]) -> dict:
-    """Dynamic int8 (QUInt8 weights, MatMul only: the setting that kept accuracy on a CPU
-    without VNNI, design/onnx-notes.md) of every level graph, checked by token agreement:
+    """Dynamic int8 (QUInt8 weights of the MatMuls, the setting that kept accuracy on a CPU
+    without VNNI, design/onnx-notes.md, and of the token-embedding Gathers, which each level
+    graph holds its own copy of) of every level graph, checked by token agreement:
     at every step of fp32's greedy stream, does int8 pick the same tokens given the same
     past (teacher-forced, so one early difference does not count twice)? The quantised graphs
     replace the fp32 ones only if they pass."""
@@ -134,8 +135,8 @@ def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder
     for level in levels:
         prepared = staging / f"pre_{level['file']}"
         quant_pre_process(str(out / level["file"]), str(prepared), skip_symbolic_shape=True)
-        quantize_dynamic(prepared, staging / level["file"], op_types_to_quantize=["MatMul"],
-                         weight_type=QuantType.QUInt8)
+        quantize_dynamic(prepared, staging / level["file"],
+                         op_types_to_quantize=["MatMul", "Gather"], weight_type=QuantType.QUInt8)
         prepared.unlink()
     encoded = tokenizer.encode_batch(prompts)
     ids = torch.tensor([e.ids for e in encoded])
@@ -161,4 +162,4 @@ def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder
     shutil.rmtree(staging)
     return dict(used=used, greedy_token_agreement=round(agreement, 4),
                 threshold=INT8_MIN_AGREEMENT, prompts=len(prompts), steps_per_prompt=CHECK_STEPS,
-                scheme="dynamic QUInt8 weights, MatMul only")
+                scheme="dynamic QUInt8 weights of MatMul and Gather (token embeddings)")
