@@ -76,6 +76,120 @@ def _cmd_export(args: argparse.Namespace) -> None:
     print(f"wrote {args.out}: {len(manifest['files'])} files, {size / 1e6:.1f} MB{note}")
 
 
+def _load_generator(bundle: str | None):
+    from mogo.runtime.generator import MotionGenerator
+
+    return MotionGenerator.load(bundle)
+
+
+def _sampling_options(args: argparse.Namespace) -> dict:
+    return dict(temperature=args.temperature, top_k=args.top_k, top_p=args.top_p,
+                guidance=args.guidance)
+
+
+def _read_schedule(path: Path) -> list[tuple[str, float]]:
+    """Lines "SECONDS PROMPT" (blank lines and # comments skipped)."""
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as error:
+        raise CliError(f"cannot read the prompts file {path}: {error.strerror}") from None
+    schedule = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        seconds, _, prompt = line.strip().partition(" ")
+        try:
+            schedule.append((prompt.strip(), float(seconds)))
+        except ValueError:
+            raise CliError(f"{path}:{number}: expected 'SECONDS PROMPT', got {line.strip()!r}"
+                           ) from None
+    if not schedule:
+        raise CliError(f"{path}: no 'SECONDS PROMPT' lines")
+    return schedule
+
+
+def _file_stem(text: str) -> str:
+    words = "".join(c if c.isalnum() else " " for c in text.lower()).split()
+    return "_".join(words)[:48].rstrip("_") or "motion"
+
+
+def _cmd_generate(args: argparse.Namespace) -> None:
+    if args.prompts_file:
+        if args.text is not None or args.seconds is not None:
+            raise CliError("give either a prompt (with --seconds) or --prompts-file, not both")
+        schedule = _read_schedule(Path(args.prompts_file))
+    elif args.text is None:
+        raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
+    generator = _load_generator(args.bundle)
+    options = _sampling_options(args)
+    if args.prompts_file:
+        motion = generator.play(schedule, seed=args.seed, **options)
+    else:
+        motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed, **options)
+    stem = Path(args.out) / (args.name or _file_stem(motion.caption))
+    written = [motion.save_bvh(stem.with_suffix(".bvh")), motion.save_gif(stem.with_suffix(".gif")),
+               motion.save_npy(stem.with_suffix(".npy")),
+               motion.save_json(stem.with_suffix(".json"))]
+    print(f"{motion.seconds:.1f} s of motion ({len(motion.joints)} frames, seed {motion.seed}) "
+          f"for: {motion.caption}")
+    for path in written:
+        print(f"wrote {path}")
+
+
+def _cmd_stream(args: argparse.Namespace) -> None:
+    import json
+
+    if args.frames is not None and args.frames < 1:
+        raise CliError(f"--frames must be at least 1, got {args.frames}")
+    generator = _load_generator(args.bundle)
+    stream = generator.stream(args.text, seed=args.seed, **_sampling_options(args))
+    try:
+        for index, frame in enumerate(stream.frames(args.frames)):
+            record = dict(frame=index, seconds=round(index / generator.fps, 4),
+                          joints=[[round(float(v), 5) for v in joint] for joint in frame])
+            sys.stdout.write(json.dumps(record, separators=(",", ":")) + "\n")
+            sys.stdout.flush()
+    except BrokenPipeError:  # the reading program stopped: a normal way to end a stream
+        sys.stdout = None
+
+
+def _cmd_info(args: argparse.Namespace) -> None:
+    from mogo.runtime.bundle import Bundle
+    from mogo.runtime.generator import DEFAULT_BUNDLE
+
+    bundle = Bundle.load(args.bundle or DEFAULT_BUNDLE)
+    m = bundle.manifest
+    t2m, vq, text = m["t2m"], m["vq"], m["text"]
+    config = t2m["config"]
+    decoder = vq["decoder"]
+    lines = [
+        f"bundle      {bundle.root}",
+        f"format      {m['format']} version {m['format_version']}",
+        f"motion      {m['skeleton']} skeleton, {m['feature_dim']}-dim features, {m['fps']:g} fps",
+        f"text        {text['kind']}, {text['embedding_dim']}-d prompt embedding, "
+        f"at most {text['max_length']} tokens",
+        f"transformer {t2m['num_levels']} levels, width {config['dim']}, layers "
+        f"{config['layers']}, heads {config['heads']}, {t2m['codebook_size']} codes + end token",
+        f"vq          {vq['levels']} levels of {vq['codebook_size']} codes, {vq['down_factor']} "
+        f"frame(s) per token, decoder context {decoder['left_context']} back / "
+        f"{decoder['lookahead']} ahead (tokens)",
+        f"defaults    " + ", ".join(f"{k} {v}" for k, v in m.get("defaults", {}).items()),
+    ]
+    if "int8" in m:
+        check = m["int8"]
+        lines.append(f"int8        {'used' if check['used'] else 'not used'}: greedy token "
+                     f"agreement {check['greedy_token_agreement']:.1%} (threshold "
+                     f"{check['threshold']:.0%}), {check['scheme']}")
+    for part, info in m.get("training", {}).items():
+        recipe = info.get("recipe") or {}
+        lines.append(f"trained     {part}: {info.get('step')} steps, batch "
+                     f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, seed {recipe.get('seed')}")
+    total = sum(entry["bytes"] for entry in m["files"].values())
+    lines.append(f"files       {len(m['files'])}, {total / 1e6:.1f} MB, sha256 verified")
+    lines += [f"  {name:20s} {entry['bytes'] / 1e6:8.2f} MB" for name, entry in m["files"].items()]
+    print("\n".join(lines))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mogo", description="MOGO: text to 3D human motion, token by token, on a CPU.")
@@ -168,6 +282,39 @@ def build_parser() -> argparse.ArgumentParser:
                      help="continue the run in --out from its checkpoint.pt (the settings "
                           "without a default above are the run's)")
     t2m.set_defaults(run=_cmd_train_t2m)
+
+    def sampling_arguments(command: argparse.ArgumentParser) -> None:
+        command.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
+        command.add_argument("--seed", type=int, help="same seed, same motion (default: random, "
+                                                      "printed)")
+        command.add_argument("--temperature", type=float, help="0 = greedy (default: bundle's)")
+        command.add_argument("--top-k", type=int, help="0 = off (default: bundle's)")
+        command.add_argument("--top-p", type=float, help="1 = off (default: bundle's)")
+        command.add_argument("--guidance", type=float,
+                             help="classifier-free guidance scale, 1 = off (default: bundle's)")
+
+    generate = commands.add_parser(
+        "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)")
+    generate.add_argument("text", nargs="?", help="what the person does")
+    generate.add_argument("--seconds", type=float,
+                          help="length (default: the model ends the motion itself)")
+    generate.add_argument("--prompts-file", help="a schedule instead of one prompt: lines "
+                                                 "'SECONDS PROMPT', played as one motion")
+    generate.add_argument("--out", default="out", help="output folder (default out/)")
+    generate.add_argument("--name", help="file name without extension (default: from the prompt)")
+    sampling_arguments(generate)
+    generate.set_defaults(run=_cmd_generate)
+
+    stream = commands.add_parser(
+        "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)")
+    stream.add_argument("text", help="what the person does")
+    stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
+    sampling_arguments(stream)
+    stream.set_defaults(run=_cmd_stream)
+
+    info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
+    info.add_argument("bundle", nargs="?", help="bundle folder")
+    info.set_defaults(run=_cmd_info)
 
     export = commands.add_parser("export", help="trained runs -> a bundle folder for the runtime")
     export.add_argument("--vq", required=True, help="the `mogo train vq` run folder")

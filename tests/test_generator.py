@@ -1,0 +1,214 @@
+"""The public runtime on the default bundle shipped in the package: text -> motion, streams,
+prompt switching, determinism, constant memory and step time, and refusal of bad input."""
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from mogo.runtime.bundle import BundleError
+from mogo.runtime.generator import DEFAULT_BUNDLE, MotionGenerator
+
+
+@pytest.fixture(scope="module")
+def generator():
+    return MotionGenerator.load()
+
+
+def test_generate_gives_a_motion_of_the_asked_length(generator):
+    motion = generator.generate("a person walks forward.", seconds=2.5, seed=0)
+    assert motion.joints.shape == (50, 22, 3) and motion.features.shape == (50, 263)
+    assert motion.tokens.shape == (50, 6) and motion.fps == 20.0 and motion.seed == 0
+    assert motion.prompts == [(0, "a person walks forward.")]
+    assert np.all(np.isfinite(motion.joints))
+    walked = motion.joints[-1, 0] - motion.joints[0, 0]
+    assert walked[2] > 0.5  # the trained model walks forward (+Z), not in place
+
+
+def test_the_model_can_end_the_motion_itself_and_batches_prompts(generator):
+    motions = generator.generate(["a person jumps on the spot three times.", "someone waves."],
+                                 seed=3)
+    assert len(motions) == 2 and [m.seed for m in motions] == [3, 4]
+    for motion in motions:
+        assert 1 <= len(motion.joints) <= round(9.8 * 20)
+
+
+def test_same_seed_same_tokens_also_in_another_process(generator):
+    tokens = generator.generate("a person runs backward.", seconds=1, seed=7).tokens
+    again = generator.generate("a person runs backward.", seconds=1, seed=7).tokens
+    other = generator.generate("a person runs backward.", seconds=1, seed=8).tokens
+    assert np.array_equal(tokens, again) and not np.array_equal(tokens, other)
+    script = ("import hashlib, numpy as np\n"
+              "from mogo.runtime.generator import MotionGenerator\n"
+              "t = MotionGenerator.load().generate('a person runs backward.', seconds=1, seed=7)"
+              ".tokens\nprint(hashlib.sha256(np.ascontiguousarray(t).tobytes()).hexdigest())\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == hashlib.sha256(tokens.tobytes()).hexdigest()
+
+
+def test_sessions_in_parallel_threads_do_not_affect_each_other(generator):
+    prompts = ["a person walks forward.", "a person squats.", "someone claps.", "a man bows."]
+    alone = [generator.generate(p, seconds=1.5, seed=k).tokens for k, p in enumerate(prompts)]
+    together = [None] * len(prompts)
+
+    def work(k):
+        together[k] = generator.generate(prompts[k], seconds=1.5, seed=k).tokens
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(len(prompts))]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert all(np.array_equal(a, b) for a, b in zip(alone, together))
+
+
+def test_streamed_frames_equal_the_offline_decode(generator):
+    lookahead = generator.bundle.manifest["vq"]["decoder"]["lookahead"]
+    stream = generator.stream("a person jogs in a circle.", seed=2)
+    streamed = np.concatenate([stream.step() for _ in range(100)])
+    assert len(streamed) == 100 - lookahead
+    recorded = generator.stream("a person jogs in a circle.", seed=2)
+    recorded.advance(100)
+    motion = recorded.finish()  # the last frames too, decoded with the end padding
+    offline = generator.decode(motion.tokens, [])
+    assert motion.joints.shape == offline.joints.shape == (100, 22, 3)
+    np.testing.assert_allclose(motion.joints, offline.joints, atol=1e-5)
+    np.testing.assert_allclose(motion.features, offline.features, atol=1e-4)
+    np.testing.assert_allclose(streamed, offline.joints[:len(streamed)], atol=1e-5)
+
+
+def test_frames_iterator_and_lookahead(generator):
+    stream = generator.stream("a person walks forward.", seed=0)
+    lookahead = generator.bundle.manifest["vq"]["decoder"]["lookahead"]
+    assert all(len(stream.step()) == 0 for _ in range(lookahead))  # waiting for right context
+    assert len(stream.step()) == 1
+    frames = list(stream.frames(limit=10))
+    assert len(frames) == 9 and frames[0].shape == (22, 3)
+
+
+def test_prompt_switch_keeps_the_past_changes_the_future_without_a_jump(generator):
+    steps, switch = 120, 60
+    plain = generator.stream("a person walks forward.", seed=5)
+    plain.advance(steps)
+    plain = plain.finish()
+    switched = generator.stream("a person walks forward.", seed=5)
+    switched.advance(switch)
+    switched.set_prompt("a person jumps on the spot.")
+    switched.advance(steps - switch)
+    switched = switched.finish()
+    assert switched.prompts == [(0, "a person walks forward."),
+                                (switch, "a person jumps on the spot.")]
+    assert np.array_equal(switched.tokens[:switch], plain.tokens[:switch])
+    assert not np.array_equal(switched.tokens[switch:], plain.tokens[switch:])
+    lookahead = generator.bundle.manifest["vq"]["decoder"]["lookahead"]
+    before = switch - lookahead  # frames not yet influenced by any token after the switch
+    np.testing.assert_allclose(switched.joints[:before], plain.joints[:before], atol=1e-5)
+    moves = np.abs(np.diff(switched.joints, axis=0)).max(axis=(1, 2))  # per-frame joint motion
+    around = moves[switch - 3:switch + 3]
+    elsewhere = np.concatenate([moves[:switch - 3], moves[switch + 3:]])
+    assert around.max() <= elsewhere.max()
+
+
+def test_a_schedule_plays_as_one_motion(generator):
+    motion = generator.play([("a person walks forward.", 2.0), ("a person waves.", 1.5)], seed=1)
+    assert len(motion.joints) == 70 and [f for f, _ in motion.prompts] == [0, 40]
+    moves = np.abs(np.diff(motion.joints, axis=0)).max(axis=(1, 2))
+    assert moves[37:43].max() <= np.delete(moves, np.s_[37:43]).max()  # no jump at the switch
+
+
+def test_continue_from_goes_on_from_the_end_of_a_clip(generator):
+    clip = generator.generate("a person walks forward.", seconds=3, seed=4)
+    stream = generator.stream("a person turns left.", seed=9)
+    stream.continue_from(clip)
+    frames = np.array(list(stream.frames(limit=40)))
+    assert frames.shape == (40, 22, 3)
+    gap = np.abs(frames[0] - clip.joints[-1]).max()
+    assert gap < 0.2, f"the continuation starts {gap:.2f} m away from the clip's last frame"
+    with pytest.raises(ValueError, match="before the first step"):
+        stream.continue_from(clip)
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="needs /proc for RSS")
+def test_a_20000_step_stream_keeps_memory_and_step_time_flat(generator):
+    stream = generator.stream("a person jogs in a circle.", seed=11)
+    times = np.zeros(20_000)
+    for n in range(20_000):
+        start = time.perf_counter()
+        stream.step()
+        times[n] = time.perf_counter() - start
+        if n == 2_000:
+            warm_rss = _rss_bytes()
+    growth = _rss_bytes() - warm_rss
+    assert growth < 5 * 2**20, f"RSS grew {growth / 2**20:.1f} MiB after warm-up"
+    early, late = np.median(times[1_000:2_000]), np.median(times[-1_000:])
+    assert late / early < 1.15, f"step time {early * 1e3:.2f} ms -> {late * 1e3:.2f} ms"
+
+
+@pytest.mark.parametrize("call,message", [
+    (lambda g: g.generate(""), "the prompt is empty"),
+    (lambda g: g.generate("   \n"), "the prompt is empty"),
+    (lambda g: g.generate("walk", seconds=0), "seconds must be a positive number"),
+    (lambda g: g.generate("walk", seconds=-2), "seconds must be a positive number"),
+    (lambda g: g.generate("walk", seconds=float("nan")), "seconds must be a positive number"),
+    (lambda g: g.generate("walk", seconds=1e6), "at most 600"),
+    (lambda g: g.generate("walk", temperature=-1), "temperature must be >= 0"),
+    (lambda g: g.generate("walk", top_k=-3), "top_k must be >= 0"),
+    (lambda g: g.generate("walk", top_p=0), r"top_p must be in \(0, 1\]"),
+    (lambda g: g.generate("walk", seed=-1), "seed must be a non-negative integer"),
+    (lambda g: g.generate([]), "no prompt given"),
+    (lambda g: g.play([]), "the schedule is empty"),
+    (lambda g: g.stream(""), "the prompt is empty"),
+])
+def test_bad_input_is_refused_clearly(generator, call, message):
+    with pytest.raises(ValueError, match=message):
+        call(generator)
+
+
+def test_unknown_characters_are_handled(generator):
+    motion = generator.generate("a persön wälks ☃ forward!!", seconds=1, seed=0)
+    assert np.all(np.isfinite(motion.joints))
+
+
+def test_a_corrupted_or_missing_bundle_is_refused_naming_the_file(tmp_path):
+    with pytest.raises(BundleError, match="no such bundle folder"):
+        MotionGenerator.load(tmp_path / "nowhere")
+    bundle = tmp_path / "bundle"
+    shutil.copytree(DEFAULT_BUNDLE, bundle)
+    original = (bundle / "level_0.onnx").read_bytes()
+    damaged = bytearray(original)
+    damaged[len(damaged) // 2] ^= 0xFF
+    (bundle / "level_0.onnx").write_bytes(bytes(damaged))
+    with pytest.raises(BundleError, match="level_0.onnx: sha256 does not match"):
+        MotionGenerator.load(bundle)
+    (bundle / "level_0.onnx").write_bytes(original)
+    (bundle / "vq_decoder.onnx").unlink()
+    with pytest.raises(BundleError, match="vq_decoder.onnx: missing"):
+        MotionGenerator.load(bundle)
+
+
+def test_the_default_bundle_runs_with_torch_unimportable():
+    script = (
+        "import sys\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in ('torch', 'onnxscript') or name.startswith('mogo.export'):\n"
+        "            raise ImportError(f'{name} is blocked in this test')\n"
+        "sys.meta_path.insert(0, Block())\n"
+        "from mogo.runtime.generator import MotionGenerator\n"
+        "motion = MotionGenerator.load().generate('a person waves.', seconds=1, seed=0)\n"
+        "assert 'torch' not in sys.modules\n"
+        "print(motion.joints.shape)\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "(20, 22, 3)"
