@@ -465,7 +465,7 @@ def reconstruction_metrics(model: MoSAVQ, batches: Iterable[Tensor]) -> dict:
             l1[k] += (recon - x).abs().mean().item()
             mpjpe[k] += (model.joints(recon) - joints).norm(dim=-1).mean().item()
         for l in range(L):
-            counts[l] += torch.bincount(ids[..., l].flatten(), minlength=K).double()
+            counts[l] += torch.bincount(ids[..., l].flatten(), minlength=K).double().cpu()
         batches_seen += 1
     model.train(was_training)
     if batches_seen == 0:
