@@ -36,7 +36,7 @@ from mogo.export.t2m import T2M, T2MConfig
 from mogo.export.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig, encode_captions,
                                       train_tokenizer)
 from mogo.export.training import (Process, all_reduce_mean, batches, end_process,
-                                  format_duration, load_checkpoint, merge_recipe, previous_run,
+                                  finish_together, format_duration, load_checkpoint, merge_recipe, previous_run,
                                   resumed_metrics_log, save_checkpoint, seed_everything,
                                   set_learning_rate, start_process, step_seed, steps_per_epoch,
                                   warmup_cosine, wrap_model)
@@ -290,6 +290,7 @@ def train_t2m(options: T2MTrainOptions) -> None:
             vq=dict(run=str(Path(options.vq).resolve()), checkpoint=str(vq_path.resolve()),
                     sha256=vq_sha256, down_factor=vq.config.down_factor))
         _train(out, config, state, options, process)
+        finish_together(process)
     finally:
         end_process(process)
 

@@ -27,7 +27,7 @@ from torch import Tensor, nn
 
 from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
 from mogo.export.training import (Process, all_reduce_mean, batches, end_process,
-                                  format_duration, merge_recipe, previous_run,
+                                  finish_together, format_duration, merge_recipe, previous_run,
                                   resumed_metrics_log, save_checkpoint, seed_everything,
                                   set_learning_rate, start_process, step_seed, steps_per_epoch,
                                   warmup_cosine, wrap_model)
@@ -94,6 +94,7 @@ def train_vq(options: VQTrainOptions) -> None:
     process = start_process(options.device)
     try:
         _train(out, folder, config, recipe, state, options, process)
+        finish_together(process)
     finally:
         end_process(process)
 

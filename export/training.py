@@ -62,6 +62,13 @@ def start_process(device: str = "auto") -> Process:
     return Process(rank, world_size, torch.device(device))
 
 
+def finish_together(process: Process) -> None:
+    """After a run completes: a rank tearing gloo down while another still works (rank 0
+    writing its last checkpoint) can abort the process, so every rank waits here first."""
+    if process.distributed:
+        dist.barrier()
+
+
 def end_process(process: Process) -> None:
     if process.distributed and dist.is_initialized():
         dist.destroy_process_group()
