@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from mogo.export.recipes import T2M_RECIPE, VQ_RECIPE
+
 
 class CliError(Exception):
     """A user-facing error: printed as one line, exit status 2."""
@@ -183,7 +185,8 @@ def _cmd_info(args: argparse.Namespace) -> None:
     for part, info in m.get("training", {}).items():
         recipe = info.get("recipe") or {}
         lines.append(f"trained     {part}: {info.get('step')} steps, batch "
-                     f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, seed {recipe.get('seed')}")
+                     f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
+                     f"seed {recipe.get('seed')}")
     total = sum(entry["bytes"] for entry in m["files"].values())
     lines.append(f"files       {len(m['files'])}, {total / 1e6:.1f} MB, sha256 verified")
     lines += [f"  {name:20s} {entry['bytes'] / 1e6:8.2f} MB" for name, entry in m["files"].items()]
@@ -227,17 +230,35 @@ def build_parser() -> argparse.ArgumentParser:
                                               "processes)")
     train_commands = train.add_subparsers(dest="train_command", required=True, metavar="MODEL")
 
+    def run_arguments(command: argparse.ArgumentParser, recipe: dict, val: int, checkpoint: int,
+                      log: int) -> None:
+        """What both trainers take: `recipe` holds the run's defaults; then the default number
+        of steps between validations, checkpoint.pt writes and progress lines."""
+        command.add_argument("--data", required=True, help="dataset folder (HumanML3D layout)")
+        command.add_argument("--out", required=True, help="run folder (checkpoints, metrics)")
+        command.add_argument("--config", dest="preset", choices=["tiny", "cpu_default", "paper"],
+                             help="model size (default cpu_default)")
+        command.add_argument("--steps", type=int, default=20000, help="total optimizer steps")
+        command.add_argument("--batch-size", type=int,
+                             help=f"per process (default {recipe['batch_size']})")
+        command.add_argument("--lr", type=float, help=f"peak learning rate, cosine to lr/10 "
+                                                      f"(default {recipe['lr']:g})")
+        command.add_argument("--warmup", type=int,
+                             help=f"linear warm-up steps (default {recipe['warmup']})")
+        command.add_argument("--seed", type=int, help=f"(default {recipe['seed']})")
+        command.add_argument("--device", default="auto", help="auto, cpu or cuda")
+        for name, default, what in (("val", val, "validations"),
+                                    ("checkpoint", checkpoint, "checkpoint.pt writes"),
+                                    ("log", log, "progress lines")):
+            command.add_argument(f"--{name}-every", type=int, default=default,
+                                 help=f"steps between {what}")
+        command.add_argument("--resume", action="store_true",
+                             help="continue the run in --out from its checkpoint.pt (the "
+                                  "settings without a default above are the run's)")
+
     vq = train_commands.add_parser(
         "vq", help="train the MoSA-VQ motion tokenizer on random crops")
-    vq.add_argument("--data", required=True, help="dataset folder (HumanML3D layout)")
-    vq.add_argument("--out", required=True, help="run folder (checkpoints, metrics)")
-    vq.add_argument("--config", dest="preset", choices=["tiny", "cpu_default", "paper"],
-                    help="model size (default cpu_default)")
-    vq.add_argument("--steps", type=int, default=20000, help="total optimizer steps")
-    vq.add_argument("--batch-size", type=int, help="crops per process (default 64)")
-    vq.add_argument("--lr", type=float, help="peak learning rate, cosine to lr/10 (default 2e-4)")
-    vq.add_argument("--warmup", type=int, help="linear warm-up steps (default 1000)")
-    vq.add_argument("--seed", type=int, help="(default 0)")
+    run_arguments(vq, VQ_RECIPE, val=1000, checkpoint=1000, log=100)
     vq.add_argument("--crop-frames", type=int, help="frames per training crop (default 64)")
     vq.add_argument("--levels", type=int, help="residual levels (ablation; default the config's)")
     vq.add_argument("--down-factor", type=int, choices=[1, 2, 4],
@@ -248,43 +269,20 @@ def build_parser() -> argparse.ArgumentParser:
                     help="plain residual VQ, without the per-level scale and bias (ablation)")
     vq.add_argument("--decorrelation", type=float,
                     help="weight of the cross-level decorrelation loss (0 turns it off)")
-    vq.add_argument("--device", default="auto", help="auto, cpu or cuda")
-    vq.add_argument("--val-every", type=int, default=1000, help="steps between validations")
     vq.add_argument("--val-clips", type=int, default=256,
                     help="val clips decoded whole at each validation")
-    vq.add_argument("--checkpoint-every", type=int, default=1000,
-                    help="steps between checkpoint.pt writes")
-    vq.add_argument("--log-every", type=int, default=100, help="steps between progress lines")
-    vq.add_argument("--resume", action="store_true",
-                    help="continue the run in --out from its checkpoint.pt")
     vq.set_defaults(run=_cmd_train_vq)
 
     t2m = train_commands.add_parser(
         "t2m", help="train the text encoder and RQHC-Transformer on a trained VQ's tokens")
-    t2m.add_argument("--data", required=True, help="dataset folder (HumanML3D layout)")
+    run_arguments(t2m, T2M_RECIPE, val=500, checkpoint=500, log=50)
     t2m.add_argument("--vq", required=True, help="the `mogo train vq` run folder")
-    t2m.add_argument("--out", required=True, help="run folder (checkpoints, metrics, tokens)")
-    t2m.add_argument("--config", dest="preset", choices=["tiny", "cpu_default", "paper"],
-                     help="model size (default cpu_default)")
-    t2m.add_argument("--steps", type=int, default=20000, help="total optimizer steps")
-    t2m.add_argument("--batch-size", type=int, help="per process (default 32)")
-    t2m.add_argument("--lr", type=float, help="peak learning rate, cosine to lr/10 "
-                                             "(default 2e-4)")
-    t2m.add_argument("--warmup", type=int, help="linear warm-up steps (default 1000)")
-    t2m.add_argument("--seed", type=int, help="(default 0)")
     t2m.add_argument("--text-encoder", choices=["small"], help="(default small)")
-    t2m.add_argument("--device", default="auto", help="auto, cpu or cuda")
-    t2m.add_argument("--val-every", type=int, default=500, help="steps between validations")
-    t2m.add_argument("--checkpoint-every", type=int, default=500,
-                     help="steps between checkpoint.pt writes")
-    t2m.add_argument("--log-every", type=int, default=50, help="steps between progress lines")
-    t2m.add_argument("--resume", action="store_true",
-                     help="continue the run in --out from its checkpoint.pt (the settings "
-                          "without a default above are the run's)")
     t2m.set_defaults(run=_cmd_train_t2m)
 
     def sampling_arguments(command: argparse.ArgumentParser) -> None:
-        command.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
+        command.add_argument("--bundle",
+                             help="bundle folder (default: the model shipped with mogo)")
         command.add_argument("--seed", type=int, help="same seed, same motion (default: random, "
                                                       "printed)")
         command.add_argument("--temperature", type=float, help="0 = greedy (default: bundle's)")

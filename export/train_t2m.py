@@ -32,14 +32,16 @@ from torch import Tensor, nn
 
 from mogo.export.dataset import HumanML3DFolder, TextMotionDataset, _EpochSeeded
 from mogo.export.progress import Progress
+from mogo.export.recipes import T2M_RECIPE
 from mogo.export.t2m import T2M, T2MConfig
 from mogo.export.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig, encode_captions,
                                       train_tokenizer)
-from mogo.export.training import (Process, all_reduce_mean, batches, end_process,
-                                  finish_together, format_duration, load_checkpoint, merge_recipe, previous_run,
-                                  resumed_metrics_log, save_checkpoint, seed_everything,
-                                  set_learning_rate, start_process, step_seed, steps_per_epoch,
-                                  warmup_cosine, wrap_model)
+from mogo.export.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
+                                  finish_together, format_duration, load_checkpoint,
+                                  merge_recipe, previous_run, resumed_metrics_log,
+                                  save_checkpoint, seed_everything, set_learning_rate,
+                                  start_process, step_seed, steps_per_epoch, warmup_cosine,
+                                  wrap_model)
 from mogo.export.vq import MoSAVQ, VQConfig
 from mogo.runtime.bundle import file_sha256
 
@@ -50,9 +52,6 @@ GRAD_CLIP = 1.0
 TOKENIZER = "tokenizer.json"
 PRESETS: dict[str, Callable[[], T2MConfig]] = dict(
     tiny=T2MConfig.tiny, cpu_default=T2MConfig.cpu_default, paper=T2MConfig.paper)
-# What defines a run: fixed at its start, taken from the checkpoint on --resume.
-DEFAULT_RECIPE = dict(preset="cpu_default", batch_size=32, lr=2e-4, warmup=1000, seed=0,
-                      text_encoder="small")
 
 
 # -- the VQ: the one place that knows how a VQ run is stored ---------------------------------
@@ -238,32 +237,15 @@ def collate_tokens(batch: list[dict]) -> dict:
 
 # -- training ----------------------------------------------------------------------------------
 
-@dataclass
-class T2MTrainOptions:
-    """Recipe fields left None take the run's values on resume, DEFAULT_RECIPE's otherwise."""
-    data: Path
+@dataclass(kw_only=True)
+class T2MTrainOptions(RunOptions):
     vq: Path
-    out: Path
-    steps: int = 20000
-    preset: str | None = None
-    batch_size: int | None = None
-    lr: float | None = None
-    warmup: int | None = None
-    seed: int | None = None
     text_encoder: str | None = None
-    device: str = "auto"
-    val_every: int = 500
-    checkpoint_every: int = 500
-    log_every: int = 50
-    resume: bool = False
 
 
 def train_t2m(options: T2MTrainOptions) -> None:
     """Train (or resume) a T2M run; under torchrun every process calls this, rank 0 writes."""
-    for name in ("steps", "val_every", "checkpoint_every", "log_every"):
-        if getattr(options, name) <= 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be positive, "
-                             f"got {getattr(options, name)}")
+    options.check_intervals()
     out = Path(options.out)
     state = previous_run(out, options.resume)
     recipe = _recipe(options, state)
@@ -296,7 +278,7 @@ def train_t2m(options: T2MTrainOptions) -> None:
 
 
 def _recipe(options: T2MTrainOptions, state: dict | None) -> dict:
-    recipe = merge_recipe(DEFAULT_RECIPE, {name: getattr(options, name) for name in DEFAULT_RECIPE},
+    recipe = merge_recipe(T2M_RECIPE, {name: getattr(options, name) for name in T2M_RECIPE},
                           None if state is None else state["config"])
     if recipe["preset"] not in PRESETS:
         raise ValueError(f"unknown config {recipe['preset']!r}; use {', '.join(PRESETS)}")
@@ -408,7 +390,8 @@ def _train(out: Path, config: dict, state: dict | None, options: T2MTrainOptions
             log.write("train", step, lr=lr, **values, steps_per_s=round(rate, 3))
             if process.is_main:
                 print(f"step {step}/{steps}  {_summary(values)}  lr {lr:.2e}  "
-                      f"{rate:.2f} steps/s  eta {format_duration((steps - step) / rate)}", flush=True)
+                      f"{rate:.2f} steps/s  eta {format_duration((steps - step) / rate)}",
+                      flush=True)
             sums, count, window_start = torch.zeros_like(sums), 0, time.perf_counter()
         if step % options.val_every == 0 or step == steps:
             values = validate(model, val_set, tokenizer, batch_size, process)

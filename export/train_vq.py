@@ -26,7 +26,8 @@ import torch
 from torch import Tensor, nn
 
 from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
-from mogo.export.training import (Process, all_reduce_mean, batches, end_process,
+from mogo.export.recipes import VQ_MODEL_SWITCHES, VQ_RECIPE
+from mogo.export.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
                                   finish_together, format_duration, merge_recipe, previous_run,
                                   resumed_metrics_log, save_checkpoint, seed_everything,
                                   set_learning_rate, start_process, step_seed, steps_per_epoch,
@@ -36,47 +37,30 @@ from mogo.export.vq import MoSAVQ, VQConfig, reconstruction_metrics
 PRESETS: dict[str, Callable[[], VQConfig]] = dict(
     tiny=VQConfig.tiny, cpu_default=VQConfig.cpu_default, paper=VQConfig.paper)
 GRAD_CLIP = 1.0
-# What defines a run: fixed at its start, taken from the checkpoint on --resume. The model
-# switches (None: the preset's value) exist for ablations.
-MODEL_SWITCHES = ("levels", "down_factor", "causal", "scale_bias", "decorrelation")
-DEFAULT_RECIPE = dict(preset="cpu_default", batch_size=64, lr=2e-4, warmup=1000, seed=0,
-                      crop_frames=64, **{name: None for name in MODEL_SWITCHES})
 
 
-@dataclass
-class VQTrainOptions:
-    """Recipe fields left None take the run's values on resume, DEFAULT_RECIPE's otherwise."""
-    data: Path
-    out: Path
-    steps: int = 20000
-    preset: str | None = None
-    batch_size: int | None = None
-    lr: float | None = None
-    warmup: int | None = None
-    seed: int | None = None
+@dataclass(kw_only=True)
+class VQTrainOptions(RunOptions):
     crop_frames: int | None = None
     levels: int | None = None
     down_factor: int | None = None
     causal: bool | None = None
     scale_bias: bool | None = None
     decorrelation: float | None = None
-    device: str = "auto"
     val_every: int = 1000
     val_clips: int = 256
     checkpoint_every: int = 1000
     log_every: int = 100
-    resume: bool = False
 
 
 def train_vq(options: VQTrainOptions) -> None:
     """Train (or resume) a VQ run; under torchrun every process calls this, rank 0 writes."""
-    for name in ("steps", "val_every", "val_clips", "checkpoint_every", "log_every"):
-        if getattr(options, name) <= 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be positive, "
-                             f"got {getattr(options, name)}")
+    options.check_intervals()
+    if options.val_clips <= 0:
+        raise ValueError(f"--val-clips must be positive, got {options.val_clips}")
     out = Path(options.out)
     state = previous_run(out, options.resume)
-    recipe = merge_recipe(DEFAULT_RECIPE, {n: getattr(options, n) for n in DEFAULT_RECIPE},
+    recipe = merge_recipe(VQ_RECIPE, {n: getattr(options, n) for n in VQ_RECIPE},
                           state)
     if recipe["preset"] not in PRESETS:
         raise ValueError(f"unknown config {recipe['preset']!r}; use {', '.join(PRESETS)}")
@@ -101,7 +85,7 @@ def train_vq(options: VQTrainOptions) -> None:
 
 def vq_config(recipe: dict, feature_dim: int) -> VQConfig:
     """The preset with the recipe's model switches and the data's feature size."""
-    switches = {name: recipe[name] for name in MODEL_SWITCHES if recipe[name] is not None}
+    switches = {name: recipe[name] for name in VQ_MODEL_SWITCHES if recipe[name] is not None}
     return replace(PRESETS[recipe["preset"]](), feature_dim=feature_dim, **switches)
 
 

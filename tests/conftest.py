@@ -1,5 +1,27 @@
+import subprocess
+import sys
+
 import numpy as np
 import pytest
+
+BLOCK_TORCH = (
+    "import sys\n"
+    "class Block:\n"
+    "    def find_spec(self, name, path=None, target=None):\n"
+    "        if name.split('.')[0] in ('torch', 'onnxscript') or name.startswith('mogo.export'):\n"
+    "            raise ImportError(f'{name} is blocked in this test')\n"
+    "sys.meta_path.insert(0, Block())\n")
+
+
+@pytest.fixture
+def run_without_torch():
+    """Runs a Python script in a fresh interpreter where torch, onnxscript and mogo.export
+    cannot be imported; ends by checking torch was never loaded."""
+    def run(script: str) -> subprocess.CompletedProcess:
+        check = "assert 'torch' not in sys.modules\n"
+        return subprocess.run([sys.executable, "-c", BLOCK_TORCH + script + check],
+                              capture_output=True, text=True)
+    return run
 
 CLIP_FRAMES = [40 + 3 * k for k in range(12)]  # 40 .. 73 feature rows
 SPLITS = {"train": range(0, 8), "val": range(8, 10), "test": range(10, 12)}

@@ -1,7 +1,6 @@
 """The runtime boundary: numpy, onnxruntime, tokenizers and pillow only; no pickle."""
 import ast
 import pkgutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -45,19 +44,9 @@ def test_runtime_loads_no_pickle():
                         f"{path.name}:{node.lineno} np.load without allow_pickle=False")
 
 
-def test_runtime_imports_with_torch_unimportable():
+def test_runtime_imports_with_torch_unimportable(run_without_torch):
     modules = [f"mogo.runtime.{m.name}" for m in pkgutil.iter_modules([str(RUNTIME_DIR)])]
-    script = (
-        "import sys\n"
-        "class Block:\n"
-        "    def find_spec(self, name, path=None, target=None):\n"
-        "        if name.split('.')[0] in ('torch', 'onnxscript') or name.startswith('mogo.export'):\n"
-        "            raise ImportError(f'{name} is blocked in this test')\n"
-        "sys.meta_path.insert(0, Block())\n"
-        f"import importlib\nfor m in {modules!r}:\n    importlib.import_module(m)\n"
-        "assert 'torch' not in sys.modules\n"
-        "print('ok', len(sys.modules))\n"
-    )
-    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    result = run_without_torch(f"import importlib\nfor m in {modules!r}:\n"
+                               "    importlib.import_module(m)\nprint('ok', len(sys.modules))\n")
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("ok")

@@ -86,7 +86,7 @@ def test_cli_trains_and_writes_the_run(tiny_humanml3d, vq_run, tmp_path):
 def test_token_cache_is_reused_until_the_vq_changes(tiny_humanml3d, vq_run, tmp_path):
     folder = HumanML3DFolder(tiny_humanml3d)
     vq = train_t2m.load_vq(vq_run)
-    recipe = dict(train_t2m.DEFAULT_RECIPE, preset="tiny")
+    recipe = dict(train_t2m.T2M_RECIPE, preset="tiny")
     prepare = lambda sha: train_t2m._prepare(tmp_path, folder, vq, recipe, sha, fresh=False,
                                              device=torch.device("cpu"))
     cache = tmp_path / "tokens" / "val.npz"

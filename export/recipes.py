@@ -1,0 +1,9 @@
+"""The default recipes of `mogo train vq` and `mogo train t2m`: what defines a run, fixed at
+its start and taken from the checkpoint on --resume. Torch-free, so the CLI can show them."""
+
+VQ_MODEL_SWITCHES = ("levels", "down_factor", "causal", "scale_bias", "decorrelation")
+# The model switches (None: the preset's value) exist for ablations.
+VQ_RECIPE = dict(preset="cpu_default", batch_size=64, lr=2e-4, warmup=1000, seed=0,
+                 crop_frames=64, **{name: None for name in VQ_MODEL_SWITCHES})
+T2M_RECIPE = dict(preset="cpu_default", batch_size=32, lr=2e-4, warmup=1000, seed=0,
+                  text_encoder="small")
