@@ -21,7 +21,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +69,10 @@ def vq_checkpoint(run_dir: str | Path) -> Path:
 
 def load_vq(run_dir: str | Path) -> MoSAVQ:
     """The trained MoSA-VQ of a run, in eval mode (its own normalisation statistics inside)."""
-    state = load_checkpoint(vq_checkpoint(run_dir))
+    path = vq_checkpoint(run_dir)
+    state = load_checkpoint(path)
+    if set(state["config"]) != {f.name for f in fields(VQConfig)}:
+        raise ValueError(f"{path}: not a `mogo train vq` checkpoint")
     model = MoSAVQ(VQConfig(**state["config"]))
     model.load_state_dict(state["model"])
     return model.eval()
@@ -134,8 +137,11 @@ def t2m_checkpoint(run_dir: str | Path) -> Path:
 def load_t2m(run_dir: str | Path) -> tuple[T2M, nn.Module, Tokenizer]:
     """(T2M, text encoder, tokenizer) of a trained run, both models in eval mode."""
     run = Path(run_dir)
-    state = load_checkpoint(t2m_checkpoint(run))
+    path = t2m_checkpoint(run)
+    state = load_checkpoint(path)
     config = state["config"]
+    if not {"t2m", "text_encoder", "tokenizer"} <= set(config):
+        raise ValueError(f"{path}: not a `mogo train t2m` checkpoint")
     model = _build_model(config["text_encoder"], T2MConfig(**config["t2m"]))
     model.load_state_dict(state["model"])
     model.eval()

@@ -40,10 +40,8 @@ def caption_lines(k: int) -> list[str]:
     return lines
 
 
-@pytest.fixture
-def tiny_humanml3d(tmp_path):
+def make_tiny_humanml3d(root):
     """A 12-clip HumanML3D-layout folder of random 263-dim features (IDs 000000..000011)."""
-    root = tmp_path / "tiny"
     (root / "new_joint_vecs").mkdir(parents=True)
     (root / "texts").mkdir()
     rng = np.random.default_rng(0)
@@ -60,3 +58,8 @@ def tiny_humanml3d(tmp_path):
     for name, ks in SPLITS.items():
         (root / f"{name}.txt").write_text("".join(f"{k:06d}\n" for k in ks))
     return root
+
+
+@pytest.fixture
+def tiny_humanml3d(tmp_path):
+    return make_tiny_humanml3d(tmp_path / "tiny")

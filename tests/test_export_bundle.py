@@ -1,0 +1,91 @@
+"""`mogo export` end to end on tiny runs: the bundle it writes loads in the runtime, whose
+tokens are the torch reference's; int8 and fp16 storage are measured, not assumed."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import make_tiny_humanml3d
+from mogo.export.bundle import _quantize_levels
+from mogo.export.cli import main
+from mogo.export.generate_torch import generate
+from mogo.export.text_encoder import encode_captions
+from mogo.export.train_t2m import load_t2m
+from mogo.runtime.generator import MotionGenerator
+
+PROMPT = "a person walks forward."
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("export")
+    data = make_tiny_humanml3d(root / "data")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        common = ["--config", "tiny", "--batch-size", "4", "--steps", "3", "--warmup", "1"]
+        assert main(["train", "vq", "--data", str(data), "--out", str(root / "vq"),
+                     "--crop-frames", "40", "--val-clips", "2", *common]) == 0
+        assert main(["train", "t2m", "--data", str(data), "--vq", str(root / "vq"),
+                     "--out", str(root / "t2m"), *common]) == 0
+        assert main(["export", "--vq", str(root / "vq"), "--t2m", str(root / "t2m"),
+                     "--out", str(root / "bundle")]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    return root
+
+
+def test_the_manifest_describes_the_bundle(runs):
+    manifest = json.loads((runs / "bundle" / "manifest.json").read_text())
+    expected = {"manifest.json", "tokenizer.json", "text_encoder.onnx", "vq_encoder.onnx",
+                "vq_decoder.onnx", "mean.npy", "std.npy"} | {f"level_{l}.onnx" for l in range(3)}
+    assert {p.name for p in (runs / "bundle").iterdir()} == expected
+    assert set(manifest["files"]) == expected - {"manifest.json"}
+    assert manifest["skeleton"] == "humanml3d" and manifest["fps"] == 20.0
+    assert manifest["t2m"]["num_levels"] == 3 and manifest["training"]["t2m"]["step"] == 3
+    assert "int8" not in manifest
+    storage = manifest["fp16_storage"]
+    assert storage["files"] == ["text_encoder.onnx", "vq_encoder.onnx"]
+    assert storage["prompt_embedding_max_abs_difference"] < 1e-2
+    assert storage["vq_encoder_token_agreement"] > 0.9
+
+
+@pytest.mark.parametrize("options", [dict(temperature=0.0), dict(temperature=1.0, top_p=0.9)])
+def test_runtime_tokens_are_the_torch_references(runs, options):
+    generator = MotionGenerator.load(runs / "bundle")
+    motion = generator.generate(PROMPT, seconds=1.5, seed=3, **options)
+    t2m, text_encoder, tokenizer = load_t2m(runs / "t2m")
+    with torch.no_grad():
+        embedding = text_encoder.encode(*encode_captions(tokenizer, [PROMPT]))[0]
+    reference = generate(t2m, embedding, num_frames=30, seed=3, **options)
+    assert np.array_equal(motion.tokens, reference)
+
+
+def test_int8_levels_are_checked_and_kept_only_if_they_agree(runs, tmp_path):
+    bundle = tmp_path / "bundle"
+    shutil.copytree(runs / "bundle", bundle)
+    manifest = json.loads((bundle / "manifest.json").read_text())
+    levels = manifest["t2m"]["levels"]
+    _, text_encoder, tokenizer = load_t2m(runs / "t2m")
+    fp32_size = sum((bundle / level["file"]).stat().st_size for level in levels)
+    check = _quantize_levels(bundle, levels, manifest["t2m"]["end_token"], text_encoder,
+                             tokenizer, [PROMPT, "someone jumps."])
+    assert 0 <= check["greedy_token_agreement"] <= 1 and check["prompts"] == 2
+    size = sum((bundle / level["file"]).stat().st_size for level in levels)
+    assert (size < fp32_size) == check["used"]
+    assert not (bundle / "int8").exists()
+
+
+def test_export_refuses_a_used_folder_and_mismatched_runs(runs, capsys):
+    assert main(["export", "--vq", str(runs / "vq"), "--t2m", str(runs / "t2m"),
+                 "--out", str(runs / "bundle")]) == 2
+    assert "is not empty" in capsys.readouterr().err
+    assert main(["export", "--vq", str(runs / "t2m"), "--t2m", str(runs / "t2m"),
+                 "--out", str(runs / "other")]) == 2
+    assert "best.pt: not a `mogo train vq` checkpoint" in capsys.readouterr().err
+    assert main(["export", "--vq", str(runs / "vq"), "--t2m", str(runs / "vq"),
+                 "--out", str(runs / "other")]) == 2
+    assert "best.pt: not a `mogo train t2m` checkpoint" in capsys.readouterr().err
+    assert not (runs / "other").exists()
