@@ -1,3 +1,4 @@
+import json
 import subprocess
 import sys
 
@@ -11,6 +12,28 @@ BLOCK_TORCH = (
     "        if name.split('.')[0] in ('torch', 'onnxscript') or name.startswith('mogo.export'):\n"
     "            raise ImportError(f'{name} is blocked in this test')\n"
     "sys.meta_path.insert(0, Block())\n")
+
+
+def records(run, kind=None) -> list[dict]:
+    """A training run's metrics.jsonl records, without the timings."""
+    lines = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in r.items() if k not in ("seconds", "steps_per_s")}
+            for r in lines if kind is None or r["kind"] == kind]
+
+
+def interrupt_after_step(monkeypatch, stop_step: int) -> None:
+    """Make training stop like Ctrl-C right after logging `stop_step`, before any checkpoint
+    of it: what a resumed run must recover from."""
+    from mogo.export.training import MetricsLog
+
+    write = MetricsLog.write
+
+    def interrupted(self, kind, step, **values):
+        write(self, kind, step, **values)
+        if step == stop_step:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(MetricsLog, "write", interrupted)
 
 
 @pytest.fixture

@@ -1,4 +1,3 @@
-import json
 import os
 import subprocess
 import sys
@@ -8,13 +7,14 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import interrupt_after_step, records
 from mogo.export import train_t2m
 from mogo.export.cli import main
 from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
 from mogo.export.generate_torch import generate
 from mogo.export.t2m import T2MConfig
 from mogo.export.text_encoder import encode_captions
-from mogo.export.training import MetricsLog, load_checkpoint, save_checkpoint
+from mogo.export.training import load_checkpoint, save_checkpoint
 from mogo.export.vq import MoSAVQ, VQConfig
 
 TRAIN_SPANS, VAL_SPANS = 13, 4  # the tiny_humanml3d captions of at least 40 frames
@@ -46,13 +46,6 @@ def vq_run(tiny_humanml3d, tmp_path):
 def train(data, vq, out, *extra) -> int:
     return main(["train", "t2m", "--data", str(data), "--vq", str(vq), "--out", str(out),
                  "--config", "tiny", "--batch-size", "4", "--log-every", "1", *map(str, extra)])
-
-
-def records(run, kind=None) -> list[dict]:
-    """metrics.jsonl without the timings."""
-    lines = (run / "metrics.jsonl").read_text().splitlines()
-    return [{k: v for k, v in json.loads(line).items() if k not in ("seconds", "steps_per_s")}
-            for line in lines if kind is None or json.loads(line)["kind"] == kind]
 
 
 def test_cli_trains_and_writes_the_run(tiny_humanml3d, vq_run, tmp_path):
@@ -102,14 +95,7 @@ def test_resume_continues_exactly(tiny_humanml3d, vq_run, tmp_path, monkeypatch)
     args = ("--steps", 7, "--val-every", 2, "--checkpoint-every", 2)
     assert train(tiny_humanml3d, vq_run, tmp_path / "whole", *args) == 0
 
-    write = MetricsLog.write
-
-    def killed_after_step_5(self, kind, step, **values):  # logged, but never checkpointed
-        write(self, kind, step, **values)
-        if step == 5:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(MetricsLog, "write", killed_after_step_5)
+    interrupt_after_step(monkeypatch, 5)  # logged, but never checkpointed
     assert train(tiny_humanml3d, vq_run, tmp_path / "split", *args) == 130
     assert records(tmp_path / "split")[-1]["step"] == 5
     monkeypatch.undo()

@@ -1,6 +1,5 @@
 """`mogo train vq` on a tiny HumanML3D-layout folder: the run it writes, exact resume, two
 processes on gloo, and one-line errors."""
-import json
 import os
 import subprocess
 import sys
@@ -8,9 +7,10 @@ import sys
 import pytest
 import torch
 
+from conftest import interrupt_after_step, records
 from mogo.export.cli import main
 from mogo.export.train_t2m import load_vq
-from mogo.export.training import MetricsLog, load_checkpoint
+from mogo.export.training import load_checkpoint
 
 
 @pytest.fixture(autouse=True)
@@ -25,13 +25,6 @@ def train(data, out, *extra) -> int:
     return main(["train", "vq", "--data", str(data), "--out", str(out), "--config", "tiny",
                  "--batch-size", "4", "--crop-frames", "40", "--warmup", "2", "--log-every", "1",
                  "--val-clips", "2", *map(str, extra)])
-
-
-def records(run, kind=None) -> list[dict]:
-    """metrics.jsonl without the timings."""
-    lines = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
-    return [{k: v for k, v in r.items() if k not in ("seconds", "steps_per_s")}
-            for r in lines if kind is None or r["kind"] == kind]
 
 
 def test_cli_trains_and_writes_a_run_the_t2m_can_use(tiny_humanml3d, tmp_path):
@@ -54,14 +47,7 @@ def test_cli_trains_and_writes_a_run_the_t2m_can_use(tiny_humanml3d, tmp_path):
 def test_resume_continues_exactly(tiny_humanml3d, tmp_path, monkeypatch):
     args = ("--steps", 7, "--val-every", 2, "--checkpoint-every", 2)
     assert train(tiny_humanml3d, tmp_path / "whole", *args) == 0
-    write = MetricsLog.write
-
-    def killed_after_step_5(self, kind, step, **values):  # logged, but never checkpointed
-        write(self, kind, step, **values)
-        if step == 5:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(MetricsLog, "write", killed_after_step_5)
+    interrupt_after_step(monkeypatch, 5)  # logged, but never checkpointed
     assert train(tiny_humanml3d, tmp_path / "split", *args) == 130
     monkeypatch.undo()
     assert train(tiny_humanml3d, tmp_path / "split", *args, "--resume") == 0
