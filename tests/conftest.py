@@ -14,6 +14,17 @@ BLOCK_TORCH = (
     "sys.meta_path.insert(0, Block())\n")
 
 
+@pytest.fixture
+def one_torch_thread():
+    """Tiny models on shared cores: one intra-op thread is ~10x faster than two fighting."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def records(run, kind=None) -> list[dict]:
     """A training run's metrics.jsonl records, without the timings."""
     lines = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]

@@ -20,13 +20,7 @@ from mogo.export.vq import MoSAVQ, VQConfig
 TRAIN_SPANS, VAL_SPANS = 13, 4  # the tiny_humanml3d captions of at least 40 frames
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny models on shared cores: one intra-op thread is ~10x faster than two fighting."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture

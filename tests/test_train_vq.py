@@ -13,12 +13,7 @@ from mogo.export.train_t2m import load_vq
 from mogo.export.training import load_checkpoint
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def train(data, out, *extra) -> int:
