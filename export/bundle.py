@@ -26,10 +26,9 @@ from mogo.runtime.token_generator import TokenGenerator
 
 INT8_MIN_AGREEMENT = 0.98  # share of greedy tokens int8 must keep to replace fp32
 CHECK_STEPS = 40  # steps of each check prompt
+CHECK_PROMPTS = 16  # distinct val captions the int8 check generates from
 DEFAULTS = dict(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=128, max_seconds=9.8)
 
-
-CHECK_PROMPTS = 16  # distinct val captions the int8 check generates from
 
 
 def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) -> dict:

@@ -238,15 +238,13 @@ class MotionStream:
         stream was recorded by `advance`, the whole Motion."""
         features = self._decoder.flush()
         self._emit(np.zeros((0, self.generator.tokens.num_levels), np.int64), features)
-        record = self._record or []
         g = self.generator
-        return Motion(np.concatenate([r[1] for r in record]) if record else
-                      np.zeros((0, g.bundle.manifest["feature_dim"]), np.float32),
-                      np.concatenate([r[2] for r in record]) if record else
-                      np.zeros((0, g.skeleton.num_joints, 3), np.float32),
-                      g.fps, np.concatenate([r[0] for r in record]) if record else
-                      np.zeros((0, g.tokens.num_levels), np.int64),
-                      g.skeleton, list(self.prompts), self.seed)
+        empty = (np.zeros((0, g.tokens.num_levels), np.int64),
+                 np.zeros((0, g.bundle.manifest["feature_dim"]), np.float32),
+                 np.zeros((0, g.skeleton.num_joints, 3), np.float32))
+        tokens, features, joints = (np.concatenate(column)
+                                    for column in zip(empty, *(self._record or [])))
+        return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
 
     def _emit(self, tokens: np.ndarray, normalised: np.ndarray) -> np.ndarray:
         features = self._denormalise(normalised)
