@@ -3,7 +3,11 @@
 One step = every level once, coarse to fine, at the next position: position 0 is the prompt
 prefix (the first step is the prefill), position n >= 1 holds the tokens of step n - 1 and
 predicts step n. Each level's presents are fed back as its pasts on the next step, untouched;
-the cache is only copied when slots are dropped. Guidance runs a batch of two rows,
+once the sliding window is full, the newest slot overwrites the oldest in place (slot order
+means nothing: every slot carries its position), so no step copies the cache. The levels of
+one step are independent (level l sees only earlier steps), so with several workers they run
+concurrently, each on one core, and are sampled afterwards in level order. Guidance runs a
+batch of two rows,
 conditional and unconditional. The rules (uniforms, end token, window) are those of the torch
 reference `mogo.export.generate_torch.generate`, so both give the same tokens.
 
@@ -14,7 +18,8 @@ past key/value pairs layer by layer; output 0 is the logits, then the matching p
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -28,8 +33,12 @@ class TokenGenerator:
     """The level graphs of one model; `start` opens a stream on them (streams share sessions)."""
 
     def __init__(self, level_paths: Sequence[str | os.PathLike], graphs: Sequence[dict],
-                 end_token: int, intra_op_threads: int = 1):
-        """graphs[l]: inputs, outputs (names in protocol order), heads, head_dim of level l."""
+                 end_token: int, intra_op_threads: int = 1, level_workers: int = 1):
+        """graphs[l]: inputs, outputs (names in protocol order), heads, head_dim of level l.
+        level_workers > 1 runs the levels of a step in that many groups at once, balanced by
+        layer count (each session then keeps `intra_op_threads`, best 1)."""
+        if level_workers < 1:
+            raise ValueError(f"level_workers must be >= 1, got {level_workers}")
         if len(level_paths) != len(graphs):
             raise ValueError(f"{len(level_paths)} graph files for {len(graphs)} graph entries")
         self.sessions = [cpu_session(path, intra_op_threads) for path in level_paths]
@@ -42,6 +51,9 @@ class TokenGenerator:
         self.graphs = list(graphs)
         self.end_token = end_token
         self.num_levels = len(graphs)
+        self.level_groups = balanced_groups([g["num_layers"] for g in graphs], level_workers)
+        self._pool = (ThreadPoolExecutor(len(self.level_groups) - 1, "mogo-level")
+                      if len(self.level_groups) > 1 else None)
 
     def start(self, prompt_embedding: np.ndarray, seed: int = 0,
               sampling: Sampling = Sampling(), window: int | None = None,
@@ -73,6 +85,21 @@ class TokenGenerator:
         logits, *presents = self.sessions[level].run(graph["outputs"], feed)
         return logits, presents
 
+    def each_level(self, call: Callable[[int], tuple]) -> list[tuple]:
+        """[call(level) for every level], the level groups run concurrently when there are
+        several (onnxruntime releases the GIL while a graph runs)."""
+        if self._pool is None:
+            return [call(level) for level in range(self.num_levels)]
+
+        def run_group(group: list[int]) -> list[tuple]:
+            return [call(level) for level in group]
+
+        others = [self._pool.submit(run_group, group) for group in self.level_groups[1:]]
+        results = dict(zip(self.level_groups[0], run_group(self.level_groups[0])))
+        for group, future in zip(self.level_groups[1:], others):
+            results.update(zip(group, future.result()))
+        return [results[level] for level in range(self.num_levels)]
+
     def empty_cache(self, level: int, batch: int) -> Cache:
         """The past of a prefill: every layer's key and value with no slots."""
         graph = self.graphs[level]
@@ -84,8 +111,8 @@ class TokenStream:
     """One generation: its prompt, sampler state and cache. `step()` until it returns None.
 
     The cache holds slots at `positions` (absolute, shared by all levels), the prefix at slot 0.
-    With `window` W, once it holds more than the prefix and W steps the oldest step slots are
-    dropped, so memory and step time stay constant; distances to the kept slots stay exact.
+    With `window` W, once it holds the prefix and W steps each new step replaces the oldest, so
+    memory and step time stay constant; distances to the kept slots stay exact.
     allow_end=False forces the length (the caller stops): level 0 never draws the end token,
     which it otherwise may from the second step on.
     """
@@ -106,6 +133,7 @@ class TokenStream:
         self.last = np.zeros(L, np.int64)  # tokens of the latest step (none yet: any valid id)
         self.steps = 0  # steps drawn
         self.ended = False
+        self._oldest = 1  # with a full window: the slot the next step overwrites
 
     def step(self) -> np.ndarray | None:
         """The tokens (L,) of the next step, or None once level 0 has drawn the end token.
@@ -116,11 +144,11 @@ class TokenStream:
         uniforms = step_uniforms(self.rng, g.num_levels)
         token_ids = np.repeat(self.last[None, None], len(self.uncond), axis=0)  # (B, 1, L)
         position = np.array([n], np.int64)
+        outputs = g.each_level(lambda level: g.run(level, self.prompt, self.uncond, token_ids,
+                                                   position, self.positions, self.caches[level]))
         end_allowed = self.allow_end and n > 0
-        row, caches = np.zeros(g.num_levels, np.int64), []
-        for level in range(g.num_levels):
-            logits, present = g.run(level, self.prompt, self.uncond, token_ids, position,
-                                    self.positions, self.caches[level])
+        row = np.zeros(g.num_levels, np.int64)
+        for level, (logits, _) in enumerate(outputs):
             forbid = None if level > 0 or end_allowed else g.end_token
             token = choose_token(logits[0], logits[1] if self.sampling.guided else None,
                                  uniforms[level], self.sampling, forbid)
@@ -128,13 +156,14 @@ class TokenStream:
                 self.ended = True
                 return None
             row[level] = token
-            caches.append(present)
-        self.caches = caches
-        self.positions = np.append(self.positions, n)
-        self.slot_tokens = np.concatenate([self.slot_tokens, self.last[None]])
+        presents = [present for _, present in outputs]
+        if self.window is not None and len(self.positions) == 1 + self.window:
+            self._overwrite_oldest(presents, n)
+        else:
+            self.caches = presents
+            self.positions = np.append(self.positions, n)
+            self.slot_tokens = np.concatenate([self.slot_tokens, self.last[None]])
         self.last, self.steps = row, n + 1
-        if self.window is not None and len(self.positions) > 1 + self.window:
-            self._keep(np.r_[0, len(self.positions) - self.window:len(self.positions)])
         return row
 
     def set_prompt(self, prompt_embedding: np.ndarray) -> None:
@@ -159,6 +188,7 @@ class TokenStream:
         if self.window is not None and n > 1 + self.window:
             keep = np.r_[0, n - self.window:n]
             self.positions, self.slot_tokens = self.positions[keep], self.slot_tokens[keep]
+        self._oldest = 1
         self._prefill()
 
     def _prefill(self) -> None:
@@ -170,13 +200,29 @@ class TokenStream:
                              g.empty_cache(level, len(self.uncond)))[1]
                        for level in range(g.num_levels)]
 
-    def _keep(self, slots: np.ndarray) -> None:
-        """Keep only these cache slots (copies every cache tensor)."""
-        self.positions = self.positions[slots]
-        self.slot_tokens = self.slot_tokens[slots]
-        self.caches = [[np.take(t, slots, axis=2) for t in cache] for cache in self.caches]
+    def _overwrite_oldest(self, presents: list[Cache], n: int) -> None:
+        """Full window: the new slot (the last of every present) replaces the oldest step slot
+        in place; the prefix slot 0 stays. Slots are then in ring order, oldest at _oldest."""
+        slot = self._oldest
+        for cache, present in zip(self.caches, presents):
+            for held, new in zip(cache, present):
+                held[:, :, slot] = new[:, :, -1]
+        self.positions[slot] = n
+        self.slot_tokens[slot] = self.last
+        self._oldest = slot % self.window + 1
 
     def _batch(self, prompt_embedding: np.ndarray) -> np.ndarray:
         """(text_dim,) -> (B, text_dim) float32, one row per guidance branch."""
         prompt = np.asarray(prompt_embedding, np.float32).reshape(1, -1)
         return np.repeat(prompt, len(self.uncond), axis=0)
+
+
+def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:
+    """Levels split into at most `groups` groups of about equal total layers (largest first,
+    each to the lightest group), each group in level order; group 0 holds level 0."""
+    loads: list[tuple[int, list[int]]] = [(0, []) for _ in range(min(groups, len(layers)))]
+    for level in sorted(range(len(layers)), key=lambda l: -layers[l]):
+        lightest = min(range(len(loads)), key=lambda k: loads[k][0])
+        load, members = loads[lightest]
+        loads[lightest] = (load + layers[level], members + [level])
+    return sorted((sorted(members) for _, members in loads if members), key=lambda m: m[0])
