@@ -34,11 +34,17 @@ from mogo.runtime.token_generator import TokenGenerator, TokenStream
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
+STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
 
 
 class MotionGenerator:
     """One loaded bundle. Sessions are shared: any number of streams, also in parallel
-    threads, each with its own cache and random state."""
+    threads, each with its own cache and random state.
+
+    `threads`: the cores one generation may use. The level graphs of a step then run in that
+    many groups at once, each on one core (on 2 cores this beat onnxruntime's own threads for
+    every model size measured, bench/PERFORMANCE_NOTES.md); the other graphs get that many
+    intra-op threads. Tokens do not depend on it."""
 
     def __init__(self, bundle: Bundle, threads: int = 1):
         self.bundle = bundle
@@ -51,7 +57,8 @@ class MotionGenerator:
         self._text = _Graph(bundle, text["encoder"], threads)
         t2m = manifest["t2m"]
         self.tokens = TokenGenerator([bundle.path(g["file"]) for g in t2m["levels"]],
-                                     t2m["levels"], t2m["end_token"], threads)
+                                     t2m["levels"], t2m["end_token"], intra_op_threads=1,
+                                     level_workers=threads)
         vq = manifest["vq"]
         self.down_factor = int(vq["down_factor"])
         self._decoder = vq["decoder"]
@@ -158,7 +165,7 @@ class MotionGenerator:
         d = self._decoder
         return StreamingDecoder(self._decoder_session, d["left_context"], d["lookahead"],
                                 self.codebook_size, ids_name=d["inputs"][0],
-                                features_name=d["outputs"][0])
+                                features_name=d["outputs"][0], every=STREAM_DECODE_EVERY)
 
     def sampling(self, temperature=None, top_k=None, top_p=None, guidance=None) -> Sampling:
         """Sampling options, the bundle's defaults where not given."""
@@ -182,8 +189,9 @@ class MotionGenerator:
 
 class MotionStream:
     """One endless motion: `step()` draws one token step and returns the frames that became
-    final (joints (n, J, 3); none while the decoder waits for its right context). Memory and
-    step time stay constant: the KV cache slides over the last `window` steps."""
+    final (joints (n, J, 3); none while the decoder waits for its right context, then bursts of
+    STREAM_DECODE_EVERY). Memory and step time stay constant: the KV cache slides over the
+    last `window` steps."""
 
     def __init__(self, generator: MotionGenerator, text: str, seed: int, sampling: Sampling,
                  window: int | None):
@@ -197,17 +205,26 @@ class MotionStream:
         self._joints = JointStream(generator.skeleton)
         self.frames_emitted = 0
         self._skip = 0
+        self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
         self._record: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     def step(self) -> np.ndarray:
         row = self._tokens.step()
-        features = self._decoder.push(row[None])
-        return self._emit(row[None], features)
+        frames = self._emit(row[None], self._decoder.push(row[None]))
+        if len(self._unread):
+            frames, self._unread = np.concatenate([self._unread, frames]), self._unread[:0]
+        return frames
 
     def frames(self, limit: int | None = None) -> Iterator[np.ndarray]:
-        """Frames (J, 3) one by one, forever or until `limit` frames."""
-        while limit is None or self.frames_emitted < limit:
-            for frame in self.step():
+        """Frames (J, 3) one by one, forever or `limit` of them. Frames decoded but not yet
+        yielded (the decoder gives them in bursts) wait for the next frames() or step()."""
+        yielded = 0
+        while limit is None or yielded < limit:
+            if not len(self._unread):
+                self._unread = self.step()
+            while len(self._unread) and (limit is None or yielded < limit):
+                frame, self._unread = self._unread[0], self._unread[1:]
+                yielded += 1
                 yield frame
 
     def set_prompt(self, text: str) -> None:

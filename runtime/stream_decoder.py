@@ -7,7 +7,9 @@ frames wherever that range lies inside the window, or the window edge is the seq
 (both then see the same zero padding): padding at an inner window edge only disturbs frames
 within reach of it. So each push decodes one window (left context, new frames, lookahead) and
 then forgets every token no later frame can reach: the cost per frame and the memory stay
-constant however long the stream runs.
+constant however long the stream runs. A window costs about the same for one new token as for
+a few, so with `every` = k it is decoded once k tokens are ready (the first frames still come
+as soon as they can): k times fewer decodes, frames in bursts of k tokens.
 
 Contexts are counted in tokens. With temporal downsampling a token decodes to several frames;
 that factor is read off each decode (output length / input length), so any factor works.
@@ -33,7 +35,7 @@ class StreamingDecoder:
     def __init__(self, session_or_path: ort.InferenceSession | str | os.PathLike,
                  left_context: int, lookahead: int, codebook_size: int, *,
                  ids_name: str = "ids", features_name: str = "features",
-                 intra_op_threads: int = 1):
+                 intra_op_threads: int = 1, every: int = 1):
         if isinstance(session_or_path, ort.InferenceSession):
             self.session = session_or_path
         else:
@@ -41,7 +43,9 @@ class StreamingDecoder:
         if min(left_context, lookahead) < 0 or codebook_size < 1:
             raise ValueError(f"need left_context, lookahead >= 0 and codebook_size >= 1, got "
                              f"{left_context}, {lookahead}, {codebook_size}")
-        self.left_context, self.lookahead = left_context, lookahead
+        if every < 1:
+            raise ValueError(f"every must be >= 1 token, got {every}")
+        self.left_context, self.lookahead, self.every = left_context, lookahead, every
         self.codebook_size = codebook_size
         self.ids_name, self.features_name = ids_name, features_name
         self.levels = _static_last_dim(self.session.get_inputs(), ids_name)
@@ -57,7 +61,7 @@ class StreamingDecoder:
 
     @property
     def buffered_tokens(self) -> int:
-        """Tokens held between calls: at most left_context + lookahead."""
+        """Tokens held between calls: at most left_context + lookahead + every - 1."""
         return len(self._tokens)
 
     def push(self, ids: np.ndarray) -> np.ndarray:
@@ -65,7 +69,10 @@ class StreamingDecoder:
         ids = self._checked(ids)
         self._tokens = np.concatenate([self._tokens, ids])
         self.pushed += len(ids)
-        return self._emit(self.pushed - self.lookahead)
+        ready = self.pushed - self.lookahead
+        if self.emitted and ready - self.emitted < self.every:
+            return np.zeros((0, self.feature_dim), np.float32)
+        return self._emit(ready)
 
     def flush(self) -> np.ndarray:
         """End the stream: return its remaining frames, decoded with the end padding an offline

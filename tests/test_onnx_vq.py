@@ -123,20 +123,23 @@ def test_decoder_matches_torch(exported):
         np.testing.assert_allclose(features, expected, rtol=0, atol=1e-4)
 
 
-def test_stream_of_2000_tokens_in_random_pushes_equals_the_offline_decode(exported):
-    """Push sizes 0 .. 5; the tokens held stay within the decoder's receptive field."""
+@pytest.mark.parametrize("every", [1, 4])
+def test_stream_of_2000_tokens_in_random_pushes_equals_the_offline_decode(exported, every):
+    """Push sizes 0 .. 5; the tokens held stay within the decoder's receptive field (plus the
+    tokens waiting for a decode every `every`)."""
     model, graph, session, _ = exported
     rng = np.random.default_rng(1)
     ids = random_ids(rng, model.config, 2000)
-    stream = streaming_decoder(graph, session)
-    bound = graph["left_context"] + graph["lookahead"]
+    stream = streaming_decoder(graph, session, every=every)
+    bound = graph["left_context"] + graph["lookahead"] + every - 1
     chunks, start = [], 0
     while start < len(ids):
         stop = start + int(rng.integers(0, 6))
         chunks.append(stream.push(ids[start:stop]))
         start = stop
         assert stream.buffered_tokens <= bound
-        assert stream.emitted == max(0, min(start, 2000) - graph["lookahead"])
+        ready = max(0, min(start, 2000) - graph["lookahead"])
+        assert ready - every < stream.emitted <= ready or stream.emitted == ready
     chunks.append(stream.flush())
     offline = stream.decode_offline(ids)
     assert offline.shape == (2000 * model.config.down_factor, model.config.feature_dim)
