@@ -169,6 +169,18 @@ def _store_once_per_call_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tok
         np.abs(embedding).max()), vq_encoder_token_agreement=round(float(agreement), 4))
 
 
+def quantize_level_graph(source: Path, target: Path) -> None:
+    """The int8 scheme of a bundle's level graphs (see `_quantize_levels`), `source` -> `target`."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    prepared = target.with_name(f"pre_{target.name}")
+    quant_pre_process(str(source), str(prepared), skip_symbolic_shape=True)
+    quantize_dynamic(prepared, target, op_types_to_quantize=["MatMul", "Gather"],
+                     weight_type=QuantType.QUInt8)
+    prepared.unlink()
+
+
 @torch.no_grad()
 def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder,
                      tokenizer: Tokenizer, prompts: list[str]) -> dict:
@@ -178,19 +190,12 @@ def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder
     at every step of fp32's greedy stream, does int8 pick the same tokens given the same
     past (teacher-forced, so one early difference does not count twice)? The quantised graphs
     replace the fp32 ones only if they pass."""
-    from onnxruntime.quantization import QuantType, quantize_dynamic
-    from onnxruntime.quantization.shape_inference import quant_pre_process
-
     if not prompts:
         raise ValueError("the int8 accuracy check needs at least one prompt")
     staging = out / "int8"
     staging.mkdir()
     for level in levels:
-        prepared = staging / f"pre_{level['file']}"
-        quant_pre_process(str(out / level["file"]), str(prepared), skip_symbolic_shape=True)
-        quantize_dynamic(prepared, staging / level["file"],
-                         op_types_to_quantize=["MatMul", "Gather"], weight_type=QuantType.QUInt8)
-        prepared.unlink()
+        quantize_level_graph(out / level["file"], staging / level["file"])
     encoded = tokenizer.encode_batch(prompts)
     ids = torch.tensor([e.ids for e in encoded])
     mask = torch.tensor([e.attention_mask for e in encoded])

@@ -63,6 +63,13 @@ def _cmd_train_t2m(args: argparse.Namespace) -> None:
     train_t2m(T2MTrainOptions(**_training_options(args)))
 
 
+def _cmd_bench(args: argparse.Namespace) -> None:
+    _require_torch()
+    from mogo.bench.latency import main_from_args
+
+    main_from_args(args)
+
+
 def _cmd_export(args: argparse.Namespace) -> None:
     _require_torch()
     from mogo.export.bundle import export_bundle
@@ -322,6 +329,24 @@ def build_parser() -> argparse.ArgumentParser:
                         help="dynamic int8 level graphs, kept only if they pass the token "
                              "agreement check against fp32")
     export.set_defaults(run=_cmd_export)
+
+    bench = commands.add_parser(
+        "bench", help="latency: the bundle through the runtime, and one step of the bundle-size "
+                      "and paper-size models on onnxruntime fp32/int8 and torch eager")
+    bench.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
+    bench.add_argument("--out", default="bench_out",
+                       help="folder for bench.json and the plots (default bench_out/)")
+    bench.add_argument("--work", default=str(Path.home() / ".cache" / "mogo" / "bench"),
+                       help="where the exported random-weight models are kept between runs")
+    bench.add_argument("--threads", type=int, nargs="+", help="thread counts (default 1 2)")
+    bench.add_argument("--lengths", type=int, nargs="+",
+                       help="KV cache lengths of the step tables (default 1 10 50 100 200)")
+    bench.add_argument("--long-steps", type=int, help="steps of the long stream (default 10000)")
+    bench.add_argument("--no-paper", action="store_true",
+                       help="skip the paper-size model (its first export takes minutes)")
+    bench.add_argument("--quick", action="store_true",
+                       help="a smoke run: tiny model, few lengths and rounds (for tests)")
+    bench.set_defaults(run=_cmd_bench)
 
     return parser
 

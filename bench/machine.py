@@ -1,0 +1,64 @@
+"""What the machine can do at best, measured in the same run as the latencies they bound:
+memory read bandwidth (numpy, one reading thread per core used) and float32 matrix FLOP/s
+(torch, at the thread count used). A step can be no faster than its bytes over the bandwidth
+nor its FLOPs over the peak; the larger of the two is its floor."""
+from __future__ import annotations
+
+import os
+import platform
+import threading
+import time
+
+import numpy as np
+import torch
+
+BANDWIDTH_BYTES = 512 * 2**20  # far larger than any CPU cache
+MATMUL_SIZE = 1024
+
+
+def read_bandwidth(threads: int, repeats: int = 5) -> float:
+    """Bytes per second that `threads` threads sum from memory, each its own slice (numpy
+    releases the GIL in the reduction). Best of `repeats`: the floor is what is possible."""
+    data = np.ones(BANDWIDTH_BYTES // 4, np.float32)
+    parts = np.array_split(data, threads)
+    best = 0.0
+    for _ in range(repeats):
+        workers = [threading.Thread(target=np.add.reduce, args=(part,)) for part in parts]
+        start = time.perf_counter()
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join()
+        best = max(best, data.nbytes / (time.perf_counter() - start))
+    return best
+
+
+def matmul_flops(threads: int, repeats: int = 5) -> float:
+    """float32 FLOP/s of a square matrix product on `threads` torch threads."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        a = torch.randn(MATMUL_SIZE, MATMUL_SIZE)
+        times = []
+        for _ in range(repeats + 1):
+            start = time.perf_counter()
+            a @ a
+            times.append(time.perf_counter() - start)
+        return 2 * MATMUL_SIZE**3 / min(times[1:])
+    finally:
+        torch.set_num_threads(previous)
+
+
+def describe() -> str:
+    """One line: processor, cores, Python and library versions."""
+    import onnxruntime
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as info:
+            names = [line.split(":", 1)[1].strip() for line in info if line.startswith("model name")]
+        cpu = names[0] if names else cpu
+    except OSError:
+        pass
+    return (f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+            f"onnxruntime {onnxruntime.__version__}, torch {torch.__version__}")

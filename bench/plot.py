@@ -1,0 +1,68 @@
+"""A small line chart as a PNG with pillow alone (no plotting library to install): log-log
+axes, one coloured line per series, a legend. Enough to see how step time grows with the cache."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from PIL import Image, ImageDraw
+
+WIDTH, HEIGHT = 760, 460
+LEFT, RIGHT, TOP, BOTTOM = 70, 250, 40, 50  # margins around the plot area
+COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+           "#7f7f7f", "#bcbd22", "#17becf"]
+
+
+def log_line_chart(path: Path, title: str, x_label: str, y_label: str,
+                   series: dict[str, list[tuple[float, float]]]) -> None:
+    """series: name -> [(x, y), ...], all values > 0; drawn on log10 axes."""
+    points = [p for values in series.values() for p in values]
+    if not points:
+        raise ValueError("nothing to plot")
+    x_range = _decades(min(x for x, _ in points), max(x for x, _ in points))
+    y_range = _decades(min(y for _, y in points), max(y for _, y in points))
+    image = Image.new("RGB", (WIDTH, HEIGHT), "white")
+    draw = ImageDraw.Draw(image)
+    plot_w, plot_h = WIDTH - LEFT - RIGHT, HEIGHT - TOP - BOTTOM
+
+    def to_pixel(x: float, y: float) -> tuple[float, float]:
+        fx = (math.log10(x) - x_range[0]) / (x_range[1] - x_range[0])
+        fy = (math.log10(y) - y_range[0]) / (y_range[1] - y_range[0])
+        return LEFT + fx * plot_w, TOP + (1 - fy) * plot_h
+
+    for decade in range(x_range[0], x_range[1] + 1):
+        px, _ = to_pixel(10**decade, 10**y_range[0])
+        draw.line([(px, TOP), (px, TOP + plot_h)], fill="#dddddd")
+        draw.text((px - 10, TOP + plot_h + 6), _label(10**decade), fill="black")
+    for decade in range(y_range[0], y_range[1] + 1):
+        _, py = to_pixel(10**x_range[0], 10**decade)
+        draw.line([(LEFT, py), (LEFT + plot_w, py)], fill="#dddddd")
+        draw.text((8, py - 6), _label(10**decade), fill="black")
+    draw.rectangle([LEFT, TOP, LEFT + plot_w, TOP + plot_h], outline="black")
+    draw.text((LEFT, 12), title, fill="black")
+    draw.text((LEFT + plot_w // 2 - 40, HEIGHT - 22), x_label, fill="black")
+    draw.text((8, TOP - 24), y_label, fill="black")
+    for k, (name, values) in enumerate(series.items()):
+        colour = COLOURS[k % len(COLOURS)]
+        pixels = [to_pixel(x, y) for x, y in sorted(values)]
+        if len(pixels) > 1:
+            draw.line(pixels, fill=colour, width=2)
+        for px, py in pixels:
+            draw.ellipse([px - 3, py - 3, px + 3, py + 3], fill=colour)
+        legend_y = TOP + 16 * k
+        draw.line([(WIDTH - RIGHT + 15, legend_y + 6), (WIDTH - RIGHT + 35, legend_y + 6)],
+                  fill=colour, width=3)
+        draw.text((WIDTH - RIGHT + 40, legend_y), name, fill="black")
+    image.save(path, optimize=True)
+
+
+def _decades(low: float, high: float) -> tuple[int, int]:
+    """Whole powers of ten around [low, high], at least one decade apart."""
+    if low <= 0:
+        raise ValueError(f"log axes need values > 0, got {low}")
+    first, last = math.floor(math.log10(low)), math.ceil(math.log10(high))
+    return first, max(last, first + 1)
+
+
+def _label(value: float) -> str:
+    return f"{value:g}" if 1e-3 <= value < 1e5 else f"1e{round(math.log10(value))}"
