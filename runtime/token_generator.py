@@ -23,7 +23,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from mogo.runtime.sampling import Sampling, choose_token, make_rng, step_uniforms
+from mogo.runtime.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 from mogo.runtime._session import cpu_session
 
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
@@ -51,6 +51,7 @@ class TokenGenerator:
         self.graphs = list(graphs)
         self.end_token = end_token
         self.num_levels = len(graphs)
+        self.num_classes = end_token + 1  # level 0's logits: every code and the end token
         self.level_groups = balanced_groups([g["num_layers"] for g in graphs], level_workers)
         self._pool = (ThreadPoolExecutor(len(self.level_groups) - 1, "mogo-level")
                       if len(self.level_groups) > 1 else None)
@@ -147,15 +148,15 @@ class TokenStream:
         outputs = g.each_level(lambda level: g.run(level, self.prompt, self.uncond, token_ids,
                                                    position, self.positions, self.caches[level]))
         end_allowed = self.allow_end and n > 0
-        row = np.zeros(g.num_levels, np.int64)
-        for level, (logits, _) in enumerate(outputs):
-            forbid = None if level > 0 or end_allowed else g.end_token
-            token = choose_token(logits[0], logits[1] if self.sampling.guided else None,
-                                 uniforms[level], self.sampling, forbid)
-            if token == g.end_token:
-                self.ended = True
-                return None
-            row[level] = token
+        logits = np.full((len(self.uncond), g.num_levels, g.num_classes), -np.inf, np.float32)
+        for level, (level_logits, _) in enumerate(outputs):
+            logits[:, level, :level_logits.shape[1]] = level_logits
+        forbid = [None if end_allowed else g.end_token] + [None] * (g.num_levels - 1)
+        row = choose_tokens(logits[0], logits[1] if self.sampling.guided else None, uniforms,
+                            self.sampling, forbid)
+        if row[0] == g.end_token:
+            self.ended = True
+            return None
         presents = [present for _, present in outputs]
         if self.window is not None and len(self.positions) == 1 + self.window:
             self._overwrite_oldest(presents, n)

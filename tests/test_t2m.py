@@ -5,7 +5,8 @@ import torch
 
 from mogo.export.generate_torch import generate
 from mogo.export.t2m import T2M, RelativeAttention, T2MConfig, corrupt_tokens
-from mogo.runtime.sampling import Sampling, choose_token, make_rng, step_uniforms
+from mogo.runtime.sampling import (Sampling, choose_token, choose_tokens, make_rng,
+                                   step_uniforms)
 
 B, T = 2, 12
 
@@ -244,6 +245,29 @@ def test_top_k_and_top_p_masks():
     assert drawn(Sampling(top_p=0.9)) == {0, 1, 3}
     assert drawn(Sampling(top_k=2, top_p=0.9)) == {1, 3}
     assert drawn(Sampling(temperature=100.0)) == {0, 1, 2, 3}
+
+
+@pytest.mark.parametrize("sampling", [Sampling(), Sampling(temperature=0), Sampling(top_k=5),
+                                      Sampling(top_p=0.6), Sampling(top_k=7, top_p=0.8),
+                                      Sampling(temperature=0.7, guidance_scale=2.0)])
+def test_rows_chosen_together_equal_rows_chosen_alone(sampling):
+    """The levels of a step are sampled in one call, shorter rows padded with -inf: each row
+    gets the token it would get alone (ties included: integer logits)."""
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        widths = [13] + [12] * 4
+        cond = np.full((5, 13), -np.inf)
+        uncond = np.full((5, 13), -np.inf)
+        for row, width in enumerate(widths):
+            cond[row, :width] = rng.integers(-3, 4, width)
+            uncond[row, :width] = rng.integers(-3, 4, width)
+        uniforms, forbid = rng.random(5), [int(rng.integers(13)), None, 3, None, None]
+        together = choose_tokens(cond, uncond if sampling.guided else None, uniforms, sampling,
+                                 forbid)
+        for row, width in enumerate(widths):
+            alone = choose_token(cond[row, :width], uncond[row, :width], uniforms[row],
+                                 sampling, forbid[row])
+            assert together[row] == alone
 
 
 def test_guidance():
