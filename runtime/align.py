@@ -146,7 +146,9 @@ LEFT_ALONE = ("a", "an", "the", "of", "and", "or", "in", "on", "at", "to", "with
                   "stairs", "street", "friend", "music", "there", "here", "where", "what",
                   "when", "how", "something", "thing", "way", "long", "short", "high", "low",
                   "happy", "happily", "sad", "angry", "angrily", "tired", "excited", "quietly",
-                  "carefully", "casually", "lot", "world", "yoga", "salsa", "pushups", "situps")
+                  "carefully", "casually", "lot", "world", "sideways", "slowly", "quickly",
+                  "fast", "slow", "circle", "still", "seat", "together", "clockwise",
+                  "degrees", "politely", "steps", "strides", "yoga", "salsa", "pushups", "situps")
 
 _DOUBLED = {"jog", "run", "squat", "sit", "clap", "spin", "hop", "step", "sidestep", "jab",
             "put", "get", "trot", "swivel", "skip", "begin", "hit", "box", "dash"}
@@ -218,7 +220,8 @@ class RuleAligner(PromptAligner):
                  max_step_seconds: float = MAX_STEP_SECONDS):
         self.vocabulary = None if vocabulary is None else frozenset(vocabulary)
         self.max_step_seconds = max_step_seconds
-        known = set(_BASE_OF) | set(NOUNS) | set(WORD_SYNONYMS) | set(NUMBERS)
+        known = set(_BASE_OF) | set(NOUNS) | set(WORD_SYNONYMS) | set(WORD_SYNONYMS.values())
+        known |= set(NUMBERS)
         known |= set(LEFT_ALONE)
         known |= {w for phrase in SUBJECTS + FILLERS + CAUSATIVES for w in phrase.split()}
         self.known = frozenset(known | (self.vocabulary or set()))
