@@ -7,6 +7,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
+from mogo.export.cli import main
 from mogo.runtime.align import AlignedStep, Alignment, RuleAligner, edit_distance, plain_words
 from mogo.runtime.generator import MotionGenerator
 from mogo.runtime.llm_align import LLMAligner
@@ -187,7 +188,7 @@ class FakeServer:
 
         self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
         self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
-        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+        threading.Thread(target=self.httpd.serve_forever, args=(0.05,), daemon=True).start()
 
 
 @pytest.fixture
@@ -288,3 +289,28 @@ def test_generate_aligned_list_and_default(generator):
     assert generator.generate("walk", seconds=1, seed=0).alignment is None
     with pytest.raises(ValueError, match="align must be True, False or a PromptAligner"):
         generator.generate("walk", seconds=1, align="rules")
+
+
+# -- the command line ----------------------------------------------------------------------------
+def test_cli_align_rules_prints_and_stores_the_steps(tmp_path, capsys):
+    assert main(["generate", "make the guy do a cartwheel and then sit", "--align", "rules",
+                 "--seconds", "3", "--seed", "0", "--out", str(tmp_path), "--name", "m"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0] == ('steps (rules): 1.3 s "a person does a cartwheel." | '
+                          '1.7 s "a person sits."')
+    assert printed[1] == "note: the model does not know cartwheel (kept as written)"
+    document = json.loads((tmp_path / "m.json").read_text())
+    assert [p["text"] for p in document["prompts"]] == ["a person does a cartwheel.",
+                                                         "a person sits."]
+
+
+def test_cli_align_llm_falls_back_and_says_why(server, tmp_path, capsys, monkeypatch):
+    server.status = 500
+    monkeypatch.setenv("MOGO_LLM_URL", server.url)
+    assert main(["generate", "walk forward then wave", "--align", "llm", "--seconds", "2",
+                 "--seed", "0", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "steps (rules): " in printed
+    assert "note: the LLM server answered HTTP 500; used the rules" in printed
+    assert main(["generate", "--prompts-file", str(tmp_path / "x"), "--align", "rules"]) == 2
+    assert "--align rewrites one prompt" in capsys.readouterr().err
