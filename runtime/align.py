@@ -148,13 +148,14 @@ LEFT_ALONE = ("a", "an", "the", "of", "and", "or", "in", "on", "at", "to", "with
                   "happy", "happily", "sad", "angry", "angrily", "tired", "excited", "quietly",
                   "carefully", "casually", "lot", "world", "sideways", "slowly", "quickly",
                   "fast", "slow", "circle", "still", "seat", "together", "clockwise",
-                  "degrees", "politely", "steps", "strides", "yoga", "salsa", "pushups", "situps")
+                  "degrees", "politely", "steps", "strides", "done", "finished", "over", "yoga", "salsa", "pushups", "situps")
 
 _DOUBLED = {"jog", "run", "squat", "sit", "clap", "spin", "hop", "step", "sidestep", "jab",
             "put", "get", "trot", "swivel", "skip", "begin", "hit", "box", "dash"}
 _SEQUENCE = re.compile(
     r",?\s*\b(?:and then|and afterwards|and after that|after that|afterwards|after which|"
-    r"and when done|when done|and once done|once done|and finally|finally|lastly|"
+    r"(?:and )?(?:when|once) (?:that'?s |that is |it'?s |it is )?(?:done|finished|over)|"
+    r"and finally|finally|lastly|"
     r"and next|next|followed by|subsequently|then|before)\b,?\s*")
 _AFTER_FIRST = re.compile(r"^after (.+?),\s*(.+)$")
 _AFTER_LAST = re.compile(r"^(.+?)\s+after\s+(.+)$")

@@ -63,6 +63,9 @@ RULES_TABLE = [
     ("walk; jump; sit", ["a person walks.", "a person jumps.", "a person sits."]),
     ("hop on the spot 2 times, followed by a bow",
      ["a person hops on the spot twice.", "a person takes a bow."]),
+    ("walk forward and when it is finished wave", [WALK, "a person waves."]),
+    ("kick out the right leg and once that's done, hop in place once",
+     ["a person kicks out the right leg.", "a person hops in place once."]),
     ("stand still for 2 seconds then walk backwards",
      ["a person stands still for two seconds.", "a person walks backwards."]),
     # at the same time: one step
