@@ -151,7 +151,7 @@ LEFT_ALONE = ("a", "an", "the", "of", "and", "or", "in", "on", "at", "to", "with
                   "degrees", "politely", "steps", "strides", "done", "finished", "over", "yoga", "salsa", "pushups", "situps")
 
 _DOUBLED = {"jog", "run", "squat", "sit", "clap", "spin", "hop", "step", "sidestep", "jab",
-            "put", "get", "trot", "swivel", "skip", "begin", "hit", "box", "dash"}
+            "put", "get", "trot", "swivel", "skip", "begin", "hit"}
 _SEQUENCE = re.compile(
     r",?\s*\b(?:and then|and afterwards|and after that|after that|afterwards|after which|"
     r"(?:and )?(?:when|once) (?:that'?s |that is |it'?s |it is )?(?:done|finished|over)|"
@@ -164,8 +164,8 @@ _LETTER_FIXES = str.maketrans({"ß": "ss", "æ": "ae", "œ": "oe", "ø": "o", "�
 
 
 def conjugate(verb: str, form: str) -> str:
-    """Third person singular ("s") or gerund ("ing") of a base verb, as the captions spell
-    them."""
+    """Third person singular ("s") or gerund ("ing") of a regular verb (plus the few
+    doubled consonants the captions and the rules use); the corpus's captions use it too."""
     if form == "s":
         if verb.endswith(("s", "sh", "ch", "x", "z", "o")):
             return verb + "es"
