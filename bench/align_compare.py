@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.runtime.align import RuleAligner, plain_words
+from mogo.runtime.align import plain_words
 from mogo.runtime.generator import MotionGenerator
 
 DIRECTIONS = {"forward": ["ahead", "straight ahead", "forward"], "backward": ["backwards", "back"],
@@ -33,7 +33,8 @@ DIRECTIONS = {"forward": ["ahead", "straight ahead", "forward"], "backward": ["b
               "right": ["over to the right", "to the right"]}
 WRAPPERS = ["could you have somebody {}", "i want the guy to {}", "make them {}", "{} please",
             "the character should {}", "{}"]
-JOINERS = [", and afterwards ", " and once that's done, ", "; next, ", ", then ", " and after that "]
+JOINERS = [", and afterwards ", " and once that's done, ", "; next, ", ", then ",
+           " and after that "]
 LOCOMOTION = ("walk", "jog", "run")
 
 
@@ -77,7 +78,8 @@ def paraphrase(segment: dict, rng: np.random.Generator) -> str:
         "spin": lambda: pick([f"spin all the way around to the {p.get('direction')}",
                               "twirl around"]),
         "stretch": lambda: pick(["stretch out", "do a big stretch"]),
-        "jumping_jacks": lambda: pick([f"do {counted(n, 'star jump')}", f"do jumping jacks {times(n)}"]),
+        "jumping_jacks": lambda: pick([f"do {counted(n, 'star jump')}",
+                                       f"do jumping jacks {times(n)}"]),
         "idle": lambda: pick([f"stand still for {round(p['seconds'])} seconds",
                               "wait for a moment"]),
     }

@@ -148,7 +148,8 @@ LEFT_ALONE = ("a", "an", "the", "of", "and", "or", "in", "on", "at", "to", "with
                   "happy", "happily", "sad", "angry", "angrily", "tired", "excited", "quietly",
                   "carefully", "casually", "lot", "world", "sideways", "slowly", "quickly",
                   "fast", "slow", "circle", "still", "seat", "together", "clockwise",
-                  "degrees", "politely", "steps", "strides", "done", "finished", "over", "yoga", "salsa", "pushups", "situps")
+                  "degrees", "politely", "steps", "strides", "done", "finished", "over",
+                  "yoga", "salsa", "pushups", "situps")
 
 _DOUBLED = {"jog", "run", "squat", "sit", "clap", "spin", "hop", "step", "sidestep", "jab",
             "put", "get", "trot", "swivel", "skip", "begin", "hit"}
@@ -214,18 +215,18 @@ class RuleAligner(PromptAligner):
     """Built-in rules, no network: style, splitting into steps, synonyms and typos onto
     the bundle's vocabulary, numbers, and durations from the corpus's segment lengths.
 
-    vocabulary: the words the bundle's tokenizer knows (MotionGenerator.vocabulary());
-    None skips the vocabulary checks (synonyms of the rules' own list still apply)."""
+    vocabulary: the words the bundle's tokenizer knows (MotionGenerator.vocabulary()):
+    synonyms replace only words outside it, and words still outside it are reported. None:
+    no word is replaced or reported (typos are still fixed onto the rules' own words)."""
 
     def __init__(self, vocabulary: Iterable[str] | None = None,
                  max_step_seconds: float = MAX_STEP_SECONDS):
         self.vocabulary = None if vocabulary is None else frozenset(vocabulary)
         self.max_step_seconds = max_step_seconds
-        known = set(_BASE_OF) | set(NOUNS) | set(WORD_SYNONYMS) | set(WORD_SYNONYMS.values())
-        known |= set(NUMBERS)
-        known |= set(LEFT_ALONE)
-        known |= {w for phrase in SUBJECTS + FILLERS + CAUSATIVES for w in phrase.split()}
-        self.known = frozenset(known | (self.vocabulary or set()))
+        phrases = SUBJECTS + FILLERS + CAUSATIVES + NUMBERS + LEFT_ALONE + tuple(NOUNS)
+        self.known = frozenset({w for phrase in phrases for w in phrase.split()} | set(_BASE_OF)
+                               | set(WORD_SYNONYMS) | set(WORD_SYNONYMS.values())
+                               | (self.vocabulary or set()))
         self._spellings = sorted(w for w in self.known if len(w) >= 3 and w.isalpha())
 
     def align(self, text: str) -> Alignment:

@@ -137,7 +137,8 @@ def test_unknown_and_ignored_words_are_reported(rules):
 
 @pytest.mark.parametrize("text,message", [
     ("", "no usable words"), ("   ", "no usable words"), ("!!! ...", "no usable words"),
-    ("日本語のテキスト", "no usable words"), ("please", "no motion"), ("hello world", "no motion"),
+    ("日本語のテキスト", "no usable words"), ("please", "no motion"),
+    ("hello world", "no motion"),
     ("can you", "no motion"),
 ])
 def test_unusable_prompts_raise_a_clear_error(rules, text, message):
