@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mogo.export.animator import Segment
+from mogo.runtime.align import conjugate  # shared with prompt alignment
 
 POOLS = ("train", "heldout")
 SUBJECTS = ("a person", "someone", "a man", "a woman", "the person", "a figure")
@@ -214,8 +215,6 @@ JOINERS = (
 _NUMBERS = ("zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine",
             "ten", "eleven", "twelve", "thirteen", "fourteen", "fifteen", "sixteen",
             "seventeen", "eighteen", "nineteen", "twenty")
-_DOUBLED = {"jog", "run", "squat", "sit", "clap", "spin", "hop", "step", "sidestep", "jab",
-            "put", "get", "trot", "swivel"}
 _VERB = re.compile(r"<(\w+)>")
 _REPETITION_NOUNS = {"jump": "jump", "squat": "squat", "clap": "clap", "punch": "punch",
                      "jumping_jacks": "jumping jack"}
@@ -236,22 +235,6 @@ def count_noun(n: int, noun: str) -> str:
         return f"an {noun}" if noun[0] in "aeiou" else f"a {noun}"
     plural = noun + "es" if noun.endswith(("s", "sh", "ch", "x", "z")) else noun + "s"
     return f"{number_word(n)} {plural}"
-
-
-def conjugate(verb: str, form: str) -> str:
-    """Third person singular ("s") or gerund ("ing") of a regular verb (plus the few
-    irregular spellings the templates use)."""
-    if form == "s":
-        if verb.endswith(("s", "sh", "ch", "x", "z", "o")):
-            return verb + "es"
-        if verb.endswith("y") and verb[-2] not in "aeiou":
-            return verb[:-1] + "ies"
-        return verb + "s"
-    if verb in _DOUBLED:
-        return verb + verb[-1] + "ing"
-    if verb.endswith("e") and not verb.endswith("ee"):
-        return verb[:-1] + "ing"
-    return verb + "ing"
 
 
 def _reference(subject: str) -> tuple[str, str]:

@@ -122,10 +122,24 @@ def _file_stem(text: str) -> str:
     return "_".join(words)[:48].rstrip("_") or "motion"
 
 
+def _aligner(args: argparse.Namespace, generator):
+    """--align rules|llm -> the aligner (the LLM falls back to the bundle's rules)."""
+    if args.align is None:
+        return False
+    rules = generator.aligner(True)
+    if args.align == "rules":
+        return rules
+    from mogo.runtime.llm_align import LLMAligner
+
+    return LLMAligner(args.llm_url, args.llm_model, timeout=args.llm_timeout, fallback=rules)
+
+
 def _cmd_generate(args: argparse.Namespace) -> None:
     if args.prompts_file:
         if args.text is not None or args.seconds is not None:
             raise CliError("give either a prompt (with --seconds) or --prompts-file, not both")
+        if args.align:
+            raise CliError("--align rewrites one prompt; a --prompts-file is played as written")
         schedule = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
@@ -134,7 +148,12 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     if args.prompts_file:
         motion = generator.play(schedule, seed=args.seed, **options)
     else:
-        motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed, **options)
+        motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
+                                    align=_aligner(args, generator), **options)
+    if motion.alignment is not None:
+        print(motion.alignment.describe())
+        if motion.alignment.note:
+            print(f"note: {motion.alignment.note}")
     stem = Path(args.out) / (args.name or _file_stem(motion.caption))
     written = [motion.save_bvh(stem.with_suffix(".bvh")), motion.save_gif(stem.with_suffix(".gif")),
                motion.save_npy(stem.with_suffix(".npy")),
@@ -307,6 +326,16 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "'SECONDS PROMPT', played as one motion")
     generate.add_argument("--out", default="out", help="output folder (default out/)")
     generate.add_argument("--name", help="file name without extension (default: from the prompt)")
+    generate.add_argument("--align", choices=["rules", "llm"],
+                          help="rewrite the prompt into caption-style steps played as one "
+                               "motion: built-in rules, or an LLM server (falls back to the "
+                               "rules; API key from MOGO_LLM_API_KEY)")
+    generate.add_argument("--llm-url", help="OpenAI-compatible server base URL, e.g. "
+                                            "http://localhost:8080/v1 (default: MOGO_LLM_URL)")
+    generate.add_argument("--llm-model", help="model name on that server (default: "
+                                              "MOGO_LLM_MODEL)")
+    generate.add_argument("--llm-timeout", type=float, default=10.0,
+                          help="seconds to wait for the LLM before using the rules (default 10)")
     sampling_arguments(generate)
     generate.set_defaults(run=_cmd_generate)
 

@@ -24,6 +24,7 @@ import numpy as np
 from tokenizers import Tokenizer
 
 from mogo.runtime._session import cpu_session
+from mogo.runtime.align import Alignment, PromptAligner, RuleAligner
 from mogo.runtime.bundle import Bundle, BundleError
 from mogo.runtime.features import JointStream
 from mogo.runtime.motion import Motion
@@ -87,20 +88,43 @@ class MotionGenerator:
         mask = np.array([e.attention_mask for e in encodings], np.int64)
         return self._text.run(ids, mask)
 
+    def vocabulary(self) -> set[str]:
+        """The whole words the bundle's tokenizer knows (what prompt alignment aims at)."""
+        return {w for w in self.tokenizer.get_vocab() if w.isalpha()}
+
+    def aligner(self, align: bool | PromptAligner) -> PromptAligner | None:
+        """align=True: the rules on this bundle's vocabulary; an aligner: itself."""
+        if isinstance(align, PromptAligner):
+            return align
+        if align is True:
+            return RuleAligner(self.vocabulary(), float(self.defaults.get("max_seconds", 9.8)))
+        if align is False or align is None:
+            return None
+        raise ValueError(f"align must be True, False or a PromptAligner, got {align!r}")
+
     # -- whole clips ---------------------------------------------------------------------------
     def generate(self, text: str | Sequence[str], seconds: float | None = None,
                  seed: int | None = None, temperature: float | None = None,
                  top_k: int | None = None, top_p: float | None = None,
-                 guidance: float | None = None) -> Motion | list[Motion]:
+                 guidance: float | None = None,
+                 align: bool | PromptAligner = False) -> Motion | list[Motion]:
         """One Motion per prompt (a list for a list of prompts). seconds=None lets the model
         end the motion (at most the bundle's max_seconds); seed=None draws a fresh seed,
-        kept in Motion.seed so the result can be reproduced."""
+        kept in Motion.seed so the result can be reproduced. align=True (or a PromptAligner)
+        rewrites each prompt into caption-style steps played as one motion (see
+        mogo.runtime.align); the steps are kept in Motion.alignment."""
         texts = [text] if isinstance(text, str) else list(text)
         if not texts:
             raise ValueError("no prompt given")
-        sampling = self.sampling(temperature, top_k, top_p, guidance)
+        options = dict(temperature=temperature, top_k=top_k, top_p=top_p, guidance=guidance)
+        sampling = self.sampling(**options)
         steps = None if seconds is None else self._steps(seconds)
         seed = _fresh_seed() if seed is None else _checked_seed(seed)
+        aligner = self.aligner(align)
+        if aligner is not None:
+            motions = [self._play_aligned(aligner.align(_checked_prompt(t)), seconds, seed + k,
+                                          options) for k, t in enumerate(texts)]
+            return motions[0] if isinstance(text, str) else motions
         max_steps = self._steps(float(self.defaults.get("max_seconds", 9.8)))
         motions = []
         for k, (prompt, embedding) in enumerate(zip(texts, self.embed(texts))):
@@ -109,6 +133,14 @@ class MotionGenerator:
             frames = None if seconds is None else round(seconds * self.fps)
             motions.append(self.decode(tokens, [(0, prompt)], frames, seed + k))
         return motions[0] if isinstance(text, str) else motions
+
+    def _play_aligned(self, alignment: Alignment, seconds: float | None, seed: int,
+                      options: dict) -> Motion:
+        if seconds is not None:
+            alignment = alignment.scaled(seconds)
+        motion = self.play(alignment.schedule(), seed, **options)
+        motion.alignment = alignment
+        return motion
 
     def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
              **options) -> Motion:

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from mogo.runtime import bvh, render
+from mogo.runtime.align import Alignment
 from mogo.runtime.skeleton import Skeleton
 
 
@@ -21,6 +22,7 @@ class Motion:
     skeleton: Skeleton
     prompts: list[tuple[int, str]] = field(default_factory=list)  # (first frame, text)
     seed: int | None = None
+    alignment: Alignment | None = None  # the steps prompt alignment made of the user's text
 
     @property
     def seconds(self) -> float:
@@ -54,7 +56,8 @@ class Motion:
                                self.skeleton)
 
     def save_json(self, path: str | os.PathLike) -> Path:
-        """Everything a web viewer needs: skeleton, fps, prompts and joints per frame."""
+        """Everything a web viewer needs: skeleton, fps, prompts and joints per frame (and
+        the aligned steps, when prompt alignment made them)."""
         path = _writable(path)
         document = dict(
             fps=self.fps, skeleton=self.skeleton.name,
@@ -62,6 +65,8 @@ class Motion:
             parents=[int(p) for p in self.skeleton.parents],
             prompts=[dict(frame=frame, text=text) for frame, text in self.prompts],
             seed=self.seed, frames=np.round(self.joints, 5).tolist())
+        if self.alignment is not None:
+            document["alignment"] = self.alignment.as_dict()
         path.write_text(json.dumps(document) + "\n")
         return path
 

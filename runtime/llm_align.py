@@ -1,0 +1,169 @@
+"""Prompt alignment by a language model behind an OpenAI-compatible chat-completions server
+(llama.cpp server, Ollama, vLLM, ...), standard library only.
+
+    aligner = LLMAligner("http://localhost:8080/v1", model="qwen2.5-7b-instruct")
+    aligner.align("could you have somebody stroll ahead and afterwards wave")
+
+The model thinks step by step (the paper's chain of thought), then answers with one JSON
+object; the answer is checked against a schema. Whatever goes wrong (timeout, refused
+connection, HTTP error, no JSON, a wrong schema) the rules answer instead, and
+Alignment.note says why.
+"""
+from __future__ import annotations
+
+import json
+import os
+import urllib.error
+import urllib.request
+
+from mogo.runtime.align import AlignedStep, Alignment, PromptAligner, RuleAligner
+
+MAX_STEPS = 8
+STEP_SECONDS = (0.5, 30.0)
+
+SYSTEM_PROMPT = """\
+You turn a request for a human motion into the captions a text-to-motion model was trained on.
+The training captions look like this:
+  "a person walks forward slowly."
+  "someone waves with the right hand twice."
+  "a person squats down and stands back up three times."
+  "the person turns ninety degrees to the left."
+  "a person does four jumping jacks."
+Rules:
+1. Each step is one atomic action, written as "a person <verb in 3rd person> ...", in plain
+   lowercase English with the words of such captions, ending with a period.
+2. Split a composite request into its steps in the order they happen ("then", "after that",
+   "before", "after ..." all give an order). Actions done at the same time ("while", "as")
+   stay one step.
+3. Keep directions, sides (left/right), speeds and counts ("three times", "twice").
+4. Give each step a duration in seconds: walking or running 3-4, a wave about 2, jumps about
+   1 per repetition, sitting down about 4, a turn or a bow about 2.
+Think step by step first: say who does what, in which order, and how long each part takes.
+Then, on the last lines, give only this JSON object:
+{"prompt": "<all steps as one caption>", "steps": [{"prompt": "<step>", "seconds": <number>}]}"""
+
+EXAMPLES = (
+    ("make the guy stroll ahead and after that wave 3 times",
+     "The person walks forward at a slow pace, then waves; the wave is repeated three times. "
+     "Two steps: walking about 3.5 s, three waves about 3 s.\n"
+     '{"prompt": "a person strolls forward, then waves three times.", "steps": ['
+     '{"prompt": "a person strolls forward.", "seconds": 3.5}, '
+     '{"prompt": "a person waves three times.", "seconds": 3.0}]}'),
+    ("jump twice before sitting down, I want him to wave while he sits",
+     "'Before' orders the actions: the jumps come first, then sitting down. The wave happens "
+     "while sitting, so it stays in the sitting step. Two jumps about 2 s, sitting while "
+     "waving about 4 s.\n"
+     '{"prompt": "a person jumps twice, then sits down while waving.", "steps": ['
+     '{"prompt": "a person jumps twice.", "seconds": 2.0}, '
+     '{"prompt": "a person sits down while waving.", "seconds": 4.0}]}'),
+    ("after a quick jog to the left she does a full spin and bows",
+     "'After' puts the jog first. Then a spin, then a bow: three steps. Jog about 3 s, spin "
+     "about 2 s, bow about 2 s.\n"
+     '{"prompt": "a person jogs quickly to the left, then spins around, then bows.", '
+     '"steps": [{"prompt": "a person jogs quickly to the left.", "seconds": 3.0}, '
+     '{"prompt": "a person does a full spin.", "seconds": 2.0}, '
+     '{"prompt": "a person bows.", "seconds": 2.0}]}'),
+)
+
+
+class LLMAligner(PromptAligner):
+    """url: the server's base URL ("http://localhost:8080/v1"; env MOGO_LLM_URL); model:
+    the model name the server expects (env MOGO_LLM_MODEL); api_key: sent as a bearer
+    token (env MOGO_LLM_API_KEY; local servers need none). timeout in seconds per request."""
+
+    def __init__(self, url: str | None = None, model: str | None = None,
+                 api_key: str | None = None, timeout: float = 10.0,
+                 fallback: PromptAligner | None = None):
+        self.url = url or os.environ.get("MOGO_LLM_URL")
+        if not self.url:
+            raise ValueError("the LLM aligner needs a server URL: pass url= (--llm-url) or set "
+                             "MOGO_LLM_URL, e.g. http://localhost:8080/v1")
+        self.model = model or os.environ.get("MOGO_LLM_MODEL") or "default"
+        self.api_key = api_key or os.environ.get("MOGO_LLM_API_KEY")
+        self.timeout = timeout
+        self.fallback = fallback or RuleAligner()
+
+    def align(self, text: str) -> Alignment:
+        try:
+            content = self._ask(text)
+        except TimeoutError:
+            return self._fall_back(text, f"the LLM did not answer within {self.timeout:g} s")
+        except urllib.error.HTTPError as error:
+            return self._fall_back(text, f"the LLM server answered HTTP {error.code}")
+        except (urllib.error.URLError, OSError) as error:
+            reason = getattr(error, "reason", error)
+            if isinstance(reason, TimeoutError):
+                return self._fall_back(text, f"the LLM did not answer within {self.timeout:g} s")
+            return self._fall_back(text, f"cannot reach the LLM server at {self.url}: {reason}")
+        except ValueError as error:
+            return self._fall_back(text, f"the LLM server's reply was not usable: {error}")
+        try:
+            steps = checked_steps(last_json_object(content))
+        except ValueError as error:
+            return self._fall_back(text, f"the LLM answer {error}")
+        return Alignment(steps, "llm")
+
+    def messages(self, text: str) -> list[dict]:
+        """The chat: instructions, the worked examples, then the user's prompt."""
+        chat = [dict(role="system", content=SYSTEM_PROMPT)]
+        for question, answer in EXAMPLES:
+            chat += [dict(role="user", content=question), dict(role="assistant", content=answer)]
+        return chat + [dict(role="user", content=text)]
+
+    def _ask(self, text: str) -> str:
+        body = json.dumps(dict(model=self.model, messages=self.messages(text), temperature=0,
+                               stream=False)).encode()
+        headers = {"Content-Type": "application/json"}
+        if self.api_key:
+            headers["Authorization"] = f"Bearer {self.api_key}"
+        request = urllib.request.Request(self.url.rstrip("/") + "/chat/completions", body,
+                                         headers, method="POST")
+        with urllib.request.urlopen(request, timeout=self.timeout) as response:
+            reply = json.loads(response.read().decode("utf-8"))
+        try:
+            return reply["choices"][0]["message"]["content"]
+        except (KeyError, IndexError, TypeError):
+            raise ValueError("no choices[0].message.content in it") from None
+
+    def _fall_back(self, text: str, why: str) -> Alignment:
+        alignment = self.fallback.align(text)
+        note = f"{why}; used the rules" + (f" ({alignment.note})" if alignment.note else "")
+        return Alignment(alignment.steps, alignment.source, note)
+
+
+def last_json_object(content: str) -> dict:
+    """The last {...} block of a reply that may think aloud before answering."""
+    end = content.rfind("}")
+    start = content.rfind("{", 0, end)
+    while start >= 0:
+        try:
+            value = json.loads(content[start:end + 1])
+        except json.JSONDecodeError:
+            start = content.rfind("{", 0, start)
+            continue
+        if isinstance(value, dict):
+            return value
+        break
+    raise ValueError("was not valid JSON")
+
+
+def checked_steps(answer: dict) -> tuple[AlignedStep, ...]:
+    """The schema {"prompt": str, "steps": [{"prompt": str, "seconds": 0.5..30}, 1..8]}."""
+    steps = answer.get("steps")
+    if not isinstance(answer.get("prompt"), str) or not isinstance(steps, list):
+        raise ValueError("does not match the schema: it needs 'prompt' (text) and 'steps' "
+                         "(a list)")
+    if not 1 <= len(steps) <= MAX_STEPS:
+        raise ValueError(f"has {len(steps)} steps; 1 to {MAX_STEPS} are allowed")
+    checked = []
+    for k, step in enumerate(steps):
+        prompt = step.get("prompt") if isinstance(step, dict) else None
+        seconds = step.get("seconds") if isinstance(step, dict) else None
+        if not isinstance(prompt, str) or not prompt.strip():
+            raise ValueError(f"step {k + 1} has no prompt text")
+        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not (
+                STEP_SECONDS[0] <= seconds <= STEP_SECONDS[1]):
+            raise ValueError(f"step {k + 1} has seconds {seconds!r}; a number from "
+                             f"{STEP_SECONDS[0]} to {STEP_SECONDS[1]:g} is needed")
+        checked.append(AlignedStep(prompt.strip(), float(seconds)))
+    return tuple(checked)
