@@ -243,13 +243,14 @@ def step_backends(model: T2M, folder: Path, graphs: list[dict],
     backends = {}
     for kind, sub in (("fp32", folder), ("int8", folder / "int8")):
         paths = [sub / g["file"] for g in graphs]
+        single = TokenGenerator(paths, graphs, end, intra_op_threads=1)
         for t in threads:
-            modes = [(f"onnxruntime {kind}, {t} thread{'s' * (t > 1)}", t, 1)]
+            generators = {f"onnxruntime {kind}, {t} thread{'s' * (t > 1)}": single}
             if t > 1:
-                modes.append((f"onnxruntime {kind}, {t} level groups", 1, t))
-            for name, intra, workers in modes:
-                generator = TokenGenerator(paths, graphs, end, intra_op_threads=intra,
-                                           level_workers=workers)
+                generators[f"onnxruntime {kind}, {t} threads"] = TokenGenerator(
+                    paths, graphs, end, intra_op_threads=t)
+                generators[f"onnxruntime {kind}, {t} level groups"] = single.with_level_workers(t)
+            for name, generator in generators.items():
                 backends[name] = (kind, lambda n, g=generator: onnx_step(g, model.config, n))
     for t in threads:
         plural = "s" * (t > 1)

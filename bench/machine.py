@@ -1,15 +1,13 @@
 """What the machine can do at best, measured in the same run as the latencies they bound:
-memory read bandwidth (numpy, one reading thread per core used) and float32 matrix FLOP/s
-(torch, at the thread count used). A step can be no faster than its bytes over the bandwidth
+memory read bandwidth (a large matrix-vector product) and float32 matrix FLOP/s, both in torch
+at the thread count used. A step can be no faster than its bytes over the bandwidth
 nor its FLOPs over the peak; the larger of the two is its floor."""
 from __future__ import annotations
 
 import os
 import platform
-import threading
 import time
 
-import numpy as np
 import torch
 
 BANDWIDTH_BYTES = 512 * 2**20  # far larger than any CPU cache
@@ -17,20 +15,22 @@ MATMUL_SIZE = 1024
 
 
 def read_bandwidth(threads: int, repeats: int = 5) -> float:
-    """Bytes per second that `threads` threads sum from memory, each its own slice (numpy
-    releases the GIL in the reduction). Best of `repeats`: the floor is what is possible."""
-    data = np.ones(BANDWIDTH_BYTES // 4, np.float32)
-    parts = np.array_split(data, threads)
-    best = 0.0
-    for _ in range(repeats):
-        workers = [threading.Thread(target=np.add.reduce, args=(part,)) for part in parts]
-        start = time.perf_counter()
-        for worker in workers:
-            worker.start()
-        for worker in workers:
-            worker.join()
-        best = max(best, data.nbytes / (time.perf_counter() - start))
-    return best
+    """Bytes per second a float32 matrix-vector product on `threads` torch threads reads from
+    memory: the access pattern of a decode step, on a matrix far larger than any CPU cache.
+    Best of `repeats`: the floor is what is possible."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        matrix = torch.ones(BANDWIDTH_BYTES // 4 // 4096, 4096)
+        vector = torch.ones(4096)
+        best = 0.0
+        for _ in range(repeats + 1):
+            start = time.perf_counter()
+            torch.mv(matrix, vector)
+            best = max(best, BANDWIDTH_BYTES / (time.perf_counter() - start))
+        return best
+    finally:
+        torch.set_num_threads(previous)
 
 
 def matmul_flops(threads: int, repeats: int = 5) -> float:

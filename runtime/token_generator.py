@@ -17,6 +17,7 @@ past key/value pairs layer by layer; output 0 is the logits, then the matching p
 """
 from __future__ import annotations
 
+import copy
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -52,7 +53,19 @@ class TokenGenerator:
         self.end_token = end_token
         self.num_levels = len(graphs)
         self.num_classes = end_token + 1  # level 0's logits: every code and the end token
-        self.level_groups = balanced_groups([g["num_layers"] for g in graphs], level_workers)
+        self._spread_levels(level_workers)
+
+    def with_level_workers(self, level_workers: int) -> TokenGenerator:
+        """The same sessions (no second copy of the weights), levels spread over more or fewer
+        workers."""
+        if level_workers < 1:
+            raise ValueError(f"level_workers must be >= 1, got {level_workers}")
+        twin = copy.copy(self)
+        twin._spread_levels(level_workers)
+        return twin
+
+    def _spread_levels(self, level_workers: int) -> None:
+        self.level_groups = balanced_groups([g["num_layers"] for g in self.graphs], level_workers)
         self._pool = (ThreadPoolExecutor(len(self.level_groups) - 1, "mogo-level")
                       if len(self.level_groups) > 1 else None)
 

@@ -261,6 +261,9 @@ def test_levels_run_concurrently_give_the_same_tokens(exported, generator):
     model, paths, graphs = exported
     parallel = TokenGenerator(paths, graphs, model.config.end_token, level_workers=2)
     assert len(parallel.level_groups) == 2
+    twin = generator.with_level_workers(3)
+    assert twin.sessions is generator.sessions and len(twin.level_groups) == 3
+    assert len(generator.level_groups) == 1
     prompt = prompts(model.config, 1, seed=3)[0].numpy()
     for settings in (SAMPLED, GUIDED):
         for window in (None, 4):
