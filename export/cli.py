@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mogo.export.recipes import T2M_RECIPE, VQ_RECIPE
+from mogo.export.recipes import EVALUATOR_RECIPE, T2M_RECIPE, VQ_RECIPE
 
 
 class CliError(Exception):
@@ -61,6 +61,13 @@ def _cmd_train_t2m(args: argparse.Namespace) -> None:
     from mogo.export.train_t2m import T2MTrainOptions, train_t2m
 
     train_t2m(T2MTrainOptions(**_training_options(args)))
+
+
+def _cmd_train_evaluator(args: argparse.Namespace) -> None:
+    _require_torch()
+    from mogo.export.train_evaluator import EvaluatorTrainOptions, train_evaluator
+
+    train_evaluator(EvaluatorTrainOptions(**_training_options(args)))
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
@@ -279,6 +286,14 @@ def build_parser() -> argparse.ArgumentParser:
     t2m.add_argument("--vq", required=True, help="the `mogo train vq` run folder")
     t2m.add_argument("--text-encoder", choices=["small"], help="(default small)")
     t2m.set_defaults(run=_cmd_train_t2m)
+
+    evaluator = train_commands.add_parser(
+        "evaluator", help="train the text-motion evaluator for `mogo eval` (contrastive text "
+                          "and motion encoders), exported to RUN/evaluator")
+    run_arguments(evaluator, EVALUATOR_RECIPE, val=500, checkpoint=500, log=50)
+    evaluator.add_argument("--val-spans", type=int, default=1024,
+                           help="validation spans embedded for R-precision (0: all)")
+    evaluator.set_defaults(run=_cmd_train_evaluator)
 
     def sampling_arguments(command: argparse.ArgumentParser) -> None:
         command.add_argument("--bundle",
