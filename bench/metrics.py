@@ -40,7 +40,8 @@ def fid(real: np.ndarray, fake: np.ndarray) -> float:
     cov_r, cov_f = np.cov(real, rowvar=False), np.cov(fake, rowvar=False)
     root_r = _symmetric_sqrt(cov_r)
     cross = np.trace(_symmetric_sqrt(root_r @ cov_f @ root_r))
-    return float(np.sum((mu_r - mu_f) ** 2) + np.trace(cov_r) + np.trace(cov_f) - 2 * cross)
+    distance = np.sum((mu_r - mu_f) ** 2) + np.trace(cov_r) + np.trace(cov_f) - 2 * cross
+    return max(0.0, float(distance))  # rounding can leave -1e-12 for identical sets
 
 
 def pairwise_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:

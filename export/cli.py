@@ -85,6 +85,21 @@ def _cmd_export(args: argparse.Namespace) -> None:
     print(f"wrote {args.out}: {len(manifest['files'])} files, {size / 1e6:.1f} MB{note}")
 
 
+def _cmd_eval(args: argparse.Namespace) -> None:
+    import json
+
+    from mogo.bench.evaluate import EvalOptions, evaluate, format_table
+
+    options = EvalOptions(args.bundle, Path(args.data), Path(args.evaluator), args.limit,
+                          args.repeats, args.seed, args.mm_captions, args.mm_generations,
+                          args.regenerate, args.threads)
+    result = evaluate(options)
+    print(format_table(result))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+        print(f"wrote {args.json}")
+
+
 def _load_generator(bundle: str | None):
     from mogo.runtime.generator import MotionGenerator
 
@@ -337,6 +352,30 @@ def build_parser() -> argparse.ArgumentParser:
                         help="dynamic int8 level graphs, kept only if they pass the token "
                              "agreement check against fp32")
     export.set_defaults(run=_cmd_export)
+
+    evaluation = commands.add_parser(
+        "eval", help="a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "
+                     "MultiModality (no torch)")
+    evaluation.add_argument("bundle", nargs="?", help="bundle folder (default: the shipped one)")
+    evaluation.add_argument("--data", required=True, help="dataset folder with test.txt")
+    evaluation.add_argument("--evaluator", required=True,
+                            help="evaluator folder (RUN/evaluator of `mogo train evaluator`)")
+    evaluation.add_argument("--limit", type=int,
+                            help="a fixed random sample of this many test caption spans "
+                                 "(default: all; at least 32)")
+    evaluation.add_argument("--repeats", type=int, default=20)
+    evaluation.add_argument("--seed", type=int, default=0)
+    evaluation.add_argument("--mm-captions", type=int, default=10,
+                            help="captions for MultiModality (protocol: 100; 0 = skip)")
+    evaluation.add_argument("--mm-generations", type=int, default=30,
+                            help="generations per MultiModality caption")
+    evaluation.add_argument("--regenerate", action="store_true",
+                            help="generate anew in every repeat (the full protocol; repeats x "
+                                 "the generation time)")
+    evaluation.add_argument("--threads", type=int, default=1,
+                            help="clips generated in parallel")
+    evaluation.add_argument("--json", help="also write the numbers to this file")
+    evaluation.set_defaults(run=_cmd_eval)
 
     return parser
 
