@@ -65,7 +65,7 @@ def r_precision(text: np.ndarray, motion: np.ndarray, rng: np.random.Generator,
         rows = order[first:first + batch]
         distances = pairwise_distances(text[rows], motion[rows])
         own = np.diag(distances)[:, None]
-        rank = (distances <= own).sum(1) - 1  # motions at least as near as the own one, itself excluded
+        rank = (distances <= own).sum(1) - 1  # others at least as near as the own motion
         hits += (rank[:, None] < np.arange(1, top_k + 1)[None, :]).sum(0)
         count += batch
     return hits / count

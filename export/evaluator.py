@@ -143,18 +143,15 @@ class Evaluator(nn.Module):
     forward = loss  # what DistributedDataParallel calls
 
 
-class _TextGraph(nn.Module):
-    def __init__(self, model: Evaluator):
+class _Method(nn.Module):
+    """One two-input method of the evaluator (embed_text, embed_motion) as a module, to export."""
+
+    def __init__(self, model: Evaluator, name: str):
         super().__init__()
-        self.model = model
+        self.model, self.name = model, name
 
-    def forward(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor:
-        return self.model.embed_text(token_ids, attention_mask)
-
-
-class _MotionGraph(_TextGraph):
-    def forward(self, features: Tensor, lengths: Tensor) -> Tensor:
-        return self.model.embed_motion(features, lengths)
+    def forward(self, first: Tensor, second: Tensor) -> Tensor:
+        return getattr(self.model, self.name)(first, second)
 
 
 TEXT_GRAPH = dict(file="evaluator_text.onnx", inputs=["input_ids", "attention_mask"],
@@ -174,11 +171,11 @@ def export_evaluator(model: Evaluator, tokenizer: Tokenizer, mean: np.ndarray, s
                           torch.export.Dim("seq", min=1, max=c.max_length),
                           torch.export.Dim("frames", min=DOWN, max=c.max_frames))
     ids = torch.ones(2, 5, dtype=torch.long)
-    export_module(_TextGraph(model), (ids, torch.ones_like(ids)), out / TEXT_GRAPH["file"],
-                  TEXT_GRAPH, ({0: batch, 1: seq}, {0: batch, 1: seq}))
-    features = torch.zeros(2, 3 * DOWN, c.feature_dim)
-    export_module(_MotionGraph(model), (features, torch.tensor([3 * DOWN, 2 * DOWN])),
-                  out / MOTION_GRAPH["file"], MOTION_GRAPH, ({0: batch, 1: frames}, {0: batch}))
+    export_module(_Method(model, "embed_text"), (ids, torch.ones_like(ids)),
+                  out / TEXT_GRAPH["file"], TEXT_GRAPH, ({0: batch, 1: seq}, {0: batch, 1: seq}))
+    features, lengths = torch.zeros(2, 3 * DOWN, c.feature_dim), torch.tensor([3, 2]) * DOWN
+    export_module(_Method(model, "embed_motion"), (features, lengths), out / MOTION_GRAPH["file"],
+                  MOTION_GRAPH, ({0: batch, 1: frames}, {0: batch}))
     tokenizer.save(str(out / "tokenizer.json"))
     np.save(out / "mean.npy", np.asarray(mean, np.float32))
     np.save(out / "std.npy", np.asarray(std, np.float32))

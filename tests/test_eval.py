@@ -169,7 +169,8 @@ def test_quality_report(corpus, evaluator_folder, tmp_path, monkeypatch, capsys)
     from mogo.bench import quality_report
 
     replay_real_clips(monkeypatch, SplitReader(corpus))
-    (tmp_path / "ablation.md").write_text("| variant | MPJPE (mm) |\n|---|---|\n| 6 levels | 20 |\n")
+    (tmp_path / "ablation.md").write_text("| variant | MPJPE (mm) |\n|---|---|\n"
+                                          "| 6 levels | 20 |\n")
     out = tmp_path / "QUALITY.md"
     monkeypatch.setattr(sys, "argv", [
         "quality_report", "--data", str(corpus), "--evaluator", str(evaluator_folder),
