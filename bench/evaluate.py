@@ -13,7 +13,7 @@ Repeats: each of `--repeats` draws new R-precision batches and Diversity pairs; 
 `--regenerate` each also generates the motions anew (new seeds), Guo et al.'s full protocol,
 which multiplies the generation time by the repeats. Without it FID and MM-Dist do not vary, so
 their interval is 0. MultiModality (`--mm-captions` captions x `--mm-generations`
-generations, 10 pairs each) is on the first captions of the sample; the protocol's 100 x 30
+generations, 10 pairs each) is on captions spread evenly over the sample; the protocol's 100 x 30
 take about 13 minutes on this project's 2-core CPU, so the default is 10 x 30.
 """
 from __future__ import annotations
@@ -141,7 +141,7 @@ def reconstruct(generator: MotionGenerator, clips: Sequence[np.ndarray],
 class EvalOptions:
     bundle: str | None  # None: the default bundle
     data: Path
-    evaluator: Path
+    evaluator: Path | None  # an evaluator folder; None when `evaluate` is given an evaluator
     limit: int | None = None
     repeats: int = metrics.REPEATS
     seed: int = 0
@@ -162,7 +162,7 @@ class EvalOptions:
             raise ValueError(f"--mm-captions must be >= 0 and --mm-generations >= "
                              f"{metrics.MULTIMODALITY_PAIRS}, got {self.mm_captions}, "
                              f"{self.mm_generations}")
-        if not Path(self.evaluator).is_dir():
+        if self.evaluator is not None and not Path(self.evaluator).is_dir():
             raise FileNotFoundError(f"{self.evaluator}: no such evaluator folder")
 
 
@@ -188,8 +188,10 @@ def score(text: np.ndarray, real: np.ndarray, motions: Callable[[int], np.ndarra
 
 def evaluate(options: EvalOptions, evaluator: TextMotionEvaluator | None = None) -> dict:
     """-> dict(rows={name: {column: (mean, interval)}}, items=N, notes=[...]); `evaluator`
-    replaces the one in options.evaluator (another model behind the same seam)."""
+    (another model behind the same seam) replaces the folder options.evaluator."""
     options.check()
+    if evaluator is None and options.evaluator is None:
+        raise ValueError("give an evaluator folder or an evaluator")
     reader = SplitReader(options.data)
     evaluator = evaluator or OnnxEvaluator(options.evaluator, options.threads)
     generator = MotionGenerator.load(options.bundle)
@@ -213,7 +215,7 @@ def evaluate(options: EvalOptions, evaluator: TextMotionEvaluator | None = None)
 
     per_caption = None
     if options.mm_captions:
-        chosen = items[:options.mm_captions]
+        chosen = items[::max(1, len(items) // options.mm_captions)][:options.mm_captions]
         repeated = [item for item in chosen for _ in range(options.mm_generations)]
         motions = generate_items(generator, repeated, options.seed + 10 ** 6, options.threads,
                                  "multimodality")

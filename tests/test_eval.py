@@ -90,12 +90,12 @@ def replay_real_clips(monkeypatch, reader: SplitReader) -> None:
     monkeypatch.setattr(evaluate_module, "generate_items", real)
 
 
-def test_another_evaluator_plugs_in(corpus, evaluator_folder, monkeypatch):
+def test_another_evaluator_plugs_in(corpus, monkeypatch):
     reader = SplitReader(corpus)
     replay_real_clips(monkeypatch, reader)
     items = reader.items(32)
     fake = MeanFeatures({i.caption: reader.item_features(i)[:, :8].mean(0) for i in items})
-    options = EvalOptions(None, corpus, evaluator_folder, limit=32, repeats=2, mm_captions=0)
+    options = EvalOptions(None, corpus, None, limit=32, repeats=2, mm_captions=0)
     rows = evaluate(options, fake)["rows"]
     assert rows["Ground truth"]["Top-3"][0] > 0.5  # chance: 3/32
     assert rows["Ground truth"]["FID"][0] == pytest.approx(0, abs=1e-9)
