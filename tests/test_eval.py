@@ -95,8 +95,11 @@ def test_another_evaluator_plugs_in(corpus, monkeypatch):
     replay_real_clips(monkeypatch, reader)
     items = reader.items(32)
     fake = MeanFeatures({i.caption: reader.item_features(i)[:, :8].mean(0) for i in items})
-    options = EvalOptions(None, corpus, None, limit=32, repeats=2, mm_captions=0)
-    rows = evaluate(options, fake)["rows"]
+    options = EvalOptions(None, corpus, None, limit=32, repeats=2, mm_captions=0,
+                          regenerate=True)
+    result = evaluate(options, fake)
+    rows = result["rows"]
+    assert result["items"] == 32 and "regenerated every repeat" in result["notes"][0]
     assert rows["Ground truth"]["Top-3"][0] > 0.5  # chance: 3/32
     assert rows["Ground truth"]["FID"][0] == pytest.approx(0, abs=1e-9)
     assert rows["VQ reconstruction"]["FID"][0] > 1e-9
