@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mogo.export.recipes import T2M_RECIPE, VQ_RECIPE
+from mogo.export.recipes import EVALUATOR_RECIPE, T2M_RECIPE, VQ_RECIPE
 
 
 class CliError(Exception):
@@ -70,6 +70,13 @@ def _cmd_bench(args: argparse.Namespace) -> None:
     main_from_args(args)
 
 
+def _cmd_train_evaluator(args: argparse.Namespace) -> None:
+    _require_torch()
+    from mogo.export.train_evaluator import EvaluatorTrainOptions, train_evaluator
+
+    train_evaluator(EvaluatorTrainOptions(**_training_options(args)))
+
+
 def _cmd_export(args: argparse.Namespace) -> None:
     _require_torch()
     from mogo.export.bundle import export_bundle
@@ -83,6 +90,21 @@ def _cmd_export(args: argparse.Namespace) -> None:
                 f"agreement {check['greedy_token_agreement']:.1%}, threshold "
                 f"{check['threshold']:.0%})")
     print(f"wrote {args.out}: {len(manifest['files'])} files, {size / 1e6:.1f} MB{note}")
+
+
+def _cmd_eval(args: argparse.Namespace) -> None:
+    import json
+
+    from mogo.bench.evaluate import EvalOptions, evaluate, format_table
+
+    options = EvalOptions(args.bundle, Path(args.data), Path(args.evaluator), args.limit,
+                          args.repeats, args.seed, args.mm_captions, args.mm_generations,
+                          args.regenerate, args.threads)
+    result = evaluate(options)
+    print(format_table(result))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+        print(f"wrote {args.json}")
 
 
 def _load_generator(bundle: str | None):
@@ -306,6 +328,14 @@ def build_parser() -> argparse.ArgumentParser:
     t2m.add_argument("--text-encoder", choices=["small"], help="(default small)")
     t2m.set_defaults(run=_cmd_train_t2m)
 
+    evaluator = train_commands.add_parser(
+        "evaluator", help="train the text-motion evaluator for `mogo eval` (contrastive text "
+                          "and motion encoders), exported to RUN/evaluator")
+    run_arguments(evaluator, EVALUATOR_RECIPE, val=500, checkpoint=500, log=50)
+    evaluator.add_argument("--val-spans", type=int, default=1024,
+                           help="validation spans embedded for R-precision (0: all)")
+    evaluator.set_defaults(run=_cmd_train_evaluator)
+
     def sampling_arguments(command: argparse.ArgumentParser) -> None:
         command.add_argument("--bundle",
                              help="bundle folder (default: the model shipped with mogo)")
@@ -376,6 +406,30 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--quick", action="store_true",
                        help="a smoke run: tiny model, few lengths and rounds (for tests)")
     bench.set_defaults(run=_cmd_bench)
+
+    evaluation = commands.add_parser(
+        "eval", help="a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "
+                     "MultiModality (no torch)")
+    evaluation.add_argument("bundle", nargs="?", help="bundle folder (default: the shipped one)")
+    evaluation.add_argument("--data", required=True, help="dataset folder with test.txt")
+    evaluation.add_argument("--evaluator", required=True,
+                            help="evaluator folder (RUN/evaluator of `mogo train evaluator`)")
+    evaluation.add_argument("--limit", type=int,
+                            help="a fixed random sample of this many test caption spans "
+                                 "(default: all; at least 32)")
+    evaluation.add_argument("--repeats", type=int, default=20)
+    evaluation.add_argument("--seed", type=int, default=0)
+    evaluation.add_argument("--mm-captions", type=int, default=10,
+                            help="captions for MultiModality (protocol: 100; 0 = skip)")
+    evaluation.add_argument("--mm-generations", type=int, default=30,
+                            help="generations per MultiModality caption")
+    evaluation.add_argument("--regenerate", action="store_true",
+                            help="generate anew in every repeat (the full protocol; repeats x "
+                                 "the generation time)")
+    evaluation.add_argument("--threads", type=int, default=1,
+                            help="clips generated in parallel")
+    evaluation.add_argument("--json", help="also write the numbers to this file")
+    evaluation.set_defaults(run=_cmd_eval)
 
     return parser
 

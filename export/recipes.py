@@ -1,4 +1,4 @@
-"""The default recipes of `mogo train vq` and `mogo train t2m`: what defines a run, fixed at
+"""The default recipes of `mogo train vq`, `t2m` and `evaluator`: what defines a run, fixed at
 its start and taken from the checkpoint on --resume. Torch-free, so the CLI can show them."""
 
 VQ_MODEL_SWITCHES = ("levels", "down_factor", "causal", "scale_bias", "decorrelation")
@@ -7,3 +7,4 @@ VQ_RECIPE = dict(preset="cpu_default", batch_size=64, lr=2e-4, warmup=1000, seed
                  crop_frames=64, **{name: None for name in VQ_MODEL_SWITCHES})
 T2M_RECIPE = dict(preset="cpu_default", batch_size=32, lr=2e-4, warmup=1000, seed=0,
                   text_encoder="small")
+EVALUATOR_RECIPE = dict(preset="cpu_default", batch_size=64, lr=3e-4, warmup=200, seed=0)

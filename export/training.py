@@ -151,6 +151,16 @@ def warmup_cosine(step: int, warmup: int, total: int, peak: float, final: float)
     return final + 0.5 * (peak - final) * (1 + math.cos(math.pi * progress))
 
 
+def begin_step(optimizer: torch.optim.Optimizer, recipe: dict, step: int, steps: int,
+               rank: int) -> float:
+    """Before a training step: reseed torch (`step_seed`) and set the warm-up-cosine learning
+    rate of the recipe (peak recipe["lr"], down to a tenth); -> the rate."""
+    torch.manual_seed(step_seed(recipe["seed"], rank, step))
+    lr = warmup_cosine(step, recipe["warmup"], steps, recipe["lr"], recipe["lr"] / 10)
+    set_learning_rate(optimizer, lr)
+    return lr
+
+
 def set_learning_rate(optimizer: torch.optim.Optimizer, lr: float) -> None:
     for group in optimizer.param_groups:
         group["lr"] = lr

@@ -1,0 +1,187 @@
+"""mogo eval, the semantic checks and the quality report on a small procedural corpus whose
+every clip is listed as test, with an untrained tiny evaluator and the shipped bundle."""
+import json
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from mogo.bench import evaluate as evaluate_module
+from mogo.bench import semantic
+from mogo.bench.evaluate import EvalOptions, SplitReader, evaluate
+from mogo.export.cli import main
+
+MM_ARGS = ["--mm-captions", "1", "--mm-generations", "10"]
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    from mogo.export.corpus import synthesize_corpus
+
+    root = tmp_path_factory.mktemp("corpus")
+    synthesize_corpus(root, num_clips=16, seed=0, progress=False, workers=1)
+    ids = sorted(p.stem for p in (root / "programs").glob("*.json"))
+    (root / "test.txt").write_text("".join(f"{i}\n" for i in ids))
+    return root
+
+
+@pytest.fixture(scope="module")
+def evaluator_folder(corpus, tmp_path_factory):
+    import torch
+
+    from mogo.export.evaluator import Evaluator, EvaluatorConfig, export_evaluator
+    from mogo.export.text_encoder import train_tokenizer
+
+    captions = [c.split("#")[0] for p in (corpus / "texts").glob("*.txt")
+                for c in p.read_text().splitlines()]
+    tokenizer = train_tokenizer(captions, 100, 16)
+    torch.manual_seed(0)
+    model = Evaluator(EvaluatorConfig.tiny(tokenizer.get_vocab_size()))
+    out = tmp_path_factory.mktemp("evaluator")
+    export_evaluator(model, tokenizer, np.load(corpus / "Mean.npy"), np.load(corpus / "Std.npy"),
+                     out)
+    return out
+
+
+def test_eval_prints_the_table_without_torch(corpus, evaluator_folder, tmp_path):
+    result = tmp_path / "eval.json"
+    script = ("import sys\nfrom mogo.export.cli import main\n"
+              f"code = main(['eval', '--data', {str(corpus)!r}, '--evaluator', "
+              f"{str(evaluator_folder)!r}, '--limit', '32', '--repeats', '2', "
+              f"{', '.join(map(repr, MM_ARGS))}, '--json', {str(result)!r}])\n"
+              "assert code == 0 and 'torch' not in sys.modules, (code, 'torch' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("| Methods | R-Precision Top-1 | Top-2 | Top-3 | FID |")
+    assert [line.split(" | ")[0] for line in lines[2:5]] == [
+        "| Ground truth", "| VQ reconstruction", "| Bundle"]
+    rows = json.loads(result.read_text())["rows"]
+    assert rows["Ground truth"]["FID"] == [0.0, 0.0]
+    assert rows["Bundle"]["FID"][0] > rows["VQ reconstruction"]["FID"][0] > 0
+    assert "MultiModality" in rows["Bundle"] and "MultiModality" not in rows["Ground truth"]
+    assert all(np.isfinite(v).all() for row in rows.values() for v in row.values())
+
+
+class MeanFeatures:
+    """Another evaluator behind the seam: a motion is its mean first 8 features; a caption is
+    that of a real clip it describes (captions repeat), so ground truth retrieves well."""
+    embed_dim = 8
+
+    def __init__(self, table: dict[str, np.ndarray]):
+        self.table = table
+
+    def embed_text(self, captions):
+        return np.stack([self.table[c] for c in captions])
+
+    def embed_motion(self, features):
+        return np.stack([f[:, :8].mean(0) for f in features])
+
+
+def replay_real_clips(monkeypatch, reader: SplitReader) -> None:
+    """Generation replaced by the real clips: for tests of what comes after it."""
+    def real(generator, items, seed, threads=1, label=""):
+        return [SimpleNamespace(features=reader.item_features(item),
+                                joints=reader.joints(item.clip_id)[item.start:item.end])
+                for item in items]
+    monkeypatch.setattr(evaluate_module, "generate_items", real)
+
+
+def test_another_evaluator_plugs_in(corpus, monkeypatch):
+    reader = SplitReader(corpus)
+    replay_real_clips(monkeypatch, reader)
+    items = reader.items(32)
+    fake = MeanFeatures({i.caption: reader.item_features(i)[:, :8].mean(0) for i in items})
+    options = EvalOptions(None, corpus, None, limit=32, repeats=2, mm_captions=0,
+                          regenerate=True)
+    result = evaluate(options, fake)
+    rows = result["rows"]
+    assert result["items"] == 32 and "regenerated every repeat" in result["notes"][0]
+    assert rows["Ground truth"]["Top-3"][0] > 0.5  # chance: 3/32
+    assert rows["Ground truth"]["FID"][0] == pytest.approx(0, abs=1e-9)
+    assert rows["VQ reconstruction"]["FID"][0] > 1e-9
+    assert rows["Bundle"] == rows["Ground truth"]
+
+
+@pytest.mark.parametrize("case, message", [
+    ("no_evaluator", "no such evaluator folder"),
+    ("small_limit", "--limit must be at least 32"),
+    ("no_test_split", "test.txt: split file missing"),
+])
+def test_bad_inputs_give_one_line_errors(case, message, corpus, evaluator_folder, tmp_path,
+                                         capsys):
+    data, evaluator, extra = corpus, evaluator_folder, []
+    if case == "no_evaluator":
+        evaluator = tmp_path / "missing"
+    elif case == "small_limit":
+        extra = ["--limit", "10"]
+    else:
+        data = tmp_path / "data"
+        data.mkdir()
+    assert main(["eval", "--data", str(data), "--evaluator", str(evaluator), *extra]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and error.startswith("mogo: error:") and message in error
+
+
+def test_semantic_checks_pass_real_clips_and_fail_wrong_parameters(corpus):
+    reader = SplitReader(corpus)
+    items = semantic.program_items(corpus, reader.ids)
+    assert len({item.primitive for item in items}) >= 10
+    wrong = dict(left="right", right="left", both="left", forward="backward",
+                 backward="forward")
+    flipped = 0
+    for item in items:
+        joints = reader.joints(item.clip_id)[item.start:item.end]
+        assert semantic.check(item, joints, joints).passed, (item, semantic.check(item, joints))
+        params = {k: wrong.get(v, v + 1 if k == "count" else v) if isinstance(v, (str, int))
+                  and not isinstance(v, bool) and k in ("hand", "foot", "direction", "count")
+                  else v for k, v in item.params.items()}
+        if params != item.params:
+            flipped += 1
+            changed = semantic.SemanticItem(item.clip_id, item.caption, item.primitive, params,
+                                            item.start, item.end)
+            assert not semantic.check(changed, joints, joints).passed, changed
+    assert flipped >= 10
+
+
+def test_semantic_measurements_on_a_turned_clip():
+    """A rigid T-ish pose facing +Z that walks 2 m along +X (its left) while turning 90
+    degrees to its left."""
+    from mogo.runtime.skeleton import SKELETONS
+
+    offsets = np.zeros((22, 3))
+    names = SKELETONS["humanml3d"].joint_names
+    for side, x in (("left", 0.1), ("right", -0.1)):
+        offsets[names.index(f"{side}_hip")] = (x, 0, 0)
+        offsets[names.index(f"{side}_shoulder")] = (2 * x, 0.5, 0)
+    yaw = np.radians(np.linspace(0, 90, 21))
+    rotation = np.stack([np.stack([np.cos(yaw), np.zeros(21), np.sin(yaw)], -1),
+                         np.tile([0.0, 1, 0], (21, 1)),
+                         np.stack([-np.sin(yaw), np.zeros(21), np.cos(yaw)], -1)], 1)
+    root = np.stack([np.linspace(0, 2, 21), np.full(21, 0.9), np.zeros(21)], -1)
+    joints = root[:, None] + np.einsum("tij,nj->tni", rotation, offsets)
+    assert semantic.heading_change(joints) == pytest.approx(90, abs=1e-6)
+    assert np.allclose(semantic.travel(joints), [0, 2], atol=1e-9)
+    assert semantic.runs(np.array([1, 1, 0, 1, 0, 1, 1, 1], bool)) == 2
+
+
+def test_quality_report(corpus, evaluator_folder, tmp_path, monkeypatch, capsys):
+    from mogo.bench import quality_report
+
+    replay_real_clips(monkeypatch, SplitReader(corpus))
+    (tmp_path / "ablation.md").write_text("| variant | MPJPE (mm) |\n|---|---|\n"
+                                          "| 6 levels | 20 |\n")
+    out = tmp_path / "QUALITY.md"
+    monkeypatch.setattr(sys, "argv", [
+        "quality_report", "--data", str(corpus), "--evaluator", str(evaluator_folder),
+        "--out", str(out), "--limit", "32", "--repeats", "1", "--mm-captions", "0",
+        "--per-primitive", "1", "--ablation", str(tmp_path)])
+    quality_report.main()
+    text = out.read_text()
+    for heading in ("## Text-motion metrics", "| Bundle |", "## Does the motion do what",
+                    "| all |", "## MoSA-VQ ablation", "| 6 levels | 20 |"):
+        assert heading in text
+    assert "Missing" in quality_report.ablation_section(tmp_path / "nothing")
