@@ -1,11 +1,11 @@
 """Prompt alignment on held-out paraphrases: `python -m mogo.bench.align_compare --data DIR
-[--limit N] [--seeds S]`.
+[--limit N] [--seeds S] [--evaluator DIR]`.
 
 Builds free-form requests from the ground-truth programs of the test split with paraphrase
 templates written here, which the corpus never used ("could you have somebody wander ahead,
 and afterwards give a wave with the right hand"), and compares the default bundle without
 and with the rule aligner. Prints a markdown table of what can be measured without the
-evaluator (issue 8):
+evaluator:
 
 - words the bundle's tokenizer does not know, in the request and in the aligned steps;
 - whether alignment found as many steps as the program has segments;
@@ -14,7 +14,9 @@ evaluator (issue 8):
   at the segment's start) by at least 0.2 m, over the segment's span (without alignment:
   the ground-truth span; with it: the aligned step's span when the steps match the segments).
 
-FID, R-precision and multimodal distance columns wait for the evaluator.
+With --evaluator (a `mogo train evaluator` export) the generated clips are also scored against
+the program's own caption and the real clip: R-precision, FID and MM-Dist over the same
+programs and seeds (mogo.bench.evaluate.score, 20 repeats).
 """
 from __future__ import annotations
 
@@ -25,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mogo.bench.evaluate import COLUMNS, score
+from mogo.bench.evaluator import OnnxEvaluator
 from mogo.runtime.align import plain_words
 from mogo.runtime.generator import MotionGenerator
 
@@ -125,6 +129,8 @@ def main() -> None:
     parser.add_argument("--text-limit", type=int, default=2000,
                         help="programs whose requests are aligned (text measures only)")
     parser.add_argument("--seeds", type=int, default=2, help="generations per program")
+    parser.add_argument("--evaluator", type=Path,
+                        help="an evaluator folder: adds R-precision, FID and MM-Dist")
     args = parser.parse_args()
     ids = (args.data / "test.txt").read_text().split()
     programs = []
@@ -145,6 +151,7 @@ def main() -> None:
 
     start = time.perf_counter()
     right = {"without": [], "with": []}
+    scored: dict[str, list] = {"caption": [], "real": [], "without": [], "with": []}
     walking = [k for k, p in enumerate(programs) if straight_locomotion(p)][:args.limit]
     for k in walking:
         program, text, alignment = programs[k], requests[k], alignments[k]
@@ -154,6 +161,10 @@ def main() -> None:
         for seed in range(args.seeds):
             plain = generator.generate(text, seconds=seconds, seed=seed)
             aligned = generator.generate(text, seconds=seconds, seed=seed, align=rules)
+            scored["caption"].append(program["captions"][0]["text"])
+            scored["real"].append(np.load(args.data / "new_joint_vecs" / f"{program['id']}.npy"))
+            scored["without"].append(plain.features)
+            scored["with"].append(aligned.features)
             for index in straight_locomotion(program):
                 segment = program["segments"][index]
                 direction = segment["params"]["direction"]
@@ -173,7 +184,18 @@ def main() -> None:
     print(f"| steps = program segments | - | {np.mean(matched):.1%} |")
     print(f"| direction of travel right | {np.mean(right['without']):.1%} | "
           f"{np.mean(right['with']):.1%} |")
-    print("| FID / R-precision / MM-Dist | waits for the evaluator | waits for the evaluator |")
+    if args.evaluator is None:
+        print("| R-precision / FID / MM-Dist | needs --evaluator | needs --evaluator |")
+        return
+    evaluator = OnnxEvaluator(args.evaluator)
+    text = evaluator.embed_text(scored["caption"])
+    real = evaluator.embed_motion(scored["real"])
+    rows = {kind: score(text, real, lambda k, m=evaluator.embed_motion(scored[kind]): m,
+                        repeats=20, seed=0) for kind in ("without", "with")}
+    for column in [c for c in COLUMNS if c in ("R-Precision Top-1", "Top-3", "FID", "MM-Dist")]:
+        cells = " | ".join(f"{rows[k][column][0]:.3f} ± {rows[k][column][1]:.3f}"
+                           for k in ("without", "with"))
+        print(f"| {column} (vs the program's caption and clip, {len(text)} clips) | {cells} |")
 
 
 if __name__ == "__main__":
