@@ -47,9 +47,10 @@ def test_the_manifest_describes_the_bundle(runs):
     assert manifest["t2m"]["num_levels"] == 3 and manifest["training"]["t2m"]["step"] == 3
     assert "int8" not in manifest
     storage = manifest["fp16_storage"]
-    assert storage["files"] == ["text_encoder.onnx", "vq_encoder.onnx"]
+    assert storage["files"] == ["text_encoder.onnx", "vq_decoder.onnx", "vq_encoder.onnx"]
     assert storage["prompt_embedding_max_abs_difference"] < 1e-2
     assert storage["vq_encoder_token_agreement"] > 0.9
+    assert 0 < storage["vq_decoder_feature_max_abs_difference"] < 1e-2
 
 
 @pytest.mark.parametrize("options", [dict(temperature=0.0), dict(temperature=1.0, top_p=0.9)])
