@@ -177,7 +177,9 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         if motion.alignment.note:
             print(f"note: {motion.alignment.note}")
     stem = Path(args.out) / (args.name or _file_stem(motion.caption))
-    written = [motion.save_bvh(stem.with_suffix(".bvh")), motion.save_gif(stem.with_suffix(".gif")),
+    written = [motion.save_bvh(stem.with_suffix(".bvh"),
+                               bone_translations=args.bvh_bone_translations),
+               motion.save_gif(stem.with_suffix(".gif")),
                motion.save_npy(stem.with_suffix(".npy")),
                motion.save_json(stem.with_suffix(".json"))]
     print(f"{motion.seconds:.1f} s of motion ({len(motion.joints)} frames, seed {motion.seed}) "
@@ -356,6 +358,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "'SECONDS PROMPT', played as one motion")
     generate.add_argument("--out", default="out", help="output folder (default out/)")
     generate.add_argument("--name", help="file name without extension (default: from the prompt)")
+    generate.add_argument("--bvh-bone-translations", action="store_true",
+                          help="position channels on every BVH joint: the joints back exactly, "
+                               "bone stretch included (default: a rigid skeleton, rotations only)")
     generate.add_argument("--align", choices=["rules", "llm"],
                           help="rewrite the prompt into caption-style steps played as one "
                                "motion: built-in rules, or an LLM server (falls back to the "

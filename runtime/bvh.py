@@ -10,7 +10,11 @@ Blender, Unity and Unreal retarget from. Rotations are solved per frame from pos
 The rest pose is a T-pose (arms out to the sides), which keeps every common pose far from
 the 180-degree swing where a shortest arc is undefined. Rest offsets are the bone vectors
 averaged over the clip in their parent's frame, so forward kinematics of the file gives the
-positions back up to the clip's own bone-length jitter.
+positions back up to the clip's own bone-length jitter. Generated motion has such jitter
+(bones that stretch by a few cm): `bone_translations=True` also writes every joint's
+per-frame offset as position channels, which gives the positions back exactly, for tools
+that read position channels on every joint (Blender does; retargeting to a rig keeps only
+the rotations).
 """
 from __future__ import annotations
 
@@ -37,9 +41,10 @@ class BvhClip:
 
 
 def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fps: float,
-             scale: float = 1.0) -> None:
+             scale: float = 1.0, bone_translations: bool = False) -> None:
     """Write joints (T, J, 3) in metres (Y up) as a BVH; `scale` multiplies every length
-    (1 = metres, which Blender imports at its default scale; 100 = centimetres)."""
+    (1 = metres, which Blender imports at its default scale; 100 = centimetres);
+    `bone_translations`: position channels on every joint too (see the module doc)."""
     joints = np.asarray(joints, dtype=np.float64)
     if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3) or len(joints) < 1:
         raise ValueError(f"joints must be (T, {skeleton.num_joints}, 3) for the "
@@ -50,23 +55,25 @@ def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fp
         raise ValueError(f"fps and scale must be positive, got {fps} and {scale}")
     rotations = global_rotations(joints, skeleton)  # (T, J, 3, 3)
     parents = skeleton.parents
-    offsets = np.zeros((skeleton.num_joints, 3))
+    bones = np.zeros_like(joints)  # (T, J, 3) each bone in its parent's frame, per frame
     for child in range(1, skeleton.num_joints):
         parent = parents[child]
-        bone = joints[:, child] - joints[:, parent]
-        offsets[child] = np.einsum("tji,tj->ti", rotations[:, parent], bone).mean(0)
+        bones[:, child] = np.einsum("tji,tj->ti", rotations[:, parent],
+                                    joints[:, child] - joints[:, parent])
+    offsets = bones.mean(0)
     local = rotations.copy()
     for joint in range(1, skeleton.num_joints):
         local[:, joint] = np.swapaxes(rotations[:, parents[joint]], -1, -2) @ rotations[:, joint]
     angles = np.degrees(np.unwrap(_matrix_to_zxy(local), axis=0))  # (T, J, 3)
 
     lines = ["HIERARCHY"]
-    _write_joint(lines, skeleton, 0, offsets * scale, depth=0)
+    _write_joint(lines, skeleton, 0, offsets * scale, depth=0, translations=bone_translations)
     lines += ["MOTION", f"Frames: {len(joints)}", f"Frame Time: {1.0 / fps:.8f}"]
     order = _depth_first(skeleton)
-    for t in range(len(joints)):
-        values = list(joints[t, 0] * scale) + [a for j in order for a in angles[t, j]]
-        lines.append(" ".join(f"{v:.6f}" for v in values))
+    bones[:, 0] = joints[:, 0]  # the root's position channels: where it is
+    columns = [np.concatenate([bones[:, j] * scale, angles[:, j]], axis=1)
+               if j == 0 or bone_translations else angles[:, j] for j in order]
+    lines += [" ".join(f"{v:.6f}" for v in row) for row in np.concatenate(columns, axis=1)]
     Path(path).write_text("\n".join(lines) + "\n")
 
 
@@ -174,20 +181,20 @@ def read_bvh(path: str | os.PathLike) -> BvhClip:
 
 
 def _write_joint(lines: list[str], skeleton: Skeleton, joint: int, offsets: np.ndarray,
-                 depth: int) -> None:
+                 depth: int, translations: bool) -> None:
     pad = "  " * depth
     kind = "ROOT" if depth == 0 else "JOINT"
     lines += [f"{pad}{kind} {skeleton.joint_names[joint]}", f"{pad}{{",
               f"{pad}  OFFSET {offsets[joint, 0]:.6f} {offsets[joint, 1]:.6f} "
               f"{offsets[joint, 2]:.6f}"]
     rotation_channels = " ".join(f"{axis}rotation" for axis in EULER_ORDER)
-    if depth == 0:
+    if depth == 0 or translations:
         lines.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition {rotation_channels}")
     else:
         lines.append(f"{pad}  CHANNELS 3 {rotation_channels}")
     kids = _children(skeleton)[joint]
     for child in kids:
-        _write_joint(lines, skeleton, child, offsets, depth + 1)
+        _write_joint(lines, skeleton, child, offsets, depth + 1, translations)
     if not kids:
         tip = _END_SITE_FRACTION * offsets[joint]
         lines += [f"{pad}  End Site", f"{pad}  {{",

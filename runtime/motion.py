@@ -44,10 +44,13 @@ class Motion:
         np.save(path, self.features.astype(np.float32))
         return path
 
-    def save_bvh(self, path: str | os.PathLike, scale: float = 1.0) -> Path:
-        """A BVH with per-joint rotations, in metres (scale=100 for centimetres)."""
+    def save_bvh(self, path: str | os.PathLike, scale: float = 1.0,
+                 bone_translations: bool = False) -> Path:
+        """A BVH with per-joint rotations, in metres (scale=100 for centimetres);
+        bone_translations=True adds per-joint position channels, so the file gives these
+        joints back exactly despite the bone-length jitter of generated motion."""
         path = _writable(path)
-        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale)
+        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations)
         return path
 
     def save_gif(self, path: str | os.PathLike) -> Path:

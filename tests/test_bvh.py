@@ -31,9 +31,10 @@ def _random_clip(seed: int, swing_degrees: float, jitter_m: float = 0.0) -> np.n
     return joints
 
 
-def _round_trip(tmp_path, joints: np.ndarray, scale: float = 1.0) -> np.ndarray:
+def _round_trip(tmp_path, joints: np.ndarray, scale: float = 1.0,
+                bone_translations: bool = False) -> np.ndarray:
     path = tmp_path / "clip.bvh"
-    save_bvh(path, joints, SMPL_22, fps=20.0, scale=scale)
+    save_bvh(path, joints, SMPL_22, fps=20.0, scale=scale, bone_translations=bone_translations)
     clip = read_bvh(path)
     assert clip.fps == pytest.approx(20.0) and clip.positions.shape == joints.shape
     order = [SMPL_22.joint_names.index(name) for name in clip.names]
@@ -52,6 +53,18 @@ def test_bone_length_jitter_stays_within_a_centimetre(tmp_path):
     joints = _random_clip(seed=1, swing_degrees=60.0, jitter_m=0.001)
     error = np.linalg.norm(_round_trip(tmp_path, joints, scale=100.0) - joints, axis=-1)
     assert error.max() < 0.01
+
+
+def test_bone_translations_give_stretching_bones_back_exactly(tmp_path):
+    """Bones that change length by centimetres, as in generated motion: the rigid file is off
+    by centimetres, the one with position channels on every joint is exact."""
+    joints = _random_clip(seed=4, swing_degrees=60.0, jitter_m=0.025)
+    rigid = np.linalg.norm(_round_trip(tmp_path, joints) - joints, axis=-1)
+    assert rigid.max() > 0.03
+    exact = _round_trip(tmp_path, joints, scale=100.0, bone_translations=True)
+    np.testing.assert_allclose(exact, joints, atol=1e-5)
+    text = (tmp_path / "clip.bvh").read_text()
+    assert text.count("CHANNELS 6 Xposition Yposition Zposition") == 22
 
 
 def test_file_is_a_well_formed_hierarchy(tmp_path):

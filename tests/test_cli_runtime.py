@@ -32,6 +32,11 @@ def test_generate_writes_the_files_and_says_where(tmp_path, capsys):
     assert error.mean() < 0.015 and error.max() < 0.1
     document = json.loads(stem.with_suffix(".json").read_text())
     assert len(document["frames"]) == 60 and document["fps"] == 20.0
+    assert main(["generate", "a person walks forward, then waves", "--seconds", "3",
+                 "--seed", "0", "--out", str(out), "--bvh-bone-translations"]) == 0
+    clip = read_bvh(stem.with_suffix(".bvh"))  # with the bones' stretch: exact
+    recovered[:, [SMPL_22.joint_names.index(name) for name in clip.names]] = clip.positions
+    assert np.linalg.norm(recovered - joints, axis=-1).max() < 1e-4
 
 
 def test_a_prompts_file_plays_one_motion(tmp_path, capsys):
