@@ -3,6 +3,7 @@ torch fail with an install hint only when torch is actually needed."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -107,10 +108,13 @@ def _cmd_eval(args: argparse.Namespace) -> None:
         print(f"wrote {args.json}")
 
 
-def _load_generator(bundle: str | None):
+def _load_generator(args: argparse.Namespace):
     from mogo.runtime.generator import MotionGenerator
 
-    return MotionGenerator.load(bundle)
+    if args.threads is not None and args.threads < 1:
+        raise CliError(f"--threads must be at least 1, got {args.threads}")
+    threads = min(2, os.cpu_count() or 1) if args.threads is None else args.threads
+    return MotionGenerator.load(args.bundle, threads=threads)
 
 
 def _sampling_options(args: argparse.Namespace) -> dict:
@@ -165,7 +169,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         schedule = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
-    generator = _load_generator(args.bundle)
+    generator = _load_generator(args)
     options = _sampling_options(args)
     if args.prompts_file:
         motion = generator.play(schedule, seed=args.seed, **options)
@@ -193,7 +197,7 @@ def _cmd_stream(args: argparse.Namespace) -> None:
 
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be at least 1, got {args.frames}")
-    generator = _load_generator(args.bundle)
+    generator = _load_generator(args)
     stream = generator.stream(args.text, seed=args.seed, **_sampling_options(args))
     try:
         for index, frame in enumerate(stream.frames(args.frames)):
@@ -348,6 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
         command.add_argument("--top-p", type=float, help="1 = off (default: bundle's)")
         command.add_argument("--guidance", type=float,
                              help="classifier-free guidance scale, 1 = off (default: bundle's)")
+        command.add_argument("--threads", type=int,
+                             help="cores to use; the same motion for any count (default: 2 "
+                                  "where there are 2 or more, the fastest measured)")
 
     generate = commands.add_parser(
         "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)")

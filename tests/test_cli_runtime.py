@@ -75,12 +75,21 @@ def test_info_describes_the_default_bundle(capsys):
     (["generate", "walk", "--bundle", "/nonexistent/bundle"], "no such bundle folder"),
     (["generate"], "give a prompt"),
     (["stream", "walk", "--frames", "0"], "--frames must be at least 1"),
+    (["generate", "walk", "--threads", "0"], "--threads must be at least 1"),
     (["info", "/nonexistent/bundle"], "no such bundle folder"),
 ])
 def test_bad_input_gives_one_line_and_exit_2(args, message, capsys):
     assert main(args) == 2
     error = capsys.readouterr().err
     assert error.startswith("mogo: error: ") and message in error and error.count("\n") == 1
+
+
+def test_thread_count_does_not_change_the_motion(tmp_path):
+    for threads in ("1", "2"):
+        assert main(["generate", "a person jumps.", "--seconds", "2", "--seed", "4", "--out",
+                     str(tmp_path / threads), "--threads", threads]) == 0
+    np.testing.assert_array_equal(np.load(tmp_path / "1" / "a_person_jumps.npy"),
+                                  np.load(tmp_path / "2" / "a_person_jumps.npy"))
 
 
 def test_unwritable_output_folder_and_bad_prompts_file(tmp_path, capsys):
