@@ -7,9 +7,9 @@ once the sliding window is full, the newest slot overwrites the oldest in place 
 means nothing: every slot carries its position), so no step copies the cache. The levels of
 one step are independent (level l sees only earlier steps), so with several workers they run
 concurrently, each on one core, and are sampled afterwards in level order. Guidance runs a
-batch of two rows,
-conditional and unconditional. The rules (uniforms, end token, window) are those of the torch
-reference `mogo.export.generate_torch.generate`, so both give the same tokens.
+batch of two rows, conditional and unconditional. The rules (uniforms, end token, window) are
+those of the torch reference `mogo.export.generate_torch.generate`, so both give the same
+tokens.
 
 Graph names come from the exporter's dict (mogo.export.onnx_t2m, later the bundle manifest),
 by role: the first five inputs are prompt, uncond, token_ids, positions, past_positions, then
@@ -210,9 +210,10 @@ class TokenStream:
         g = self.generator
         token_ids = np.repeat(self.slot_tokens[None], len(self.uncond), axis=0)
         none = np.zeros(0, np.int64)
-        self.caches = [g.run(level, self.prompt, self.uncond, token_ids, self.positions, none,
-                             g.empty_cache(level, len(self.uncond)))[1]
-                       for level in range(g.num_levels)]
+        outputs = g.each_level(lambda level: g.run(level, self.prompt, self.uncond, token_ids,
+                                                   self.positions, none,
+                                                   g.empty_cache(level, len(self.uncond))))
+        self.caches = [present for _, present in outputs]
 
     def _overwrite_oldest(self, presents: list[Cache], n: int) -> None:
         """Full window: the new slot (the last of every present) replaces the oldest step slot

@@ -272,6 +272,13 @@ def test_levels_run_concurrently_give_the_same_tokens(exported, generator):
             np.testing.assert_array_equal(
                 parallel.generate(prompt, num_frames=20, sampling=Sampling(**settings), seed=1,
                                   window=window), expected)
+    switched = []
+    for g in (generator, parallel):  # the re-prefill of a prompt switch, too
+        stream = g.start(prompt, seed=2, window=4, allow_end=False)
+        rows = [stream.step() for _ in range(6)]
+        stream.set_prompt(-prompt)
+        switched.append(np.array(rows + [stream.step() for _ in range(6)]))
+    np.testing.assert_array_equal(*switched)
 
 
 @pytest.mark.parametrize("layers, groups, expected", [
