@@ -229,7 +229,7 @@ def _cmd_info(args: argparse.Namespace) -> None:
         f"vq          {vq['levels']} levels of {vq['codebook_size']} codes, {vq['down_factor']} "
         f"frame(s) per token, decoder context {decoder['left_context']} back / "
         f"{decoder['lookahead']} ahead (tokens)",
-        f"defaults    " + ", ".join(f"{k} {v}" for k, v in m.get("defaults", {}).items()),
+        "defaults    " + ", ".join(f"{k} {v}" for k, v in m.get("defaults", {}).items()),
     ]
     if "int8" in m:
         check = m["int8"]
