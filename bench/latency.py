@@ -260,8 +260,8 @@ def torch_step(model: T2M, length: int, threads: int, cached: bool) -> Callable[
 
 
 def step_backends(model: T2M, folder: Path, graphs: list[dict],
-                  threads: tuple[int, ...]) -> dict[str, tuple[str, Callable]]:
-    """name -> (weights kind for the floor, factory(length) -> step callable)."""
+                  threads: tuple[int, ...]) -> dict[str, tuple[str, int, Callable]]:
+    """name -> (weights kind for the floor, cores used, factory(length) -> step callable)."""
     end = model.config.end_token
     backends = {}
     for kind, sub in (("fp32", folder), ("int8", folder / "int8")):
@@ -274,13 +274,13 @@ def step_backends(model: T2M, folder: Path, graphs: list[dict],
                     paths, graphs, end, intra_op_threads=t)
                 generators[f"onnxruntime {kind}, {t} level groups"] = single.with_level_workers(t)
             for name, generator in generators.items():
-                backends[name] = (kind, lambda n, g=generator: onnx_step(g, model.config, n))
+                backends[name] = (kind, t, lambda n, g=generator: onnx_step(g, model.config, n))
     for t in threads:
         plural = "s" * (t > 1)
         backends[f"torch eager + KV cache, {t} thread{plural}"] = (
-            "fp32", lambda n, t=t: torch_step(model, n, t, cached=True))
+            "fp32", t, lambda n, t=t: torch_step(model, n, t, cached=True))
         backends[f"torch eager, recompute, {t} thread{plural}"] = (
-            "fp32 recompute", lambda n, t=t: torch_step(model, n, t, cached=False))
+            "fp32 recompute", t, lambda n, t=t: torch_step(model, n, t, cached=False))
     return backends
 
 
@@ -328,13 +328,14 @@ def step_table(size: str, config: T2MConfig, work: Path, settings: Settings,
     weights = {"fp32": touched_weight_bytes([folder / g["file"] for g in graphs]),
                "int8": touched_weight_bytes([folder / "int8" / g["file"] for g in graphs])}
     weights["fp32 recompute"] = weights["fp32"]
-    rows = {name: dict(kind=kind, step_ms={}, floor_ms={}) for name, (kind, _) in backends.items()}
+    rows = {name: dict(kind=kind, threads=threads, step_ms={}, floor_ms={})
+            for name, (kind, threads, _) in backends.items()}
     for length in settings.lengths:
         log(f"{size}: {len(backends)} backends at cache length {length}")
-        calls = {name: factory(length) for name, (_, factory) in backends.items()}
+        calls = {name: factory(length) for name, (_, _, factory) in backends.items()}
         medians = interleaved(calls, settings.rounds, settings.round_budget_s)
         for name, seconds in medians.items():
-            kind, threads = rows[name]["kind"], thread_count(name)
+            kind, threads = rows[name]["kind"], rows[name]["threads"]
             recompute = kind == "fp32 recompute"
             memory = weights[kind] + (0 if recompute else kv_bytes(config, length))
             compute = step_flops(config, 0 if recompute else length, length + 1 if recompute else 1)
@@ -346,10 +347,6 @@ def step_table(size: str, config: T2MConfig, work: Path, settings: Settings,
     return dict(config=asdict(config), parameters=sum(p.numel() for p in model.parameters()),
                 weight_mb={k: v / 1e6 for k, v in weights.items() if k != "fp32 recompute"},
                 backends=rows)
-
-
-def thread_count(name: str) -> int:
-    return int(name.rsplit(", ", 1)[1].split()[0])
 
 
 def clip_seconds(step_ms: dict[int, float]) -> float:
@@ -408,7 +405,7 @@ def speedups(result: dict, threads: tuple[int, ...]) -> list[str]:
     reference = max(next(iter(rows.values()))["step_ms"])
     for t in threads:
         ort_rows = {n: r for n, r in rows.items()
-                    if n.startswith("onnxruntime") and thread_count(n) == t}
+                    if n.startswith("onnxruntime") and r["threads"] == t}
         best = min(ort_rows, key=lambda n: ort_rows[n]["step_ms"][reference])
         plural = "s" * (t > 1)
         cached = rows[f"torch eager + KV cache, {t} thread{plural}"]
