@@ -152,19 +152,27 @@ class HumanML3DFolder:
 
 
 class _EpochSeeded(Dataset):
-    """Random choices that depend only on (seed, epoch, index): the same batches on every
-    run and with any number of DataLoader workers. Call `set_epoch` before each epoch (the
-    workers copy the dataset when iteration starts, so not with persistent_workers)."""
+    """Random window starts that depend only on (seed, epoch, index): the same batches on every
+    run and with any number of DataLoader workers. One generator draws every item's start for
+    an epoch at once (a generator per item cost more than the rest of a VQ batch). Call
+    `set_epoch` before each epoch (the workers copy the dataset when iteration starts, so not
+    with persistent_workers)."""
 
     def __init__(self, seed: int):
         self.seed = seed
         self.epoch = 0
 
+    def _set_room(self, room: np.ndarray) -> None:
+        """room (N,): the number of possible starts of each item (1: always 0)."""
+        self._room = np.asarray(room, dtype=np.int64)
+        self.set_epoch(self.epoch)
+
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
+        self._starts = np.random.default_rng([self.seed, epoch]).integers(0, self._room)
 
-    def _rng(self, index: int) -> np.random.Generator:
-        return np.random.default_rng([self.seed, self.epoch, index])
+    def _start(self, index: int) -> int:
+        return int(self._starts[index])
 
 
 class MotionCropDataset(_EpochSeeded):
@@ -189,13 +197,14 @@ class MotionCropDataset(_EpochSeeded):
         if self.num_skipped:
             print(f"{split}: skipped {self.num_skipped} of {len(clips)} clips shorter than "
                   f"{crop_frames} frames")
+        self._set_room(np.array([len(c) - crop_frames + 1 for c in self.clips]))
 
     def __len__(self) -> int:
         return len(self.clips)
 
     def __getitem__(self, index: int) -> torch.Tensor:
         clip = self.clips[index]
-        start = int(self._rng(index).integers(0, len(clip) - self.crop_frames + 1))
+        start = self._start(index)
         return torch.from_numpy(clip[start:start + self.crop_frames].copy())
 
 
@@ -248,6 +257,7 @@ class TextMotionDataset(_EpochSeeded):
         if self.num_short or self.num_uncaptioned:
             print(f"{split}: {len(self.spans)} caption spans; skipped {self.num_short} shorter "
                   f"than {min_frames} frames and {self.num_uncaptioned} clips without texts/ID.txt")
+        self._set_room(np.array([max(1, s.end - s.start - max_frames + 1) for s in self.spans]))
 
     def __len__(self) -> int:
         return len(self.spans)
@@ -256,7 +266,7 @@ class TextMotionDataset(_EpochSeeded):
         span = self.spans[index]
         start, end = span.start, span.end
         if end - start > self.max_frames:
-            start += int(self._rng(index).integers(0, end - start - self.max_frames + 1))
+            start += self._start(index)
             end = start + self.max_frames
         motion = torch.from_numpy(self.clips[span.clip][start:end].copy())
         return dict(caption=span.caption, motion=motion, length=end - start,

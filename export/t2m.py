@@ -238,8 +238,11 @@ class T2M(nn.Module):
             if level == 0:
                 target = torch.where(steps == lengths[:, None], self.config.end_token, target)
                 mask = steps <= lengths[:, None]
-            losses.append(F.cross_entropy(logits[mask], target[mask]))
-            accuracies.append((logits[mask].argmax(-1) == target[mask]).float().mean())
+            weight = mask.float() / mask.sum()  # a mean over the masked positions, computed
+            # without boolean indexing, which would make the host wait for the device
+            losses.append((F.cross_entropy(logits.transpose(1, 2), target, reduction="none")
+                           * weight).sum())
+            accuracies.append(((logits.argmax(-1) == target).float() * weight).sum())
         return torch.stack(losses).sum(), torch.stack(accuracies).detach()
 
 

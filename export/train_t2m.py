@@ -216,6 +216,7 @@ class TokenSpans(_EpochSeeded):
     def __init__(self, cache: dict[str, np.ndarray], max_tokens: int, seed: int = 0):
         super().__init__(seed)
         self.cache, self.max_tokens = cache, max_tokens
+        self._set_room(np.maximum(1, cache["span_end"] - cache["span_start"] - max_tokens + 1))
 
     def __len__(self) -> int:
         return len(self.cache["span_clip"])
@@ -225,7 +226,7 @@ class TokenSpans(_EpochSeeded):
         base = int(c["offsets"][c["span_clip"][index]])
         start, end = int(c["span_start"][index]), int(c["span_end"][index])
         if end - start > self.max_tokens:
-            start += int(self._rng(index).integers(0, end - start - self.max_tokens + 1))
+            start += self._start(index)
             end = start + self.max_tokens
         tokens = torch.from_numpy(c["tokens"][base + start:base + end].astype(np.int64))
         return dict(caption=str(c["captions"][index]), tokens=tokens)

@@ -121,10 +121,9 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
               f"{'resuming at' if step else 'starting at'} step {step} of {steps}", flush=True)
 
     device = process.device
-    sums: dict[str, float] = {}
-    count, window_start = 0, time.perf_counter()
+    sums, count, window_start = None, 0, time.perf_counter()
     while step < steps:
-        x = next(stream).to(device)
+        x = next(stream).to(device, non_blocking=True)
         torch.manual_seed(step_seed(seed, process.rank, step))
         lr = warmup_cosine(step, recipe["warmup"], steps, recipe["lr"], recipe["lr"] / 10)
         set_learning_rate(optimizer, lr)
@@ -134,20 +133,21 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
         nn.utils.clip_grad_norm_(model.parameters(), GRAD_CLIP)
         optimizer.step()
         step += 1
-        for name, value in _train_values(output.losses, output.stats).items():
-            sums[name] = sums.get(name, 0.0) + value
+        values = _train_values(output.losses, output.stats)
+        sums = values if sums is None else sums + values
         count += 1
 
         if step % options.log_every == 0 or step == steps:
             rate = count / (time.perf_counter() - window_start)
-            values = all_reduce_mean({k: v / count for k, v in sums.items()}, process)
+            names = [*output.losses, *STAT_NAMES]
+            values = all_reduce_mean(dict(zip(names, (sums / count).tolist())), process)
             log.write("train", step, lr=lr, **values, steps_per_s=round(rate, 3))
             if process.is_main:
                 print(f"step {step}/{steps}  loss {values['total']:.4f}  recon "
                       f"{values['recon']:.4f}  joints {values['joints']:.4f}  perplexity "
                       f"{values['perplexity']:.0f}  lr {lr:.2e}  {rate:.2f} steps/s  "
                       f"eta {format_duration((steps - step) / rate)}", flush=True)
-            sums, count, window_start = {}, 0, time.perf_counter()
+            sums, count, window_start = None, 0, time.perf_counter()
         if step % options.val_every == 0 or step == steps:
             if process.is_main:
                 metrics = reconstruction_metrics(model, clip_batches(val_clips, device))
@@ -166,13 +166,16 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
                             best_val_mpjpe_mm=best, **extra)
 
 
-def _train_values(losses: dict[str, Tensor], stats: dict[str, Tensor]) -> dict[str, float]:
-    """The numbers a training log line holds: every loss term, mean perplexity and usage,
-    codes re-drawn."""
-    values = {name: float(value.detach()) for name, value in losses.items()}
-    values.update(perplexity=float(stats["perplexity"].mean()),
-                  usage=float(stats["usage"].mean()), dead_codes=float(stats["dead_codes"].sum()))
-    return values
+STAT_NAMES = ("perplexity", "usage", "dead_codes")
+
+
+def _train_values(losses: dict[str, Tensor], stats: dict[str, Tensor]) -> Tensor:
+    """What a training log line holds, kept on the device until the line is written (reading
+    a value back each step would stall the GPU): every loss term, then STAT_NAMES: mean
+    perplexity and usage, codes re-drawn."""
+    return torch.stack([*(value.detach() for value in losses.values()),
+                        stats["perplexity"].mean(), stats["usage"].mean(),
+                        stats["dead_codes"].sum()])
 
 
 def whole_clips(folder: HumanML3DFolder, split: str, down_factor: int,

@@ -23,6 +23,7 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 
 CHECKPOINT_FORMAT = 1
+GPU_LOADER_WORKERS = 3
 
 
 @dataclass(kw_only=True)
@@ -128,8 +129,10 @@ def batches(dataset: Dataset, batch_size: int, process: Process, seed: int,
                          f"of {batch_size} per process ({process.world_size} processes)")
     sampler = DistributedSampler(dataset, num_replicas=process.world_size, rank=process.rank,
                                  shuffle=True, seed=seed, drop_last=True)
+    on_gpu = process.device.type == "cuda"  # there, workers assemble batches while it computes
     loader = DataLoader(dataset, batch_size=batch_size, sampler=sampler, drop_last=True,
-                        collate_fn=collate_fn)
+                        collate_fn=collate_fn, num_workers=GPU_LOADER_WORKERS if on_gpu else 0,
+                        pin_memory=on_gpu)
     epoch = start_epoch
     while True:
         sampler.set_epoch(epoch)

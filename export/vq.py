@@ -241,12 +241,17 @@ class ResidualQuantizer(nn.Module):
         self.register_buffer("ema_count", torch.ones(L, K))
         self.register_buffer("ema_sum", self.codebook.clone())
         self.register_buffer("initialized", torch.zeros(L, dtype=torch.bool))
+        self._all_initialized = False  # a host-side copy of initialized.all(), once it holds
         if config.scale_bias:
             self.scale = nn.Parameter(torch.ones(L, C))
             self.bias = nn.Parameter(torch.zeros(L, C))
         else:
             self.register_buffer("scale", torch.ones(L, C))
             self.register_buffer("bias", torch.zeros(L, C))
+
+    def _load_from_state_dict(self, *args, **kwargs):
+        self._all_initialized = False  # re-read from the loaded buffer at the next update
+        super()._load_from_state_dict(*args, **kwargs)
 
     def dequantize(self, ids: Tensor) -> Tensor:
         """ids (B, T', k) of levels 0..k-1 (k <= L, 0 gives zeros) -> z_hat (B, T', C):
@@ -300,21 +305,23 @@ class ResidualQuantizer(nn.Module):
         """Quantise rows r (N, C) level by level, rows taking part in level l where active
         (N, L) is 1. Returns ids (N, L); each level's phi (N, C), valued (q - b) / W with the
         gradient of Q taken as the identity; the residuals r^0..r^L; and with `update` (the EMA
-        step) the number of codes re-drawn per level (L,)."""
+        step) the number of codes re-drawn per level (L,). Once every codebook is initialised,
+        nothing here waits for the device (no boolean indexing, no reading values back)."""
         dead = torch.zeros(self.config.levels, device=r.device)
         ids, phis, residuals = [], [], [r]
+        if update and not self._all_initialized:
+            self._all_initialized = bool(self.initialized.all())
         for l in range(self.config.levels):
             u = r * self.scale[l] + self.bias[l]  # (N, C) scaled residual
-            rows = active[:, l] > 0
-            if update and not self.initialized[l]:
-                self._initialize(l, u.detach()[rows])
+            if update and not self._all_initialized and not self.initialized[l]:
+                self._initialize(l, u.detach()[active[:, l] > 0])
             codebook = self.codebook[l]  # (K, C)
             distance = (u.detach().square().sum(-1, keepdim=True) - 2 * u.detach() @ codebook.T
                         + codebook.square().sum(-1))  # (N, K)
             idx = distance.argmin(-1)
             q = codebook[idx] + (u - u.detach())  # straight-through: value q, gradient to u
             if update:
-                dead[l] = self._ema_step(l, u.detach()[rows], idx[rows])
+                dead[l] = self._ema_step(l, u.detach(), idx, active[:, l])
             phi = (q - self.bias[l]) / self.scale[l]
             r = r - phi * active[:, l, None]
             ids.append(idx)
@@ -336,25 +343,27 @@ class ResidualQuantizer(nn.Module):
         self.initialized[level] = True
 
     @torch.no_grad()
-    def _ema_step(self, level: int, u: Tensor, idx: Tensor) -> int:
-        """One EMA k-means step of codebook `level` on rows u (N, C) assigned to codes idx (N,);
-        codes whose EMA count falls below the threshold are re-drawn from the rows (with that
-        count). Returns how many were re-drawn."""
-        if len(u) == 0:
-            return 0
+    def _ema_step(self, level: int, u: Tensor, idx: Tensor, weight: Tensor) -> Tensor:
+        """One EMA k-means step of codebook `level` on the rows of u (N, C) where weight (N,)
+        is 1, assigned to codes idx (N,); codes whose EMA count falls below the threshold are
+        re-drawn from those rows (with that count). Without such rows nothing changes.
+        Returns how many codes were re-drawn (a 0-dim tensor)."""
         K, decay = self.config.codebook_size, self.config.ema_decay
         threshold = self.config.dead_code_threshold
-        count = torch.zeros(K, device=u.device).index_add_(0, idx, torch.ones_like(u[:, 0]))
-        total = torch.zeros_like(self.ema_sum[level]).index_add_(0, idx, u)
+        count = torch.zeros(K, device=u.device).index_add_(0, idx, weight)
+        total = torch.zeros_like(self.ema_sum[level]).index_add_(0, idx, u * weight[:, None])
         ema_count = decay * self.ema_count[level] + (1 - decay) * count
         ema_sum = decay * self.ema_sum[level] + (1 - decay) * total
-        dead = ema_count < threshold
-        drawn = u[torch.randint(len(u), (K,), device=u.device)]
+        present = weight.sum() > 0
+        dead = (ema_count < threshold) & present
+        drawn = u[torch.multinomial(weight + (~present).float(), K, replacement=True)]
+        ema_count = torch.where(present, ema_count, self.ema_count[level])
+        ema_sum = torch.where(present, ema_sum, self.ema_sum[level])
         self.ema_count[level] = torch.where(dead, threshold, ema_count)
         self.ema_sum[level] = torch.where(dead[:, None], threshold * drawn, ema_sum)
-        self.codebook[level] = torch.where(dead[:, None], drawn,
-                                           ema_sum / ema_count.clamp_min(1e-6)[:, None])
-        return int(dead.sum())
+        codebook = torch.where(dead[:, None], drawn, ema_sum / ema_count.clamp_min(1e-6)[:, None])
+        self.codebook[level] = torch.where(present, codebook, self.codebook[level])
+        return dead.sum()
 
     def _modulation(self) -> Tensor:
         """sum_l ||W^l - 1||^2 + ||b^l||^2 (zero without scale_bias)."""

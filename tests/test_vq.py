@@ -160,10 +160,22 @@ def test_ema_initialises_from_the_first_batch_and_redraws_dead_codes():
     assert torch.cdist(quantizer.codebook[0, 3:4], rows).min() < 1e-5  # re-drawn from a row
     assert not torch.equal(quantizer.codebook[1:], before[1:])  # the EMA moved the others
 
+    state = {name: value.clone() for name, value in quantizer.state_dict().items()}
+    with torch.no_grad():  # a level no row takes part in keeps its codebook and statistics
+        quantizer._descend(rows, torch.tensor([1.0, 1.0, 0.0]).expand(len(rows), 3), update=True)
+    assert torch.equal(quantizer.ema_count[2], state["ema_count"][2])
+    assert torch.equal(quantizer.codebook[2], state["codebook"][2])
+    assert not torch.equal(quantizer.ema_count[1], state["ema_count"][1])
+
     quantizer.eval()
     frozen = quantizer.codebook.clone()
     quantizer.quantize(z)
     assert torch.equal(quantizer.codebook, frozen)
+
+    quantizer.train().load_state_dict(ResidualQuantizer(TINY).state_dict())  # uninitialised
+    quantizer.quantize(z)
+    assert quantizer.initialized.all()  # initialised again from this batch
+    assert torch.cdist(quantizer.codebook[0], rows).min(1).values.max() < 0.5
 
 
 def test_quantizer_dropout_only_in_training():
