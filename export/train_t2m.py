@@ -49,6 +49,7 @@ MIN_FRAMES = 40  # caption spans shorter than this are skipped (the standard loa
 MAX_FRAMES = 196  # longer spans: a random window of this many frames each epoch
 WEIGHT_DECAY = 0.1
 GRAD_CLIP = 1.0
+TOKENIZE_BATCH = 128
 TOKENIZER = "tokenizer.json"
 PRESETS: dict[str, Callable[[], T2MConfig]] = dict(
     tiny=T2MConfig.tiny, cpu_default=T2MConfig.cpu_default, paper=T2MConfig.paper)
@@ -168,16 +169,23 @@ def tokenize_split(folder: HumanML3DFolder, split: str, vq: MoSAVQ, key: dict,
     spans = TextMotionDataset(folder, split, min_frames=MIN_FRAMES, max_frames=MAX_FRAMES)
     down = vq.config.down_factor
     vq = vq.to(device)
-    tokens, offsets = [], [0]
-    progress = Progress(len(spans.ids), f"tokenising {split}")
-    for clip_id in spans.ids:
-        raw = torch.from_numpy(folder.features(clip_id)).to(device)
-        x = (raw[:len(raw) - len(raw) % down] - vq.mean) / vq.std
-        tokens.append(vq.encode(x[None])[0].cpu().numpy().astype(np.int32))
-        offsets.append(offsets[-1] + len(tokens[-1]))
-        progress.update()
+    raw = [folder.features(clip_id) for clip_id in spans.ids]  # normalised by the VQ's own
+    by_length: dict[int, list[int]] = {}  # clips of equal length encode as one batch
+    for index, clip in enumerate(raw):
+        by_length.setdefault(len(clip) - len(clip) % down, []).append(index)
+    tokens: list[np.ndarray] = [np.zeros((0, vq.config.levels), np.int32)] * len(raw)
+    progress = Progress(len(raw), f"tokenising {split}")
+    for length, indices in by_length.items():
+        for first in range(0, len(indices), TOKENIZE_BATCH):
+            batch = indices[first:first + TOKENIZE_BATCH]
+            x = torch.from_numpy(np.stack([raw[i][:length] for i in batch])).to(device)
+            ids = vq.encode((x - vq.mean) / vq.std).cpu().numpy().astype(np.int32)
+            for i, clip_ids in zip(batch, ids):
+                tokens[i] = clip_ids
+            progress.update(len(batch))
     progress.close()
-    return dict(tokens=np.concatenate(tokens), offsets=np.array(offsets, dtype=np.int64),
+    offsets = np.cumsum([0] + [len(t) for t in tokens])
+    return dict(tokens=np.concatenate(tokens), offsets=offsets.astype(np.int64),
                 clip_ids=np.array(spans.ids, dtype=str),
                 span_clip=np.array([s.clip for s in spans.spans], dtype=np.int64),
                 span_start=np.array([s.start // down for s in spans.spans], dtype=np.int64),

@@ -193,5 +193,13 @@ def whole_clips(folder: HumanML3DFolder, split: str, down_factor: int,
     return clips
 
 
-def clip_batches(clips: list[Tensor], device: torch.device) -> Iterator[Tensor]:
-    return (clip.to(device) for clip in clips)
+def clip_batches(clips: list[Tensor], device: torch.device,
+                 batch_size: int = 128) -> Iterator[Tensor]:
+    """Clips (1, T, D) stacked into batches of equal T (padding would change what the
+    convolutions see at the ends), so a whole split decodes in a few hundred calls."""
+    by_length: dict[int, list[Tensor]] = {}
+    for clip in clips:
+        by_length.setdefault(clip.shape[1], []).append(clip)
+    for same in by_length.values():
+        for first in range(0, len(same), batch_size):
+            yield torch.cat(same[first:first + batch_size]).to(device)

@@ -451,7 +451,8 @@ class MoSAVQ(nn.Module):
 
 @torch.no_grad()
 def reconstruction_metrics(model: MoSAVQ, batches: Iterable[Tensor]) -> dict:
-    """Reconstruction quality over batches of normalised features (B, T, D), in eval mode.
+    """Reconstruction quality over batches of normalised features (B, T, D), in eval mode;
+    errors are means over clips (each clip's own mean over its frames and joints).
 
     mpjpe_mm: mean joint position error (global positions, root trajectory included) in mm;
     feature_l1: mean |x_hat - x| on normalised features; both also `_by_levels`, decoding with
@@ -465,21 +466,21 @@ def reconstruction_metrics(model: MoSAVQ, batches: Iterable[Tensor]) -> dict:
     l1 = torch.zeros(L + 1, dtype=torch.float64)  # sums over batches, index = levels used
     mpjpe = torch.zeros(L + 1, dtype=torch.float64)
     counts = torch.zeros(L, K, dtype=torch.float64)
-    batches_seen = 0
+    clips = 0
     for x in batches:
         ids = model.encode(x)
         joints = model.joints(x)
         for k in range(L + 1):
             recon = model.decode(ids[..., :k])
-            l1[k] += (recon - x).abs().mean().item()
-            mpjpe[k] += (model.joints(recon) - joints).norm(dim=-1).mean().item()
+            l1[k] += (recon - x).abs().mean(dim=(1, 2)).sum().item()
+            mpjpe[k] += (model.joints(recon) - joints).norm(dim=-1).mean(dim=(1, 2)).sum().item()
         for l in range(L):
             counts[l] += torch.bincount(ids[..., l].flatten(), minlength=K).double().cpu()
-        batches_seen += 1
+        clips += len(x)
     model.train(was_training)
-    if batches_seen == 0:
+    if clips == 0:
         raise ValueError("no batches to measure")
-    l1, mpjpe = l1 / batches_seen, 1000 * mpjpe / batches_seen
+    l1, mpjpe = l1 / clips, 1000 * mpjpe / clips
     probs = counts / counts.sum(1, keepdim=True)
     perplexity = (-(probs * probs.clamp_min(1e-12).log()).sum(1)).exp()
     gain = (l1[:-1] - l1[1:]) / (l1[0] - l1[-1]).clamp_min(1e-12)

@@ -290,3 +290,15 @@ def test_overfitting_one_batch_lowers_the_loss(motion):
     assert sum(metrics["level_gain"]) == pytest.approx(1.0)
     assert all(0 < u <= 1 for u in metrics["codebook_usage"])
     assert all(1 <= p <= TINY.codebook_size for p in metrics["perplexity"])
+
+
+def test_metrics_of_clips_batched_by_length_equal_those_clip_by_clip():
+    from mogo.export.train_vq import clip_batches
+    torch.manual_seed(0)
+    model = MoSAVQ(TINY).eval()
+    clips = [0.3 * torch.randn(1, frames, TINY.feature_dim) for frames in (20, 20, 31, 20, 31, 40)]
+    batches = list(clip_batches(clips, torch.device("cpu"), batch_size=2))
+    assert [tuple(b.shape[:2]) for b in batches] == [(2, 20), (1, 20), (2, 31), (1, 40)]
+    one_by_one, batched = reconstruction_metrics(model, clips), reconstruction_metrics(model, batches)
+    for name in ("mpjpe_mm", "feature_l1", "mpjpe_mm_by_levels", "codebook_usage"):
+        np.testing.assert_allclose(batched[name], one_by_one[name], rtol=1e-5)
