@@ -131,7 +131,8 @@ def batches(dataset: Dataset, batch_size: int, process: Process, seed: int,
                                  shuffle=True, seed=seed, drop_last=True)
     on_gpu = process.device.type == "cuda"  # there, workers assemble batches while it computes
     loader = DataLoader(dataset, batch_size=batch_size, sampler=sampler, drop_last=True,
-                        collate_fn=collate_fn, num_workers=GPU_LOADER_WORKERS if on_gpu else 0,
+                        collate_fn=collate_fn,
+                        num_workers=min(GPU_LOADER_WORKERS, os.cpu_count() or 1) if on_gpu else 0,
                         pin_memory=on_gpu)
     epoch = start_epoch
     while True:
