@@ -36,11 +36,11 @@ def show_clip(data_dir: Path, clip_id: str, gif_path: Path) -> Path:
         raise ValueError(f"{path}: {error}") from None
     if joints.ndim != 3:
         raise ValueError(f"{path}: expected one clip (T, D), got shape {features.shape}")
-    caption = _first_caption(data_dir / "texts" / f"{clip_id}.txt")
+    caption = first_caption(data_dir / "texts" / f"{clip_id}.txt")
     return save_gif(joints, gif_path, f"{clip_id}: {caption}" if caption else clip_id)
 
 
-def _first_caption(path: Path) -> str:
+def first_caption(path: Path) -> str:
     """The caption text of the first line of a HumanML3D text file ("" if there is none)."""
     if not path.is_file():
         return ""

@@ -185,3 +185,24 @@ def test_quality_report(corpus, evaluator_folder, tmp_path, monkeypatch, capsys)
                     "| all |", "## MoSA-VQ ablation", "| 6 levels | 20 |"):
         assert heading in text
     assert "Missing" in quality_report.ablation_section(tmp_path / "nothing")
+
+
+def test_vq_reconstruction_writes_gifs_and_a_contact_sheet(corpus, tmp_path, monkeypatch, capsys):
+    from PIL import Image
+
+    from mogo.bench import vq_reconstruction
+
+    out = tmp_path / "recon"
+    monkeypatch.setattr(sys, "argv", ["vq_reconstruction", "--data", str(corpus), "--out",
+                                      str(out), "--clips", "2"])
+    vq_reconstruction.main()
+    printed = capsys.readouterr().out
+    errors = [float(line.split("MPJPE ")[1].split(" mm")[0]) for line in printed.splitlines()
+              if " frames, MPJPE " in line]
+    assert len(errors) == 2 and all(0 < e < 60 for e in errors)  # the shipped VQ: ~10-25 mm
+    gifs = sorted(out.glob("*.gif"))
+    assert len(gifs) == 2 and not any(g.stem.startswith("M") for g in gifs)
+    with Image.open(gifs[0]) as gif:
+        assert gif.width == 2 * gif.height and gif.n_frames >= vq_reconstruction.MIN_FRAMES
+    with Image.open(out / "contact_sheet.png") as sheet:
+        assert sheet.height == 4 * vq_reconstruction.THUMBNAIL
