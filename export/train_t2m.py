@@ -37,8 +37,8 @@ from mogo.export.t2m import T2M, T2MConfig
 from mogo.export.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig, encode_captions,
                                       train_tokenizer)
 from mogo.export.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
-                                  finish_together, format_duration, load_checkpoint,
-                                  merge_recipe, previous_run, resumed_metrics_log,
+                                  equal_length_groups, finish_together, format_duration,
+                                  load_checkpoint, merge_recipe, previous_run, resumed_metrics_log,
                                   save_checkpoint, seed_everything, set_learning_rate,
                                   start_process, step_seed, steps_per_epoch, warmup_cosine,
                                   wrap_model)
@@ -170,19 +170,15 @@ def tokenize_split(folder: HumanML3DFolder, split: str, vq: MoSAVQ, key: dict,
     down = vq.config.down_factor
     vq = vq.to(device)
     raw = [folder.features(clip_id) for clip_id in spans.ids]  # normalised by the VQ's own
-    by_length: dict[int, list[int]] = {}  # clips of equal length encode as one batch
-    for index, clip in enumerate(raw):
-        by_length.setdefault(len(clip) - len(clip) % down, []).append(index)
-    tokens: list[np.ndarray] = [np.zeros((0, vq.config.levels), np.int32)] * len(raw)
+    lengths = [len(clip) - len(clip) % down for clip in raw]
+    tokens: list[np.ndarray | None] = [None] * len(raw)
     progress = Progress(len(raw), f"tokenising {split}")
-    for length, indices in by_length.items():
-        for first in range(0, len(indices), TOKENIZE_BATCH):
-            batch = indices[first:first + TOKENIZE_BATCH]
-            x = torch.from_numpy(np.stack([raw[i][:length] for i in batch])).to(device)
-            ids = vq.encode((x - vq.mean) / vq.std).cpu().numpy().astype(np.int32)
-            for i, clip_ids in zip(batch, ids):
-                tokens[i] = clip_ids
-            progress.update(len(batch))
+    for batch in equal_length_groups(lengths, TOKENIZE_BATCH):
+        x = torch.from_numpy(np.stack([raw[i][:lengths[i]] for i in batch])).to(device)
+        ids = vq.encode((x - vq.mean) / vq.std).cpu().numpy().astype(np.int32)
+        for i, clip_ids in zip(batch, ids):
+            tokens[i] = clip_ids
+        progress.update(len(batch))
     progress.close()
     offsets = np.cumsum([0] + [len(t) for t in tokens])
     return dict(tokens=np.concatenate(tokens), offsets=offsets.astype(np.int64),

@@ -28,9 +28,9 @@ from torch import Tensor, nn
 from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
 from mogo.export.recipes import VQ_MODEL_SWITCHES, VQ_RECIPE
 from mogo.export.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
-                                  finish_together, format_duration, merge_recipe, previous_run,
-                                  resumed_metrics_log, save_checkpoint, seed_everything,
-                                  set_learning_rate, start_process, step_seed, steps_per_epoch,
+                                  equal_length_groups, finish_together, format_duration,
+                                  merge_recipe, previous_run, resumed_metrics_log,
+                                  save_checkpoint, seed_everything, set_learning_rate, start_process, step_seed, steps_per_epoch,
                                   warmup_cosine, wrap_model)
 from mogo.export.vq import MoSAVQ, VQConfig, reconstruction_metrics
 
@@ -195,11 +195,7 @@ def whole_clips(folder: HumanML3DFolder, split: str, down_factor: int,
 
 def clip_batches(clips: list[Tensor], device: torch.device,
                  batch_size: int = 128) -> Iterator[Tensor]:
-    """Clips (1, T, D) stacked into batches of equal T (padding would change what the
-    convolutions see at the ends), so a whole split decodes in a few hundred calls."""
-    by_length: dict[int, list[Tensor]] = {}
-    for clip in clips:
-        by_length.setdefault(clip.shape[1], []).append(clip)
-    for same in by_length.values():
-        for first in range(0, len(same), batch_size):
-            yield torch.cat(same[first:first + batch_size]).to(device)
+    """Clips (1, T, D) stacked into batches of equal T, so a whole split decodes in a few
+    hundred calls."""
+    for group in equal_length_groups([clip.shape[1] for clip in clips], batch_size):
+        yield torch.cat([clips[i] for i in group]).to(device)

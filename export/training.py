@@ -143,6 +143,17 @@ def batches(dataset: Dataset, batch_size: int, process: Process, seed: int,
         epoch += 1
 
 
+def equal_length_groups(lengths: list[int], batch_size: int) -> Iterator[list[int]]:
+    """Indices of items of equal length, at most `batch_size` a group: whole clips batched
+    without padding (padding would change what the convolutions see at the ends)."""
+    by_length: dict[int, list[int]] = {}
+    for index, length in enumerate(lengths):
+        by_length.setdefault(length, []).append(index)
+    for same in by_length.values():
+        for first in range(0, len(same), batch_size):
+            yield same[first:first + batch_size]
+
+
 def steps_per_epoch(dataset: Dataset, batch_size: int, process: Process) -> int:
     return len(dataset) // process.world_size // batch_size
 
