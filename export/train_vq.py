@@ -30,8 +30,9 @@ from mogo.export.recipes import VQ_MODEL_SWITCHES, VQ_RECIPE
 from mogo.export.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
                                   equal_length_groups, finish_together, format_duration,
                                   merge_recipe, previous_run, resumed_metrics_log,
-                                  save_checkpoint, seed_everything, set_learning_rate, start_process, step_seed, steps_per_epoch,
-                                  warmup_cosine, wrap_model)
+                                  save_checkpoint, seed_everything, set_learning_rate,
+                                  start_process, step_seed, steps_per_epoch, warmup_cosine,
+                                  wrap_model)
 from mogo.export.vq import MoSAVQ, VQConfig, reconstruction_metrics
 
 PRESETS: dict[str, Callable[[], VQConfig]] = dict(
