@@ -13,9 +13,9 @@ from pathlib import Path
 import torch
 
 from mogo.export.dataset import HumanML3DFolder
-from mogo.export.train_t2m import (MAX_FRAMES, TextToMotion, TokenSpans, load_t2m, load_vq,
+from mogo.export.train_t2m import (MAX_FRAMES, TextToMotion, TokenSpans, load_t2m,
                                    tokenize_split, validate)
-from mogo.export.train_vq import clip_batches, whole_clips
+from mogo.export.train_vq import clip_batches, load_vq, whole_clips
 from mogo.export.training import Process
 from mogo.export.vq import reconstruction_metrics
 

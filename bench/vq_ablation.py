@@ -21,8 +21,7 @@ from pathlib import Path
 import torch
 
 from mogo.export.dataset import HumanML3DFolder
-from mogo.export.train_t2m import load_vq
-from mogo.export.train_vq import clip_batches, whole_clips
+from mogo.export.train_vq import clip_batches, load_vq, whole_clips
 from mogo.export.training import load_checkpoint
 from mogo.export.vq import reconstruction_metrics
 

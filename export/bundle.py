@@ -33,8 +33,8 @@ DEFAULTS = dict(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=128, m
 
 def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) -> dict:
     """`mogo export`: the trained runs (their best.pt) -> a bundle folder; returns the manifest."""
-    from mogo.export.train_t2m import (load_t2m, load_vq, read_tokens, t2m_checkpoint,
-                                       vq_checkpoint)
+    from mogo.export.train_t2m import load_t2m, read_tokens, t2m_checkpoint
+    from mogo.export.train_vq import load_vq, tokens_sha256, vq_checkpoint
     from mogo.export.training import load_checkpoint
     from mogo.runtime.skeleton import skeleton_for_feature_dim
 
@@ -42,7 +42,7 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
     t2m, text_encoder, tokenizer = load_t2m(t2m_run)
     vq_state = load_checkpoint(vq_checkpoint(vq_run))
     t2m_state = load_checkpoint(t2m_checkpoint(t2m_run))
-    if t2m_state["config"]["vq"]["sha256"] != file_sha256(vq_checkpoint(vq_run)):
+    if t2m_state["config"]["vq"]["sha256"] != tokens_sha256(vq_state, vq_checkpoint(vq_run)):
         raise ValueError(f"{t2m_run} was trained on the tokens of another VQ checkpoint than "
                          f"{vq_checkpoint(vq_run)}")
     skeleton = skeleton_for_feature_dim(vq.config.feature_dim)

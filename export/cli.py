@@ -325,6 +325,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="weight of the cross-level decorrelation loss (0 turns it off)")
     vq.add_argument("--val-clips", type=int, default=256,
                     help="val clips decoded whole at each validation")
+    vq.add_argument("--init", type=Path,
+                    help="fine-tune: start from the weights of this `mogo train vq` run (its "
+                         "model; new optimizer, schedule and training settings)")
+    vq.add_argument("--tune", choices=["all", "decoder"],
+                    help="with --init: train all weights (default), or the decoder alone, "
+                         "which keeps every token, so a T2M trained on the --init VQ still fits")
     vq.set_defaults(run=_cmd_train_vq)
 
     t2m = train_commands.add_parser(

@@ -21,7 +21,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +42,7 @@ from mogo.export.training import (Process, RunOptions, all_reduce_mean, batches,
                                   save_checkpoint, seed_everything, set_learning_rate,
                                   start_process, step_seed, steps_per_epoch, warmup_cosine,
                                   wrap_model)
+from mogo.export.train_vq import load_vq, vq_checkpoint
 from mogo.export.vq import MoSAVQ, VQConfig
 from mogo.runtime.bundle import file_sha256
 
@@ -56,28 +57,6 @@ PRESETS: dict[str, Callable[[], T2MConfig]] = dict(
 
 
 # -- the VQ: the one place that knows how a VQ run is stored ---------------------------------
-
-def vq_checkpoint(run_dir: str | Path) -> Path:
-    """The VQ run's best.pt (lowest validation error) if it has one, else its checkpoint.pt."""
-    run = Path(run_dir)
-    if not run.is_dir():
-        raise FileNotFoundError(f"{run}: no such VQ run folder")
-    for name in ("best.pt", "checkpoint.pt"):
-        if (run / name).is_file():
-            return run / name
-    raise FileNotFoundError(f"{run}: no best.pt or checkpoint.pt (is it a `mogo train vq` run?)")
-
-
-def load_vq(run_dir: str | Path) -> MoSAVQ:
-    """The trained MoSA-VQ of a run, in eval mode (its own normalisation statistics inside)."""
-    path = vq_checkpoint(run_dir)
-    state = load_checkpoint(path)
-    if set(state["config"]) != {f.name for f in fields(VQConfig)}:
-        raise ValueError(f"{path}: not a `mogo train vq` checkpoint")
-    model = MoSAVQ(VQConfig(**state["config"]))
-    model.load_state_dict(state["model"])
-    return model.eval()
-
 
 # -- the text encoder seam ---------------------------------------------------------------------
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import torch
@@ -29,11 +29,12 @@ from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
 from mogo.export.recipes import VQ_MODEL_SWITCHES, VQ_RECIPE
 from mogo.export.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
                                   equal_length_groups, finish_together, format_duration,
-                                  merge_recipe, previous_run, resumed_metrics_log,
+                                  load_checkpoint, merge_recipe, previous_run, resumed_metrics_log,
                                   save_checkpoint, seed_everything, set_learning_rate,
                                   start_process, step_seed, steps_per_epoch, warmup_cosine,
                                   wrap_model)
 from mogo.export.vq import MoSAVQ, VQConfig, reconstruction_metrics
+from mogo.runtime.bundle import file_sha256
 
 PRESETS: dict[str, Callable[[], VQConfig]] = dict(
     tiny=VQConfig.tiny, cpu_default=VQConfig.cpu_default, paper=VQConfig.paper)
@@ -48,10 +49,12 @@ class VQTrainOptions(RunOptions):
     causal: bool | None = None
     scale_bias: bool | None = None
     decorrelation: float | None = None
+    tune: str | None = None
     val_every: int = 1000
     val_clips: int = 256
     checkpoint_every: int = 1000
     log_every: int = 100
+    init: Path | None = None
 
 
 def train_vq(options: VQTrainOptions) -> None:
@@ -60,9 +63,17 @@ def train_vq(options: VQTrainOptions) -> None:
     if options.val_clips <= 0:
         raise ValueError(f"--val-clips must be positive, got {options.val_clips}")
     out = Path(options.out)
+    if options.init is not None and options.resume:
+        raise ValueError("--init starts a new run from trained weights; --resume continues a "
+                         "run: pass one of them")
     state = previous_run(out, options.resume)
-    recipe = merge_recipe(VQ_RECIPE, {n: getattr(options, n) for n in VQ_RECIPE},
-                          state)
+    given = {n: getattr(options, n) for n in VQ_RECIPE if n != "init"}
+    init = None
+    if options.init is not None:
+        init_path = vq_checkpoint(options.init)
+        init = read_vq_checkpoint(init_path)
+        given = _recipe_of_init(given, init, init_path)
+    recipe = merge_recipe(VQ_RECIPE, given, state)
     if recipe["preset"] not in PRESETS:
         raise ValueError(f"unknown config {recipe['preset']!r}; use {', '.join(PRESETS)}")
     if recipe["batch_size"] <= 0 or recipe["lr"] <= 0 or recipe["warmup"] < 0 \
@@ -72,16 +83,84 @@ def train_vq(options: VQTrainOptions) -> None:
                          f"{recipe['crop_frames']}")
     folder = HumanML3DFolder(options.data)
     config = (VQConfig(**state["config"]) if state is not None
+              else VQConfig(**init["config"]) if init is not None
               else vq_config(recipe, folder.feature_dim))
+    if config.feature_dim != folder.feature_dim:
+        raise ValueError(f"{options.init}: a VQ of {config.feature_dim} features; "
+                         f"{folder.root} has {folder.feature_dim}")
+    if recipe["tune"] not in ("all", "decoder"):
+        raise ValueError(f"--tune must be all or decoder, got {recipe['tune']!r}")
+    if recipe["tune"] == "decoder" and recipe["init"] is None:
+        raise ValueError("--tune decoder fine-tunes a trained VQ: pass --init RUN")
     if recipe["crop_frames"] % config.down_factor:
         raise ValueError(f"--crop-frames {recipe['crop_frames']} is not a multiple of the "
                          f"down factor {config.down_factor}")
     process = start_process(options.device)
     try:
+        if state is None and init is not None:
+            state = _fine_tuning_state(init, folder)
         _train(out, folder, config, recipe, state, options, process)
         finish_together(process)
     finally:
         end_process(process)
+
+
+def vq_checkpoint(run_dir: str | Path) -> Path:
+    """The VQ run's best.pt (lowest validation error) if it has one, else its checkpoint.pt."""
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise FileNotFoundError(f"{run}: no such VQ run folder")
+    for name in ("best.pt", "checkpoint.pt"):
+        if (run / name).is_file():
+            return run / name
+    raise FileNotFoundError(f"{run}: no best.pt or checkpoint.pt (is it a `mogo train vq` run?)")
+
+
+def read_vq_checkpoint(path: Path) -> dict:
+    state = load_checkpoint(path)
+    if set(state.get("config", ())) != {f.name for f in fields(VQConfig)}:
+        raise ValueError(f"{path}: not a `mogo train vq` checkpoint")
+    return state
+
+
+def load_vq(run_dir: str | Path) -> MoSAVQ:
+    """The trained MoSA-VQ of a run, in eval mode (its own normalisation statistics inside)."""
+    state = read_vq_checkpoint(vq_checkpoint(run_dir))
+    model = MoSAVQ(VQConfig(**state["config"]))
+    model.load_state_dict(state["model"])
+    return model.eval()
+
+
+def _recipe_of_init(given: dict, init: dict, path: Path) -> dict:
+    """A fine-tuning run keeps the model of the run it starts from: its preset and switches
+    (a given switch that differs is refused); the training settings are the new run's."""
+    fixed = {"preset": init["recipe"]["preset"],
+             **{name: getattr(VQConfig(**init["config"]), name) for name in VQ_MODEL_SWITCHES}}
+    for name, value in fixed.items():
+        if given[name] is not None and given[name] != value:
+            flag = "--config" if name == "preset" else f"--{name.replace('_', '-')}"
+            raise ValueError(f"{flag} {given[name]} differs from {value} of --init {path}; a "
+                             "fine-tuning run keeps the model it starts from")
+    recipe = {**given, **fixed, "init": str(path.resolve())}
+    if given["tune"] == "decoder":
+        recipe["tokens_sha256"] = tokens_sha256(init, path)
+    return recipe
+
+
+def tokens_sha256(state: dict, path: Path) -> str:
+    """The sha256 of the checkpoint whose tokens the VQ checkpoint at `path` gives: its own, or
+    for a decoder fine-tune, that of the VQ it kept the encoder and codebooks of (so a T2M
+    trained on those tokens fits it)."""
+    return state.get("recipe", {}).get("tokens_sha256") or file_sha256(path)
+
+
+def _fine_tuning_state(init: dict, folder: HumanML3DFolder) -> dict:
+    """What _train takes from the --init checkpoint: its weights, at step 0, with the
+    normalisation statistics of the data the new run trains and validates on."""
+    statistics = {name: torch.as_tensor(value, dtype=torch.float32)
+                  for name, value in (("mean", folder.mean), ("std", folder.std))}
+    return dict(model={**init["model"], **statistics}, optimizer=None, step=0,
+                best_val_mpjpe_mm=math.inf)
 
 
 def vq_config(recipe: dict, feature_dim: int) -> VQConfig:
@@ -95,13 +174,18 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
     seed, batch_size, steps = recipe["seed"], recipe["batch_size"], options.steps
     seed_everything(seed)
     model = MoSAVQ(config, folder.mean, folder.std)
+    decoder_only = recipe.get("tune") == "decoder"
+    if decoder_only:
+        model.encoder.requires_grad_(False)
+        model.quantizer.requires_grad_(False)
     ddp = wrap_model(model, process)
-    optimizer = torch.optim.AdamW(model.parameters(), lr=recipe["lr"], betas=(0.9, 0.99),
-                                  weight_decay=0.0)
+    optimizer = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad],
+                                  lr=recipe["lr"], betas=(0.9, 0.99), weight_decay=0.0)
     step, best = 0, math.inf
     if state is not None:
         model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
+        if state["optimizer"] is not None:
+            optimizer.load_state_dict(state["optimizer"])
         step, best = state["step"], state["best_val_mpjpe_mm"]
 
     train_set = MotionCropDataset(folder, "train", recipe["crop_frames"], seed)
@@ -115,6 +199,8 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
     extra = dict(recipe=recipe, data=str(folder.root.resolve()), world_size=process.world_size)
     if process.is_main:
         lookahead = "causal" if config.causal else "centred"
+        if decoder_only:
+            lookahead += " (fine-tuning the decoder alone)"
         print(f"vq: {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M parameters, "
               f"{config.levels} levels of {config.codebook_size} codes, {lookahead} decoder; "
               f"{len(train_set)} train clips, {len(val_clips)} val clips, {per_epoch} steps an "
@@ -128,7 +214,7 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
         torch.manual_seed(step_seed(seed, process.rank, step))
         lr = warmup_cosine(step, recipe["warmup"], steps, recipe["lr"], recipe["lr"] / 10)
         set_learning_rate(optimizer, lr)
-        output = ddp(x)
+        output = ddp(x, decoder_only=decoder_only)
         optimizer.zero_grad(set_to_none=True)
         output.losses["total"].backward()
         nn.utils.clip_grad_norm_(model.parameters(), GRAD_CLIP)

@@ -246,8 +246,9 @@ def previous_run(out: Path, resume: bool) -> dict | None:
 def merge_recipe(defaults: dict, given: dict, state: dict | None) -> dict:
     """What defines a run: `defaults` for a new run, the run's own recipe (state["recipe"])
     on resume, with the values `given` (None: not given) on top. A resumed run keeps its
-    settings, so a given value that differs from it is refused."""
-    base = defaults if state is None else state["recipe"]
+    settings, so a given value that differs from it is refused; a run from before a setting
+    existed had its default."""
+    base = defaults if state is None else {**defaults, **state["recipe"]}
     recipe = dict(base)
     for name, value in given.items():
         if value is None:

@@ -253,13 +253,22 @@ class ResidualQuantizer(nn.Module):
         self._all_initialized = False  # re-read from the loaded buffer at the next update
         super()._load_from_state_dict(*args, **kwargs)
 
-    def dequantize(self, ids: Tensor) -> Tensor:
+    def dequantize(self, ids: Tensor, active: Tensor | None = None) -> Tensor:
         """ids (B, T', k) of levels 0..k-1 (k <= L, 0 gives zeros) -> z_hat (B, T', C):
-        sum over levels of (codebook[id] - b) / W."""
+        sum over levels of (codebook[id] - b) / W, over the levels where active (B, k) is 1
+        (all when None)."""
         k, K = ids.shape[-1], self.config.codebook_size
         flat = ids + K * torch.arange(k, device=ids.device)  # index into the first k codebooks
         q = F.embedding(flat, self.codebook[:k].flatten(0, 1))  # (B, T', k, C)
-        return ((q - self.bias[:k]) / self.scale[:k]).sum(dim=-2)
+        phis = (q - self.bias[:k]) / self.scale[:k]
+        if active is not None:
+            phis = phis * active[:, None, :, None]
+        return phis.sum(dim=-2)
+
+    def dropped_levels(self, B: int, device: torch.device) -> Tensor:
+        """(B, L) float: the levels each sample keeps under quantizer dropout (all of them
+        outside training)."""
+        return self._active_levels(B, device)
 
     def encode(self, z: Tensor) -> Tensor:
         """z (B, T', C) -> ids (B, T', L) int64; no training-time effects."""
@@ -415,12 +424,15 @@ class MoSAVQ(nn.Module):
         """ids (B, T', k) of the first k levels -> normalised features (B, T' * down, D)."""
         return self.decoder(self.quantizer.dequantize(ids))
 
-    def forward(self, x: Tensor) -> VQOutput:
+    def forward(self, x: Tensor, decoder_only: bool = False) -> VQOutput:
         """x (B, T, D) normalised -> VQOutput; losses.total = recon + joint_weight * joints +
-        commitment * commit + modulation * modulation + decorrelation * decorrelation."""
+        commitment * commit + modulation * modulation + decorrelation * decorrelation.
+        decoder_only: fine-tune the decoder alone, on the tokens of the frozen encoder."""
         if x.shape[1] % self.config.down_factor:
             raise ValueError(f"{x.shape[1]} frames is not a multiple of down_factor "
                              f"{self.config.down_factor}")
+        if decoder_only:
+            return self._decoder_forward(x)
         z_hat, ids, stats = self.quantizer.quantize(self.encoder(x))
         recon = self.decoder(z_hat)
         c = self.config
@@ -432,6 +444,29 @@ class MoSAVQ(nn.Module):
         losses["total"] = (losses["recon"] + c.joint_weight * losses["joints"]
                            + c.commitment * losses["commit"] + c.modulation * losses["modulation"]
                            + c.decorrelation * losses["decorrelation"])
+        return VQOutput(recon, ids, losses, stats)
+
+    def _decoder_forward(self, x: Tensor) -> VQOutput:
+        """x's tokens come from the encoder and codebooks in eval mode, without gradient or
+        codebook update (the tokens a trained T2M predicts stay valid); only the decoder learns,
+        with the reconstruction losses and quantizer dropout of the full forward."""
+        encoder_was_training = self.encoder.training
+        self.encoder.eval()
+        with torch.no_grad():
+            ids = self.encode(x)
+            active = self.quantizer.dropped_levels(len(x), x.device)
+        self.encoder.train(encoder_was_training)
+        recon = self.decoder(self.quantizer.dequantize(ids, active))
+        zero = torch.zeros((), device=x.device)
+        losses = dict(recon=self._distance(recon, x), joints=self._joint_loss(recon, x),
+                      commit=zero, modulation=zero, decorrelation=zero)
+        losses["total"] = losses["recon"] + self.config.joint_weight * losses["joints"]
+        L, K = self.config.levels, self.config.codebook_size
+        counts = torch.zeros(L, K, device=x.device).scatter_add_(
+            1, ids.reshape(-1, L).T, active.repeat_interleave(ids.shape[1], dim=0).T)
+        probs = counts / counts.sum(1, keepdim=True).clamp_min(1)
+        stats = dict(perplexity=(-(probs * probs.clamp_min(1e-12).log()).sum(1)).exp(),
+                     usage=(counts > 0).float().mean(1), dead_codes=torch.zeros(L, device=x.device))
         return VQOutput(recon, ids, losses, stats)
 
     def joints(self, x: Tensor) -> Tensor:

@@ -90,3 +90,18 @@ def test_export_refuses_a_used_folder_and_mismatched_runs(runs, capsys):
                  "--out", str(runs / "other")]) == 2
     assert "best.pt: not a `mogo train t2m` checkpoint" in capsys.readouterr().err
     assert not (runs / "other").exists()
+
+
+def test_export_takes_a_decoder_fine_tune_of_the_t2ms_vq_only(runs, tmp_path, capsys):
+    data = runs / "data"
+    common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "1",
+              "--crop-frames", "40", "--val-clips", "2", "--init", str(runs / "vq")]
+    assert main(["train", "vq", "--out", str(tmp_path / "decoder"), "--tune", "decoder",
+                 *common]) == 0
+    assert main(["train", "vq", "--out", str(tmp_path / "all"), *common]) == 0
+    assert main(["export", "--vq", str(tmp_path / "decoder"), "--t2m", str(runs / "t2m"),
+                 "--out", str(tmp_path / "bundle")]) == 0
+    MotionGenerator.load(tmp_path / "bundle").generate(PROMPT, seconds=1.0, seed=0)
+    assert main(["export", "--vq", str(tmp_path / "all"), "--t2m", str(runs / "t2m"),
+                 "--out", str(tmp_path / "other")]) == 2
+    assert "trained on the tokens of another VQ checkpoint" in capsys.readouterr().err

@@ -9,8 +9,9 @@ import torch
 
 from conftest import interrupt_after_step, records
 from mogo.export.cli import main
-from mogo.export.train_t2m import load_vq
+from mogo.export.train_vq import load_vq
 from mogo.export.training import load_checkpoint
+from mogo.runtime.bundle import file_sha256
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -64,7 +65,46 @@ def test_two_processes_on_gloo(tiny_humanml3d, tmp_path):
     assert [(r["kind"], r["step"]) for r in records(run)] == [("train", 3), ("val", 3)]
 
 
+def test_init_fine_tunes_a_trained_model(tiny_humanml3d, tmp_path):
+    base, tuned = tmp_path / "base", tmp_path / "tuned"
+    assert train(tiny_humanml3d, base, "--steps", 3, "--val-every", 3, "--levels", 2) == 0
+    assert train(tiny_humanml3d, tuned, "--steps", 2, "--val-every", 2, "--init", base,
+                 "--lr", 1e-12, "--crop-frames", 48) == 0
+    state = load_checkpoint(tuned / "checkpoint.pt")
+    assert state["step"] == 2 and state["config"] == load_checkpoint(base / "best.pt")["config"]
+    assert state["recipe"]["init"] == str((base / "best.pt").resolve())
+    assert state["recipe"]["levels"] == 2 and state["recipe"]["crop_frames"] == 48
+    before, after = load_vq(base).state_dict(), load_vq(tuned).state_dict()
+    convolutions = [name for name in before if name.startswith(("encoder", "decoder"))]
+    assert convolutions and all(torch.allclose(before[n], after[n], atol=1e-6)
+                                for n in convolutions)
+    assert train(tiny_humanml3d, tmp_path / "other", "--steps", 1, "--init", base,
+                 "--levels", 3) == 2
+    assert train(tiny_humanml3d, tuned, "--steps", 3, "--init", base, "--resume") == 2
+
+
+def test_decoder_tuning_keeps_every_token(tiny_humanml3d, tmp_path):
+    base, tuned = tmp_path / "base", tmp_path / "tuned"
+    assert train(tiny_humanml3d, base, "--steps", 3, "--val-every", 3) == 0
+    assert train(tiny_humanml3d, tuned, "--steps", 3, "--val-every", 3, "--init", base,
+                 "--tune", "decoder", "--lr", 1e-2, "--warmup", 0) == 0
+    recipe = load_checkpoint(tuned / "checkpoint.pt")["recipe"]
+    assert recipe["tune"] == "decoder"
+    assert recipe["tokens_sha256"] == file_sha256(base / "best.pt")
+    again = tmp_path / "again"  # a fine-tune of a fine-tune keeps the same tokens
+    assert train(tiny_humanml3d, again, "--steps", 1, "--init", tuned, "--tune", "decoder") == 0
+    assert load_checkpoint(again / "best.pt")["recipe"]["tokens_sha256"] == recipe["tokens_sha256"]
+    before, after = load_vq(base), load_vq(tuned)
+    b, a = before.state_dict(), after.state_dict()
+    assert all(torch.equal(b[n], a[n]) for n in b if not n.startswith("decoder"))
+    assert not all(torch.equal(b[n], a[n]) for n in b if n.startswith("decoder"))
+    x = torch.randn(2, 48, before.config.feature_dim)
+    assert torch.equal(before.encode(x), after.encode(x))
+
+
 @pytest.mark.parametrize("extra, message", [
+    (["--steps", 1, "--init", "nowhere"], "no such VQ run folder"),
+    (["--steps", 1, "--tune", "decoder"], "pass --init RUN"),
     (["--steps", 0], "--steps must be positive"),
     (["--steps", 1, "--resume"], "--resume: no checkpoint"),
     (["--steps", 1, "--crop-frames", 41, "--down-factor", 2], "not a multiple of the down factor"),
