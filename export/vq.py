@@ -11,6 +11,9 @@ Per level l, with a learnable diagonal scale W^l and bias b^l (the "scale-adapti
 
 Codebooks live in the scaled space u = W r + b and are EMA k-means (not gradient-trained):
 initialised from the first training batch, dead codes re-drawn from current residuals.
+With the straight-through Q, b cancels out of every gradient but the modulation term's, which
+pulls it to 0, so b stays 0 in training (the EMA codebooks follow any shift of u anyway); W
+learns from the quantisation error q - u alone.
 `dequantize` (what the ONNX decoder graph and the runtime run) needs only ids.
 
 The convolutions are either centred or causal (all padding on the left): a causal model has

@@ -223,6 +223,18 @@ def test_scale_bias_and_decorrelation_switches(motion):
     assert losses["modulation"] > 0 and losses["decorrelation"] > 0
 
 
+def test_the_bias_learns_only_from_its_regulariser(motion):
+    """(Q(W r + b) - b) / W with a straight-through Q: b cancels out of every gradient but the
+    modulation term's, which pulls it to 0; W learns from the quantisation error alone."""
+    model = tiny_model(modulation=0.0)
+    model(motion[0][:, :16])  # initialises the codebooks
+    with torch.no_grad():
+        model.quantizer.bias.normal_(0, 0.1)
+    model(motion[0][:, :16]).losses["total"].backward()
+    assert torch.count_nonzero(model.quantizer.bias.grad) == 0
+    assert torch.count_nonzero(model.quantizer.scale.grad) > 0
+
+
 # -- decoder context ---------------------------------------------------------------------------
 
 def changed_tokens(model, ids, position):
