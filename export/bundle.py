@@ -20,7 +20,7 @@ from tokenizers import Tokenizer
 from mogo.export.onnx_t2m import export_level, export_text_encoder
 from mogo.export.onnx_vq import export_vq_decoder, export_vq_encoder
 from mogo.export.t2m import T2M
-from mogo.runtime.bundle import FORMAT, FORMAT_VERSION, MANIFEST, file_sha256
+from mogo.runtime.bundle import FORMAT, FORMAT_VERSION, MANIFEST, Bundle, file_sha256
 from mogo.runtime.sampling import Sampling
 from mogo.runtime.token_generator import TokenGenerator
 
@@ -49,8 +49,7 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
     captions = dict.fromkeys(str(c) for c in read_tokens(Path(t2m_run) / "tokens" / "val.npz")
                              ["captions"])
     provenance = dict(
-        vq=dict(step=vq_state["step"], recipe=vq_state.get("recipe"), data=vq_state.get("data"),
-                best_val_mpjpe_mm=vq_state.get("best_val_mpjpe_mm")),
+        vq=_vq_provenance(vq_state),
         t2m=dict(step=t2m_state["step"], recipe=t2m_state["config"]["recipe"],
                  data=t2m_state["config"]["data"],
                  best_val_loss=t2m_state.get("best_val_loss")))
@@ -60,6 +59,59 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
                         int8=int8)
 
 
+def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> dict:
+    """`mogo export --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of RUN, for a
+    decoder fine-tune of OLD's own VQ (`mogo train vq --init OLD --tune decoder`), which needs
+    none of OLD's training runs. Every other file is copied byte for byte, so RUN's encoder
+    must give OLD's tokens (checked through OLD's encoder graph) and RUN must share OLD's
+    normalisation: that is what OLD's level graphs were trained on. Returns the manifest."""
+    from mogo.export.onnx_vq import MIN_TOKEN_AGREEMENT, token_agreement
+    from mogo.export.train_vq import load_vq, vq_checkpoint
+    from mogo.export.training import load_checkpoint
+
+    old = Bundle.load(bundle_dir)
+    vq = load_vq(vq_run)
+    if asdict(vq.config) != old.manifest["vq"]["config"]:
+        raise ValueError(f"{vq_run} is another VQ model than {bundle_dir}'s (its config differs)")
+    if not (np.array_equal(vq.mean.numpy(), old.mean) and np.array_equal(vq.std.numpy(), old.std)):
+        raise ValueError(f"{vq_run} normalises with other statistics than {bundle_dir} (trained "
+                         "on other data?)")
+    agreement = token_agreement(vq, old)
+    if agreement < MIN_TOKEN_AGREEMENT:
+        raise ValueError(f"{vq_run}'s encoder gives other tokens than {bundle_dir}'s (agreement "
+                         f"{agreement:.1%}): only a decoder fine-tune of the bundle's VQ fits its "
+                         "level graphs")
+    out = _new_folder(out)
+    manifest = json.loads(json.dumps(old.manifest))
+    decoder = manifest["vq"]["decoder"]["file"]
+    for name in manifest.pop("files"):
+        if name != decoder:
+            shutil.copy2(old.path(name), out / name)
+    manifest["vq"]["decoder"] = dict(file=decoder, **export_vq_decoder(vq, out / decoder))
+    codes = _check_codes(vq)
+    before, after = _outputs_before_and_after_fp16(out / decoder, {"ids": codes.numpy()})
+    storage = manifest.setdefault("fp16_storage", dict(files=[]))
+    storage["files"] = sorted(set(storage["files"]) | {decoder})
+    storage["vq_decoder_feature_max_abs_difference"] = float(np.abs(before - after).max())
+    manifest["training"]["vq"] = dict(_vq_provenance(load_checkpoint(vq_checkpoint(vq_run))),
+                                      token_agreement_with_bundle=agreement)
+    write_manifest(out, manifest)
+    return manifest
+
+
+def _vq_provenance(state: dict) -> dict:
+    return dict(step=state["step"], recipe=state.get("recipe"), data=state.get("data"),
+                best_val_mpjpe_mm=state.get("best_val_mpjpe_mm"))
+
+
+def _new_folder(out: Path) -> Path:
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out} is not empty; choose a new folder for the bundle")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
 def write_bundle(out: Path, *, vq, t2m: T2M, text_encoder, tokenizer: Tokenizer, fps: float,
                  skeleton: str, provenance: dict, check_prompts: list[str],
                  int8: bool = False, defaults: dict | None = None) -> dict:
@@ -67,10 +119,7 @@ def write_bundle(out: Path, *, vq, t2m: T2M, text_encoder, tokenizer: Tokenizer,
     With `int8`, the level graphs are quantised and kept only if greedy tokens on
     `check_prompts` agree with fp32 on at least INT8_MIN_AGREEMENT of steps (measured either
     way and written into the manifest)."""
-    out = Path(out)
-    if out.exists() and any(out.iterdir()):
-        raise ValueError(f"{out} is not empty; choose a new folder for the bundle")
-    out.mkdir(parents=True, exist_ok=True)
+    out = _new_folder(out)
     tokenizer.save(str(out / "tokenizer.json"))
     max_length = tokenizer.truncation["max_length"]
     text = dict(file="text_encoder.onnx", tokenizer="tokenizer.json", max_length=max_length,
@@ -150,21 +199,17 @@ def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
     those decoded features (normalised units). Compute stays fp32 (the casts are folded when
     the session is made), so decoding speed is unchanged (measured: onnxruntime 1.32). The
     level graphs are int8 or fp32 (see `_quantize_levels`)."""
-    from mogo.runtime._session import cpu_session
-
     encoded = tokenizer.encode_batch(prompts or ["a person walks forward."])
     ids = np.array([e.ids for e in encoded], np.int64)
     mask = np.array([e.attention_mask for e in encoded], np.int64)
-    generator = torch.Generator().manual_seed(0)
-    codes = torch.randint(vq.config.codebook_size, (4, 60, vq.config.levels), generator=generator)
+    codes = _check_codes(vq)
     features = vq.eval().decode(codes).numpy()
     feeds = {"text_encoder.onnx": {"token_ids": ids, "attention_mask": mask},
              "vq_encoder.onnx": {"features": features},
              "vq_decoder.onnx": {"ids": codes.numpy()}}
-    before = {name: cpu_session(out / name).run(None, feed)[0] for name, feed in feeds.items()}
-    for name in feeds:
-        store_weights_fp16(out / name)
-    after = {name: cpu_session(out / name).run(None, feed)[0] for name, feed in feeds.items()}
+    before, after = {}, {}
+    for name, feed in feeds.items():
+        before[name], after[name] = _outputs_before_and_after_fp16(out / name, feed)
 
     def largest_difference(name: str) -> float:
         return float(np.abs(before[name] - after[name]).max())
@@ -174,6 +219,22 @@ def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
                 prompt_embedding_max_abs_difference=largest_difference("text_encoder.onnx"),
                 vq_encoder_token_agreement=round(float(agreement), 4),
                 vq_decoder_feature_max_abs_difference=largest_difference("vq_decoder.onnx"))
+
+
+def _check_codes(vq) -> torch.Tensor:
+    """The token ids (4, 60, L) that the fp16 storage check decodes."""
+    generator = torch.Generator().manual_seed(0)
+    return torch.randint(vq.config.codebook_size, (4, 60, vq.config.levels), generator=generator)
+
+
+def _outputs_before_and_after_fp16(path: Path, feed: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's first output on `feed`, then `store_weights_fp16` on it, then the output
+    again."""
+    from mogo.runtime._session import cpu_session
+
+    before = cpu_session(path).run(None, feed)[0]
+    store_weights_fp16(path)
+    return before, cpu_session(path).run(None, feed)[0]
 
 
 def quantize_level_graph(source: Path, target: Path) -> None:

@@ -80,9 +80,15 @@ def _cmd_train_evaluator(args: argparse.Namespace) -> None:
 
 def _cmd_export(args: argparse.Namespace) -> None:
     _require_torch()
-    from mogo.export.bundle import export_bundle
+    from mogo.export.bundle import export_bundle, replace_vq_decoder
 
-    manifest = export_bundle(Path(args.vq), Path(args.t2m), Path(args.out), int8=args.int8)
+    if args.bundle is not None:
+        if args.int8:
+            raise CliError("--int8 quantises new level graphs; with --bundle they are copied "
+                           "as they are")
+        manifest = replace_vq_decoder(Path(args.vq), Path(args.bundle), Path(args.out))
+    else:
+        manifest = export_bundle(Path(args.vq), Path(args.t2m), Path(args.out), int8=args.int8)
     size = sum(entry["bytes"] for entry in manifest["files"].values())
     note = ""
     if "int8" in manifest:
@@ -238,9 +244,11 @@ def _cmd_info(args: argparse.Namespace) -> None:
                      f"{check['threshold']:.0%}), {check['scheme']}")
     for part, info in m.get("training", {}).items():
         recipe = info.get("recipe") or {}
+        tuned = (f", {'the decoder' if recipe.get('tune') == 'decoder' else 'all weights'} "
+                 f"fine-tuned from {recipe['init']}" if recipe.get("init") else "")
         lines.append(f"trained     {part}: {info.get('step')} steps, batch "
                      f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
-                     f"seed {recipe.get('seed')}")
+                     f"seed {recipe.get('seed')}{tuned}")
     total = sum(entry["bytes"] for entry in m["files"].values())
     lines.append(f"files       {len(m['files'])}, {total / 1e6:.1f} MB, sha256 verified")
     lines += [f"  {name:20s} {entry['bytes'] / 1e6:8.2f} MB" for name, entry in m["files"].items()]
@@ -314,6 +322,15 @@ def build_parser() -> argparse.ArgumentParser:
         "vq", help="train the MoSA-VQ motion tokenizer on random crops")
     run_arguments(vq, VQ_RECIPE, val=1000, checkpoint=1000, log=100)
     vq.add_argument("--crop-frames", type=int, help="frames per training crop (default 64)")
+    vq.add_argument("--whole-clips", action="store_true", default=None,
+                    help="train on whole clips, batched by length, instead of crops: what "
+                         "validation and the runtime decode (the root trajectory of a whole "
+                         "clip included)")
+    vq.add_argument("--weight-average", type=float, metavar="DECAY",
+                    help="validate and keep (best.pt) an exponential moving average of the "
+                         "weights with this decay, e.g. 0.999: it averages out the noise of the "
+                         "steps, which the root trajectory, summed from per-frame velocities, "
+                         "is sensitive to (default off)")
     vq.add_argument("--levels", type=int, help="residual levels (ablation; default the config's)")
     vq.add_argument("--down-factor", type=int, choices=[1, 2, 4],
                     help="frames per token (default 1: one token per frame, as the paper)")
@@ -326,8 +343,9 @@ def build_parser() -> argparse.ArgumentParser:
     vq.add_argument("--val-clips", type=int, default=256,
                     help="val clips decoded whole at each validation")
     vq.add_argument("--init", type=Path,
-                    help="fine-tune: start from the weights of this `mogo train vq` run (its "
-                         "model; new optimizer, schedule and training settings)")
+                    help="fine-tune: start from the weights of this `mogo train vq` run, or of "
+                         "this bundle's VQ graphs (with --tune decoder); new optimizer, "
+                         "schedule and training settings")
     vq.add_argument("--tune", choices=["all", "decoder"],
                     help="with --init: train all weights (default), or the decoder alone, "
                          "which keeps every token, so a T2M trained on the --init VQ still fits")
@@ -400,7 +418,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     export = commands.add_parser("export", help="trained runs -> a bundle folder for the runtime")
     export.add_argument("--vq", required=True, help="the `mogo train vq` run folder")
-    export.add_argument("--t2m", required=True, help="the `mogo train t2m` run folder")
+    source = export.add_mutually_exclusive_group(required=True)
+    source.add_argument("--t2m", help="the `mogo train t2m` run folder")
+    source.add_argument("--bundle", help="instead of --t2m: a bundle whose VQ decoder --vq "
+                                         "replaces (a decoder fine-tune of that bundle's VQ, "
+                                         "`mogo train vq --init BUNDLE --tune decoder`); every "
+                                         "other file is copied")
     export.add_argument("--out", required=True, help="new bundle folder")
     export.add_argument("--int8", action="store_true",
                         help="dynamic int8 level graphs, kept only if they pass the token "

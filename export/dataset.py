@@ -1,8 +1,9 @@
 """Training data from any HumanML3D-layout folder (HumanML3D, KIT-ML, or `mogo data synth`).
 
 `HumanML3DFolder` checks the layout once, up front, so a broken folder fails before training
-with the file and the problem named; the two torch datasets on top of it feed the VQ
-(random fixed-length crops) and the transformer (one item per caption, cut to its span).
+with the file and the problem named; the torch datasets on top of it feed the VQ (random
+fixed-length crops, or whole clips batched by length) and the transformer (one item per
+caption, cut to its span).
 Whole splits are held in memory, normalised, as the standard HumanML3D loaders do.
 """
 from __future__ import annotations
@@ -206,6 +207,46 @@ class MotionCropDataset(_EpochSeeded):
         clip = self.clips[index]
         start = self._start(index)
         return torch.from_numpy(clip[start:start + self.crop_frames].copy())
+
+
+class WholeClipBatches(Dataset):
+    """Whole clips, normalised, for training on what validation and the runtime decode: each
+    item is a batch (b, T, D) of clips of one length T (no padding, which would change what
+    the convolutions see at the ends), at most `batch_size` of them; the clips of a length are
+    split into equal shares. Which clips share a batch depends only on (seed, epoch): call
+    `set_epoch` before each epoch. Clips are cut to whole tokens of `down_factor` frames."""
+
+    def __init__(self, folder: HumanML3DFolder, split: str, batch_size: int, seed: int = 0,
+                 down_factor: int = 1):
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be at least 1, got {batch_size}")
+        self.seed = seed
+        self.clips = []
+        for clip_id in folder.ids(split):
+            features = folder.normalize(folder.features(clip_id))
+            usable = len(features) - len(features) % down_factor
+            if usable:
+                self.clips.append(features[:usable])
+        if not self.clips:
+            raise DatasetError(f"{folder.root / f'{split}.txt'}: no clip of at least "
+                               f"{down_factor} frames")
+        by_length: dict[int, list[int]] = {}
+        for index, clip in enumerate(self.clips):
+            by_length.setdefault(len(clip), []).append(index)
+        self._by_length = [np.array(same) for _, same in sorted(by_length.items())]
+        self._shares = [-(-len(same) // batch_size) for same in self._by_length]
+        self.set_epoch(0)
+
+    def set_epoch(self, epoch: int) -> None:
+        rng = np.random.default_rng([self.seed, epoch])
+        self._batches = [batch for same, shares in zip(self._by_length, self._shares)
+                         for batch in np.array_split(rng.permutation(same), shares)]
+
+    def __len__(self) -> int:
+        return len(self._batches)
+
+    def __getitem__(self, index: int) -> torch.Tensor:
+        return torch.from_numpy(np.stack([self.clips[i] for i in self._batches[index]]))
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
-"""`mogo train vq`: the MoSA-VQ (mogo.export.vq) on random crops of a HumanML3D-layout folder.
+"""`mogo train vq`: the MoSA-VQ (mogo.export.vq) on random crops (or whole clips, batched by
+length) of a HumanML3D-layout folder.
 
 RUN/ holds
     checkpoint.pt   latest: weights, optimizer, step; "config" is the VQConfig as a dict
@@ -7,7 +8,9 @@ RUN/ holds
     metrics.jsonl   train and val records
 
 Validation decodes whole clips (as the runtime does, not crops), at most `--val-clips` of the
-val split, and measures MPJPE on the recovered joints, root trajectory included.
+val split, and measures MPJPE on the recovered joints, root trajectory included. With
+`--weight-average DECAY` it measures an exponential moving average of the weights, which is
+what best.pt keeps; checkpoint.pt holds both.
 
 Resuming is exact (same world size), as for `mogo train t2m`: batches depend only on
 (seed, epoch) and every step reseeds torch from (seed, rank, step). Under torchrun, DDP keeps
@@ -16,6 +19,7 @@ every forward, so rank 0's codebook updates are the ones that stand.
 """
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable, Iterator
@@ -25,14 +29,14 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
+from mogo.export.dataset import HumanML3DFolder, MotionCropDataset, WholeClipBatches
 from mogo.export.recipes import VQ_MODEL_SWITCHES, VQ_RECIPE
-from mogo.export.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
-                                  equal_length_groups, finish_together, format_duration,
-                                  load_checkpoint, merge_recipe, previous_run, resumed_metrics_log,
-                                  save_checkpoint, seed_everything, set_learning_rate,
-                                  start_process, step_seed, steps_per_epoch, warmup_cosine,
-                                  wrap_model)
+from mogo.export.training import (Process, RunOptions, WeightAverage, all_reduce_mean, batches,
+                                  end_process, equal_length_groups, finish_together,
+                                  format_duration, load_checkpoint, merge_recipe, previous_run,
+                                  resumed_metrics_log, save_checkpoint, seed_everything,
+                                  set_learning_rate, start_process, step_seed, steps_per_epoch,
+                                  warmup_cosine, wrap_model)
 from mogo.export.vq import MoSAVQ, VQConfig, reconstruction_metrics
 from mogo.runtime.bundle import file_sha256
 
@@ -44,6 +48,8 @@ GRAD_CLIP = 1.0
 @dataclass(kw_only=True)
 class VQTrainOptions(RunOptions):
     crop_frames: int | None = None
+    whole_clips: bool | None = None
+    weight_average: float | None = None
     levels: int | None = None
     down_factor: int | None = None
     causal: bool | None = None
@@ -70,8 +76,7 @@ def train_vq(options: VQTrainOptions) -> None:
     given = {n: getattr(options, n) for n in VQ_RECIPE if n != "init"}
     init = None
     if options.init is not None:
-        init_path = vq_checkpoint(options.init)
-        init = read_vq_checkpoint(init_path)
+        init, init_path = read_init(options.init)
         given = _recipe_of_init(given, init, init_path)
     recipe = merge_recipe(VQ_RECIPE, given, state)
     if recipe["preset"] not in PRESETS:
@@ -92,6 +97,9 @@ def train_vq(options: VQTrainOptions) -> None:
         raise ValueError(f"--tune must be all or decoder, got {recipe['tune']!r}")
     if recipe["tune"] == "decoder" and recipe["init"] is None:
         raise ValueError("--tune decoder fine-tunes a trained VQ: pass --init RUN")
+    if init is not None and not init["ema"] and recipe["tune"] != "decoder":
+        raise ValueError(f"--init {options.init}: a bundle keeps no codebook statistics to go "
+                         "on training from; pass --tune decoder")
     if recipe["crop_frames"] % config.down_factor:
         raise ValueError(f"--crop-frames {recipe['crop_frames']} is not a multiple of the "
                          f"down factor {config.down_factor}")
@@ -114,6 +122,29 @@ def vq_checkpoint(run_dir: str | Path) -> Path:
         if (run / name).is_file():
             return run / name
     raise FileNotFoundError(f"{run}: no best.pt or checkpoint.pt (is it a `mogo train vq` run?)")
+
+
+def read_init(path: Path) -> tuple[dict, Path]:
+    """What `--init` starts from, with its path: a VQ run's checkpoint, or a bundle's VQ read
+    back from its graphs (`vq_from_bundle`). A bundle's tokens are named by the
+    tokens_sha256 its VQ was trained with, else by its encoder graph's sha256; "ema" is False
+    for a bundle, which holds no EMA codebook statistics."""
+    from mogo.runtime.bundle import MANIFEST
+
+    path = Path(path)
+    if not (path / MANIFEST).is_file():
+        checkpoint = vq_checkpoint(path)
+        return {**read_vq_checkpoint(checkpoint), "ema": True}, checkpoint
+    from mogo.export.onnx_vq import vq_from_bundle
+
+    model = vq_from_bundle(path)
+    manifest = json.loads((path / MANIFEST).read_text())
+    recipe = (manifest.get("training", {}).get("vq") or {}).get("recipe") or {}
+    tokens = recipe.get("tokens_sha256") or \
+        manifest["files"][manifest["vq"]["encoder"]["file"]]["sha256"]
+    return dict(config=asdict(model.config), model=model.state_dict(), ema=False,
+                recipe=dict(preset=recipe.get("preset", "cpu_default"),
+                            tokens_sha256=tokens)), path
 
 
 def read_vq_checkpoint(path: Path) -> dict:
@@ -187,12 +218,20 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
         if state["optimizer"] is not None:
             optimizer.load_state_dict(state["optimizer"])
         step, best = state["step"], state["best_val_mpjpe_mm"]
+    average = WeightAverage(model, recipe["weight_average"]) if recipe["weight_average"] else None
+    if average is not None and state is not None and state.get("averaged_parameters"):
+        average.parameters = state["averaged_parameters"]
 
-    train_set = MotionCropDataset(folder, "train", recipe["crop_frames"], seed)
+    if recipe["whole_clips"]:  # items are batches already
+        train_set = WholeClipBatches(folder, "train", batch_size, seed, config.down_factor)
+        loader_batch, collate = 1, only_item
+    else:
+        train_set = MotionCropDataset(folder, "train", recipe["crop_frames"], seed)
+        loader_batch, collate = batch_size, None
     val_clips = whole_clips(folder, "val", config.down_factor, options.val_clips)
-    per_epoch = steps_per_epoch(train_set, batch_size, process)
+    per_epoch = steps_per_epoch(train_set, loader_batch, process)
     epoch, done = divmod(step, max(per_epoch, 1))
-    stream = batches(train_set, batch_size, process, seed, start_epoch=epoch)
+    stream = batches(train_set, loader_batch, process, seed, collate, start_epoch=epoch)
     for _ in range(done):
         next(stream)
     log = resumed_metrics_log(out, step, process)
@@ -203,8 +242,8 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
             lookahead += " (fine-tuning the decoder alone)"
         print(f"vq: {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M parameters, "
               f"{config.levels} levels of {config.codebook_size} codes, {lookahead} decoder; "
-              f"{len(train_set)} train clips, {len(val_clips)} val clips, {per_epoch} steps an "
-              f"epoch; {process.world_size} process(es) on {process.device}; "
+              f"{len(train_set.clips)} train clips, {len(val_clips)} val clips, {per_epoch} "
+              f"steps an epoch; {process.world_size} process(es) on {process.device}; "
               f"{'resuming at' if step else 'starting at'} step {step} of {steps}", flush=True)
 
     device = process.device
@@ -219,6 +258,8 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
         output.losses["total"].backward()
         nn.utils.clip_grad_norm_(model.parameters(), GRAD_CLIP)
         optimizer.step()
+        if average is not None:
+            average.update(model)
         step += 1
         values = _train_values(output.losses, output.stats)
         sums = values if sums is None else sums + values
@@ -237,23 +278,32 @@ def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
             sums, count, window_start = None, 0, time.perf_counter()
         if step % options.val_every == 0 or step == steps:
             if process.is_main:
-                metrics = reconstruction_metrics(model, clip_batches(val_clips, device))
+                measured = model if average is None else average.averaged(model)
+                metrics = reconstruction_metrics(measured, clip_batches(val_clips, device))
                 improved = metrics["mpjpe_mm"] < best
                 best = min(best, metrics["mpjpe_mm"])
                 log.write("val", step, **metrics)
                 print(f"val {step}  MPJPE {metrics['mpjpe_mm']:.1f} mm  feature L1 "
                       f"{metrics['feature_l1']:.4f}  by levels "
                       f"{' '.join(f'{v:.0f}' for v in metrics['mpjpe_mm_by_levels'])} mm"
+                      f"{'  (averaged weights)' if average else ''}"
                       f"{'  (best)' if improved else ''}", flush=True)
                 if improved:
-                    save_checkpoint(out / "best.pt", model, None, step, asdict(config),
+                    save_checkpoint(out / "best.pt", measured, None, step, asdict(config),
                                     best_val_mpjpe_mm=best, **extra)
         if process.is_main and (step % options.checkpoint_every == 0 or step == steps):
             save_checkpoint(out / "checkpoint.pt", model, optimizer, step, asdict(config),
-                            best_val_mpjpe_mm=best, **extra)
+                            best_val_mpjpe_mm=best,
+                            averaged_parameters=None if average is None else average.parameters,
+                            **extra)
 
 
 STAT_NAMES = ("perplexity", "usage", "dead_codes")
+
+
+def only_item(items: list[Tensor]) -> Tensor:
+    """The DataLoader collate of batches of one item that is a batch itself."""
+    return items[0]
 
 
 def _train_values(losses: dict[str, Tensor], stats: dict[str, Tensor]) -> Tensor:

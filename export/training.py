@@ -7,6 +7,7 @@ CUDA), sees its own shard of every epoch, and only rank 0 writes files.
 """
 from __future__ import annotations
 
+import copy
 import json
 import math
 import os
@@ -152,6 +153,33 @@ def equal_length_groups(lengths: list[int], batch_size: int) -> Iterator[list[in
     for same in by_length.values():
         for first in range(0, len(same), batch_size):
             yield same[first:first + batch_size]
+
+
+class WeightAverage:
+    """An exponential moving average of a model's trained parameters (Polyak averaging):
+    after every step, average <- decay * average + (1 - decay) * weights. It averages out the
+    noise of the steps, which a quantity integrated over a clip, as the root trajectory is from
+    per-frame velocities, is most sensitive to. Starts at the model's weights."""
+
+    def __init__(self, model: nn.Module, decay: float):
+        if not 0 < decay < 1:
+            raise ValueError(f"the weight average's decay must be in (0, 1), got {decay}")
+        self.decay = decay
+        self.parameters = {name: p.detach().clone() for name, p in
+                           unwrap_model(model).named_parameters() if p.requires_grad}
+
+    @torch.no_grad()
+    def update(self, model: nn.Module) -> None:
+        for name, p in unwrap_model(model).named_parameters():
+            if name in self.parameters:
+                self.parameters[name].lerp_(p, 1 - self.decay)
+
+    def averaged(self, model: nn.Module) -> nn.Module:
+        """A copy of the model (buffers and untrained parameters as they are) holding the
+        averaged parameters."""
+        averaged = copy.deepcopy(unwrap_model(model))
+        averaged.load_state_dict({**averaged.state_dict(), **self.parameters})
+        return averaged
 
 
 def steps_per_epoch(dataset: Dataset, batch_size: int, process: Process) -> int:

@@ -4,7 +4,8 @@ import torch
 from torch.utils.data import DataLoader
 
 from mogo.export.dataset import (Caption, DatasetError, HumanML3DFolder, MotionCropDataset,
-                                 TextMotionDataset, collate_text_motion, parse_caption_line)
+                                 TextMotionDataset, WholeClipBatches, collate_text_motion,
+                                 parse_caption_line)
 from mogo.runtime.skeleton import KIT_21, SMPL_22
 
 from conftest import CLIP_FRAMES
@@ -83,6 +84,34 @@ def test_motion_crops_are_seeded_per_epoch(tiny_humanml3d, capsys):
     clip = folder.normalize(folder.features("000007"))  # 61 rows: the crop is a window of it
     windows = [clip[s:s + 50] for s in range(12)]
     assert any(np.allclose(crops[3].numpy(), w) for w in windows)
+
+
+def test_whole_clip_batches_hold_every_clip_once_an_epoch(tiny_humanml3d):
+    folder = HumanML3DFolder(tiny_humanml3d)
+    for length in (CLIP_FRAMES[1], CLIP_FRAMES[2]):  # two more train clips of each of two lengths
+        for copy in ("a", "b"):
+            np.save(tiny_humanml3d / "new_joint_vecs" / f"{length}{copy}.npy",
+                    folder.features("000007")[:length])
+    ids = [f"{k:06d}" for k in range(8)] + [f"{n}{c}" for n in CLIP_FRAMES[1:3] for c in "ab"]
+    (tiny_humanml3d / "train.txt").write_text("".join(i + "\n" for i in ids))
+    folder = HumanML3DFolder(tiny_humanml3d)
+    batches = WholeClipBatches(folder, "train", batch_size=2, seed=5, down_factor=2)
+    assert len(batches) == 10  # 8 lengths (cut to even); 3 clips of 42 and of 46: 2 batches each
+
+    def epoch(dataset, n):
+        dataset.set_epoch(n)
+        return [dataset[i] for i in range(len(dataset))]
+
+    first = epoch(batches, 0)
+    assert all(1 <= len(b) <= 2 and b.shape[1] % 2 == 0 for b in first)
+    rows = torch.cat([b.reshape(-1, b.shape[-1]) for b in first])
+    expected = [folder.normalize(folder.features(i)) for i in ids]
+    expected = np.concatenate([x[:len(x) - len(x) % 2] for x in expected])
+    assert sorted(map(tuple, rows.numpy().round(5))) == sorted(map(tuple, expected.round(5)))
+    again = WholeClipBatches(folder, "train", batch_size=2, seed=5, down_factor=2)
+    assert all(torch.equal(a, b) for a, b in zip(first, epoch(again, 0)))
+    assert any(not all(torch.equal(a, b) for a, b in zip(first, epoch(batches, n)))
+               for n in range(1, 6))  # which of 3 clips goes alone changes with the epoch
 
 
 def test_text_motion_cuts_caption_spans(tiny_humanml3d, capsys):

@@ -8,11 +8,18 @@ import pytest
 import torch
 
 from conftest import make_tiny_humanml3d
-from mogo.export.bundle import _quantize_levels
+import onnx
+from onnx import numpy_helper
+
+from mogo.export.bundle import _quantize_levels, write_manifest
 from mogo.export.cli import main
 from mogo.export.generate_torch import generate
+from mogo.export.onnx_vq import vq_from_bundle
 from mogo.export.text_encoder import encode_captions
 from mogo.export.train_t2m import load_t2m
+from mogo.export.train_vq import load_vq
+from mogo.export.training import load_checkpoint
+from mogo.runtime.bundle import file_sha256
 from mogo.runtime.generator import MotionGenerator
 
 PROMPT = "a person walks forward."
@@ -105,3 +112,74 @@ def test_export_takes_a_decoder_fine_tune_of_the_t2ms_vq_only(runs, tmp_path, ca
     assert main(["export", "--vq", str(tmp_path / "all"), "--t2m", str(runs / "t2m"),
                  "--out", str(tmp_path / "other")]) == 2
     assert "trained on the tokens of another VQ checkpoint" in capsys.readouterr().err
+
+
+def test_a_bundles_vq_reads_back_into_torch(runs, tmp_path):
+    model, trained = vq_from_bundle(runs / "bundle"), load_vq(runs / "vq")
+    read, original = model.state_dict(), trained.state_dict()
+    for name in original:
+        if name.startswith(("encoder", "decoder", "quantizer.codebook", "quantizer.scale",
+                            "quantizer.bias", "mean", "std")):
+            stored = original[name] if original[name].numel() < 1024 else \
+                original[name].half().float()  # what fp16 storage keeps
+            assert torch.equal(read[name], stored), name
+    bundle = tmp_path / "bundle"  # a graph whose scale was altered (and re-hashed) is caught
+    shutil.copytree(runs / "bundle", bundle)
+    graph = onnx.load(bundle / "vq_decoder.onnx")
+    scale = next(t for t in graph.graph.initializer
+                 if np.array_equal(numpy_helper.to_array(t), original["quantizer.scale"].numpy()))
+    scale.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(scale) * 2, scale.name))
+    onnx.save(graph, bundle / "vq_decoder.onnx")
+    manifest = json.loads((bundle / "manifest.json").read_text())
+    write_manifest(bundle, manifest)
+    with pytest.raises(ValueError, match="do not read back into the model"):
+        vq_from_bundle(bundle)
+
+
+def test_a_bundles_decoder_is_fine_tuned_and_replaced_without_its_runs(runs, tmp_path, capsys):
+    bundle, data = runs / "bundle", runs / "data"
+    common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "2",
+              "--val-clips", "2", "--warmup", "0"]
+    tuned = tmp_path / "tuned"
+    assert main(["train", "vq", "--out", str(tuned), "--init", str(bundle), "--tune", "decoder",
+                 "--whole-clips", "--lr", "1e-2", *common]) == 0
+    recipe = load_checkpoint(tuned / "best.pt")["recipe"]
+    manifest = json.loads((bundle / "manifest.json").read_text())
+    assert recipe["init"] == str(bundle.resolve()) and recipe["whole_clips"]
+    assert recipe["tokens_sha256"] == manifest["files"]["vq_encoder.onnx"]["sha256"]
+    new = tmp_path / "new"
+    assert main(["export", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)]) == 0
+    written = json.loads((new / "manifest.json").read_text())
+    changed = {name for name, entry in written["files"].items()
+               if entry != manifest["files"][name]}
+    assert changed == {"vq_decoder.onnx"} and written["files"].keys() == manifest["files"].keys()
+    assert all(file_sha256(new / name) == file_sha256(bundle / name)
+               for name in written["files"] if name not in changed)
+    assert written["training"]["vq"]["recipe"]["tune"] == "decoder"
+    assert written["training"]["vq"]["token_agreement_with_bundle"] == 1.0
+    assert written["training"]["t2m"] == manifest["training"]["t2m"]
+    assert 0 < written["fp16_storage"]["vq_decoder_feature_max_abs_difference"] < 1e-2
+    old_motion = MotionGenerator.load(bundle).generate(PROMPT, seconds=1.0, seed=0)
+    new_motion = MotionGenerator.load(new).generate(PROMPT, seconds=1.0, seed=0)
+    assert np.array_equal(old_motion.tokens, new_motion.tokens)
+    assert not np.allclose(old_motion.features, new_motion.features)
+
+
+def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, capsys):
+    bundle, data = runs / "bundle", runs / "data"
+    common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "1",
+              "--val-clips", "2", "--crop-frames", "40"]
+    assert main(["train", "vq", "--out", str(tmp_path / "all"), "--init", str(bundle),
+                 *common]) == 2
+    assert "a bundle keeps no codebook statistics" in capsys.readouterr().err
+    assert main(["train", "vq", "--out", str(tmp_path / "other"), "--seed", "1", *common]) == 0
+    assert main(["train", "vq", "--out", str(tmp_path / "smaller"), "--levels", "2",
+                 *common]) == 0
+    for run, message in (("other", "gives other tokens than"), ("smaller", "config differs")):
+        assert main(["export", "--vq", str(tmp_path / run), "--bundle", str(bundle),
+                     "--out", str(tmp_path / "new")]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["export", "--vq", str(runs / "vq"), "--bundle", str(bundle), "--int8",
+                 "--out", str(tmp_path / "new")]) == 2
+    assert "with --bundle they are copied" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()

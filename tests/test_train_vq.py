@@ -51,6 +51,31 @@ def test_resume_continues_exactly(tiny_humanml3d, tmp_path, monkeypatch):
     assert train(tiny_humanml3d, tmp_path / "split", *args, "--resume", "--levels", 2) == 2
 
 
+def test_whole_clips_and_a_weight_average_train_and_resume_exactly(tiny_humanml3d, tmp_path,
+                                                                   monkeypatch):
+    args = ("--steps", 5, "--val-every", 2, "--checkpoint-every", 2, "--whole-clips",
+            "--weight-average", 0.5, "--lr", 1e-2, "--warmup", 0)
+    assert train(tiny_humanml3d, tmp_path / "whole", *args) == 0
+    state = load_checkpoint(tmp_path / "whole" / "checkpoint.pt")
+    assert state["recipe"]["whole_clips"] and state["recipe"]["weight_average"] == 0.5
+    interrupt_after_step(monkeypatch, 3)
+    assert train(tiny_humanml3d, tmp_path / "split", *args) == 130
+    monkeypatch.undo()
+    assert train(tiny_humanml3d, tmp_path / "split", *args, "--resume") == 0
+    assert records(tmp_path / "split") == records(tmp_path / "whole")
+
+
+def test_best_pt_keeps_the_weight_average(tiny_humanml3d, tmp_path):
+    run = tmp_path / "run"
+    assert train(tiny_humanml3d, run, "--steps", 3, "--val-every", 3, "--weight-average", 0.5,
+                 "--lr", 1e-2, "--warmup", 0) == 0
+    state, best = load_checkpoint(run / "checkpoint.pt"), load_checkpoint(run / "best.pt")
+    averaged = state["averaged_parameters"]
+    assert set(averaged) == {name for name, _ in load_vq(run).named_parameters()}
+    assert all(torch.equal(averaged[n], best["model"][n]) for n in averaged)
+    assert not all(torch.equal(averaged[n], state["model"][n]) for n in averaged)
+
+
 def test_two_processes_on_gloo(tiny_humanml3d, tmp_path):
     run = tmp_path / "run"
     command = [sys.executable, "-m", "torch.distributed.run", "--standalone",

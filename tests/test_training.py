@@ -5,7 +5,7 @@ import pytest
 import torch
 from torch import nn
 
-from mogo.export.training import (MetricsLog, Process, batches, load_checkpoint,
+from mogo.export.training import (MetricsLog, Process, WeightAverage, batches, load_checkpoint,
                                   save_checkpoint, warmup_cosine)
 
 SINGLE = Process(rank=0, world_size=1, device=torch.device("cpu"))
@@ -17,6 +17,24 @@ def test_warmup_then_cosine():
     assert lr[10] == pytest.approx(1.0) and lr[60] == pytest.approx(0.55)
     assert lr[110] == pytest.approx(0.1) and lr[119] == pytest.approx(0.1)
     assert all(a >= b for a, b in zip(lr[10:], lr[11:]))
+
+
+def test_weight_average_follows_the_trained_parameters_only():
+    model = nn.Sequential(nn.Linear(2, 2), nn.Linear(2, 1))
+    model[0].requires_grad_(False)
+    average = WeightAverage(model, decay=0.75)
+    start = model[1].weight.detach().clone()
+    with torch.no_grad():
+        model[1].weight.add_(4.0)
+        model[0].weight.add_(4.0)
+    average.update(model)
+    assert set(average.parameters) == {"1.weight", "1.bias"}
+    averaged = average.averaged(model)
+    assert torch.allclose(averaged[1].weight, start + 1.0)  # 0.75 * w + 0.25 * (w + 4)
+    assert torch.equal(averaged[0].weight, model[0].weight)  # untrained: as it is
+    assert torch.equal(model[1].weight, start + 4.0)  # the model itself is left alone
+    with pytest.raises(ValueError, match="decay must be in"):
+        WeightAverage(model, decay=1.0)
 
 
 def test_checkpoint_round_trip(tmp_path):
