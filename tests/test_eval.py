@@ -60,7 +60,7 @@ def test_eval_prints_the_table_without_torch(corpus, evaluator_folder, tmp_path)
     assert [line.split(" | ")[0] for line in lines[2:5]] == [
         "| Ground truth", "| VQ reconstruction", "| Bundle"]
     rows = json.loads(result.read_text())["rows"]
-    assert rows["Ground truth"]["FID"] == [0.0, 0.0]
+    assert rows["Ground truth"]["FID"] == pytest.approx([0.0, 0.0], abs=1e-9)  # rounding
     assert rows["Bundle"]["FID"][0] > rows["VQ reconstruction"]["FID"][0] > 0
     assert "MultiModality" in rows["Bundle"] and "MultiModality" not in rows["Ground truth"]
     assert all(np.isfinite(v).all() for row in rows.values() for v in row.values())
@@ -206,3 +206,21 @@ def test_vq_reconstruction_writes_gifs_and_a_contact_sheet(corpus, tmp_path, mon
         assert gif.width == 2 * gif.height and gif.n_frames >= vq_reconstruction.MIN_FRAMES
     with Image.open(out / "contact_sheet.png") as sheet:
         assert sheet.height == 4 * vq_reconstruction.THUMBNAIL
+
+
+def test_vq_report_splits_the_error_of_the_shipped_vq(corpus, monkeypatch, capsys):
+    from mogo.bench import vq_report
+
+    real = SplitReader(corpus).features(SplitReader(corpus).ids[0])
+    assert vq_report.clip_errors(real, real) == (0.0, 0.0, 0.0)
+    turned = real.copy()
+    turned[:, 0] += 0.01  # a yaw velocity bias: the trajectory turns, the poses are as they were
+    whole, poses, trajectory = vq_report.clip_errors(real, turned)
+    assert poses == 0.0 and whole == trajectory > 0
+    monkeypatch.setattr(sys, "argv", ["vq_report", "--data", str(corpus), "--limit", "6",
+                                      "--threads", "2"])
+    vq_report.main()
+    row = capsys.readouterr().out.splitlines()[-1].split(" | ")
+    assert row[0] == "| default" and row[1] == "6"
+    mpjpe, poses, trajectory = map(float, row[2:5])
+    assert 0 < poses < mpjpe < 60 and 0 < trajectory < mpjpe  # the shipped VQ: ~10-25 mm
