@@ -1,4 +1,5 @@
 import json
+import os
 import subprocess
 import sys
 
@@ -23,6 +24,16 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def mogo_on_two_gloo_processes(*args) -> None:
+    """`mogo ARGS` under torchrun, two CPU processes on gloo. On failure the message holds what
+    both printed, with every thread's Python stack should one of them abort."""
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node",
+               "2", "-m", "mogo.export.cli", *map(str, args), "--device", "cpu"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=180,
+                          env=dict(os.environ, OMP_NUM_THREADS="1", PYTHONFAULTHANDLER="1"))
+    assert done.returncode == 0, f"stdout:\n{done.stdout[-3000:]}\nstderr:\n{done.stderr[-8000:]}"
 
 
 def records(run, kind=None) -> list[dict]:

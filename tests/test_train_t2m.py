@@ -1,13 +1,11 @@
 import os
-import subprocess
-import sys
 from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
 import torch
 
-from conftest import interrupt_after_step, records
+from conftest import interrupt_after_step, mogo_on_two_gloo_processes, records
 from mogo.export import train_t2m
 from mogo.export.cli import main
 from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
@@ -102,14 +100,9 @@ def test_resume_continues_exactly(tiny_humanml3d, vq_run, tmp_path, monkeypatch)
 
 def test_two_processes_on_gloo(tiny_humanml3d, vq_run, tmp_path):
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "torch.distributed.run", "--standalone",
-               "--nproc_per_node", "2", "-m", "mogo.export.cli", "train", "t2m",
-               "--data", str(tiny_humanml3d), "--vq", str(vq_run), "--out", str(run),
-               "--config", "tiny", "--batch-size", "2", "--steps", "3", "--val-every", "3",
-               "--device", "cpu"]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=180,
-                          env=dict(os.environ, OMP_NUM_THREADS="1"))
-    assert done.returncode == 0, done.stderr[-3000:]
+    mogo_on_two_gloo_processes("train", "t2m", "--data", tiny_humanml3d, "--vq", vq_run, "--out",
+                               run, "--config", "tiny", "--batch-size", 2, "--steps", 3,
+                               "--val-every", 3)
     for name in ("checkpoint.pt", "best.pt", "metrics.jsonl", "tokenizer.json",
                  "tokens/train.npz", "tokens/val.npz"):
         assert (run / name).is_file(), name

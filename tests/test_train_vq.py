@@ -1,13 +1,10 @@
 """`mogo train vq` on a tiny HumanML3D-layout folder: the run it writes, exact resume, two
 processes on gloo, and one-line errors."""
-import os
-import subprocess
-import sys
 
 import pytest
 import torch
 
-from conftest import interrupt_after_step, records
+from conftest import interrupt_after_step, mogo_on_two_gloo_processes, records
 from mogo.export.cli import main
 from mogo.export.train_vq import load_vq
 from mogo.export.training import load_checkpoint
@@ -78,14 +75,9 @@ def test_best_pt_keeps_the_weight_average(tiny_humanml3d, tmp_path):
 
 def test_two_processes_on_gloo(tiny_humanml3d, tmp_path):
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "torch.distributed.run", "--standalone",
-               "--nproc_per_node", "2", "-m", "mogo.export.cli", "train", "vq",
-               "--data", str(tiny_humanml3d), "--out", str(run), "--config", "tiny",
-               "--batch-size", "2", "--crop-frames", "40", "--steps", "3", "--val-every", "3",
-               "--val-clips", "2", "--log-every", "3", "--device", "cpu"]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=180,
-                          env=dict(os.environ, OMP_NUM_THREADS="1"))
-    assert done.returncode == 0, done.stderr[-3000:]
+    mogo_on_two_gloo_processes("train", "vq", "--data", tiny_humanml3d, "--out", run, "--config",
+                               "tiny", "--batch-size", 2, "--crop-frames", 40, "--steps", 3,
+                               "--val-every", 3, "--val-clips", 2, "--log-every", 3)
     assert load_checkpoint(run / "checkpoint.pt")["world_size"] == 2
     assert [(r["kind"], r["step"]) for r in records(run)] == [("train", 3), ("val", 3)]
 
