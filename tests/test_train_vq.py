@@ -1,5 +1,6 @@
 """`mogo train vq` on a tiny HumanML3D-layout folder: the run it writes, exact resume, two
 processes on gloo, and one-line errors."""
+import os
 
 import pytest
 import torch
@@ -81,6 +82,16 @@ def test_two_processes_on_gloo(tiny_humanml3d, tmp_path):
     assert load_checkpoint(run / "checkpoint.pt")["world_size"] == 2
     assert [(r["kind"], r["step"]) for r in records(run)] == [("train", 3), ("val", 3)]
 
+
+
+def test_a_torchrun_worker_leaves_without_the_interpreter_teardown(tmp_path, monkeypatch):
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    statuses = []
+    monkeypatch.setattr(os, "_exit", statuses.append)
+    assert main(["info"]) == 0
+    assert main(["train", "vq", "--data", str(tmp_path / "missing"), "--out",
+                 str(tmp_path / "run")]) == 2
+    assert statuses == [0, 2]
 
 def test_init_fine_tunes_a_trained_model(tiny_humanml3d, tmp_path):
     base, tuned = tmp_path / "base", tmp_path / "tuned"
