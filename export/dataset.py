@@ -209,6 +209,22 @@ class MotionCropDataset(_EpochSeeded):
         return torch.from_numpy(clip[start:start + self.crop_frames].copy())
 
 
+def whole_clip_features(folder: HumanML3DFolder, split: str, down_factor: int = 1,
+                        limit: int | None = None) -> list[np.ndarray]:
+    """The first `limit` clips of a split, normalised, each (T, D) cut to whole tokens of
+    `down_factor` frames (clips shorter than one token are left out)."""
+    clips = []
+    for clip_id in folder.ids(split)[:limit]:
+        features = folder.normalize(folder.features(clip_id))
+        usable = len(features) - len(features) % down_factor
+        if usable:
+            clips.append(features[:usable])
+    if not clips:
+        raise DatasetError(f"{folder.root / f'{split}.txt'}: no clip of at least {down_factor} "
+                           "frames")
+    return clips
+
+
 class WholeClipBatches(Dataset):
     """Whole clips, normalised, for training on what validation and the runtime decode: each
     item is a batch (b, T, D) of clips of one length T (no padding, which would change what
@@ -221,15 +237,7 @@ class WholeClipBatches(Dataset):
         if batch_size < 1:
             raise ValueError(f"batch_size must be at least 1, got {batch_size}")
         self.seed = seed
-        self.clips = []
-        for clip_id in folder.ids(split):
-            features = folder.normalize(folder.features(clip_id))
-            usable = len(features) - len(features) % down_factor
-            if usable:
-                self.clips.append(features[:usable])
-        if not self.clips:
-            raise DatasetError(f"{folder.root / f'{split}.txt'}: no clip of at least "
-                               f"{down_factor} frames")
+        self.clips = whole_clip_features(folder, split, down_factor)
         by_length: dict[int, list[int]] = {}
         for index, clip in enumerate(self.clips):
             by_length.setdefault(len(clip), []).append(index)

@@ -29,7 +29,8 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from mogo.export.dataset import HumanML3DFolder, MotionCropDataset, WholeClipBatches
+from mogo.export.dataset import (HumanML3DFolder, MotionCropDataset, WholeClipBatches,
+                                 whole_clip_features)
 from mogo.export.recipes import VQ_MODEL_SWITCHES, VQ_RECIPE
 from mogo.export.training import (Process, RunOptions, WeightAverage, all_reduce_mean, batches,
                                   end_process, equal_length_groups, finish_together,
@@ -318,16 +319,8 @@ def _train_values(losses: dict[str, Tensor], stats: dict[str, Tensor]) -> Tensor
 def whole_clips(folder: HumanML3DFolder, split: str, down_factor: int,
                 limit: int | None = None) -> list[Tensor]:
     """The first `limit` clips of a split, normalised, each (1, T, D) cut to whole tokens."""
-    clips = []
-    for clip_id in folder.ids(split)[:limit]:
-        features = folder.normalize(folder.features(clip_id))
-        usable = len(features) - len(features) % down_factor
-        if usable:
-            clips.append(torch.from_numpy(features[:usable].copy())[None])
-    if not clips:
-        raise ValueError(f"{folder.root / f'{split}.txt'}: no clip of at least {down_factor} "
-                         "frames")
-    return clips
+    return [torch.from_numpy(clip.copy())[None]
+            for clip in whole_clip_features(folder, split, down_factor, limit)]
 
 
 def clip_batches(clips: list[Tensor], device: torch.device,
