@@ -18,7 +18,7 @@ from onnx import numpy_helper
 from tokenizers import Tokenizer
 
 from mogo.export.onnx_t2m import export_level, export_text_encoder
-from mogo.export.onnx_vq import export_vq_decoder, export_vq_encoder
+from mogo.export.onnx_vq import export_vq_decoder, export_vq_encoder, random_ids
 from mogo.export.t2m import T2M
 from mogo.runtime.bundle import FORMAT, FORMAT_VERSION, MANIFEST, Bundle, file_sha256
 from mogo.runtime.sampling import Sampling
@@ -223,8 +223,7 @@ def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
 
 def _check_codes(vq) -> torch.Tensor:
     """The token ids (4, 60, L) that the fp16 storage check decodes."""
-    generator = torch.Generator().manual_seed(0)
-    return torch.randint(vq.config.codebook_size, (4, 60, vq.config.levels), generator=generator)
+    return random_ids(vq.config, 4, 60, seed=0)
 
 
 def _outputs_before_and_after_fp16(path: Path, feed: dict) -> tuple[np.ndarray, np.ndarray]:

@@ -175,15 +175,18 @@ def _dequantisation(graph: onnx.GraphProto) -> dict[str, Tensor]:
     raise ValueError("the VQ decoder graph has no dequantisation (codebook[ids] - b) / W")
 
 
+def random_ids(config: VQConfig, batch: int, tokens: int, seed: int) -> Tensor:
+    """Seeded random token ids (batch, tokens, L): what the checks of exported VQ graphs feed."""
+    generator = torch.Generator().manual_seed(seed)
+    return torch.randint(config.codebook_size, (batch, tokens, config.levels), generator=generator)
+
+
 @torch.no_grad()
 def token_agreement(model: MoSAVQ, bundle: Bundle) -> float:
     """The share of ids that the model's encoder and the bundle's encoder graph agree on, for
     features decoded (by the model) from random ids: whether the bundle's level graphs, trained
     on its tokens, fit the model's decoder."""
-    c = model.config
-    generator = torch.Generator().manual_seed(0)
-    ids = torch.randint(c.codebook_size, (2, 48, c.levels), generator=generator)
-    features = model.eval().decode(ids)
+    features = model.eval().decode(random_ids(model.config, 2, 48, seed=0))
     entry = bundle.manifest["vq"]["encoder"]
     graph_ids = cpu_session(bundle.path(entry["file"])).run(
         None, {entry["inputs"][0]: features.numpy()})[0]
@@ -195,9 +198,7 @@ def _check_against_graphs(model: MoSAVQ, bundle: Bundle) -> None:
     """Random ids decoded, and what they decode to encoded, in torch and in the bundle's
     graphs."""
     entry = bundle.manifest["vq"]["decoder"]
-    c = model.config
-    generator = torch.Generator().manual_seed(1)
-    ids = torch.randint(c.codebook_size, (2, 48, c.levels), generator=generator)
+    ids = random_ids(model.config, 2, 48, seed=1)
     graph_features = cpu_session(bundle.path(entry["file"])).run(
         None, {entry["inputs"][0]: ids.numpy()})[0]
     difference = float(np.abs(model.decode(ids).numpy() - graph_features).max())
