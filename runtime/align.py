@@ -4,7 +4,7 @@ The model only saw captions like "a person walks forward, then waves with the ri
 A prompt such as "make the guy stroll ahead and after that wave 3 times" works better as
 the steps it was trained on, played one after another by prompt switching:
 
-    aligner = RuleAligner(vocabulary)          # or LLMAligner() (mogo.runtime.llm_align)
+    aligner = RuleAligner(vocabulary)          # or LLMAligner() (mogo.llm_align)
     aligner.align("make the guy stroll ahead and after that wave 3 times")
     -> Alignment(steps=[AlignedStep("a person strolls ahead.", 3.3),
                         AlignedStep("a person waves three times.", 3.0)], source="rules")

@@ -9,9 +9,9 @@
         ...
         stream.set_prompt("a person jumps")                # from the next step on
 
-Tokens come from the level graphs one step at a time (mogo.runtime.token_generator), frames
-from the VQ decoder as soon as their right context exists (mogo.runtime.stream_decoder), joints
-from the features with the root carried across chunks (mogo.runtime.features.JointStream).
+Tokens come from the level graphs one step at a time (mogo.token_generator), frames
+from the VQ decoder as soon as their right context exists (mogo.stream_decoder), joints
+from the features with the root carried across chunks (mogo.motion.features.JointStream).
 """
 from __future__ import annotations
 
@@ -23,15 +23,15 @@ from pathlib import Path
 import numpy as np
 from tokenizers import Tokenizer
 
-from mogo.runtime._session import cpu_session
-from mogo.runtime.align import Alignment, PromptAligner, RuleAligner
-from mogo.runtime.bundle import Bundle, BundleError
-from mogo.runtime.features import JointStream
-from mogo.runtime.motion import Motion
-from mogo.runtime.sampling import Sampling
-from mogo.runtime.skeleton import SKELETONS
-from mogo.runtime.stream_decoder import StreamingDecoder
-from mogo.runtime.token_generator import TokenGenerator, TokenStream
+from mogo._session import cpu_session
+from mogo.align import Alignment, PromptAligner, RuleAligner
+from mogo.bundle import Bundle, BundleError
+from mogo.motion.features import JointStream
+from mogo.clip import Motion
+from mogo.sampling import Sampling
+from mogo.motion.skeleton import SKELETONS
+from mogo.stream_decoder import StreamingDecoder
+from mogo.token_generator import TokenGenerator, TokenStream
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
@@ -112,7 +112,7 @@ class MotionGenerator:
         end the motion (at most the bundle's max_seconds); seed=None draws a fresh seed,
         kept in Motion.seed so the result can be reproduced. align=True (or a PromptAligner)
         rewrites each prompt into caption-style steps played as one motion (see
-        mogo.runtime.align); the steps are kept in Motion.alignment."""
+        mogo.align); the steps are kept in Motion.alignment."""
         texts = [text] if isinstance(text, str) else list(text)
         if not texts:
             raise ValueError("no prompt given")

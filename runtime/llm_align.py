@@ -16,7 +16,7 @@ import os
 import urllib.error
 import urllib.request
 
-from mogo.runtime.align import AlignedStep, Alignment, PromptAligner, RuleAligner
+from mogo.align import AlignedStep, Alignment, PromptAligner, RuleAligner
 
 MAX_STEPS = 8
 STEP_SECONDS = (0.5, 30.0)

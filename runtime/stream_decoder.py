@@ -21,15 +21,15 @@ import os
 import numpy as np
 import onnxruntime as ort
 
-from mogo.runtime._session import cpu_session
+from mogo._session import cpu_session
 
 
 class StreamingDecoder:
     """Decodes a growing stream of token ids (n, L) into normalised features (frames, D).
 
     `left_context` and `lookahead` are the decoder's receptive field in tokens (from
-    mogo.export.onnx_vq.decoder_context, stored in the bundle manifest); the default names
-    are those mogo.export.onnx_vq writes. A session passed in is used as it is.
+    mogo.export.onnx.vq_graphs.decoder_context, stored in the bundle manifest); the default names
+    are those mogo.export.onnx.vq_graphs writes. A session passed in is used as it is.
     """
 
     def __init__(self, session_or_path: ort.InferenceSession | str | os.PathLike,

@@ -8,10 +8,10 @@ means nothing: every slot carries its position), so no step copies the cache. Th
 one step are independent (level l sees only earlier steps), so with several workers they run
 concurrently, each on one core, and are sampled afterwards in level order. Guidance runs a
 batch of two rows, conditional and unconditional. The rules (uniforms, end token, window) are
-those of the torch reference `mogo.export.generate_torch.generate`, so both give the same
+those of the torch reference `mogo.export.models.generate_torch.generate`, so both give the same
 tokens.
 
-Graph names come from the exporter's dict (mogo.export.onnx_t2m, later the bundle manifest),
+Graph names come from the exporter's dict (mogo.export.onnx.t2m_graphs, later the bundle manifest),
 by role: the first five inputs are prompt, uncond, token_ids, positions, past_positions, then
 past key/value pairs layer by layer; output 0 is the logits, then the matching presents.
 """
@@ -24,8 +24,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from mogo.runtime.sampling import Sampling, choose_tokens, make_rng, step_uniforms
-from mogo.runtime._session import cpu_session
+from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
+from mogo._session import cpu_session
 
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
 

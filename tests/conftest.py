@@ -10,7 +10,7 @@ BLOCK_TORCH = (
     "import sys\n"
     "class Block:\n"
     "    def find_spec(self, name, path=None, target=None):\n"
-    "        if name.split('.')[0] in ('torch', 'onnxscript') or name.startswith('mogo.export'):\n"
+    "        if name.split('.')[0] in ('torch', 'onnxscript') or name.startswith(BLOCKED):\n"
     "            raise ImportError(f'{name} is blocked in this test')\n"
     "sys.meta_path.insert(0, Block())\n")
 
@@ -30,7 +30,7 @@ def mogo_on_two_gloo_processes(*args) -> None:
     """`mogo ARGS` under torchrun, two CPU processes on gloo. On failure the message holds what
     both printed, with every thread's Python stack should one of them abort."""
     command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node",
-               "2", "-m", "mogo.export.cli", *map(str, args), "--device", "cpu"]
+               "2", "-m", "mogo", *map(str, args), "--device", "cpu"]
     done = subprocess.run(command, capture_output=True, text=True, timeout=180,
                           env=dict(os.environ, OMP_NUM_THREADS="1", PYTHONFAULTHANDLER="1"))
     assert done.returncode == 0, f"stdout:\n{done.stdout[-3000:]}\nstderr:\n{done.stderr[-8000:]}"
@@ -46,7 +46,7 @@ def records(run, kind=None) -> list[dict]:
 def interrupt_after_step(monkeypatch, stop_step: int) -> None:
     """Make training stop like Ctrl-C right after logging `stop_step`, before any checkpoint
     of it: what a resumed run must recover from."""
-    from mogo.export.training import MetricsLog
+    from mogo.export.train.training import MetricsLog
 
     write = MetricsLog.write
 
@@ -60,11 +60,12 @@ def interrupt_after_step(monkeypatch, stop_step: int) -> None:
 
 @pytest.fixture
 def run_without_torch():
-    """Runs a Python script in a fresh interpreter where torch, onnxscript and mogo.export
-    cannot be imported; ends by checking torch was never loaded."""
-    def run(script: str) -> subprocess.CompletedProcess:
+    """Runs a Python script in a fresh interpreter where torch and onnxscript (and with
+    `block_export`, mogo.export) cannot be imported; ends by checking torch was never loaded."""
+    def run(script: str, block_export: bool = True) -> subprocess.CompletedProcess:
+        blocked = f"BLOCKED = {('mogo.export',) if block_export else ('torch',)!r}\n"
         check = "assert 'torch' not in sys.modules\n"
-        return subprocess.run([sys.executable, "-c", BLOCK_TORCH + script + check],
+        return subprocess.run([sys.executable, "-c", blocked + BLOCK_TORCH + script + check],
                               capture_output=True, text=True)
     return run
 

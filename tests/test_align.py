@@ -7,10 +7,10 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
-from mogo.export.cli import main
-from mogo.runtime.align import AlignedStep, Alignment, RuleAligner, edit_distance, plain_words
-from mogo.runtime.generator import MotionGenerator
-from mogo.runtime.llm_align import LLMAligner
+from mogo.cli import main
+from mogo.align import AlignedStep, Alignment, RuleAligner, edit_distance, plain_words
+from mogo.generator import MotionGenerator
+from mogo.llm_align import LLMAligner
 
 
 @pytest.fixture(scope="module")

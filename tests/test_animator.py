@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from mogo.export.animator import PRIMITIVES, Segment, animate, sample_segment
-from mogo.runtime.features import (facing_directions, features_to_joints, foot_contacts,
+from mogo.export.data.animator import PRIMITIVES, Segment, animate, sample_segment
+from mogo.motion.features import (facing_directions, features_to_joints, foot_contacts,
                                    joints_to_features)
-from mogo.runtime.skeleton import SMPL_22
+from mogo.motion.skeleton import SMPL_22
 
 NAMES = ("walk", "jog", "run", "turn", "jump", "squat", "sit", "bow", "wave", "raise_arms",
          "clap", "punch", "kick", "spin", "stretch", "jumping_jacks", "idle")

@@ -9,11 +9,11 @@ import torch
 from PIL import Image
 from torch.utils.flop_counter import FlopCounterMode
 
-from mogo.bench import latency
-from mogo.bench.plot import log_line_chart
-from mogo.export.cli import main
-from mogo.export.t2m import T2M, T2MConfig
-from mogo.runtime.generator import DEFAULT_BUNDLE
+from mogo.bench.speed import latency
+from mogo.bench.speed.plot import log_line_chart
+from mogo.cli import main
+from mogo.export.models.t2m import T2M, T2MConfig
+from mogo.generator import DEFAULT_BUNDLE
 
 
 @pytest.mark.parametrize("cached", [True, False])

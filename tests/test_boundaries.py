@@ -1,37 +1,87 @@
-"""The runtime boundary: numpy, onnxruntime, tokenizers and pillow only; no pickle."""
+"""The layout's contract: which folder may import which, the runtime on numpy + onnxruntime +
+tokenizers + pillow only, no pickle, and the runtime working with torch unimportable."""
 import ast
-import pkgutil
 import sys
 from pathlib import Path
 
-import mogo.runtime
+import pytest
 
-RUNTIME_DIR = Path(mogo.runtime.__file__).parent
+import mogo
+
+RUNTIME_DIR = Path(mogo.__file__).parent
+ROOT = RUNTIME_DIR.parent
 ALLOWED_THIRD_PARTY = {"numpy", "onnxruntime", "tokenizers", "PIL"}
 
+# Each room (a package, with the packages under it) -> the mogo modules its files may import,
+# lazily or not, and the exceptions to that. No room imports one above it: runtime < export <
+# bench, and within runtime, motion maths below the engine; the quality bench needs no torch.
+LATER = ("mogo.export", "mogo.bench")
+MAY_IMPORT = {
+    "mogo.motion": (("mogo.motion",), ()),
+    "mogo": (("mogo",), LATER),
+    "mogo.export": (("mogo",), ("mogo.bench",)),
+    "mogo.bench": (("mogo",), ()),
+    "mogo.bench.quality": (("mogo",), ("mogo.export.models", "mogo.export.train",
+                                       "mogo.export.onnx", "mogo.bench.speed",
+                                       "mogo.bench.training")),
+}
 
-def runtime_sources():
-    return sorted(RUNTIME_DIR.rglob("*.py"))
+
+def sources(folder: Path):
+    return sorted(p for p in folder.rglob("*.py") if ".venv" not in p.parts)
+
+
+def package_of(path: Path) -> str:
+    """runtime/motion/bvh.py -> mogo.motion; export/data/corpus.py -> mogo.export.data."""
+    folder = path.parent.relative_to(ROOT).parts
+    return ".".join(["mogo" if folder[0] == "runtime" else f"mogo.{folder[0]}", *folder[1:]])
+
+
+def imported_modules(path: Path) -> list[str]:
+    """Absolute module names imported anywhere in the file, function bodies included."""
+    names = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: resolve against the file's package
+                base = package_of(path).split(".")[: len(package_of(path).split(".")) - node.level + 1]
+                names.append(".".join(base + ([node.module] if node.module else [])))
+            else:
+                names.append(node.module)
+    return names
+
+
+def within(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+def rules_for(package: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    return MAY_IMPORT[max((room for room in MAY_IMPORT if within(package, room)), key=len)]
+
+
+@pytest.mark.parametrize("folder", ["runtime", "export", "bench"])
+def test_no_room_imports_one_above_it(folder):
+    for path in sources(ROOT / folder):
+        package = package_of(path)
+        allowed, denied = rules_for(package)
+        for name in filter(lambda name: within(name, "mogo"), imported_modules(path)):
+            assert any(within(name, p) for p in allowed) and not any(
+                within(name, p) for p in denied), (
+                f"{path.relative_to(ROOT)} ({package}) imports {name}")
 
 
 def test_runtime_imports_only_allowed_packages():
     stdlib = set(sys.stdlib_module_names)
-    for path in runtime_sources():
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            if isinstance(node, ast.Import):
-                names = [alias.name for alias in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.level == 0:
-                names = [node.module]
-            else:
-                continue
-            for name in names:
-                top = name.split(".")[0]
-                assert top in stdlib or top in ALLOWED_THIRD_PARTY or name.startswith(
-                    "mogo.runtime"), f"{path.name} imports {name}"
+    for path in sources(RUNTIME_DIR):
+        for name in imported_modules(path):
+            top = name.split(".")[0]
+            assert top in stdlib or top in ALLOWED_THIRD_PARTY or top == "mogo", (
+                f"{path.name} imports {name}")
 
 
 def test_runtime_loads_no_pickle():
-    for path in runtime_sources():
+    for path in sources(RUNTIME_DIR):
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             if isinstance(node, (ast.Import, ast.ImportFrom)):
                 names = [a.name for a in node.names] + [getattr(node, "module", None) or ""]
@@ -44,9 +94,29 @@ def test_runtime_loads_no_pickle():
                         f"{path.name}:{node.lineno} np.load without allow_pickle=False")
 
 
-def test_runtime_imports_with_torch_unimportable(run_without_torch):
-    modules = [f"mogo.runtime.{m.name}" for m in pkgutil.iter_modules([str(RUNTIME_DIR)])]
+def test_the_runtime_and_the_quality_bench_import_with_torch_unimportable(run_without_torch):
+    modules = [package_of(p) + ("" if p.stem == "__init__" else f".{p.stem}")
+               for folder in (RUNTIME_DIR, ROOT / "bench" / "quality") for p in sources(folder)
+               if p.stem != "__main__"]
     result = run_without_torch(f"import importlib\nfor m in {modules!r}:\n"
-                               "    importlib.import_module(m)\nprint('ok', len(sys.modules))\n")
+                               "    importlib.import_module(m)\nprint('ok', len(sys.modules))\n",
+                               block_export=False)
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("ok")
+
+
+def test_the_public_api_is_at_the_package_top(run_without_torch):
+    result = run_without_torch("from mogo import MotionGenerator, MotionStream, Motion, Sampling\n"
+                               "import mogo\nprint(sorted(mogo.__all__))\n")
+    assert result.returncode == 0, result.stderr
+    assert "MotionGenerator" in result.stdout
+
+
+def test_the_mogo_command_runs_its_runtime_verbs_without_torch(run_without_torch, tmp_path):
+    result = run_without_torch(
+        "from mogo.cli import main\n"
+        f"code = main(['generate', 'a person waves.', '--seconds', '1', '--seed', '0', "
+        f"'--out', {str(tmp_path)!r}])\n"
+        "assert code == 0, code\n", block_export=False)
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.suffix for p in tmp_path.iterdir()) == [".bvh", ".gif", ".json", ".npy"]

@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from mogo.export.bundle import write_manifest
-from mogo.runtime.bundle import MANIFEST, Bundle, BundleError
+from mogo.export.onnx.bundle import write_manifest
+from mogo.bundle import MANIFEST, Bundle, BundleError
 
 
 @pytest.fixture

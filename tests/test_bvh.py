@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from mogo.runtime.bvh import read_bvh, save_bvh
-from mogo.runtime.quaternion import qfrom_axis_angle, qmul, qrot, qyaw
-from mogo.runtime.skeleton import SMPL_22
+from mogo.motion.bvh import read_bvh, save_bvh
+from mogo.motion.quaternion import qfrom_axis_angle, qmul, qrot, qyaw
+from mogo.motion.skeleton import SMPL_22
 
 FRAMES = 120
 

@@ -3,8 +3,8 @@ import re
 import numpy as np
 import pytest
 
-from mogo.export.animator import PRIMITIVES, Segment, sample_segment
-from mogo.export.captions import (JOINERS, POOLS, SUBJECTS, TEMPLATES, caption_program,
+from mogo.export.data.animator import PRIMITIVES, Segment, sample_segment
+from mogo.export.data.captions import (JOINERS, POOLS, SUBJECTS, TEMPLATES, caption_program,
                                   caption_segment, conjugate, count_noun, render, templates,
                                   times_word)
 

@@ -6,9 +6,9 @@ import sys
 import numpy as np
 import pytest
 
-from mogo.export.cli import main
-from mogo.runtime.bvh import read_bvh
-from mogo.runtime.skeleton import SMPL_22
+from mogo.cli import main
+from mogo.motion.bvh import read_bvh
+from mogo.motion.skeleton import SMPL_22
 
 
 def test_generate_writes_the_files_and_says_where(tmp_path, capsys):
@@ -49,7 +49,7 @@ def test_a_prompts_file_plays_one_motion(tmp_path, capsys):
 
 
 def test_stream_prints_json_lines():
-    result = subprocess.run([sys.executable, "-m", "mogo.export.cli", "stream",
+    result = subprocess.run([sys.executable, "-m", "mogo", "stream",
                              "a person jogs.", "--frames", "5", "--seed", "2"],
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr

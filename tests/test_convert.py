@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from mogo.export.cli import main
-from mogo.export.convert import resample
-from mogo.runtime.features import features_to_joints
+from mogo.cli import main
+from mogo.export.data.convert import resample
+from mogo.motion.features import features_to_joints
 
 from test_features import travelling_clip
 

@@ -4,14 +4,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mogo.export.animator import Segment
-from mogo.export.captions import JOINERS, TEMPLATES
-from mogo.export.corpus import (MAX_FRAMES, MIN_FRAMES, heldout_pairs, mirror_segment,
+from mogo.export.data.animator import Segment
+from mogo.export.data.captions import JOINERS, TEMPLATES
+from mogo.export.data.corpus import (MAX_FRAMES, MIN_FRAMES, heldout_pairs, mirror_segment,
                                 synthesize_corpus)
-from mogo.export.text_format import parse_caption_line
-from mogo.runtime.features import features_to_joints
-from mogo.runtime.mirror import mirror_joints, mirror_text
-from mogo.runtime.skeleton import SMPL_22
+from mogo.export.data.humanml3d import parse_caption_line
+from mogo.motion.features import features_to_joints
+from mogo.motion.mirror import mirror_joints, mirror_text
+from mogo.motion.skeleton import SMPL_22
 
 CLIPS = 24
 SEED = 3

@@ -3,10 +3,10 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from mogo.export.dataset import (Caption, DatasetError, HumanML3DFolder, MotionCropDataset,
+from mogo.export.train.datasets import (Caption, DatasetError, HumanML3DFolder, MotionCropDataset,
                                  TextMotionDataset, WholeClipBatches, collate_text_motion,
                                  parse_caption_line)
-from mogo.runtime.skeleton import KIT_21, SMPL_22
+from mogo.motion.skeleton import KIT_21, SMPL_22
 
 from conftest import CLIP_FRAMES
 

@@ -8,17 +8,17 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mogo.bench import evaluate as evaluate_module
-from mogo.bench import semantic
-from mogo.bench.evaluate import EvalOptions, SplitReader, evaluate
-from mogo.export.cli import main
+from mogo.bench.quality import evaluate as evaluate_module
+from mogo.bench.quality import semantic
+from mogo.bench.quality.evaluate import EvalOptions, SplitReader, evaluate
+from mogo.cli import main
 
 MM_ARGS = ["--mm-captions", "1", "--mm-generations", "10"]
 
 
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory):
-    from mogo.export.corpus import synthesize_corpus
+    from mogo.export.data.corpus import synthesize_corpus
 
     root = tmp_path_factory.mktemp("corpus")
     synthesize_corpus(root, num_clips=16, seed=0, progress=False, workers=1)
@@ -31,8 +31,8 @@ def corpus(tmp_path_factory):
 def evaluator_folder(corpus, tmp_path_factory):
     import torch
 
-    from mogo.export.evaluator import Evaluator, EvaluatorConfig, export_evaluator
-    from mogo.export.text_encoder import train_tokenizer
+    from mogo.export.models.evaluator import Evaluator, EvaluatorConfig, export_evaluator
+    from mogo.export.models.text_encoder import train_tokenizer
 
     captions = [c.split("#")[0] for p in (corpus / "texts").glob("*.txt")
                 for c in p.read_text().splitlines()]
@@ -47,7 +47,7 @@ def evaluator_folder(corpus, tmp_path_factory):
 
 def test_eval_prints_the_table_without_torch(corpus, evaluator_folder, tmp_path):
     result = tmp_path / "eval.json"
-    script = ("import sys\nfrom mogo.export.cli import main\n"
+    script = ("import sys\nfrom mogo.cli import main\n"
               f"code = main(['eval', '--data', {str(corpus)!r}, '--evaluator', "
               f"{str(evaluator_folder)!r}, '--limit', '32', '--repeats', '2', "
               f"{', '.join(map(repr, MM_ARGS))}, '--json', {str(result)!r}])\n"
@@ -150,7 +150,7 @@ def test_semantic_checks_pass_real_clips_and_fail_wrong_parameters(corpus):
 def test_semantic_measurements_on_a_turned_clip():
     """A rigid T-ish pose facing +Z that walks 2 m along +X (its left) while turning 90
     degrees to its left."""
-    from mogo.runtime.skeleton import SKELETONS
+    from mogo.motion.skeleton import SKELETONS
 
     offsets = np.zeros((22, 3))
     names = SKELETONS["humanml3d"].joint_names
@@ -169,7 +169,7 @@ def test_semantic_measurements_on_a_turned_clip():
 
 
 def test_quality_report(corpus, evaluator_folder, tmp_path, monkeypatch, capsys):
-    from mogo.bench import quality_report
+    from mogo.bench.quality import quality_report
 
     replay_real_clips(monkeypatch, SplitReader(corpus))
     (tmp_path / "ablation.md").write_text("| variant | MPJPE (mm) |\n|---|---|\n"
@@ -190,7 +190,7 @@ def test_quality_report(corpus, evaluator_folder, tmp_path, monkeypatch, capsys)
 def test_vq_reconstruction_writes_gifs_and_a_contact_sheet(corpus, tmp_path, monkeypatch, capsys):
     from PIL import Image
 
-    from mogo.bench import vq_reconstruction
+    from mogo.bench.quality import vq_reconstruction
 
     out = tmp_path / "recon"
     monkeypatch.setattr(sys, "argv", ["vq_reconstruction", "--data", str(corpus), "--out",
@@ -209,7 +209,7 @@ def test_vq_reconstruction_writes_gifs_and_a_contact_sheet(corpus, tmp_path, mon
 
 
 def test_vq_report_splits_the_error_of_the_shipped_vq(corpus, monkeypatch, capsys):
-    from mogo.bench import vq_report
+    from mogo.bench.quality import vq_report
 
     real = SplitReader(corpus).features(SplitReader(corpus).ids[0])
     assert vq_report.clip_errors(real, real) == (0.0, 0.0, 0.0)

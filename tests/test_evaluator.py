@@ -3,13 +3,13 @@ import pytest
 import torch
 
 from conftest import interrupt_after_step, records
-from mogo.bench.evaluator import OnnxEvaluator, TextMotionEvaluator
-from mogo.export import train_evaluator
-from mogo.export.cli import main
-from mogo.export.dataset import HumanML3DFolder
-from mogo.export.evaluator import Evaluator, EvaluatorConfig
-from mogo.export.text_encoder import encode_captions
-from mogo.export.training import load_checkpoint
+from mogo.bench.quality.evaluator import OnnxEvaluator, TextMotionEvaluator
+from mogo.export.train import train_evaluator
+from mogo.cli import main
+from mogo.export.train.datasets import HumanML3DFolder
+from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
+from mogo.export.models.text_encoder import encode_captions
+from mogo.export.train.training import load_checkpoint
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -11,16 +11,16 @@ from conftest import make_tiny_humanml3d
 import onnx
 from onnx import numpy_helper
 
-from mogo.export.bundle import _quantize_levels, write_manifest
-from mogo.export.cli import main
-from mogo.export.generate_torch import generate
-from mogo.export.onnx_vq import vq_from_bundle
-from mogo.export.text_encoder import encode_captions
-from mogo.export.train_t2m import load_t2m
-from mogo.export.train_vq import load_vq
-from mogo.export.training import load_checkpoint
-from mogo.runtime.bundle import file_sha256
-from mogo.runtime.generator import MotionGenerator
+from mogo.export.onnx.bundle import _quantize_levels, write_manifest
+from mogo.cli import main
+from mogo.export.models.generate_torch import generate
+from mogo.export.onnx.vq_graphs import vq_from_bundle
+from mogo.export.models.text_encoder import encode_captions
+from mogo.export.train.train_t2m import load_t2m
+from mogo.export.train.train_vq import load_vq
+from mogo.export.train.training import load_checkpoint
+from mogo.bundle import file_sha256
+from mogo.generator import MotionGenerator
 
 PROMPT = "a person walks forward."
 

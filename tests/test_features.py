@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
-from mogo.runtime.features import (JointStream, canonicalize, facing_directions,
+from mogo.motion.features import (JointStream, canonicalize, facing_directions,
                                    features_to_joints, joints_to_features)
-from mogo.runtime.mirror import mirror_joints, mirror_text
-from mogo.runtime.quaternion import qrot, qyaw
-from mogo.runtime.skeleton import KIT_21, SMPL_22
+from mogo.motion.mirror import mirror_joints, mirror_text
+from mogo.motion.quaternion import qrot, qyaw
+from mogo.motion.skeleton import KIT_21, SMPL_22
 
 
 def rest_pose(skeleton):

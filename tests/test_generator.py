@@ -11,8 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from mogo.runtime.bundle import BundleError
-from mogo.runtime.generator import DEFAULT_BUNDLE, STREAM_DECODE_EVERY, MotionGenerator
+from mogo.bundle import BundleError
+from mogo.generator import DEFAULT_BUNDLE, STREAM_DECODE_EVERY, MotionGenerator
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +44,7 @@ def test_same_seed_same_tokens_also_in_another_process(generator):
     other = generator.generate("a person runs backward.", seconds=1, seed=8).tokens
     assert np.array_equal(tokens, again) and not np.array_equal(tokens, other)
     script = ("import hashlib, numpy as np\n"
-              "from mogo.runtime.generator import MotionGenerator\n"
+              "from mogo.generator import MotionGenerator\n"
               "t = MotionGenerator.load().generate('a person runs backward.', seconds=1, seed=7)"
               ".tokens\nprint(hashlib.sha256(np.ascontiguousarray(t).tobytes()).hexdigest())\n")
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
@@ -214,7 +214,7 @@ def test_a_corrupted_or_missing_bundle_is_refused_naming_the_file(tmp_path):
 
 def test_the_default_bundle_runs_with_torch_unimportable(run_without_torch):
     result = run_without_torch(
-        "from mogo.runtime.generator import MotionGenerator\n"
+        "from mogo.generator import MotionGenerator\n"
         "motion = MotionGenerator.load().generate('a person waves.', seconds=1, seed=0)\n"
         "print(motion.joints.shape)\n")
     assert result.returncode == 0, result.stderr

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from mogo.export import metrics
+from mogo.export.data import metrics
 
 
 def gaussian(rng, n, mean, std):

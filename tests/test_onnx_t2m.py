@@ -5,14 +5,14 @@ import onnx
 import pytest
 import torch
 
-from mogo.export.generate_torch import generate, step_inputs
-from mogo.export.onnx_t2m import OPSET, export_level, export_text_encoder
-from mogo.export.t2m import T2M, T2MConfig
-from mogo.export.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig, encode_captions,
+from mogo.export.models.generate_torch import generate, step_inputs
+from mogo.export.onnx.t2m_graphs import OPSET, export_level, export_text_encoder
+from mogo.export.models.t2m import T2M, T2MConfig
+from mogo.export.models.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig, encode_captions,
                                       train_tokenizer)
-from mogo.runtime.sampling import Sampling, choose_token, make_rng, step_uniforms
-from mogo.runtime._session import cpu_session
-from mogo.runtime.token_generator import TokenGenerator, balanced_groups
+from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
+from mogo._session import cpu_session
+from mogo.token_generator import TokenGenerator, balanced_groups
 
 SAMPLED = dict(temperature=1.0, top_k=6, top_p=0.9)
 GUIDED = dict(temperature=0.8, guidance_scale=2.5)

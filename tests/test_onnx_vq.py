@@ -7,11 +7,11 @@ import onnx
 import pytest
 import torch
 
-from mogo.export.onnx_t2m import OPSET
-from mogo.export.onnx_vq import export_vq_decoder, export_vq_encoder
-from mogo.export.vq import MoSAVQ, VQConfig, decoder_receptive_field
-from mogo.runtime._session import cpu_session
-from mogo.runtime.stream_decoder import StreamingDecoder
+from mogo.export.onnx.t2m_graphs import OPSET
+from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder
+from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
+from mogo._session import cpu_session
+from mogo.stream_decoder import StreamingDecoder
 
 VARIANTS = {"down1": dict(down_factor=1), "down2": dict(down_factor=2),
             "causal1": dict(causal=True), "causal2": dict(causal=True, down_factor=2)}

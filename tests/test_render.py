@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from mogo.export.cli import main
-from mogo.runtime.render import render_frames, save_gif
-from mogo.runtime.skeleton import KIT_21, SMPL_22
+from mogo.cli import main
+from mogo.motion.render import render_frames, save_gif
+from mogo.motion.skeleton import KIT_21, SMPL_22
 
 from test_features import travelling_clip
 

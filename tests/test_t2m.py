@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 import torch
 
-from mogo.export.generate_torch import generate
-from mogo.export.t2m import T2M, RelativeAttention, T2MConfig, corrupt_tokens
-from mogo.runtime.sampling import (Sampling, choose_token, choose_tokens, make_rng,
+from mogo.export.models.generate_torch import generate
+from mogo.export.models.t2m import T2M, RelativeAttention, T2MConfig, corrupt_tokens
+from mogo.sampling import (Sampling, choose_token, choose_tokens, make_rng,
                                    step_uniforms)
 
 B, T = 2, 12
@@ -211,7 +211,7 @@ def test_generate_needs_eval_mode(model):
         generate(model.train(), torch.randn(model.config.text_dim), num_frames=2)
 
 
-# The numpy sampler (mogo.runtime.sampling), shared with the CPU runtime.
+# The numpy sampler (mogo.sampling), shared with the CPU runtime.
 
 PROBS = np.array([0.15, 0.5, 0.05, 0.3])  # sorted: ids 1, 3, 0, 2; cumulative .5 .8 .95 1
 LOGITS = np.log(PROBS) + 3.0

@@ -3,8 +3,8 @@ import pytest
 import torch
 from tokenizers import Tokenizer
 
-from mogo.export.t2m import T2M, T2MConfig
-from mogo.export.text_encoder import (PAD_ID, SPECIAL_TOKENS, SmallTextEncoder,
+from mogo.export.models.t2m import T2M, T2MConfig
+from mogo.export.models.text_encoder import (PAD_ID, SPECIAL_TOKENS, SmallTextEncoder,
                                       SmallTextEncoderConfig, TextEncoder, encode_captions,
                                       train_tokenizer)
 

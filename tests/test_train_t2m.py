@@ -6,14 +6,14 @@ import pytest
 import torch
 
 from conftest import interrupt_after_step, mogo_on_two_gloo_processes, records
-from mogo.export import train_t2m
-from mogo.export.cli import main
-from mogo.export.dataset import HumanML3DFolder, MotionCropDataset
-from mogo.export.generate_torch import generate
-from mogo.export.t2m import T2MConfig
-from mogo.export.text_encoder import encode_captions
-from mogo.export.training import load_checkpoint, save_checkpoint
-from mogo.export.vq import MoSAVQ, VQConfig
+from mogo.export.train import train_t2m
+from mogo.cli import main
+from mogo.export.train.datasets import HumanML3DFolder, MotionCropDataset
+from mogo.export.models.generate_torch import generate
+from mogo.export.models.t2m import T2MConfig
+from mogo.export.models.text_encoder import encode_captions
+from mogo.export.train.training import load_checkpoint, save_checkpoint
+from mogo.export.models.vq import MoSAVQ, VQConfig
 
 TRAIN_SPANS, VAL_SPANS = 13, 4  # the tiny_humanml3d captions of at least 40 frames
 

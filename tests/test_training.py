@@ -5,7 +5,7 @@ import pytest
 import torch
 from torch import nn
 
-from mogo.export.training import (MetricsLog, Process, WeightAverage, batches, load_checkpoint,
+from mogo.export.train.training import (MetricsLog, Process, WeightAverage, batches, load_checkpoint,
                                   save_checkpoint, warmup_cosine)
 
 SINGLE = Process(rank=0, world_size=1, device=torch.device("cpu"))

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 import torch
 
-from mogo.export.motion_torch import features_to_joints as torch_features_to_joints
-from mogo.export.vq import (MoSAVQ, ResidualQuantizer, VQConfig, cross_covariance,
+from mogo.export.models.motion_torch import features_to_joints as torch_features_to_joints
+from mogo.export.models.vq import (MoSAVQ, ResidualQuantizer, VQConfig, cross_covariance,
                             decoder_receptive_field, reconstruction_metrics)
-from mogo.runtime.features import features_to_joints, joints_to_features
-from mogo.runtime.quaternion import qrot, qyaw
-from mogo.runtime.skeleton import SMPL_22
+from mogo.motion.features import features_to_joints, joints_to_features
+from mogo.motion.quaternion import qrot, qyaw
+from mogo.motion.skeleton import SMPL_22
 
 TINY = VQConfig.tiny()
 
@@ -305,7 +305,7 @@ def test_overfitting_one_batch_lowers_the_loss(motion):
 
 
 def test_metrics_of_clips_batched_by_length_equal_those_clip_by_clip():
-    from mogo.export.train_vq import clip_batches
+    from mogo.export.train.train_vq import clip_batches
     torch.manual_seed(0)
     model = MoSAVQ(TINY).eval()
     clips = [0.3 * torch.randn(1, frames, TINY.feature_dim) for frames in (20, 20, 31, 20, 31, 40)]

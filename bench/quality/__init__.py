@@ -1,0 +1,1 @@
+"""Quality of a bundle: the evaluator, the standard metrics, semantic checks (no torch)."""

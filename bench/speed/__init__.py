@@ -1,0 +1,1 @@
+"""Latency and throughput: the runtime, one step on every backend, the hardware floor."""

@@ -1,0 +1,1 @@
+"""Reports on training runs: test-split metrics and the MoSA-VQ ablation (torch)."""

@@ -1,0 +1,1 @@
+"""The torch models: MoSA-VQ, RQHC-Transformer, text encoders, the evaluator."""

@@ -1,0 +1,1 @@
+"""Trained models -> ONNX graphs and bundles (torch + onnx)."""

@@ -1,0 +1,290 @@
+"""`mogo export`: trained models -> a bundle folder the torch-free runtime loads.
+
+The manifest (format in mogo.bundle) holds everything the runtime needs to know about
+the model: sizes, graph input/output names, fps, skeleton, normalisation files, the decoder's
+context, sampling defaults, how it was trained, and each file's size and sha256.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from onnx import numpy_helper
+from tokenizers import Tokenizer
+
+from mogo.export.onnx.t2m_graphs import export_level, export_text_encoder
+from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder, random_ids
+from mogo.export.models.t2m import T2M
+from mogo.bundle import FORMAT, FORMAT_VERSION, MANIFEST, Bundle, file_sha256
+from mogo.sampling import Sampling
+from mogo.token_generator import TokenGenerator
+
+INT8_MIN_AGREEMENT = 0.98  # share of greedy tokens int8 must keep to replace fp32
+CHECK_STEPS = 40  # steps of each check prompt
+CHECK_PROMPTS = 16  # distinct val captions the int8 check generates from
+DEFAULTS = dict(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=128, max_seconds=9.8)
+
+
+
+def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) -> dict:
+    """`mogo export`: the trained runs (their best.pt) -> a bundle folder; returns the manifest."""
+    from mogo.export.train.train_t2m import load_t2m, read_tokens, t2m_checkpoint
+    from mogo.export.train.train_vq import load_vq, tokens_sha256, vq_checkpoint
+    from mogo.export.train.training import load_checkpoint
+    from mogo.motion.skeleton import skeleton_for_feature_dim
+
+    vq = load_vq(vq_run)
+    t2m, text_encoder, tokenizer = load_t2m(t2m_run)
+    vq_state = load_checkpoint(vq_checkpoint(vq_run))
+    t2m_state = load_checkpoint(t2m_checkpoint(t2m_run))
+    if t2m_state["config"]["vq"]["sha256"] != tokens_sha256(vq_state, vq_checkpoint(vq_run)):
+        raise ValueError(f"{t2m_run} was trained on the tokens of another VQ checkpoint than "
+                         f"{vq_checkpoint(vq_run)}")
+    skeleton = skeleton_for_feature_dim(vq.config.feature_dim)
+    captions = dict.fromkeys(str(c) for c in read_tokens(Path(t2m_run) / "tokens" / "val.npz")
+                             ["captions"])
+    provenance = dict(
+        vq=_vq_provenance(vq_state),
+        t2m=dict(step=t2m_state["step"], recipe=t2m_state["config"]["recipe"],
+                 data=t2m_state["config"]["data"],
+                 best_val_loss=t2m_state.get("best_val_loss")))
+    return write_bundle(Path(out), vq=vq, t2m=t2m, text_encoder=text_encoder,
+                        tokenizer=tokenizer, fps=skeleton.fps, skeleton=skeleton.name,
+                        provenance=provenance, check_prompts=list(captions)[:CHECK_PROMPTS],
+                        int8=int8)
+
+
+def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> dict:
+    """`mogo export --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of RUN, for a
+    decoder fine-tune of OLD's own VQ (`mogo train vq --init OLD --tune decoder`), which needs
+    none of OLD's training runs. Every other file is copied byte for byte, so RUN's encoder
+    must give OLD's tokens (checked through OLD's encoder graph) and RUN must share OLD's
+    normalisation: that is what OLD's level graphs were trained on. Returns the manifest."""
+    from mogo.export.onnx.vq_graphs import MIN_TOKEN_AGREEMENT, token_agreement
+    from mogo.export.train.train_vq import load_vq, vq_checkpoint
+    from mogo.export.train.training import load_checkpoint
+
+    old = Bundle.load(bundle_dir)
+    vq = load_vq(vq_run)
+    if asdict(vq.config) != old.manifest["vq"]["config"]:
+        raise ValueError(f"{vq_run} is another VQ model than {bundle_dir}'s (its config differs)")
+    if not (np.array_equal(vq.mean.numpy(), old.mean) and np.array_equal(vq.std.numpy(), old.std)):
+        raise ValueError(f"{vq_run} normalises with other statistics than {bundle_dir} (trained "
+                         "on other data?)")
+    agreement = token_agreement(vq, old)
+    if agreement < MIN_TOKEN_AGREEMENT:
+        raise ValueError(f"{vq_run}'s encoder gives other tokens than {bundle_dir}'s (agreement "
+                         f"{agreement:.1%}): only a decoder fine-tune of the bundle's VQ fits its "
+                         "level graphs")
+    out = _new_folder(out)
+    manifest = json.loads(json.dumps(old.manifest))
+    decoder = manifest["vq"]["decoder"]["file"]
+    for name in manifest.pop("files"):
+        if name != decoder:
+            shutil.copy2(old.path(name), out / name)
+    manifest["vq"]["decoder"] = dict(file=decoder, **export_vq_decoder(vq, out / decoder))
+    codes = _check_codes(vq)
+    before, after = _outputs_before_and_after_fp16(out / decoder, {"ids": codes.numpy()})
+    storage = manifest.setdefault("fp16_storage", dict(files=[]))
+    storage["files"] = sorted(set(storage["files"]) | {decoder})
+    storage["vq_decoder_feature_max_abs_difference"] = float(np.abs(before - after).max())
+    manifest["training"]["vq"] = dict(_vq_provenance(load_checkpoint(vq_checkpoint(vq_run))),
+                                      token_agreement_with_bundle=agreement)
+    write_manifest(out, manifest)
+    return manifest
+
+
+def _vq_provenance(state: dict) -> dict:
+    return dict(step=state["step"], recipe=state.get("recipe"), data=state.get("data"),
+                best_val_mpjpe_mm=state.get("best_val_mpjpe_mm"))
+
+
+def _new_folder(out: Path) -> Path:
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out} is not empty; choose a new folder for the bundle")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def write_bundle(out: Path, *, vq, t2m: T2M, text_encoder, tokenizer: Tokenizer, fps: float,
+                 skeleton: str, provenance: dict, check_prompts: list[str],
+                 int8: bool = False, defaults: dict | None = None) -> dict:
+    """Export every graph into the new folder `out` and write its manifest; returns it.
+    With `int8`, the level graphs are quantised and kept only if greedy tokens on
+    `check_prompts` agree with fp32 on at least INT8_MIN_AGREEMENT of steps (measured either
+    way and written into the manifest)."""
+    out = _new_folder(out)
+    tokenizer.save(str(out / "tokenizer.json"))
+    max_length = tokenizer.truncation["max_length"]
+    text = dict(file="text_encoder.onnx", tokenizer="tokenizer.json", max_length=max_length,
+                embedding_dim=text_encoder.output_dim, kind=type(text_encoder).__name__,
+                encoder=dict(file="text_encoder.onnx",
+                             **export_text_encoder(text_encoder, out / "text_encoder.onnx",
+                                                   max_length)))
+    del text["file"]
+    config = t2m.config
+    levels = [dict(file=f"level_{level}.onnx",
+                   **export_level(t2m, level, out / f"level_{level}.onnx"))
+              for level in range(config.num_levels)]
+    vq_encoder = export_vq_encoder(vq, out / "vq_encoder.onnx")
+    vq_decoder = export_vq_decoder(vq, out / "vq_decoder.onnx")
+    np.save(out / "mean.npy", vq.mean.detach().cpu().numpy().astype(np.float32))
+    np.save(out / "std.npy", vq.std.detach().cpu().numpy().astype(np.float32))
+
+    manifest = dict(
+        format=FORMAT, format_version=FORMAT_VERSION,
+        fps=fps, skeleton=skeleton, feature_dim=vq.config.feature_dim,
+        normalization=dict(mean="mean.npy", std="std.npy"),
+        text=text,
+        t2m=dict(config=asdict(config), num_levels=config.num_levels,
+                 codebook_size=config.codebook_size, end_token=config.end_token, levels=levels),
+        vq=dict(config=asdict(vq.config), levels=vq.config.levels,
+                codebook_size=vq.config.codebook_size, down_factor=vq.config.down_factor,
+                encoder=dict(file="vq_encoder.onnx", **vq_encoder),
+                decoder=dict(file="vq_decoder.onnx", **vq_decoder)),
+        defaults=dict(DEFAULTS, **(defaults or {})),
+        training=provenance,
+    )
+    if int8:
+        manifest["int8"] = _quantize_levels(out, levels, config.end_token, text_encoder,
+                                            tokenizer, check_prompts)
+    manifest["fp16_storage"] = _store_graphs_fp16(out, vq, text_encoder, tokenizer,
+                                                  check_prompts)
+    write_manifest(out, manifest)
+    return manifest
+
+
+def write_manifest(out: Path, manifest: dict) -> None:
+    """Add the size and sha256 of every file in `out` and write manifest.json."""
+    files = {p.name: dict(bytes=p.stat().st_size, sha256=file_sha256(p))
+             for p in sorted(out.iterdir()) if p.is_file() and p.name != MANIFEST}
+    manifest["files"] = files
+    (out / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
+
+
+FP16_MIN_ELEMENTS = 1024  # smaller tensors (biases, norms) stay fp32
+
+
+def store_weights_fp16(path: Path) -> None:
+    """Keep the graph's large fp32 weights as fp16 in the file, each cast back to fp32 by a
+    Cast node: onnxruntime folds those casts when it creates the session, so compute stays
+    fp32 and the file is half the size."""
+    model = onnx.load(path)
+    casts = []
+    for weight in model.graph.initializer:
+        if weight.data_type != onnx.TensorProto.FLOAT or np.prod(weight.dims) < FP16_MIN_ELEMENTS:
+            continue
+        name = weight.name
+        half = numpy_helper.from_array(numpy_helper.to_array(weight).astype(np.float16),
+                                       f"{name}_fp16")
+        weight.CopyFrom(half)
+        casts.append(onnx.helper.make_node("Cast", [half.name], [name], to=onnx.TensorProto.FLOAT))
+    for cast in reversed(casts):
+        model.graph.node.insert(0, cast)
+    onnx.save(model, path)
+
+
+@torch.no_grad()
+def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
+                       prompts: list[str]) -> dict:
+    """fp16 storage (`store_weights_fp16`) for the text encoder and the VQ encoder and decoder,
+    measured against fp32: the largest prompt-embedding difference on the check prompts, VQ
+    token agreement on features decoded from random tokens, and the largest difference of
+    those decoded features (normalised units). Compute stays fp32 (the casts are folded when
+    the session is made), so decoding speed is unchanged (measured: onnxruntime 1.32). The
+    level graphs are int8 or fp32 (see `_quantize_levels`)."""
+    encoded = tokenizer.encode_batch(prompts or ["a person walks forward."])
+    ids = np.array([e.ids for e in encoded], np.int64)
+    mask = np.array([e.attention_mask for e in encoded], np.int64)
+    codes = _check_codes(vq)
+    features = vq.eval().decode(codes).numpy()
+    feeds = {"text_encoder.onnx": {"token_ids": ids, "attention_mask": mask},
+             "vq_encoder.onnx": {"features": features},
+             "vq_decoder.onnx": {"ids": codes.numpy()}}
+    before, after = {}, {}
+    for name, feed in feeds.items():
+        before[name], after[name] = _outputs_before_and_after_fp16(out / name, feed)
+
+    def largest_difference(name: str) -> float:
+        return float(np.abs(before[name] - after[name]).max())
+
+    agreement = np.mean(before["vq_encoder.onnx"] == after["vq_encoder.onnx"])
+    return dict(files=sorted(feeds),
+                prompt_embedding_max_abs_difference=largest_difference("text_encoder.onnx"),
+                vq_encoder_token_agreement=round(float(agreement), 4),
+                vq_decoder_feature_max_abs_difference=largest_difference("vq_decoder.onnx"))
+
+
+def _check_codes(vq) -> torch.Tensor:
+    """The token ids (4, 60, L) that the fp16 storage check decodes."""
+    return random_ids(vq.config, 4, 60, seed=0)
+
+
+def _outputs_before_and_after_fp16(path: Path, feed: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's first output on `feed`, then `store_weights_fp16` on it, then the output
+    again."""
+    from mogo._session import cpu_session
+
+    before = cpu_session(path).run(None, feed)[0]
+    store_weights_fp16(path)
+    return before, cpu_session(path).run(None, feed)[0]
+
+
+def quantize_level_graph(source: Path, target: Path) -> None:
+    """The int8 scheme of a bundle's level graphs (see `_quantize_levels`), `source` -> `target`."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    prepared = target.with_name(f"pre_{target.name}")
+    quant_pre_process(str(source), str(prepared), skip_symbolic_shape=True)
+    quantize_dynamic(prepared, target, op_types_to_quantize=["MatMul", "Gather"],
+                     weight_type=QuantType.QUInt8)
+    prepared.unlink()
+
+
+@torch.no_grad()
+def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder,
+                     tokenizer: Tokenizer, prompts: list[str]) -> dict:
+    """Dynamic int8 (QUInt8 weights of the MatMuls, the setting that kept accuracy on a CPU
+    without VNNI, design/onnx-notes.md, and of the token-embedding Gathers, which each level
+    graph holds its own copy of) of every level graph, checked by token agreement:
+    at every step of fp32's greedy stream, does int8 pick the same tokens given the same
+    past (teacher-forced, so one early difference does not count twice)? The quantised graphs
+    replace the fp32 ones only if they pass."""
+    if not prompts:
+        raise ValueError("the int8 accuracy check needs at least one prompt")
+    staging = out / "int8"
+    staging.mkdir()
+    for level in levels:
+        quantize_level_graph(out / level["file"], staging / level["file"])
+    encoded = tokenizer.encode_batch(prompts)
+    ids = torch.tensor([e.ids for e in encoded])
+    mask = torch.tensor([e.attention_mask for e in encoded])
+    embeddings = text_encoder.encode(ids, mask).numpy()
+    fp32 = TokenGenerator([out / l["file"] for l in levels], levels, end_token)
+    quantised = TokenGenerator([staging / l["file"] for l in levels], levels, end_token)
+    greedy = Sampling(temperature=0.0)
+    same = total = 0
+    for embedding in embeddings:
+        reference = fp32.generate(embedding, num_frames=CHECK_STEPS, sampling=greedy)
+        for n in range(CHECK_STEPS):  # int8's choice at step n given fp32's steps before it
+            stream = quantised.start(embedding, sampling=greedy, allow_end=False)
+            if n:
+                stream.continue_from(reference[:n])
+            same += int(np.sum(stream.step() == reference[n]))
+            total += reference.shape[1]
+    agreement = same / total
+    used = agreement >= INT8_MIN_AGREEMENT
+    if used:
+        for level in levels:
+            shutil.move(staging / level["file"], out / level["file"])
+    shutil.rmtree(staging)
+    return dict(used=used, greedy_token_agreement=round(agreement, 4),
+                threshold=INT8_MIN_AGREEMENT, prompts=len(prompts), steps_per_prompt=CHECK_STEPS,
+                scheme="dynamic QUInt8 weights of MatMul and Gather (token embeddings)")

@@ -1,0 +1,209 @@
+"""ONNX export of the MoSA-VQ encoder and decoder (mogo.export.models.vq) for the runtime:
+
+    encoder  features (batch, frames, D) f32, normalised  ->  ids (batch, tokens, L) i64
+    decoder  ids (batch, tokens, L) i64  ->  features (batch, tokens * down_factor, D) f32
+
+Batch, frames and tokens are dynamic. tokens = ceil(frames / down_factor): a clip whose length
+is not a multiple of down_factor is padded by repeating its last frame (the pose held) to whole
+tokens, in the graph and in torch alike (`EncodeIds`; MoSAVQ.encode itself wants whole tokens),
+and decodes to tokens * down_factor frames, which a caller cuts back to its length.
+
+Exporter: torch.export (dynamo) at opset 20 through `export_module`, as for the transformer
+(mogo.export.onnx.t2m_graphs, design/onnx-notes.md), so that one exporter writes the whole bundle; the
+legacy TorchScript exporter is deprecated. The nearest-code search exports as MatMul + ArgMin,
+whose ties go to the first index as torch.argmin's do, and the code lookups as Gather, all plain
+ops: onnxruntime gives the same ids as torch (tests/test_onnx_vq.py). The examples are 2 or more
+long on every dynamic axis, since the exporter silently fixes an axis traced with size 0 or 1.
+
+The decoder's entry also carries its receptive field in tokens (`decoder_context`), which the
+streaming decoder (mogo.stream_decoder) needs to know when a frame is final.
+
+`vq_from_bundle` goes the other way: a bundle's two graphs back into a MoSAVQ, so that a
+shipped model can be fine-tuned when its training checkpoints are gone (`mogo train vq --init
+BUNDLE --tune decoder`). The weights keep their torch names in the graphs (with `_fp16` where
+the bundle stores them in fp16, read back as the fp32 values the graphs compute with); the
+codebooks and the per-level scale and bias are folded into constants, found by the structure
+of the decoder's dequantisation. The model is checked against the graphs before it is
+returned.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import onnx
+import torch
+from onnx import numpy_helper
+from torch import Tensor, nn
+from torch.export import Dim
+
+from mogo.export.onnx.t2m_graphs import export_module
+from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
+from mogo._session import cpu_session
+from mogo.bundle import Bundle
+
+IMPORT_MAX_DIFFERENCE = 1e-4  # decoded features, torch against the bundle's decoder graph
+MIN_TOKEN_AGREEMENT = 0.99  # ids, torch against the bundle's encoder graph
+
+
+class EncodeIds(nn.Module):
+    """`MoSAVQ.encode` for any number of frames: padded to whole tokens with the last frame."""
+
+    def __init__(self, model: MoSAVQ):
+        super().__init__()
+        self.model = model
+
+    def forward(self, features: Tensor) -> Tensor:
+        down = self.model.config.down_factor
+        if down > 1:
+            frames = features.shape[1]
+            padded = (frames + down - 1) // down * down
+            features = features[:, torch.arange(padded).clamp(max=frames - 1)]
+        return self.model.encode(features)
+
+
+class DecodeIds(nn.Module):
+    """`MoSAVQ.decode` as a module, for export."""
+
+    def __init__(self, model: MoSAVQ):
+        super().__init__()
+        self.model = model
+
+    def forward(self, ids: Tensor) -> Tensor:
+        return self.model.decode(ids)
+
+
+def decoder_context(model: MoSAVQ) -> dict:
+    """The decoder's receptive field in tokens: the frames of token t depend on tokens
+    t - left_context .. t + lookahead (what the streaming decoder is built with)."""
+    left_context, lookahead = decoder_receptive_field(model.config)
+    return dict(left_context=left_context, lookahead=lookahead)
+
+
+def export_vq_encoder(model: MoSAVQ, path: str | os.PathLike) -> dict:
+    """Write the encoder graph to `path`. Returns its input and output names and the sizes."""
+    c = model.config
+    features = torch.zeros(2, 3 * c.down_factor + 1, c.feature_dim)  # not whole tokens
+    names = dict(inputs=["features"], outputs=["ids"])
+    export_module(EncodeIds(model), (features,), path, names,
+                  ({0: Dim("batch"), 1: Dim("frames")},))
+    return dict(names, **_sizes(model))
+
+
+def export_vq_decoder(model: MoSAVQ, path: str | os.PathLike) -> dict:
+    """Write the decoder graph to `path`. Returns its input and output names, the sizes and
+    the receptive field (`decoder_context`)."""
+    ids = torch.zeros(2, 3, model.config.levels, dtype=torch.long)
+    names = dict(inputs=["ids"], outputs=["features"])
+    export_module(DecodeIds(model), (ids,), path, names, ({0: Dim("batch"), 1: Dim("tokens")},))
+    return dict(names, **_sizes(model), **decoder_context(model))
+
+
+def _sizes(model: MoSAVQ) -> dict:
+    c = model.config
+    return dict(levels=c.levels, codebook_size=c.codebook_size, down_factor=c.down_factor,
+                feature_dim=c.feature_dim)
+
+
+def vq_from_bundle(root: str | os.PathLike) -> MoSAVQ:
+    """The MoSA-VQ of a bundle (verified against its manifest) as a torch model in eval mode,
+    with the bundle's normalisation statistics; no EMA codebook statistics (a bundle holds
+    none), so it suits decoder fine-tuning, not training the codebooks on. Raises ValueError
+    when the graphs cannot be read back into the model exactly."""
+    bundle = Bundle.load(root)
+    entry = bundle.manifest["vq"]
+    model = MoSAVQ(VQConfig(**entry["config"]), bundle.mean, bundle.std)
+    state = model.state_dict()
+    graphs = {part: onnx.load(bundle.path(entry[part]["file"])).graph
+              for part in ("encoder", "decoder")}
+    weights = {}
+    for graph in graphs.values():
+        for tensor in graph.initializer:
+            name = tensor.name.removesuffix("_fp16").removeprefix("model.")
+            if name in state:
+                weights[name] = torch.from_numpy(numpy_helper.to_array(tensor).astype(np.float32))
+    missing = [name for name in state if name.startswith(("encoder.", "decoder."))
+               and name not in weights]
+    if missing:
+        raise ValueError(f"{bundle.root}: its VQ graphs lack {', '.join(missing[:3])}"
+                         f"{' ...' if len(missing) > 3 else ''} (not a mogo export?)")
+    quantizer = _dequantisation(graphs["decoder"])
+    codebook = quantizer["codebook"].reshape(state["quantizer.codebook"].shape)
+    weights["quantizer.codebook"] = codebook
+    weights["quantizer.scale"], weights["quantizer.bias"] = quantizer["scale"], quantizer["bias"]
+    weights["quantizer.ema_sum"] = codebook.clone()
+    weights["quantizer.ema_count"] = torch.ones(codebook.shape[:2])
+    weights["quantizer.initialized"] = torch.ones(len(codebook), dtype=torch.bool)
+    model.load_state_dict({**state, **weights})
+    _check_against_graphs(model.eval(), bundle)
+    return model
+
+
+def _dequantisation(graph: onnx.GraphProto) -> dict[str, Tensor]:
+    """The codebooks, W and b of the decoder's dequantisation, (codebook[ids] - b) / W, found
+    by structure: the Gather whose output a Sub takes (its subtrahend is b), whose output a Div
+    takes (its divisor is W). The exporter folds small constants under other names (the
+    codebooks of a small model become one (L*K, C) table), so names cannot be relied on."""
+    constants = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+    producers = {output: node for node in graph.node for output in node.output}
+    consumers = {}
+    for node in graph.node:
+        for name in node.input:
+            consumers.setdefault(name, []).append(node)
+
+    def value(name: str) -> np.ndarray:  # a constant, through the Casts and Reshapes on it
+        if name in constants:
+            return constants[name]
+        node = producers.get(name)
+        if node is not None and node.op_type == "Cast":
+            return value(node.input[0]).astype(np.float32)
+        if node is not None and node.op_type == "Reshape":
+            return value(node.input[0]).reshape(value(node.input[1]))
+        raise KeyError(name)
+
+    for gather in (n for n in graph.node if n.op_type == "Gather"):
+        sub = [n for n in consumers.get(gather.output[0], []) if n.op_type == "Sub"]
+        div = [n for n in consumers.get(sub[0].output[0], []) if n.op_type == "Div"] if sub else []
+        try:
+            found = dict(codebook=value(gather.input[0]), bias=value(sub[0].input[1]),
+                         scale=value(div[0].input[1])) if div else None
+        except KeyError:
+            found = None
+        if found is not None:
+            return {name: torch.from_numpy(array.astype(np.float32))
+                    for name, array in found.items()}
+    raise ValueError("the VQ decoder graph has no dequantisation (codebook[ids] - b) / W")
+
+
+def random_ids(config: VQConfig, batch: int, tokens: int, seed: int) -> Tensor:
+    """Seeded random token ids (batch, tokens, L): what the checks of exported VQ graphs feed."""
+    generator = torch.Generator().manual_seed(seed)
+    return torch.randint(config.codebook_size, (batch, tokens, config.levels), generator=generator)
+
+
+@torch.no_grad()
+def token_agreement(model: MoSAVQ, bundle: Bundle) -> float:
+    """The share of ids that the model's encoder and the bundle's encoder graph agree on, for
+    features decoded (by the model) from random ids: whether the bundle's level graphs, trained
+    on its tokens, fit the model's decoder."""
+    features = model.eval().decode(random_ids(model.config, 2, 48, seed=0))
+    entry = bundle.manifest["vq"]["encoder"]
+    graph_ids = cpu_session(bundle.path(entry["file"])).run(
+        None, {entry["inputs"][0]: features.numpy()})[0]
+    return float(np.mean(model.encode(features).numpy() == graph_ids))
+
+
+@torch.no_grad()
+def _check_against_graphs(model: MoSAVQ, bundle: Bundle) -> None:
+    """Random ids decoded, and what they decode to encoded, in torch and in the bundle's
+    graphs."""
+    entry = bundle.manifest["vq"]["decoder"]
+    ids = random_ids(model.config, 2, 48, seed=1)
+    graph_features = cpu_session(bundle.path(entry["file"])).run(
+        None, {entry["inputs"][0]: ids.numpy()})[0]
+    difference = float(np.abs(model.decode(ids).numpy() - graph_features).max())
+    agreement = token_agreement(model, bundle)
+    if difference > IMPORT_MAX_DIFFERENCE or agreement < MIN_TOKEN_AGREEMENT:
+        raise ValueError(f"{bundle.root}: its VQ graphs do not read back into the model "
+                         f"(decoded features differ by {difference:.2g}, token agreement "
+                         f"{agreement:.1%})")

@@ -1,0 +1,1 @@
+"""Training: the loop and the VQ, transformer and evaluator trainers (torch)."""

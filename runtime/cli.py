@@ -1,0 +1,251 @@
+"""The `mogo` command. The runtime's verbs (generate, stream, info) are here and import no
+torch; the verbs of mogo.export and mogo.bench (data, train, export, bench, eval) add
+themselves through the "mogo.commands" entry points, so this module never imports them."""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import sys
+from importlib.metadata import entry_points
+from pathlib import Path
+
+PLUGIN_GROUP = "mogo.commands"
+
+
+class CliError(Exception):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
+def require_torch() -> None:
+    """For verbs that need the training extra: a clear line instead of an ImportError."""
+    if importlib.util.find_spec("torch") is None:
+        raise CliError("this command needs the training extra: pip install 'mogo[train]'")
+
+
+def _load_generator(args: argparse.Namespace):
+    from mogo.generator import MotionGenerator
+
+    if args.threads is not None and args.threads < 1:
+        raise CliError(f"--threads must be at least 1, got {args.threads}")
+    threads = min(2, os.cpu_count() or 1) if args.threads is None else args.threads
+    return MotionGenerator.load(args.bundle, threads=threads)
+
+
+def _sampling_options(args: argparse.Namespace) -> dict:
+    return dict(temperature=args.temperature, top_k=args.top_k, top_p=args.top_p,
+                guidance=args.guidance)
+
+
+def _read_schedule(path: Path) -> list[tuple[str, float]]:
+    """Lines "SECONDS PROMPT" (blank lines and # comments skipped)."""
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as error:
+        raise CliError(f"cannot read the prompts file {path}: {error.strerror}") from None
+    schedule = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        seconds, _, prompt = line.strip().partition(" ")
+        try:
+            schedule.append((prompt.strip(), float(seconds)))
+        except ValueError:
+            raise CliError(f"{path}:{number}: expected 'SECONDS PROMPT', got {line.strip()!r}"
+                           ) from None
+    if not schedule:
+        raise CliError(f"{path}: no 'SECONDS PROMPT' lines")
+    return schedule
+
+
+def _file_stem(text: str) -> str:
+    words = "".join(c if c.isalnum() else " " for c in text.lower()).split()
+    return "_".join(words)[:48].rstrip("_") or "motion"
+
+
+def _aligner(args: argparse.Namespace, generator):
+    """--align rules|llm -> the aligner (the LLM falls back to the bundle's rules)."""
+    if args.align is None:
+        return False
+    rules = generator.aligner(True)
+    if args.align == "rules":
+        return rules
+    from mogo.llm_align import LLMAligner
+
+    return LLMAligner(args.llm_url, args.llm_model, timeout=args.llm_timeout, fallback=rules)
+
+
+def _cmd_generate(args: argparse.Namespace) -> None:
+    if args.prompts_file:
+        if args.text is not None or args.seconds is not None:
+            raise CliError("give either a prompt (with --seconds) or --prompts-file, not both")
+        if args.align:
+            raise CliError("--align rewrites one prompt; a --prompts-file is played as written")
+        schedule = _read_schedule(Path(args.prompts_file))
+    elif args.text is None:
+        raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
+    generator = _load_generator(args)
+    options = _sampling_options(args)
+    if args.prompts_file:
+        motion = generator.play(schedule, seed=args.seed, **options)
+    else:
+        motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
+                                    align=_aligner(args, generator), **options)
+    if motion.alignment is not None:
+        print(motion.alignment.describe())
+        if motion.alignment.note:
+            print(f"note: {motion.alignment.note}")
+    stem = Path(args.out) / (args.name or _file_stem(motion.caption))
+    written = [motion.save_bvh(stem.with_suffix(".bvh"),
+                               bone_translations=args.bvh_bone_translations),
+               motion.save_gif(stem.with_suffix(".gif")),
+               motion.save_npy(stem.with_suffix(".npy")),
+               motion.save_json(stem.with_suffix(".json"))]
+    print(f"{motion.seconds:.1f} s of motion ({len(motion.joints)} frames, seed {motion.seed}) "
+          f"for: {motion.caption}")
+    for path in written:
+        print(f"wrote {path}")
+
+
+def _cmd_stream(args: argparse.Namespace) -> None:
+    if args.frames is not None and args.frames < 1:
+        raise CliError(f"--frames must be at least 1, got {args.frames}")
+    generator = _load_generator(args)
+    stream = generator.stream(args.text, seed=args.seed, **_sampling_options(args))
+    try:
+        for index, frame in enumerate(stream.frames(args.frames)):
+            record = dict(frame=index, seconds=round(index / generator.fps, 4),
+                          joints=[[round(float(v), 5) for v in joint] for joint in frame])
+            sys.stdout.write(json.dumps(record, separators=(",", ":")) + "\n")
+            sys.stdout.flush()
+    except BrokenPipeError:  # the reading program stopped: a normal way to end a stream
+        sys.stdout = None
+
+
+def _cmd_info(args: argparse.Namespace) -> None:
+    from mogo.bundle import Bundle
+    from mogo.generator import DEFAULT_BUNDLE
+
+    bundle = Bundle.load(args.bundle or DEFAULT_BUNDLE)
+    m = bundle.manifest
+    t2m, vq, text = m["t2m"], m["vq"], m["text"]
+    config = t2m["config"]
+    decoder = vq["decoder"]
+    lines = [
+        f"bundle      {bundle.root}",
+        f"format      {m['format']} version {m['format_version']}",
+        f"motion      {m['skeleton']} skeleton, {m['feature_dim']}-dim features, {m['fps']:g} fps",
+        f"text        {text['kind']}, {text['embedding_dim']}-d prompt embedding, "
+        f"at most {text['max_length']} tokens",
+        f"transformer {t2m['num_levels']} levels, width {config['dim']}, layers "
+        f"{config['layers']}, heads {config['heads']}, {t2m['codebook_size']} codes + end token",
+        f"vq          {vq['levels']} levels of {vq['codebook_size']} codes, {vq['down_factor']} "
+        f"frame(s) per token, decoder context {decoder['left_context']} back / "
+        f"{decoder['lookahead']} ahead (tokens)",
+        "defaults    " + ", ".join(f"{k} {v}" for k, v in m.get("defaults", {}).items()),
+    ]
+    if "int8" in m:
+        check = m["int8"]
+        lines.append(f"int8        {'used' if check['used'] else 'not used'}: greedy token "
+                     f"agreement {check['greedy_token_agreement']:.1%} (threshold "
+                     f"{check['threshold']:.0%}), {check['scheme']}")
+    for part, info in m.get("training", {}).items():
+        recipe = info.get("recipe") or {}
+        tuned = (f", {'the decoder' if recipe.get('tune') == 'decoder' else 'all weights'} "
+                 f"fine-tuned from {recipe['init']}" if recipe.get("init") else "")
+        lines.append(f"trained     {part}: {info.get('step')} steps, batch "
+                     f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
+                     f"seed {recipe.get('seed')}{tuned}")
+    total = sum(entry["bytes"] for entry in m["files"].values())
+    lines.append(f"files       {len(m['files'])}, {total / 1e6:.1f} MB, sha256 verified")
+    lines += [f"  {name:20s} {entry['bytes'] / 1e6:8.2f} MB" for name, entry in m["files"].items()]
+    print("\n".join(lines))
+
+
+def _sampling_arguments(command: argparse.ArgumentParser) -> None:
+    command.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
+    command.add_argument("--seed", type=int, help="same seed, same motion (default: random, "
+                                                  "printed)")
+    command.add_argument("--temperature", type=float, help="0 = greedy (default: bundle's)")
+    command.add_argument("--top-k", type=int, help="0 = off (default: bundle's)")
+    command.add_argument("--top-p", type=float, help="1 = off (default: bundle's)")
+    command.add_argument("--guidance", type=float,
+                         help="classifier-free guidance scale, 1 = off (default: bundle's)")
+    command.add_argument("--threads", type=int,
+                         help="cores to use; the same motion for any count (default: 2 where "
+                              "there are 2 or more, the fastest measured)")
+
+
+def _add_runtime_commands(commands) -> None:
+    generate = commands.add_parser(
+        "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)")
+    generate.add_argument("text", nargs="?", help="what the person does")
+    generate.add_argument("--seconds", type=float,
+                          help="length (default: the model ends the motion itself)")
+    generate.add_argument("--prompts-file", help="a schedule instead of one prompt: lines "
+                                                 "'SECONDS PROMPT', played as one motion")
+    generate.add_argument("--out", default="out", help="output folder (default out/)")
+    generate.add_argument("--name", help="file name without extension (default: from the prompt)")
+    generate.add_argument("--bvh-bone-translations", action="store_true",
+                          help="position channels on every BVH joint: the joints back exactly, "
+                               "bone stretch included (default: a rigid skeleton, rotations only)")
+    generate.add_argument("--align", choices=["rules", "llm"],
+                          help="rewrite the prompt into caption-style steps played as one "
+                               "motion: built-in rules, or an LLM server (falls back to the "
+                               "rules; API key from MOGO_LLM_API_KEY)")
+    generate.add_argument("--llm-url", help="OpenAI-compatible server base URL, e.g. "
+                                            "http://localhost:8080/v1 (default: MOGO_LLM_URL)")
+    generate.add_argument("--llm-model", help="model name on that server (default: "
+                                              "MOGO_LLM_MODEL)")
+    generate.add_argument("--llm-timeout", type=float, default=10.0,
+                          help="seconds to wait for the LLM before using the rules (default 10)")
+    _sampling_arguments(generate)
+    generate.set_defaults(run=_cmd_generate)
+
+    stream = commands.add_parser(
+        "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)")
+    stream.add_argument("text", help="what the person does")
+    stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
+    _sampling_arguments(stream)
+    stream.set_defaults(run=_cmd_stream)
+
+    info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
+    info.add_argument("bundle", nargs="?", help="bundle folder")
+    info.set_defaults(run=_cmd_info)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mogo", description="MOGO: text to 3D human motion, token by token, on a CPU.")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_runtime_commands(commands)
+    for plugin in sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
+        plugin.load()(commands)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    status = _run(args)
+    if hasattr(args, "finish"):  # a verb that must end its process its own way
+        args.finish(status)
+    return status
+
+
+def _run(args: argparse.Namespace) -> int:
+    try:
+        args.run(args)
+    except CliError as error:
+        print(f"mogo: error: {error}", file=sys.stderr)
+        return 2
+    except (ValueError, FileNotFoundError, NotADirectoryError, PermissionError) as error:
+        print(f"mogo: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
