@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from mogo.export.models.motion_torch import features_to_joints as torch_features_to_joints
-from mogo.export.models.vq import (MoSAVQ, ResidualQuantizer, VQConfig, cross_covariance,
-                            decoder_receptive_field, reconstruction_metrics)
+from mogo.export.models.quantizer import ResidualQuantizer, cross_covariance
+from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field, reconstruction_metrics
 from mogo.motion.features import features_to_joints, joints_to_features
 from mogo.motion.quaternion import qrot, qyaw
 from mogo.motion.skeleton import SMPL_22
