@@ -16,8 +16,9 @@ import numpy as np
 
 from mogo.export.data.animator_body import FPS, Body, Track, pose_joints
 from mogo.export.data.animator_moves import (Place, bow, clap, idle, jump, jumping_jacks, kick,
-                                        locomotion, perform, punch, raise_arms, sit, squat,
-                                        stretch, turning, wave)
+                                             perform, punch, raise_arms, sit, squat, stretch,
+                                             wave)
+from mogo.export.data.animator_steps import locomotion, turning
 
 
 @dataclass(frozen=True)
