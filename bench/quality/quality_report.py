@@ -1,6 +1,6 @@
 """The quality report of a bundle (default: the shipped one), as markdown, in one command:
 
-    python -m mogo.bench.quality.quality_report --data DIR --evaluator RUN/evaluator --out bench/QUALITY.md
+    python -m mogo.bench.quality.quality_report --data DIR --evaluator RUN/evaluator --out docs/quality.md
 
 the metric table of `mogo eval`, the per-primitive semantic pass rates (mogo.bench.quality.semantic)
 for the real and the generated clips, and the MoSA-VQ ablation table that
@@ -56,7 +56,7 @@ def report(args: argparse.Namespace) -> str:
         f"Bundle `{args.bundle or DEFAULT_BUNDLE.name}`; test split of `{args.data}`; evaluator "
         f"{evaluator_line}.", "",
         "## Text-motion metrics", "",
-        "The protocol of Guo et al. (design/reference.md, section 3) with this project's own "
+        "The protocol of Guo et al. (docs/evaluation.md) with this project's own "
         "evaluator (mogo.export.models.evaluator: unit-length embeddings, so distances are on a "
         "different scale from papers using the HumanML3D evaluator; compare rows, not "
         "papers).", "",
