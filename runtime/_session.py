@@ -8,7 +8,7 @@ import onnxruntime as ort
 
 def cpu_session(path: str | os.PathLike, intra_op_threads: int = 1) -> ort.InferenceSession:
     """A CPU session whose thread pool does not spin between calls: spinning burns the core
-    the token sampler needs and makes latency erratic when it is busy (design/onnx-notes.md)."""
+    the token sampler needs and makes latency erratic when it is busy."""
     options = ort.SessionOptions()
     options.intra_op_num_threads = intra_op_threads
     options.inter_op_num_threads = 1

@@ -44,7 +44,7 @@ class MotionGenerator:
 
     `threads`: the cores one generation may use. The level graphs of a step then run in that
     many groups at once, each on one core (on 2 cores this beat onnxruntime's own threads for
-    every model size measured, bench/PERFORMANCE_NOTES.md); the other graphs get that many
+    every model size measured, docs/performance.md); the other graphs get that many
     intra-op threads. Tokens do not depend on it."""
 
     def __init__(self, bundle: Bundle, threads: int = 1):

@@ -1,5 +1,5 @@
 """`mogo eval BUNDLE --data DIR --evaluator DIR`: a bundle's text-to-motion quality on a test
-split, by the protocol every paper reports (design/reference.md, section 3), without torch.
+split, by the protocol every paper reports (docs/evaluation.md), without torch.
 
 Items are the test split's caption spans of 40..196 feature rows (cut to the first 196), the
 standard loaders' rule; `--limit N` takes a fixed random sample of N of them. For each item the

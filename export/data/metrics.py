@@ -1,6 +1,6 @@
 """The text-to-motion metrics of Guo et al. (2022), in numpy only, on evaluator embeddings.
 
-Every paper in the field reports these on the same protocol (design/reference.md, section 3):
+Every paper in the field reports these on the same protocol (docs/evaluation.md):
 Euclidean distances between embeddings; R-precision in shuffled batches of 32 (each caption
 ranks its own motion among the batch's 32, the 31 others being distractors); MM-Dist the mean
 distance of matched caption and motion; FID the Frechet distance of the two embedding

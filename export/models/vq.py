@@ -1,4 +1,4 @@
-"""MoSA-VQ: the motion scale-adaptive residual VQ-VAE of MOGO (design/reference.md, section 1).
+"""MoSA-VQ: the motion scale-adaptive residual VQ-VAE of MOGO (the paper, AAAI 2026).
 
     x (B, T, D) normalised -> Encoder -> z (B, T', C) -> ResidualQuantizer -> ids (B, T', L)
     ids -> dequantize -> z_hat (B, T', C) -> Decoder -> x_hat (B, T, D),     T = T' * down_factor

@@ -252,7 +252,7 @@ def quantize_level_graph(source: Path, target: Path) -> None:
 def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder,
                      tokenizer: Tokenizer, prompts: list[str]) -> dict:
     """Dynamic int8 (QUInt8 weights of the MatMuls, the setting that kept accuracy on a CPU
-    without VNNI, design/onnx-notes.md, and of the token-embedding Gathers, which each level
+    without VNNI, where QInt8 did not, and of the token-embedding Gathers, which each level
     graph holds its own copy of) of every level graph, checked by token agreement:
     at every step of fp32's greedy stream, does int8 pick the same tokens given the same
     past (teacher-forced, so one early difference does not count twice)? The quantised graphs

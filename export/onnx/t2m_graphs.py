@@ -1,7 +1,7 @@
 """ONNX export of the RQHC-Transformer (one graph per level) and of the text encoder.
 
 A level graph is `T2M.level_forward` with its cache spelled out as one input and one output per
-layer and tensor, the names onnxruntime-genai and HF Optimum use (design/onnx-notes.md):
+layer and tensor, the names onnxruntime-genai and HF Optimum use:
 
     inputs   prompt (batch, text_dim) f32, uncond (batch,) bool, token_ids (batch, seq, L) i64,
              positions (seq,) i64, past_positions (past,) i64,

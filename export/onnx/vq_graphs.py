@@ -9,7 +9,7 @@ tokens, in the graph and in torch alike (`EncodeIds`; MoSAVQ.encode itself wants
 and decodes to tokens * down_factor frames, which a caller cuts back to its length.
 
 Exporter: torch.export (dynamo) at opset 20 through `export_module`, as for the transformer
-(mogo.export.onnx.t2m_graphs, design/onnx-notes.md), so that one exporter writes the whole bundle; the
+(mogo.export.onnx.t2m_graphs), so that one exporter writes the whole bundle; the
 legacy TorchScript exporter is deprecated. The nearest-code search exports as MatMul + ArgMin,
 whose ties go to the first index as torch.argmin's do, and the code lookups as Gather, all plain
 ops: onnxruntime gives the same ids as torch (tests/test_onnx_vq.py). The examples are 2 or more
