@@ -20,6 +20,13 @@ MAY_IMPORT = {
     "mogo.motion": (("mogo.motion",), ()),
     "mogo": (("mogo",), LATER),
     "mogo.export": (("mogo",), ("mogo.bench",)),
+    # within export: data (numpy) < models (torch, and runs read back) < onnx < train < cli
+    "mogo.export.data": (("mogo",), ("mogo.bench", "mogo.export.models", "mogo.export.onnx",
+                                     "mogo.export.train", "mogo.export.cli")),
+    "mogo.export.models": (("mogo",), ("mogo.bench", "mogo.export.onnx", "mogo.export.train",
+                                       "mogo.export.cli")),
+    "mogo.export.onnx": (("mogo",), ("mogo.bench", "mogo.export.train", "mogo.export.cli")),
+    "mogo.export.train": (("mogo",), ("mogo.bench", "mogo.export.cli")),
     "mogo.bench": (("mogo",), ()),
     "mogo.bench.quality": (("mogo",), ("mogo.export.models", "mogo.export.train",
                                        "mogo.export.onnx", "mogo.bench.speed",
@@ -94,15 +101,22 @@ def test_runtime_loads_no_pickle():
                         f"{path.name}:{node.lineno} np.load without allow_pickle=False")
 
 
-def test_the_runtime_and_the_quality_bench_import_with_torch_unimportable(run_without_torch):
+def import_every_module_without_torch(run_without_torch, folders: list[Path]) -> None:
     modules = [package_of(p) + ("" if p.stem == "__init__" else f".{p.stem}")
-               for folder in (RUNTIME_DIR, ROOT / "bench" / "quality") for p in sources(folder)
-               if p.stem != "__main__"]
+               for folder in folders for p in sources(folder) if p.stem != "__main__"]
     result = run_without_torch(f"import importlib\nfor m in {modules!r}:\n"
                                "    importlib.import_module(m)\nprint('ok', len(sys.modules))\n",
                                block_export=False)
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("ok")
+
+
+def test_the_runtime_and_the_quality_bench_import_with_torch_unimportable(run_without_torch):
+    import_every_module_without_torch(run_without_torch, [RUNTIME_DIR, ROOT / "bench" / "quality"])
+
+
+def test_the_export_data_room_imports_with_torch_unimportable(run_without_torch):
+    import_every_module_without_torch(run_without_torch, [ROOT / "export" / "data"])
 
 
 def test_the_public_api_is_at_the_package_top(run_without_torch):

@@ -31,7 +31,8 @@ def corpus(tmp_path_factory):
 def evaluator_folder(corpus, tmp_path_factory):
     import torch
 
-    from mogo.export.models.evaluator import Evaluator, EvaluatorConfig, export_evaluator
+    from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
+    from mogo.export.onnx.evaluator_graphs import export_evaluator
     from mogo.export.models.text_encoder import train_tokenizer
 
     captions = [c.split("#")[0] for p in (corpus / "texts").glob("*.txt")

@@ -9,7 +9,7 @@ from mogo.cli import main
 from mogo.export.train.datasets import HumanML3DFolder
 from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
 from mogo.export.models.text_encoder import encode_captions
-from mogo.export.train.training import load_checkpoint
+from mogo.export.models.runs import load_checkpoint
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -16,9 +16,7 @@ from mogo.cli import main
 from mogo.export.models.generate_torch import generate
 from mogo.export.onnx.vq_graphs import vq_from_bundle
 from mogo.export.models.text_encoder import encode_captions
-from mogo.export.train.train_t2m import load_t2m
-from mogo.export.train.train_vq import load_vq
-from mogo.export.train.training import load_checkpoint
+from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
 from mogo.bundle import file_sha256
 from mogo.generator import MotionGenerator
 

@@ -12,7 +12,8 @@ from mogo.export.train.datasets import HumanML3DFolder, MotionCropDataset
 from mogo.export.models.generate_torch import generate
 from mogo.export.models.t2m import T2MConfig
 from mogo.export.models.text_encoder import encode_captions
-from mogo.export.train.training import load_checkpoint, save_checkpoint
+from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
+from mogo.export.train.training import save_checkpoint
 from mogo.export.models.vq import MoSAVQ, VQConfig
 
 TRAIN_SPANS, VAL_SPANS = 13, 4  # the tiny_humanml3d captions of at least 40 frames
@@ -61,7 +62,7 @@ def test_cli_trains_and_writes_the_run(tiny_humanml3d, vq_run, tmp_path):
     assert train_cache["offsets"][-1] == len(train_cache["tokens"])
     assert all(train_cache[name].dtype != object for name in train_cache.files)
 
-    t2m, text_encoder, tokenizer = train_t2m.load_t2m(run)
+    t2m, text_encoder, tokenizer = load_t2m(run)
     assert not t2m.training and not text_encoder.training
     with torch.no_grad():
         prompt = text_encoder.encode(*encode_captions(tokenizer, ["a person walks forward."]))
@@ -70,7 +71,7 @@ def test_cli_trains_and_writes_the_run(tiny_humanml3d, vq_run, tmp_path):
 
 def test_token_cache_is_reused_until_the_vq_changes(tiny_humanml3d, vq_run, tmp_path):
     folder = HumanML3DFolder(tiny_humanml3d)
-    vq = train_t2m.load_vq(vq_run)
+    vq = load_vq(vq_run)
     recipe = dict(train_t2m.T2M_RECIPE, preset="tiny")
     prepare = lambda sha: train_t2m._prepare(tmp_path, folder, vq, recipe, sha, fresh=False,
                                              device=torch.device("cpu"))

@@ -7,8 +7,7 @@ import torch
 
 from conftest import interrupt_after_step, mogo_on_two_gloo_processes, records
 from mogo.cli import main
-from mogo.export.train.train_vq import load_vq
-from mogo.export.train.training import load_checkpoint
+from mogo.export.models.runs import load_checkpoint, load_vq
 from mogo.bundle import file_sha256
 
 

@@ -5,8 +5,9 @@ import pytest
 import torch
 from torch import nn
 
-from mogo.export.train.training import (MetricsLog, Process, WeightAverage, batches, load_checkpoint,
-                                  save_checkpoint, warmup_cosine)
+from mogo.export.models.runs import load_checkpoint
+from mogo.export.train.training import (MetricsLog, Process, WeightAverage, batches,
+                                        save_checkpoint, warmup_cosine)
 
 SINGLE = Process(rank=0, world_size=1, device=torch.device("cpu"))
 

@@ -21,8 +21,8 @@ from pathlib import Path
 import torch
 
 from mogo.export.train.datasets import HumanML3DFolder
-from mogo.export.train.train_vq import clip_batches, load_vq, whole_clips
-from mogo.export.train.training import load_checkpoint
+from mogo.export.models.runs import load_checkpoint, load_vq
+from mogo.export.train.train_vq import clip_batches, whole_clips
 from mogo.export.models.vq import reconstruction_metrics
 
 VARIANTS = {  # name: extra `mogo train vq` arguments

@@ -250,3 +250,16 @@ def corrupt_tokens(tokens: Tensor, rate: float, codebook_size: int) -> Tensor:
     """Each id replaced, with probability `rate`, by a uniformly random one."""
     noise = torch.randint_like(tokens, codebook_size)
     return torch.where(torch.rand(tokens.shape, device=tokens.device) < rate, noise, tokens)
+
+
+class TextToMotion(nn.Module):
+    """Text encoder and T2M as one module: one DDP wrapper, one optimizer, one state_dict."""
+
+    def __init__(self, text_encoder: nn.Module, t2m: T2M):
+        super().__init__()
+        self.text_encoder, self.t2m = text_encoder, t2m
+
+    def forward(self, caption_ids: Tensor, caption_mask: Tensor, tokens: Tensor,
+                lengths: Tensor) -> tuple[Tensor, Tensor]:
+        """-> T2M.loss: (loss, per-level token accuracy (L,))."""
+        return self.t2m.loss(self.text_encoder.encode(caption_ids, caption_mask), tokens, lengths)

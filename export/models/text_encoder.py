@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, replace
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -146,3 +146,39 @@ class SmallTextEncoder(nn.Module):
         return (self.ln_f(x) * weights).sum(1) / weights.sum(1)
 
     encode = forward
+
+
+# -- the kinds of text encoder a run can train -----------------------------------------------
+
+@dataclass(frozen=True)
+class TextEncoderKind:
+    """One kind of encoder behind the `TextEncoder` seam, so the training loop never names a
+    class: make_tokenizer(preset, training captions) for a new run; make_config(preset, prompt
+    width the T2M takes, tokenizer) -> a plain dict saved in the checkpoint; build(config) -> the
+    module (weights come from the checkpoint, or it is trained from its initialisation)."""
+    make_tokenizer: Callable[[str, list[str]], Tokenizer]
+    make_config: Callable[[str, int, Tokenizer], dict]
+    build: Callable[[dict], nn.Module]
+
+
+SMALL_VOCAB = dict(tiny=100, cpu_default=4000, paper=8000)
+
+
+def _small_base(preset: str) -> SmallTextEncoderConfig:
+    return SmallTextEncoderConfig.tiny(0) if preset == "tiny" else SmallTextEncoderConfig(0)
+
+
+def _small_tokenizer(preset: str, captions: list[str]) -> Tokenizer:
+    return train_tokenizer(captions, SMALL_VOCAB[preset], _small_base(preset).max_length)
+
+
+def _small_config(preset: str, text_dim: int, tokenizer: Tokenizer) -> dict:
+    return asdict(replace(_small_base(preset), vocab_size=tokenizer.get_vocab_size(),
+                          width=text_dim))
+
+
+def _small_build(config: dict) -> nn.Module:
+    return SmallTextEncoder(SmallTextEncoderConfig(**config))
+
+
+TEXT_ENCODERS = dict(small=TextEncoderKind(_small_tokenizer, _small_config, _small_build))

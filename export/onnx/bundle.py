@@ -33,9 +33,8 @@ DEFAULTS = dict(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=128, m
 
 def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) -> dict:
     """`mogo export`: the trained runs (their best.pt) -> a bundle folder; returns the manifest."""
-    from mogo.export.train.train_t2m import load_t2m, read_tokens, t2m_checkpoint
-    from mogo.export.train.train_vq import load_vq, tokens_sha256, vq_checkpoint
-    from mogo.export.train.training import load_checkpoint
+    from mogo.export.models.runs import (load_checkpoint, load_t2m, load_vq, read_tokens,
+                                         t2m_checkpoint, tokens_sha256, vq_checkpoint)
     from mogo.motion.skeleton import skeleton_for_feature_dim
 
     vq = load_vq(vq_run)
@@ -66,8 +65,7 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> dict:
     must give OLD's tokens (checked through OLD's encoder graph) and RUN must share OLD's
     normalisation: that is what OLD's level graphs were trained on. Returns the manifest."""
     from mogo.export.onnx.vq_graphs import MIN_TOKEN_AGREEMENT, token_agreement
-    from mogo.export.train.train_vq import load_vq, vq_checkpoint
-    from mogo.export.train.training import load_checkpoint
+    from mogo.export.models.runs import load_checkpoint, load_vq, vq_checkpoint
 
     old = Bundle.load(bundle_dir)
     vq = load_vq(vq_run)

@@ -24,13 +24,15 @@ from torch import nn
 
 from mogo.export.data.metrics import R_PRECISION_BATCH, matching_score, r_precision
 from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, collate_text_motion
-from mogo.export.models.evaluator import Evaluator, EvaluatorConfig, export_evaluator
+from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
+from mogo.export.models.runs import load_checkpoint
+from mogo.export.onnx.evaluator_graphs import export_evaluator
 from mogo.export.train.recipes import EVALUATOR_RECIPE
 from mogo.export.models.text_encoder import encode_captions, train_tokenizer
 from mogo.export.train.train_t2m import make_optimizer
 from mogo.export.train.training import (Process, RunOptions, all_reduce_mean, batches, begin_step,
                                   end_process, finish_together, format_duration,
-                                  load_checkpoint, merge_recipe, previous_run,
+                                  merge_recipe, previous_run,
                                   resumed_metrics_log, save_checkpoint, seed_everything,
                                   start_process, steps_per_epoch, wrap_model)
 

@@ -33,16 +33,15 @@ from torch import Tensor, nn
 from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, _EpochSeeded
 from mogo.progress import Progress
 from mogo.export.train.recipes import T2M_RECIPE
-from mogo.export.models.t2m import T2M, T2MConfig
-from mogo.export.models.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig, encode_captions,
-                                      train_tokenizer)
+from mogo.export.models.runs import build_text_to_motion, load_vq, read_tokens, vq_checkpoint
+from mogo.export.models.t2m import T2MConfig, TextToMotion
+from mogo.export.models.text_encoder import TEXT_ENCODERS, encode_captions
 from mogo.export.train.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
                                   equal_length_groups, finish_together, format_duration,
-                                  load_checkpoint, merge_recipe, previous_run, resumed_metrics_log,
+                                  merge_recipe, previous_run, resumed_metrics_log,
                                   save_checkpoint, seed_everything, set_learning_rate,
                                   start_process, step_seed, steps_per_epoch, warmup_cosine,
                                   wrap_model)
-from mogo.export.train.train_vq import load_vq, vq_checkpoint
 from mogo.export.models.vq import MoSAVQ, VQConfig
 from mogo.bundle import file_sha256
 
@@ -54,86 +53,6 @@ TOKENIZE_BATCH = 128
 TOKENIZER = "tokenizer.json"
 PRESETS: dict[str, Callable[[], T2MConfig]] = dict(
     tiny=T2MConfig.tiny, cpu_default=T2MConfig.cpu_default, paper=T2MConfig.paper)
-
-
-# -- the VQ: the one place that knows how a VQ run is stored ---------------------------------
-
-# -- the text encoder seam ---------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class TextEncoderKind:
-    """One kind of encoder behind the `TextEncoder` seam, so the loop never names a class:
-    make_tokenizer(preset, training captions) for a new run; make_config(preset, prompt width
-    the T2M takes, tokenizer) -> a plain dict saved in the checkpoint; build(config) -> the
-    module (weights come from the checkpoint, or it is trained from its initialisation)."""
-    make_tokenizer: Callable[[str, list[str]], Tokenizer]
-    make_config: Callable[[str, int, Tokenizer], dict]
-    build: Callable[[dict], nn.Module]
-
-
-SMALL_VOCAB = dict(tiny=100, cpu_default=4000, paper=8000)
-
-
-def _small_base(preset: str) -> SmallTextEncoderConfig:
-    return SmallTextEncoderConfig.tiny(0) if preset == "tiny" else SmallTextEncoderConfig(0)
-
-
-def _small_tokenizer(preset: str, captions: list[str]) -> Tokenizer:
-    return train_tokenizer(captions, SMALL_VOCAB[preset], _small_base(preset).max_length)
-
-
-def _small_config(preset: str, text_dim: int, tokenizer: Tokenizer) -> dict:
-    return asdict(replace(_small_base(preset), vocab_size=tokenizer.get_vocab_size(),
-                          width=text_dim))
-
-
-def _small_build(config: dict) -> nn.Module:
-    return SmallTextEncoder(SmallTextEncoderConfig(**config))
-
-
-TEXT_ENCODERS = dict(small=TextEncoderKind(_small_tokenizer, _small_config, _small_build))
-
-
-class TextToMotion(nn.Module):
-    """Text encoder and T2M as one module: one DDP wrapper, one optimizer, one state_dict."""
-
-    def __init__(self, text_encoder: nn.Module, t2m: T2M):
-        super().__init__()
-        self.text_encoder, self.t2m = text_encoder, t2m
-
-    def forward(self, caption_ids: Tensor, caption_mask: Tensor, tokens: Tensor,
-                lengths: Tensor) -> tuple[Tensor, Tensor]:
-        """-> T2M.loss: (loss, per-level token accuracy (L,))."""
-        return self.t2m.loss(self.text_encoder.encode(caption_ids, caption_mask), tokens, lengths)
-
-
-def t2m_checkpoint(run_dir: str | Path) -> Path:
-    """A T2M run's best.pt if it has one, else its checkpoint.pt."""
-    run = Path(run_dir)
-    best = run / "best.pt"
-    return best if best.is_file() else run / "checkpoint.pt"
-
-
-def load_t2m(run_dir: str | Path) -> tuple[T2M, nn.Module, Tokenizer]:
-    """(T2M, text encoder, tokenizer) of a trained run, both models in eval mode."""
-    run = Path(run_dir)
-    path = t2m_checkpoint(run)
-    state = load_checkpoint(path)
-    config = state["config"]
-    if not {"t2m", "text_encoder", "tokenizer"} <= set(config):
-        raise ValueError(f"{path}: not a `mogo train t2m` checkpoint")
-    model = _build_model(config["text_encoder"], T2MConfig(**config["t2m"]))
-    model.load_state_dict(state["model"])
-    model.eval()
-    return model.t2m, model.text_encoder, Tokenizer.from_file(str(run / config["tokenizer"]))
-
-
-def _build_model(text_encoder: dict, t2m_config: T2MConfig) -> TextToMotion:
-    if text_encoder["kind"] not in TEXT_ENCODERS:
-        raise ValueError(f"unknown text encoder {text_encoder['kind']!r}; known: "
-                         f"{', '.join(TEXT_ENCODERS)}")
-    return TextToMotion(TEXT_ENCODERS[text_encoder["kind"]].build(text_encoder["config"]),
-                        T2M(t2m_config))
 
 
 # -- tokens ------------------------------------------------------------------------------------
@@ -167,11 +86,6 @@ def tokenize_split(folder: HumanML3DFolder, split: str, vq: MoSAVQ, key: dict,
                 span_end=np.array([s.end // down for s in spans.spans], dtype=np.int64),
                 captions=np.array([s.caption for s in spans.spans], dtype=str),
                 **{name: np.array(value) for name, value in key.items()})
-
-
-def read_tokens(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as arrays:
-        return {name: arrays[name] for name in arrays.files}
 
 
 def _cache_matches(path: Path, key: dict) -> bool:
@@ -327,7 +241,7 @@ def _train(out: Path, config: dict, state: dict | None, options: T2MTrainOptions
                                    config=kind.make_config(recipe["preset"], t2m_config.text_dim,
                                                            tokenizer)))
     seed_everything(seed)
-    model = _build_model(config["text_encoder"], t2m_config)
+    model = build_text_to_motion(config["text_encoder"], t2m_config)
     ddp = wrap_model(model, process)
     optimizer = make_optimizer(model, recipe["lr"])
     step, best = 0, math.inf

@@ -23,7 +23,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import torch
@@ -34,12 +34,12 @@ from mogo.export.train.datasets import (HumanML3DFolder, MotionCropDataset, Whol
 from mogo.export.train.recipes import VQ_MODEL_SWITCHES, VQ_RECIPE
 from mogo.export.train.training import (Process, RunOptions, WeightAverage, all_reduce_mean, batches,
                                   end_process, equal_length_groups, finish_together,
-                                  format_duration, load_checkpoint, merge_recipe, previous_run,
+                                  format_duration, merge_recipe, previous_run,
                                   resumed_metrics_log, save_checkpoint, seed_everything,
                                   set_learning_rate, start_process, step_seed, steps_per_epoch,
                                   warmup_cosine, wrap_model)
+from mogo.export.models.runs import read_vq_checkpoint, tokens_sha256, vq_checkpoint
 from mogo.export.models.vq import MoSAVQ, VQConfig, reconstruction_metrics
-from mogo.bundle import file_sha256
 
 PRESETS: dict[str, Callable[[], VQConfig]] = dict(
     tiny=VQConfig.tiny, cpu_default=VQConfig.cpu_default, paper=VQConfig.paper)
@@ -114,17 +114,6 @@ def train_vq(options: VQTrainOptions) -> None:
         end_process(process)
 
 
-def vq_checkpoint(run_dir: str | Path) -> Path:
-    """The VQ run's best.pt (lowest validation error) if it has one, else its checkpoint.pt."""
-    run = Path(run_dir)
-    if not run.is_dir():
-        raise FileNotFoundError(f"{run}: no such VQ run folder")
-    for name in ("best.pt", "checkpoint.pt"):
-        if (run / name).is_file():
-            return run / name
-    raise FileNotFoundError(f"{run}: no best.pt or checkpoint.pt (is it a `mogo train vq` run?)")
-
-
 def read_init(path: Path) -> tuple[dict, Path]:
     """What `--init` starts from, with its path: a VQ run's checkpoint, or a bundle's VQ read
     back from its graphs (`vq_from_bundle`). A bundle's tokens are named by the
@@ -148,21 +137,6 @@ def read_init(path: Path) -> tuple[dict, Path]:
                             tokens_sha256=tokens)), path
 
 
-def read_vq_checkpoint(path: Path) -> dict:
-    state = load_checkpoint(path)
-    if set(state.get("config", ())) != {f.name for f in fields(VQConfig)}:
-        raise ValueError(f"{path}: not a `mogo train vq` checkpoint")
-    return state
-
-
-def load_vq(run_dir: str | Path) -> MoSAVQ:
-    """The trained MoSA-VQ of a run, in eval mode (its own normalisation statistics inside)."""
-    state = read_vq_checkpoint(vq_checkpoint(run_dir))
-    model = MoSAVQ(VQConfig(**state["config"]))
-    model.load_state_dict(state["model"])
-    return model.eval()
-
-
 def _recipe_of_init(given: dict, init: dict, path: Path) -> dict:
     """A fine-tuning run keeps the model of the run it starts from: its preset and switches
     (a given switch that differs is refused); the training settings are the new run's."""
@@ -177,13 +151,6 @@ def _recipe_of_init(given: dict, init: dict, path: Path) -> dict:
     if given["tune"] == "decoder":
         recipe["tokens_sha256"] = tokens_sha256(init, path)
     return recipe
-
-
-def tokens_sha256(state: dict, path: Path) -> str:
-    """The sha256 of the checkpoint whose tokens the VQ checkpoint at `path` gives: its own, or
-    for a decoder fine-tune, that of the VQ it kept the encoder and codebooks of (so a T2M
-    trained on those tokens fits it)."""
-    return state.get("recipe", {}).get("tokens_sha256") or file_sha256(path)
 
 
 def _fine_tuning_state(init: dict, folder: HumanML3DFolder) -> dict:

@@ -23,7 +23,8 @@ import torch.distributed as dist
 from torch import nn
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 
-CHECKPOINT_FORMAT = 1
+from mogo.export.models.runs import CHECKPOINT_FORMAT, load_checkpoint
+
 GPU_LOADER_WORKERS = 3
 
 
@@ -222,20 +223,6 @@ def save_checkpoint(path: Path, model: nn.Module, optimizer: torch.optim.Optimiz
     partial = path.with_name(path.name + ".partial")
     torch.save(state, partial)
     os.replace(partial, path)
-
-
-def load_checkpoint(path: Path) -> dict:
-    """A checkpoint written by `save_checkpoint`, loaded without running any pickled code."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no checkpoint at {path}")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises several types for truncated or foreign files
-        raise ValueError(f"{path}: not a readable mogo checkpoint ({error})") from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: not a mogo checkpoint of format {CHECKPOINT_FORMAT}")
-    return state
 
 
 class MetricsLog:
