@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 from mogo.cli import CliError, require_torch
-from mogo.export.train.recipes import EVALUATOR_RECIPE, T2M_RECIPE, VQ_RECIPE
+from mogo.export.train.options import (EvaluatorTrainOptions, T2MTrainOptions, VQTrainOptions,
+                                      add_arguments, from_arguments)
 
 
 def _cmd_data_synth(args: argparse.Namespace) -> None:
@@ -37,30 +38,25 @@ def _cmd_data_convert(args: argparse.Namespace) -> None:
                          source_fps=args.fps, progress=True)
 
 
-def _training_options(args: argparse.Namespace) -> dict:
-    return {k: v for k, v in vars(args).items()
-            if k not in ("command", "train_command", "run", "finish")}
-
-
 def _cmd_train_vq(args: argparse.Namespace) -> None:
     require_torch()
-    from mogo.export.train.train_vq import VQTrainOptions, train_vq
+    from mogo.export.train.train_vq import train_vq
 
-    train_vq(VQTrainOptions(**_training_options(args)))
+    train_vq(from_arguments(args, VQTrainOptions))
 
 
 def _cmd_train_t2m(args: argparse.Namespace) -> None:
     require_torch()
-    from mogo.export.train.train_t2m import T2MTrainOptions, train_t2m
+    from mogo.export.train.train_t2m import train_t2m
 
-    train_t2m(T2MTrainOptions(**_training_options(args)))
+    train_t2m(from_arguments(args, T2MTrainOptions))
 
 
 def _cmd_train_evaluator(args: argparse.Namespace) -> None:
     require_torch()
-    from mogo.export.train.train_evaluator import EvaluatorTrainOptions, train_evaluator
+    from mogo.export.train.train_evaluator import train_evaluator
 
-    train_evaluator(EvaluatorTrainOptions(**_training_options(args)))
+    train_evaluator(from_arguments(args, EvaluatorTrainOptions))
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
@@ -118,79 +114,17 @@ def add_commands(commands) -> None:
                                               "processes)")
     train_commands = train.add_subparsers(dest="train_command", required=True, metavar="MODEL")
 
-    def run_arguments(command: argparse.ArgumentParser, recipe: dict, val: int, checkpoint: int,
-                      log: int) -> None:
-        """What both trainers take: `recipe` holds the run's defaults; then the default number
-        of steps between validations, checkpoint.pt writes and progress lines."""
-        command.add_argument("--data", required=True, help="dataset folder (HumanML3D layout)")
-        command.add_argument("--out", required=True, help="run folder (checkpoints, metrics)")
-        command.add_argument("--config", dest="preset", choices=["tiny", "cpu_default", "paper"],
-                             help="model size (default cpu_default)")
-        command.add_argument("--steps", type=int, default=20000, help="total optimizer steps")
-        command.add_argument("--batch-size", type=int,
-                             help=f"per process (default {recipe['batch_size']})")
-        command.add_argument("--lr", type=float, help=f"peak learning rate, cosine to lr/10 "
-                                                      f"(default {recipe['lr']:g})")
-        command.add_argument("--warmup", type=int,
-                             help=f"linear warm-up steps (default {recipe['warmup']})")
-        command.add_argument("--seed", type=int, help=f"(default {recipe['seed']})")
-        command.add_argument("--device", default="auto", help="auto, cpu or cuda")
-        for name, default, what in (("val", val, "validations"),
-                                    ("checkpoint", checkpoint, "checkpoint.pt writes"),
-                                    ("log", log, "progress lines")):
-            command.add_argument(f"--{name}-every", type=int, default=default,
-                                 help=f"steps between {what}")
-        command.add_argument("--resume", action="store_true",
-                             help="continue the run in --out from its checkpoint.pt (the "
-                                  "settings without a default above are the run's)")
-
-    vq = train_commands.add_parser(
-        "vq", help="train the MoSA-VQ motion tokenizer on random crops")
-    run_arguments(vq, VQ_RECIPE, val=1000, checkpoint=1000, log=100)
-    vq.add_argument("--crop-frames", type=int, help="frames per training crop (default 64)")
-    vq.add_argument("--whole-clips", action="store_true", default=None,
-                    help="train on whole clips, batched by length, instead of crops: what "
-                         "validation and the runtime decode (the root trajectory of a whole "
-                         "clip included)")
-    vq.add_argument("--weight-average", type=float, metavar="DECAY",
-                    help="validate and keep (best.pt) an exponential moving average of the "
-                         "weights with this decay, e.g. 0.999: it averages out the noise of the "
-                         "steps, which the root trajectory, summed from per-frame velocities, "
-                         "is sensitive to (default off)")
-    vq.add_argument("--levels", type=int, help="residual levels (ablation; default the config's)")
-    vq.add_argument("--down-factor", type=int, choices=[1, 2, 4],
-                    help="frames per token (default 1: one token per frame, as the paper)")
-    vq.add_argument("--causal", action="store_true", default=None,
-                    help="causal convolutions: zero decoder lookahead when streaming")
-    vq.add_argument("--no-scale-bias", dest="scale_bias", action="store_false", default=None,
-                    help="plain residual VQ, without the per-level scale and bias (ablation)")
-    vq.add_argument("--decorrelation", type=float,
-                    help="weight of the cross-level decorrelation loss (0 turns it off)")
-    vq.add_argument("--val-clips", type=int, default=256,
-                    help="val clips decoded whole at each validation")
-    vq.add_argument("--init", type=Path,
-                    help="fine-tune: start from the weights of this `mogo train vq` run, or of "
-                         "this bundle's VQ graphs (with --tune decoder); new optimizer, "
-                         "schedule and training settings")
-    vq.add_argument("--tune", choices=["all", "decoder"],
-                    help="with --init: train all weights (default), or the decoder alone, "
-                         "which keeps every token, so a T2M trained on the --init VQ still fits")
-    vq.set_defaults(run=_cmd_train_vq, finish=_leave_torchrun_worker)
-
-    t2m = train_commands.add_parser(
-        "t2m", help="train the text encoder and RQHC-Transformer on a trained VQ's tokens")
-    run_arguments(t2m, T2M_RECIPE, val=500, checkpoint=500, log=50)
-    t2m.add_argument("--vq", required=True, help="the `mogo train vq` run folder")
-    t2m.add_argument("--text-encoder", choices=["small"], help="(default small)")
-    t2m.set_defaults(run=_cmd_train_t2m, finish=_leave_torchrun_worker)
-
-    evaluator = train_commands.add_parser(
-        "evaluator", help="train the text-motion evaluator for `mogo eval` (contrastive text "
-                          "and motion encoders), exported to RUN/evaluator")
-    run_arguments(evaluator, EVALUATOR_RECIPE, val=500, checkpoint=500, log=50)
-    evaluator.add_argument("--val-spans", type=int, default=1024,
-                           help="validation spans embedded for R-precision (0: all)")
-    evaluator.set_defaults(run=_cmd_train_evaluator, finish=_leave_torchrun_worker)
+    for name, options, run, what in (
+            ("vq", VQTrainOptions, _cmd_train_vq,
+             "train the MoSA-VQ motion tokenizer on random crops"),
+            ("t2m", T2MTrainOptions, _cmd_train_t2m,
+             "train the text encoder and RQHC-Transformer on a trained VQ's tokens"),
+            ("evaluator", EvaluatorTrainOptions, _cmd_train_evaluator,
+             "train the text-motion evaluator for `mogo eval` (contrastive text and motion "
+             "encoders), exported to RUN/evaluator")):
+        command = train_commands.add_parser(name, help=what)
+        add_arguments(command, options)
+        command.set_defaults(run=run, finish=_leave_torchrun_worker)
 
     export = commands.add_parser("export", help="trained runs -> a bundle folder for the runtime")
     export.add_argument("--vq", required=True, help="the `mogo train vq` run folder")

@@ -13,6 +13,7 @@ from mogo.export.models.generate_torch import generate
 from mogo.export.models.t2m import T2MConfig
 from mogo.export.models.text_encoder import encode_captions
 from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
+from mogo.export.train.options import T2MTrainOptions
 from mogo.export.train.training import save_checkpoint
 from mogo.export.models.vq import MoSAVQ, VQConfig
 
@@ -72,7 +73,7 @@ def test_cli_trains_and_writes_the_run(tiny_humanml3d, vq_run, tmp_path):
 def test_token_cache_is_reused_until_the_vq_changes(tiny_humanml3d, vq_run, tmp_path):
     folder = HumanML3DFolder(tiny_humanml3d)
     vq = load_vq(vq_run)
-    recipe = dict(train_t2m.T2M_RECIPE, preset="tiny")
+    recipe = dict(T2MTrainOptions.recipe_defaults(), preset="tiny")
     prepare = lambda sha: train_t2m._prepare(tmp_path, folder, vq, recipe, sha, fresh=False,
                                              device=torch.device("cpu"))
     cache = tmp_path / "tokens" / "val.npz"

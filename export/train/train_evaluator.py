@@ -14,7 +14,7 @@ step reseeds torch from (seed, rank, step).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +27,10 @@ from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, colla
 from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
 from mogo.export.models.runs import load_checkpoint
 from mogo.export.onnx.evaluator_graphs import export_evaluator
-from mogo.export.train.recipes import EVALUATOR_RECIPE
+from mogo.export.train.options import EvaluatorTrainOptions
 from mogo.export.models.text_encoder import encode_captions, train_tokenizer
 from mogo.export.train.train_t2m import make_optimizer
-from mogo.export.train.training import (Process, RunOptions, all_reduce_mean, batches, begin_step,
+from mogo.export.train.training import (Process, all_reduce_mean, batches, begin_step,
                                   end_process, finish_together, format_duration,
                                   merge_recipe, previous_run,
                                   resumed_metrics_log, save_checkpoint, seed_everything,
@@ -43,18 +43,12 @@ VOCAB = dict(tiny=100, cpu_default=4000)
 PRESETS = dict(tiny=EvaluatorConfig.tiny, cpu_default=EvaluatorConfig)
 
 
-@dataclass(kw_only=True)
-class EvaluatorTrainOptions(RunOptions):
-    val_spans: int = 1024  # validation spans embedded for R-precision (0: all)
-
-
 def train_evaluator(options: EvaluatorTrainOptions) -> None:
     """Train (or resume) an evaluator run, then export its best.pt to RUN/evaluator."""
     options.check_intervals()
     out = Path(options.out)
     state = previous_run(out, options.resume)
-    recipe = merge_recipe(EVALUATOR_RECIPE,
-                          {name: getattr(options, name) for name in EVALUATOR_RECIPE},
+    recipe = merge_recipe(EvaluatorTrainOptions.recipe_defaults(), options.given(),
                           None if state is None else state["config"])
     if recipe["preset"] not in PRESETS:
         raise ValueError(f"unknown config {recipe['preset']!r}; use {', '.join(PRESETS)}")

@@ -21,7 +21,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,11 +32,11 @@ from torch import Tensor, nn
 
 from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, _EpochSeeded
 from mogo.progress import Progress
-from mogo.export.train.recipes import T2M_RECIPE
+from mogo.export.train.options import T2MTrainOptions
 from mogo.export.models.runs import build_text_to_motion, load_vq, read_tokens, vq_checkpoint
 from mogo.export.models.t2m import T2MConfig, TextToMotion
 from mogo.export.models.text_encoder import TEXT_ENCODERS, encode_captions
-from mogo.export.train.training import (Process, RunOptions, all_reduce_mean, batches, end_process,
+from mogo.export.train.training import (Process, all_reduce_mean, batches, end_process,
                                   equal_length_groups, finish_together, format_duration,
                                   merge_recipe, previous_run, resumed_metrics_log,
                                   save_checkpoint, seed_everything, set_learning_rate,
@@ -141,12 +141,6 @@ def collate_tokens(batch: list[dict]) -> dict:
 
 # -- training ----------------------------------------------------------------------------------
 
-@dataclass(kw_only=True)
-class T2MTrainOptions(RunOptions):
-    vq: Path
-    text_encoder: str | None = None
-
-
 def train_t2m(options: T2MTrainOptions) -> None:
     """Train (or resume) a T2M run; under torchrun every process calls this, rank 0 writes."""
     options.check_intervals()
@@ -182,7 +176,7 @@ def train_t2m(options: T2MTrainOptions) -> None:
 
 
 def _recipe(options: T2MTrainOptions, state: dict | None) -> dict:
-    recipe = merge_recipe(T2M_RECIPE, {name: getattr(options, name) for name in T2M_RECIPE},
+    recipe = merge_recipe(T2MTrainOptions.recipe_defaults(), options.given(),
                           None if state is None else state["config"])
     if recipe["preset"] not in PRESETS:
         raise ValueError(f"unknown config {recipe['preset']!r}; use {', '.join(PRESETS)}")

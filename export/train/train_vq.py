@@ -23,7 +23,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import torch
@@ -31,8 +31,8 @@ from torch import Tensor, nn
 
 from mogo.export.train.datasets import (HumanML3DFolder, MotionCropDataset, WholeClipBatches,
                                  whole_clip_features)
-from mogo.export.train.recipes import VQ_MODEL_SWITCHES, VQ_RECIPE
-from mogo.export.train.training import (Process, RunOptions, WeightAverage, all_reduce_mean, batches,
+from mogo.export.train.options import VQTrainOptions
+from mogo.export.train.training import (Process, WeightAverage, all_reduce_mean, batches,
                                   end_process, equal_length_groups, finish_together,
                                   format_duration, merge_recipe, previous_run,
                                   resumed_metrics_log, save_checkpoint, seed_everything,
@@ -44,24 +44,8 @@ from mogo.export.models.vq import MoSAVQ, VQConfig, reconstruction_metrics
 PRESETS: dict[str, Callable[[], VQConfig]] = dict(
     tiny=VQConfig.tiny, cpu_default=VQConfig.cpu_default, paper=VQConfig.paper)
 GRAD_CLIP = 1.0
-
-
-@dataclass(kw_only=True)
-class VQTrainOptions(RunOptions):
-    crop_frames: int | None = None
-    whole_clips: bool | None = None
-    weight_average: float | None = None
-    levels: int | None = None
-    down_factor: int | None = None
-    causal: bool | None = None
-    scale_bias: bool | None = None
-    decorrelation: float | None = None
-    tune: str | None = None
-    val_every: int = 1000
-    val_clips: int = 256
-    checkpoint_every: int = 1000
-    log_every: int = 100
-    init: Path | None = None
+# the recipe settings that change the model (None: the preset's value), for ablations
+VQ_MODEL_SWITCHES = ("levels", "down_factor", "causal", "scale_bias", "decorrelation")
 
 
 def train_vq(options: VQTrainOptions) -> None:
@@ -74,12 +58,12 @@ def train_vq(options: VQTrainOptions) -> None:
         raise ValueError("--init starts a new run from trained weights; --resume continues a "
                          "run: pass one of them")
     state = previous_run(out, options.resume)
-    given = {n: getattr(options, n) for n in VQ_RECIPE if n != "init"}
+    given = {n: v for n, v in options.given().items() if n != "init"}
     init = None
     if options.init is not None:
         init, init_path = read_init(options.init)
         given = _recipe_of_init(given, init, init_path)
-    recipe = merge_recipe(VQ_RECIPE, given, state)
+    recipe = merge_recipe(VQTrainOptions.recipe_defaults(), given, state)
     if recipe["preset"] not in PRESETS:
         raise ValueError(f"unknown config {recipe['preset']!r}; use {', '.join(PRESETS)}")
     if recipe["batch_size"] <= 0 or recipe["lr"] <= 0 or recipe["warmup"] < 0 \

@@ -28,31 +28,6 @@ from mogo.export.models.runs import CHECKPOINT_FORMAT, load_checkpoint
 GPU_LOADER_WORKERS = 3
 
 
-@dataclass(kw_only=True)
-class RunOptions:
-    """What every `mogo train` run takes. Recipe fields left None take the run's values on
-    resume, the trainer's default recipe otherwise."""
-    data: Path
-    out: Path
-    steps: int = 20000
-    preset: str | None = None
-    batch_size: int | None = None
-    lr: float | None = None
-    warmup: int | None = None
-    seed: int | None = None
-    device: str = "auto"
-    val_every: int = 500
-    checkpoint_every: int = 500
-    log_every: int = 50
-    resume: bool = False
-
-    def check_intervals(self) -> None:
-        for name in ("steps", "val_every", "checkpoint_every", "log_every"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"--{name.replace('_', '-')} must be positive, "
-                                 f"got {getattr(self, name)}")
-
-
 @dataclass(frozen=True)
 class Process:
     rank: int
