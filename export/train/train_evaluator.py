@@ -8,36 +8,31 @@ RUN/ holds
     metrics.jsonl    train and val records
     evaluator/       the ONNX export of best.pt (`mogo.bench.quality.evaluator` loads it)
 
-Resuming is exact, as for the other trainers: batches depend only on (seed, epoch) and every
-step reseeds torch from (seed, rank, step).
+`EvaluatorTrainer` plugs into the training loop (mogo.export.train.loop, which makes resuming
+exact).
 """
 from __future__ import annotations
 
-import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from tokenizers import Tokenizer
-from torch import nn
+from torch import Tensor, nn
 
 from mogo.export.data.metrics import R_PRECISION_BATCH, matching_score, r_precision
-from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, collate_text_motion
 from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
 from mogo.export.models.runs import load_checkpoint
-from mogo.export.onnx.evaluator_graphs import export_evaluator
-from mogo.export.train.options import EvaluatorTrainOptions
 from mogo.export.models.text_encoder import encode_captions, train_tokenizer
-from mogo.export.train.train_t2m import make_optimizer
-from mogo.export.train.training import (Process, all_reduce_mean, batches, begin_step,
-                                  end_process, finish_together, format_duration,
-                                  merge_recipe, previous_run,
-                                  resumed_metrics_log, save_checkpoint, seed_everything,
-                                  start_process, steps_per_epoch, wrap_model)
+from mogo.export.onnx.evaluator_graphs import export_evaluator
+from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, collate_text_motion
+from mogo.export.train.loop import Run, Trainer, train_loop
+from mogo.export.train.options import EvaluatorTrainOptions
+from mogo.export.train.training import (Process, end_process, finish_together, make_optimizer,
+                                        merge_recipe, previous_run, start_process)
 
 MIN_FRAMES, MAX_FRAMES = 40, 196  # the caption spans the motion model trains on
-GRAD_CLIP = 1.0
 TOKENIZER = "tokenizer.json"
 VOCAB = dict(tiny=100, cpu_default=4000)
 PRESETS = dict(tiny=EvaluatorConfig.tiny, cpu_default=EvaluatorConfig)
@@ -72,7 +67,9 @@ def train_evaluator(options: EvaluatorTrainOptions) -> None:
         config = dict(model=asdict(model_config), recipe=recipe, tokenizer=TOKENIZER,
                       data=str(folder.root.resolve()), world_size=process.world_size,
                       mean=folder.mean.tolist(), std=folder.std.tolist())
-        model = _train(out, config, state, options, process, tokenizer, train_set, val_set)
+        model = train_loop(
+            EvaluatorTrainer(config, tokenizer, train_set, val_set, options.val_spans, process),
+            Run(out, options, recipe, config, state, process))
         if process.is_main:
             best = load_checkpoint(out / "best.pt")
             model.load_state_dict(best["model"])
@@ -85,74 +82,53 @@ def train_evaluator(options: EvaluatorTrainOptions) -> None:
         end_process(process)
 
 
-def _train(out: Path, config: dict, state: dict | None, options: EvaluatorTrainOptions,
-           process: Process, tokenizer: Tokenizer, train_set: TextMotionDataset,
-           val_set: TextMotionDataset) -> Evaluator:
-    recipe = config["recipe"]
-    seed, batch_size, steps = recipe["seed"], recipe["batch_size"], options.steps
-    seed_everything(seed)
-    model = Evaluator(EvaluatorConfig(**config["model"]))
-    ddp = wrap_model(model, process)
-    optimizer = make_optimizer(model, recipe["lr"])
-    step, best = 0, -1.0
-    if state is not None:
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        step, best = state["step"], state["best_r1"]
-    per_epoch = steps_per_epoch(train_set, batch_size, process)
-    epoch, done = divmod(step, max(per_epoch, 1))
-    stream = batches(train_set, batch_size, process, seed, collate_text_motion, start_epoch=epoch)
-    for _ in range(done):
-        next(stream)
-    log = resumed_metrics_log(out, step, process)
-    if process.is_main:
-        print(f"evaluator: {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M parameters; "
-              f"{len(train_set)} train / {len(val_set)} val spans, {per_epoch} steps an epoch; "
-              f"{process.world_size} process(es) on {process.device}; "
-              f"{'resuming at' if step else 'starting at'} step {step} of {steps}", flush=True)
+class EvaluatorTrainer(Trainer):
+    """The evaluator in the training loop: caption spans and their motion, the contrastive loss
+    and in-batch retrieval accuracy, R-precision on the val spans."""
+    best_name, metric, higher_is_better, worst = "best_r1", "r1", True, -1.0
 
-    device = process.device
-    sums, count, window_start = torch.zeros(2, device=device), 0, time.perf_counter()
-    while step < steps:
-        batch = next(stream)
-        lr = begin_step(optimizer, recipe, step, steps, process.rank)
-        ids, mask = encode_captions(tokenizer, batch["captions"])
-        loss, accuracy = ddp(ids.to(device), mask.to(device), batch["motion"].to(device),
-                             batch["lengths"].to(device))
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        nn.utils.clip_grad_norm_(model.parameters(), GRAD_CLIP)
-        optimizer.step()
-        step += 1
-        sums += torch.stack([loss.detach(), accuracy])
-        count += 1
+    def __init__(self, config: dict, tokenizer: Tokenizer, train_set: TextMotionDataset,
+                 val_set: TextMotionDataset, val_spans: int, process: Process):
+        self.config, self.recipe, self.tokenizer = config, config["recipe"], tokenizer
+        self.train_set, self.val_set, self.val_spans = train_set, val_set, val_spans
+        self.process = process
 
-        if step % options.log_every == 0 or step == steps:
-            rate = count / (time.perf_counter() - window_start)
-            values = all_reduce_mean(dict(zip(("loss", "batch_acc"), (sums / count).tolist())),
-                                     process)
-            log.write("train", step, lr=lr, **values, temperature=1 / model.log_scale.exp(),
-                      steps_per_s=round(rate, 3))
-            if process.is_main:
-                print(f"step {step}/{steps}  loss {values['loss']:.4f}  in-batch top-1 "
-                      f"{values['batch_acc']:.3f}  lr {lr:.2e}  {rate:.2f} steps/s  "
-                      f"eta {format_duration((steps - step) / rate)}", flush=True)
-            sums, count, window_start = torch.zeros_like(sums), 0, time.perf_counter()
-        if step % options.val_every == 0 or step == steps:
-            values = validate(model, val_set, tokenizer, options.val_spans, device)
-            improved = values["r1"] > best
-            best = max(best, values["r1"])
-            log.write("val", step, **values)
-            if process.is_main:
-                print(f"val {step}  R-precision top-1/2/3 {values['r1']:.3f} / "
-                      f"{values['r2']:.3f} / {values['r3']:.3f}  matching "
-                      f"{values['matching']:.3f}{'  (best)' if improved else ''}", flush=True)
-                if improved:
-                    save_checkpoint(out / "best.pt", model, None, step, config, best_r1=best,
-                                    val=values)
-        if process.is_main and (step % options.checkpoint_every == 0 or step == steps):
-            save_checkpoint(out / "checkpoint.pt", model, optimizer, step, config, best_r1=best)
-    return model
+    def build(self) -> Evaluator:
+        return Evaluator(EvaluatorConfig(**self.config["model"]))
+
+    def optimizer(self, model: nn.Module) -> torch.optim.Optimizer:
+        return make_optimizer(model, self.recipe["lr"])
+
+    def data(self):
+        return self.train_set, self.recipe["batch_size"], collate_text_motion
+
+    def banner(self, model: nn.Module, per_epoch: int) -> str:
+        return (f"evaluator: {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M "
+                f"parameters; {len(self.train_set)} train / {len(self.val_set)} val spans, "
+                f"{per_epoch} steps an epoch")
+
+    def step(self, model: nn.Module, batch: dict) -> tuple[Tensor, dict[str, Tensor]]:
+        device = self.process.device
+        ids, mask = encode_captions(self.tokenizer, batch["captions"])
+        loss, accuracy = model(ids.to(device), mask.to(device), batch["motion"].to(device),
+                               batch["lengths"].to(device))
+        return loss, dict(loss=loss.detach(), batch_acc=accuracy)
+
+    def train_line(self, values: dict[str, float]) -> str:
+        return f"loss {values['loss']:.4f}  in-batch top-1 {values['batch_acc']:.3f}"
+
+    def train_extras(self, model: nn.Module) -> dict:
+        return dict(temperature=1 / model.log_scale.exp())
+
+    def validate(self, model: nn.Module) -> dict[str, float]:
+        return validate(model, self.val_set, self.tokenizer, self.val_spans, self.process.device)
+
+    def val_line(self, values: dict[str, float]) -> str:
+        return (f"R-precision top-1/2/3 {values['r1']:.3f} / {values['r2']:.3f} / "
+                f"{values['r3']:.3f}  matching {values['matching']:.3f}")
+
+    def checkpoint_extras(self, values: dict[str, float] | None) -> dict:
+        return {} if values is None else dict(val=values)
 
 
 @torch.no_grad()

@@ -10,16 +10,12 @@ RUN/ holds
     best.pt                 lowest validation loss: weights and configs
     metrics.jsonl           train and val records
 
-Resuming is exact (same world size): batches depend only on (seed, epoch) (`training.batches`),
-so a resumed run starts at epoch step // steps_per_epoch and skips the batches of that epoch
-already done; and every step reseeds torch from (seed, rank, step), so dropout, prompt dropout
-and token corruption do not depend on what ran before.
+`T2MTrainer` plugs into the training loop (mogo.export.train.loop), which makes resuming exact:
+dropout, prompt dropout and token corruption do not depend on what ran before.
 """
 from __future__ import annotations
 
-import math
 import os
-import time
 from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -30,25 +26,21 @@ import torch.distributed as dist
 from tokenizers import Tokenizer
 from torch import Tensor, nn
 
-from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, _EpochSeeded
+from mogo.bundle import file_sha256
 from mogo.progress import Progress
-from mogo.export.train.options import T2MTrainOptions
 from mogo.export.models.runs import build_text_to_motion, load_vq, read_tokens, vq_checkpoint
 from mogo.export.models.t2m import T2MConfig, TextToMotion
 from mogo.export.models.text_encoder import TEXT_ENCODERS, encode_captions
-from mogo.export.train.training import (Process, all_reduce_mean, batches, end_process,
-                                  equal_length_groups, finish_together, format_duration,
-                                  merge_recipe, previous_run, resumed_metrics_log,
-                                  save_checkpoint, seed_everything, set_learning_rate,
-                                  start_process, step_seed, steps_per_epoch, warmup_cosine,
-                                  wrap_model)
 from mogo.export.models.vq import MoSAVQ, VQConfig
-from mogo.bundle import file_sha256
+from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, _EpochSeeded
+from mogo.export.train.loop import Run, Trainer, train_loop
+from mogo.export.train.options import T2MTrainOptions
+from mogo.export.train.training import (Process, all_reduce_mean, end_process,
+                                        equal_length_groups, finish_together, make_optimizer,
+                                        merge_recipe, previous_run, start_process)
 
 MIN_FRAMES = 40  # caption spans shorter than this are skipped (the standard loaders' rule)
 MAX_FRAMES = 196  # longer spans: a random window of this many frames each epoch
-WEIGHT_DECAY = 0.1
-GRAD_CLIP = 1.0
 TOKENIZE_BATCH = 128
 TOKENIZER = "tokenizer.json"
 PRESETS: dict[str, Callable[[], T2MConfig]] = dict(
@@ -169,7 +161,14 @@ def train_t2m(options: T2MTrainOptions) -> None:
             world_size=process.world_size,
             vq=dict(run=str(Path(options.vq).resolve()), checkpoint=str(vq_path.resolve()),
                     sha256=vq_sha256, down_factor=vq.config.down_factor))
-        _train(out, config, state, options, process)
+        tokenizer = Tokenizer.from_file(str(out / TOKENIZER))
+        config["text_encoder"] = (
+            state["config"]["text_encoder"] if state is not None else
+            dict(kind=recipe["text_encoder"],
+                 config=TEXT_ENCODERS[recipe["text_encoder"]].make_config(
+                     recipe["preset"], t2m_config.text_dim, tokenizer)))
+        train_loop(T2MTrainer(out, config, tokenizer, process),
+                   Run(out, options, recipe, config, state, process))
         finish_together(process)
     finally:
         end_process(process)
@@ -213,98 +212,63 @@ def _prepare(out: Path, folder: HumanML3DFolder, vq: MoSAVQ, recipe: dict, vq_sh
         tokenizer.save(str(out / TOKENIZER))
 
 
-def make_optimizer(model: nn.Module, lr: float) -> torch.optim.AdamW:
-    """AdamW with weight decay on the weights of linear layers only (not on norms, biases,
-    embeddings, relative-position tables or learned prompt/level vectors)."""
-    decayed = {id(m.weight) for m in model.modules() if isinstance(m, nn.Linear)}
-    params = [p for p in model.parameters() if p.requires_grad]
-    groups = [dict(params=[p for p in params if id(p) in decayed], weight_decay=WEIGHT_DECAY),
-              dict(params=[p for p in params if id(p) not in decayed], weight_decay=0.0)]
-    return torch.optim.AdamW(groups, lr=lr, betas=(0.9, 0.99))
+class T2MTrainer(Trainer):
+    """The text encoder and T2M in the training loop: caption spans of the token caches,
+    teacher-forced loss and per-level token accuracy."""
+    best_name, metric = "best_val_loss", "loss"
 
+    def __init__(self, out: Path, config: dict, tokenizer: Tokenizer, process: Process):
+        self.out, self.config, self.tokenizer, self.process = out, config, tokenizer, process
+        self.recipe = config["recipe"]
 
-def _train(out: Path, config: dict, state: dict | None, options: T2MTrainOptions,
-           process: Process) -> None:
-    recipe = config["recipe"]
-    seed, batch_size, steps = recipe["seed"], recipe["batch_size"], options.steps
-    kind = TEXT_ENCODERS[recipe["text_encoder"]]
-    tokenizer = Tokenizer.from_file(str(out / TOKENIZER))
-    t2m_config = T2MConfig(**config["t2m"])
-    config["text_encoder"] = (state["config"]["text_encoder"] if state is not None else
-                              dict(kind=recipe["text_encoder"],
-                                   config=kind.make_config(recipe["preset"], t2m_config.text_dim,
-                                                           tokenizer)))
-    seed_everything(seed)
-    model = build_text_to_motion(config["text_encoder"], t2m_config)
-    ddp = wrap_model(model, process)
-    optimizer = make_optimizer(model, recipe["lr"])
-    step, best = 0, math.inf
-    if state is not None:
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        step, best = state["step"], state["best_val_loss"]
-        if state["config"]["world_size"] != process.world_size and process.is_main:
-            print(f"note: the run started with {state['config']['world_size']} processes, now "
-                  f"{process.world_size}: the batches differ from an uninterrupted run")
+    def build(self) -> TextToMotion:
+        return build_text_to_motion(self.config["text_encoder"], T2MConfig(**self.config["t2m"]))
 
-    max_tokens = MAX_FRAMES // config["vq"]["down_factor"]
-    train_set = TokenSpans(read_tokens(out / "tokens" / "train.npz"), max_tokens, seed)
-    val_set = TokenSpans(read_tokens(out / "tokens" / "val.npz"), max_tokens, seed)
-    per_epoch = steps_per_epoch(train_set, batch_size, process)
-    epoch, done = divmod(step, max(per_epoch, 1))  # batches() refuses a split under one batch
-    stream = batches(train_set, batch_size, process, seed, collate_tokens, start_epoch=epoch)
-    for _ in range(done):
-        next(stream)
-    log = resumed_metrics_log(out, step, process)
-    if process.is_main:
+    def optimizer(self, model: nn.Module) -> torch.optim.Optimizer:
+        return make_optimizer(model, self.recipe["lr"])
+
+    def restored(self, model: nn.Module, state: dict | None) -> None:
+        started = None if state is None else state["config"]["world_size"]
+        if started is not None and started != self.process.world_size and self.process.is_main:
+            print(f"note: the run started with {started} processes, now "
+                  f"{self.process.world_size}: the batches differ from an uninterrupted run")
+
+    def data(self):
+        max_tokens = MAX_FRAMES // self.config["vq"]["down_factor"]
+        self.train_set, self.val_set = (
+            TokenSpans(read_tokens(self.out / "tokens" / f"{split}.npz"), max_tokens,
+                       self.recipe["seed"]) for split in ("train", "val"))
+        return self.train_set, self.recipe["batch_size"], collate_tokens
+
+    def banner(self, model: nn.Module, per_epoch: int) -> str:
         sizes = {name: sum(p.numel() for p in part.parameters()) / 1e6
                  for name, part in (("t2m", model.t2m), ("text encoder", model.text_encoder))}
-        print(f"t2m: {sizes['t2m']:.2f}M parameters + text encoder {sizes['text encoder']:.2f}M; "
-              f"{len(train_set)} train / {len(val_set)} val spans, {per_epoch} steps an epoch; "
-              f"{process.world_size} process(es) on {process.device}; "
-              f"{'resuming at' if step else 'starting at'} step {step} of {steps}", flush=True)
+        return (f"t2m: {sizes['t2m']:.2f}M parameters + text encoder "
+                f"{sizes['text encoder']:.2f}M; {len(self.train_set)} train / "
+                f"{len(self.val_set)} val spans, {per_epoch} steps an epoch")
 
-    device, L = process.device, t2m_config.num_levels
-    sums, count, window_start = torch.zeros(1 + L, device=device), 0, time.perf_counter()
-    while step < steps:
-        batch = next(stream)
-        torch.manual_seed(step_seed(seed, process.rank, step))
-        lr = warmup_cosine(step, recipe["warmup"], steps, recipe["lr"], recipe["lr"] / 10)
-        set_learning_rate(optimizer, lr)
-        caption_ids, caption_mask = encode_captions(tokenizer, batch["captions"])
-        loss, accuracy = ddp(caption_ids.to(device), caption_mask.to(device),
-                             batch["tokens"].to(device), batch["lengths"].to(device))
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        nn.utils.clip_grad_norm_(model.parameters(), GRAD_CLIP)
-        optimizer.step()
-        step += 1
-        sums += torch.cat([loss.detach()[None], accuracy])
-        count += 1
+    def step(self, model: nn.Module, batch: dict) -> tuple[Tensor, dict[str, Tensor]]:
+        loss, accuracy = _forward(model, self.tokenizer, batch, self.process.device)
+        return loss, dict(loss=loss.detach(),
+                          **{f"acc_{level}": value for level, value in enumerate(accuracy)})
 
-        if step % options.log_every == 0 or step == steps:
-            rate = count / (time.perf_counter() - window_start)
-            values = all_reduce_mean(_named(sums / count), process)
-            log.write("train", step, lr=lr, **values, steps_per_s=round(rate, 3))
-            if process.is_main:
-                print(f"step {step}/{steps}  {_summary(values)}  lr {lr:.2e}  "
-                      f"{rate:.2f} steps/s  eta {format_duration((steps - step) / rate)}",
-                      flush=True)
-            sums, count, window_start = torch.zeros_like(sums), 0, time.perf_counter()
-        if step % options.val_every == 0 or step == steps:
-            values = validate(model, val_set, tokenizer, batch_size, process)
-            improved = values["loss"] < best
-            best = min(best, values["loss"])
-            log.write("val", step, **values)
-            if process.is_main:
-                print(f"val {step}  {_summary(values)}{'  (best)' if improved else ''}",
-                      flush=True)
-                if improved:
-                    save_checkpoint(out / "best.pt", model, None, step, config,
-                                    best_val_loss=best)
-        if process.is_main and (step % options.checkpoint_every == 0 or step == steps):
-            save_checkpoint(out / "checkpoint.pt", model, optimizer, step, config,
-                            best_val_loss=best)
+    def train_line(self, values: dict[str, float]) -> str:
+        return _summary(values)
+
+    def validate(self, model: nn.Module) -> dict[str, float]:
+        return validate(model, self.val_set, self.tokenizer, self.recipe["batch_size"],
+                        self.process)
+
+    def val_line(self, values: dict[str, float]) -> str:
+        return _summary(values)
+
+
+def _forward(model: nn.Module, tokenizer: Tokenizer, batch: dict,
+             device: torch.device) -> tuple[Tensor, Tensor]:
+    """-> TextToMotion's (loss, per-level token accuracy (L,)) of a `collate_tokens` batch."""
+    caption_ids, caption_mask = encode_captions(tokenizer, batch["captions"])
+    return model(caption_ids.to(device), caption_mask.to(device), batch["tokens"].to(device),
+                 batch["lengths"].to(device))
 
 
 @torch.no_grad()
@@ -318,9 +282,7 @@ def validate(model: TextToMotion, dataset: TokenSpans, tokenizer: Tokenizer, bat
     sums, count = torch.zeros(1 + model.t2m.config.num_levels, device=device), 0
     for first in range(0, len(indices), batch_size):
         batch = collate_tokens([dataset[i] for i in indices[first:first + batch_size]])
-        caption_ids, caption_mask = encode_captions(tokenizer, batch["captions"])
-        loss, accuracy = model(caption_ids.to(device), caption_mask.to(device),
-                               batch["tokens"].to(device), batch["lengths"].to(device))
+        loss, accuracy = _forward(model, tokenizer, batch, device)
         n = len(batch["captions"])
         sums += n * torch.cat([loss[None], accuracy])
         count += n

@@ -12,16 +12,15 @@ val split, and measures MPJPE on the recovered joints, root trajectory included.
 `--weight-average DECAY` it measures an exponential moving average of the weights, which is
 what best.pt keeps; checkpoint.pt holds both.
 
-Resuming is exact (same world size), as for `mogo train t2m`: batches depend only on
-(seed, epoch) and every step reseeds torch from (seed, rank, step). Under torchrun, DDP keeps
-the weights in step; the EMA codebooks are buffers, which DDP broadcasts from rank 0 before
-every forward, so rank 0's codebook updates are the ones that stand.
+`VQTrainer` plugs into the training loop (mogo.export.train.loop, which makes resuming exact).
+Under torchrun, DDP keeps the weights in step; the EMA codebooks are buffers, which DDP
+broadcasts from rank 0 before every forward, so rank 0's codebook updates are the ones that
+stand.
 """
 from __future__ import annotations
 
 import json
 import math
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -29,21 +28,18 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from mogo.export.train.datasets import (HumanML3DFolder, MotionCropDataset, WholeClipBatches,
-                                 whole_clip_features)
-from mogo.export.train.options import VQTrainOptions
-from mogo.export.train.training import (Process, WeightAverage, all_reduce_mean, batches,
-                                  end_process, equal_length_groups, finish_together,
-                                  format_duration, merge_recipe, previous_run,
-                                  resumed_metrics_log, save_checkpoint, seed_everything,
-                                  set_learning_rate, start_process, step_seed, steps_per_epoch,
-                                  warmup_cosine, wrap_model)
 from mogo.export.models.runs import read_vq_checkpoint, tokens_sha256, vq_checkpoint
 from mogo.export.models.vq import MoSAVQ, VQConfig, reconstruction_metrics
+from mogo.export.train.datasets import (HumanML3DFolder, MotionCropDataset, WholeClipBatches,
+                                        whole_clip_features)
+from mogo.export.train.loop import Run, Trainer, train_loop
+from mogo.export.train.options import VQTrainOptions
+from mogo.export.train.training import (Process, WeightAverage, end_process, equal_length_groups,
+                                        finish_together, merge_recipe, previous_run,
+                                        start_process)
 
 PRESETS: dict[str, Callable[[], VQConfig]] = dict(
     tiny=VQConfig.tiny, cpu_default=VQConfig.cpu_default, paper=VQConfig.paper)
-GRAD_CLIP = 1.0
 # the recipe settings that change the model (None: the preset's value), for ablations
 VQ_MODEL_SWITCHES = ("levels", "down_factor", "causal", "scale_bias", "decorrelation")
 
@@ -92,7 +88,8 @@ def train_vq(options: VQTrainOptions) -> None:
     try:
         if state is None and init is not None:
             state = _fine_tuning_state(init, folder)
-        _train(out, folder, config, recipe, state, options, process)
+        train_loop(VQTrainer(folder, config, recipe, options.val_clips, process),
+                   Run(out, options, recipe, asdict(config), state, process))
         finish_together(process)
     finally:
         end_process(process)
@@ -152,119 +149,104 @@ def vq_config(recipe: dict, feature_dim: int) -> VQConfig:
     return replace(PRESETS[recipe["preset"]](), feature_dim=feature_dim, **switches)
 
 
-def _train(out: Path, folder: HumanML3DFolder, config: VQConfig, recipe: dict,
-           state: dict | None, options: VQTrainOptions, process: Process) -> None:
-    seed, batch_size, steps = recipe["seed"], recipe["batch_size"], options.steps
-    seed_everything(seed)
-    model = MoSAVQ(config, folder.mean, folder.std)
-    decoder_only = recipe.get("tune") == "decoder"
-    if decoder_only:
-        model.encoder.requires_grad_(False)
-        model.quantizer.requires_grad_(False)
-    ddp = wrap_model(model, process)
-    optimizer = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad],
-                                  lr=recipe["lr"], betas=(0.9, 0.99), weight_decay=0.0)
-    step, best = 0, math.inf
-    if state is not None:
-        model.load_state_dict(state["model"])
-        if state["optimizer"] is not None:
-            optimizer.load_state_dict(state["optimizer"])
-        step, best = state["step"], state["best_val_mpjpe_mm"]
-    average = WeightAverage(model, recipe["weight_average"]) if recipe["weight_average"] else None
-    if average is not None and state is not None and state.get("averaged_parameters"):
-        average.parameters = state["averaged_parameters"]
+class VQTrainer(Trainer):
+    """The MoSA-VQ in the training loop: batches of crops (or of whole clips), the VQ's losses,
+    MPJPE of whole val clips decoded, and with a weight average, that average measured and
+    kept."""
+    best_name, metric = "best_val_mpjpe_mm", "mpjpe_mm"
 
-    if recipe["whole_clips"]:  # items are batches already
-        train_set = WholeClipBatches(folder, "train", batch_size, seed, config.down_factor)
-        loader_batch, collate = 1, only_item
-    else:
-        train_set = MotionCropDataset(folder, "train", recipe["crop_frames"], seed)
-        loader_batch, collate = batch_size, None
-    val_clips = whole_clips(folder, "val", config.down_factor, options.val_clips)
-    per_epoch = steps_per_epoch(train_set, loader_batch, process)
-    epoch, done = divmod(step, max(per_epoch, 1))
-    stream = batches(train_set, loader_batch, process, seed, collate, start_epoch=epoch)
-    for _ in range(done):
-        next(stream)
-    log = resumed_metrics_log(out, step, process)
-    extra = dict(recipe=recipe, data=str(folder.root.resolve()), world_size=process.world_size)
-    if process.is_main:
+    def __init__(self, folder: HumanML3DFolder, config: VQConfig, recipe: dict, val_clips: int,
+                 process: Process):
+        self.folder, self.config, self.recipe, self.process = folder, config, recipe, process
+        self.val_limit = val_clips
+        self.decoder_only = recipe.get("tune") == "decoder"
+        self.average: WeightAverage | None = None
+        self.extra = dict(recipe=recipe, data=str(folder.root.resolve()),
+                          world_size=process.world_size)
+
+    def build(self) -> MoSAVQ:
+        model = MoSAVQ(self.config, self.folder.mean, self.folder.std)
+        if self.decoder_only:
+            model.encoder.requires_grad_(False)
+            model.quantizer.requires_grad_(False)
+        return model
+
+    def optimizer(self, model: nn.Module) -> torch.optim.Optimizer:
+        return torch.optim.AdamW([p for p in model.parameters() if p.requires_grad],
+                                 lr=self.recipe["lr"], betas=(0.9, 0.99), weight_decay=0.0)
+
+    def restored(self, model: nn.Module, state: dict | None) -> None:
+        if self.recipe["weight_average"]:
+            self.average = WeightAverage(model, self.recipe["weight_average"])
+            if state is not None and state.get("averaged_parameters"):
+                self.average.parameters = state["averaged_parameters"]
+
+    def data(self):
+        recipe, down = self.recipe, self.config.down_factor
+        if recipe["whole_clips"]:  # items are batches already
+            self.train_set = WholeClipBatches(self.folder, "train", recipe["batch_size"],
+                                              recipe["seed"], down)
+            batch_size, collate = 1, only_item
+        else:
+            self.train_set = MotionCropDataset(self.folder, "train", recipe["crop_frames"],
+                                               recipe["seed"])
+            batch_size, collate = recipe["batch_size"], None
+        self.val_clips = whole_clips(self.folder, "val", down, self.val_limit)
+        return self.train_set, batch_size, collate
+
+    def banner(self, model: nn.Module, per_epoch: int) -> str:
+        config = self.config
         lookahead = "causal" if config.causal else "centred"
-        if decoder_only:
+        if self.decoder_only:
             lookahead += " (fine-tuning the decoder alone)"
-        print(f"vq: {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M parameters, "
-              f"{config.levels} levels of {config.codebook_size} codes, {lookahead} decoder; "
-              f"{len(train_set.clips)} train clips, {len(val_clips)} val clips, {per_epoch} "
-              f"steps an epoch; {process.world_size} process(es) on {process.device}; "
-              f"{'resuming at' if step else 'starting at'} step {step} of {steps}", flush=True)
+        return (f"vq: {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M parameters, "
+                f"{config.levels} levels of {config.codebook_size} codes, {lookahead} decoder; "
+                f"{len(self.train_set.clips)} train clips, {len(self.val_clips)} val clips, "
+                f"{per_epoch} steps an epoch")
 
-    device = process.device
-    sums, count, window_start = None, 0, time.perf_counter()
-    while step < steps:
-        x = next(stream).to(device, non_blocking=True)
-        torch.manual_seed(step_seed(seed, process.rank, step))
-        lr = warmup_cosine(step, recipe["warmup"], steps, recipe["lr"], recipe["lr"] / 10)
-        set_learning_rate(optimizer, lr)
-        output = ddp(x, decoder_only=decoder_only)
-        optimizer.zero_grad(set_to_none=True)
-        output.losses["total"].backward()
-        nn.utils.clip_grad_norm_(model.parameters(), GRAD_CLIP)
-        optimizer.step()
-        if average is not None:
-            average.update(model)
-        step += 1
-        values = _train_values(output.losses, output.stats)
-        sums = values if sums is None else sums + values
-        count += 1
+    def step(self, model: nn.Module, batch: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+        """Every loss term, then the mean perplexity and usage, and the codes re-drawn."""
+        output = model(batch.to(self.process.device, non_blocking=True),
+                       decoder_only=self.decoder_only)
+        stats = output.stats
+        return output.losses["total"], dict(
+            {name: value.detach() for name, value in output.losses.items()},
+            perplexity=stats["perplexity"].mean(), usage=stats["usage"].mean(),
+            dead_codes=stats["dead_codes"].sum())
 
-        if step % options.log_every == 0 or step == steps:
-            rate = count / (time.perf_counter() - window_start)
-            names = [*output.losses, *STAT_NAMES]
-            values = all_reduce_mean(dict(zip(names, (sums / count).tolist())), process)
-            log.write("train", step, lr=lr, **values, steps_per_s=round(rate, 3))
-            if process.is_main:
-                print(f"step {step}/{steps}  loss {values['total']:.4f}  recon "
-                      f"{values['recon']:.4f}  joints {values['joints']:.4f}  perplexity "
-                      f"{values['perplexity']:.0f}  lr {lr:.2e}  {rate:.2f} steps/s  "
-                      f"eta {format_duration((steps - step) / rate)}", flush=True)
-            sums, count, window_start = None, 0, time.perf_counter()
-        if step % options.val_every == 0 or step == steps:
-            if process.is_main:
-                measured = model if average is None else average.averaged(model)
-                metrics = reconstruction_metrics(measured, clip_batches(val_clips, device))
-                improved = metrics["mpjpe_mm"] < best
-                best = min(best, metrics["mpjpe_mm"])
-                log.write("val", step, **metrics)
-                print(f"val {step}  MPJPE {metrics['mpjpe_mm']:.1f} mm  feature L1 "
-                      f"{metrics['feature_l1']:.4f}  by levels "
-                      f"{' '.join(f'{v:.0f}' for v in metrics['mpjpe_mm_by_levels'])} mm"
-                      f"{'  (averaged weights)' if average else ''}"
-                      f"{'  (best)' if improved else ''}", flush=True)
-                if improved:
-                    save_checkpoint(out / "best.pt", measured, None, step, asdict(config),
-                                    best_val_mpjpe_mm=best, **extra)
-        if process.is_main and (step % options.checkpoint_every == 0 or step == steps):
-            save_checkpoint(out / "checkpoint.pt", model, optimizer, step, asdict(config),
-                            best_val_mpjpe_mm=best,
-                            averaged_parameters=None if average is None else average.parameters,
-                            **extra)
+    def stepped(self, model: nn.Module) -> None:
+        if self.average is not None:
+            self.average.update(model)
 
+    def train_line(self, values: dict[str, float]) -> str:
+        return (f"loss {values['total']:.4f}  recon {values['recon']:.4f}  joints "
+                f"{values['joints']:.4f}  perplexity {values['perplexity']:.0f}")
 
-STAT_NAMES = ("perplexity", "usage", "dead_codes")
+    def validate(self, model: nn.Module) -> dict[str, float] | None:
+        """Rank 0 alone decodes the val clips."""
+        if not self.process.is_main:
+            return None
+        return reconstruction_metrics(self.kept(model),
+                                      clip_batches(self.val_clips, self.process.device))
+
+    def val_line(self, values: dict[str, float]) -> str:
+        return (f"MPJPE {values['mpjpe_mm']:.1f} mm  feature L1 {values['feature_l1']:.4f}  "
+                f"by levels {' '.join(f'{v:.0f}' for v in values['mpjpe_mm_by_levels'])} mm"
+                f"{'  (averaged weights)' if self.average else ''}")
+
+    def kept(self, model: nn.Module) -> nn.Module:
+        return model if self.average is None else self.average.averaged(model)
+
+    def checkpoint_extras(self, values: dict[str, float] | None) -> dict:
+        if values is not None:
+            return dict(self.extra)
+        return dict(averaged_parameters=None if self.average is None else self.average.parameters,
+                    **self.extra)
 
 
 def only_item(items: list[Tensor]) -> Tensor:
     """The DataLoader collate of batches of one item that is a batch itself."""
     return items[0]
-
-
-def _train_values(losses: dict[str, Tensor], stats: dict[str, Tensor]) -> Tensor:
-    """What a training log line holds, kept on the device until the line is written (reading
-    a value back each step would stall the GPU): every loss term, then STAT_NAMES: mean
-    perplexity and usage, codes re-drawn."""
-    return torch.stack([*(value.detach() for value in losses.values()),
-                        stats["perplexity"].mean(), stats["usage"].mean(),
-                        stats["dead_codes"].sum()])
 
 
 def whole_clips(folder: HumanML3DFolder, split: str, down_factor: int,

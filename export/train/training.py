@@ -26,6 +26,7 @@ from torch.utils.data import DataLoader, Dataset, DistributedSampler
 from mogo.export.models.runs import CHECKPOINT_FORMAT, load_checkpoint
 
 GPU_LOADER_WORKERS = 3
+WEIGHT_DECAY = 0.1  # of make_optimizer
 
 
 @dataclass(frozen=True)
@@ -183,6 +184,16 @@ def begin_step(optimizer: torch.optim.Optimizer, recipe: dict, step: int, steps:
 def set_learning_rate(optimizer: torch.optim.Optimizer, lr: float) -> None:
     for group in optimizer.param_groups:
         group["lr"] = lr
+
+
+def make_optimizer(model: nn.Module, lr: float) -> torch.optim.AdamW:
+    """AdamW with weight decay on the weights of linear layers only (not on norms, biases,
+    embeddings, relative-position tables or learned prompt/level vectors)."""
+    decayed = {id(m.weight) for m in model.modules() if isinstance(m, nn.Linear)}
+    params = [p for p in model.parameters() if p.requires_grad]
+    groups = [dict(params=[p for p in params if id(p) in decayed], weight_decay=WEIGHT_DECAY),
+              dict(params=[p for p in params if id(p) not in decayed], weight_decay=0.0)]
+    return torch.optim.AdamW(groups, lr=lr, betas=(0.9, 0.99))
 
 
 def save_checkpoint(path: Path, model: nn.Module, optimizer: torch.optim.Optimizer | None,
