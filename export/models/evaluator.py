@@ -14,9 +14,8 @@ Loss: the symmetric InfoNCE of CLIP with a learned temperature, not Guo et al.'s
 every caption in a batch is contrasted with every motion of it (B - 1 negatives, the same
 retrieval among many that R-precision measures), and there is no margin to tune.
 
-The ONNX graphs (mogo.export.onnx.evaluator_graphs) take token ids and mask, and normalised features and
-lengths; the folder also holds the tokenizer and the mean/std the features are normalised
-with, so `mogo.bench.quality.evaluator` embeds without torch.
+Its ONNX export, for `mogo.bench.quality.evaluator` to embed without torch, is in
+mogo.export.onnx.evaluator_graphs.
 """
 from __future__ import annotations
 

@@ -40,7 +40,8 @@ def another_default(base: type, name: str, default: Any) -> Any:
 
 @dataclass(kw_only=True)
 class RunOptions:
-    """What every `mogo train` run takes."""
+    """What every `mogo train` run takes; each trainer's options give batch_size, lr and warmup
+    their run defaults."""
     data: Path = option(help="dataset folder (HumanML3D layout)")
     out: Path = option(help="run folder (checkpoints, metrics)")
     preset: str | None = recipe("cpu_default", "model size (default {default})",

@@ -13,6 +13,7 @@ exact).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import numpy as np
 import torch
 from tokenizers import Tokenizer
 from torch import Tensor, nn
+from torch.utils.data import Dataset
 
 from mogo.export.data.metrics import R_PRECISION_BATCH, matching_score, r_precision
 from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
@@ -99,7 +101,7 @@ class EvaluatorTrainer(Trainer):
     def optimizer(self, model: nn.Module) -> torch.optim.Optimizer:
         return make_optimizer(model, self.recipe["lr"])
 
-    def data(self):
+    def data(self) -> tuple[Dataset, int, Callable | None]:
         return self.train_set, self.recipe["batch_size"], collate_text_motion
 
     def banner(self, model: nn.Module, per_epoch: int) -> str:

@@ -25,6 +25,7 @@ import torch
 import torch.distributed as dist
 from tokenizers import Tokenizer
 from torch import Tensor, nn
+from torch.utils.data import Dataset
 
 from mogo.bundle import file_sha256
 from mogo.progress import Progress
@@ -233,7 +234,7 @@ class T2MTrainer(Trainer):
             print(f"note: the run started with {started} processes, now "
                   f"{self.process.world_size}: the batches differ from an uninterrupted run")
 
-    def data(self):
+    def data(self) -> tuple[Dataset, int, Callable | None]:
         max_tokens = MAX_FRAMES // self.config["vq"]["down_factor"]
         self.train_set, self.val_set = (
             TokenSpans(read_tokens(self.out / "tokens" / f"{split}.npz"), max_tokens,

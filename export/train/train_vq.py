@@ -27,6 +27,7 @@ from pathlib import Path
 
 import torch
 from torch import Tensor, nn
+from torch.utils.data import Dataset
 
 from mogo.export.models.runs import read_vq_checkpoint, tokens_sha256, vq_checkpoint
 from mogo.export.models.vq import MoSAVQ, VQConfig, reconstruction_metrics
@@ -181,7 +182,7 @@ class VQTrainer(Trainer):
             if state is not None and state.get("averaged_parameters"):
                 self.average.parameters = state["averaged_parameters"]
 
-    def data(self):
+    def data(self) -> tuple[Dataset, int, Callable | None]:
         recipe, down = self.recipe, self.config.down_factor
         if recipe["whole_clips"]:  # items are batches already
             self.train_set = WholeClipBatches(self.folder, "train", recipe["batch_size"],
