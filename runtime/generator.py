@@ -29,7 +29,7 @@ from mogo.bundle import Bundle, BundleError
 from mogo.motion.features import JointStream
 from mogo.clip import Motion
 from mogo.sampling import Sampling
-from mogo.motion.skeleton import SKELETONS
+from mogo.motion.skeleton import MAX_SECONDS, SKELETONS
 from mogo.stream_decoder import StreamingDecoder
 from mogo.token_generator import TokenGenerator, TokenStream
 
@@ -97,7 +97,7 @@ class MotionGenerator:
         if isinstance(align, PromptAligner):
             return align
         if align is True:
-            return RuleAligner(self.vocabulary(), float(self.defaults.get("max_seconds", 9.8)))
+            return RuleAligner(self.vocabulary(), float(self.defaults.get("max_seconds", MAX_SECONDS)))
         if align is False or align is None:
             return None
         raise ValueError(f"align must be True, False or a PromptAligner, got {align!r}")
@@ -125,7 +125,7 @@ class MotionGenerator:
             motions = [self._play_aligned(aligner.align(_checked_prompt(t)), seconds, seed + k,
                                           options) for k, t in enumerate(texts)]
             return motions[0] if isinstance(text, str) else motions
-        max_steps = self._steps(float(self.defaults.get("max_seconds", 9.8)))
+        max_steps = self._steps(float(self.defaults.get("max_seconds", MAX_SECONDS)))
         motions = []
         for k, (prompt, embedding) in enumerate(zip(texts, self.embed(texts))):
             tokens = self.tokens.generate(embedding, steps, max_steps, sampling, seed + k,

@@ -32,8 +32,8 @@ from mogo.progress import Progress
 from mogo.export.data.humanml3d import DatasetError, parse_caption_line
 from mogo.generator import MotionGenerator
 from mogo.clip import Motion
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 
-MIN_FRAMES, MAX_FRAMES = 40, 196
 COLUMNS = ("R-Precision Top-1", "Top-2", "Top-3", "FID", "MM-Dist", "Diversity",
            "MultiModality")
 

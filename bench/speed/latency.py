@@ -43,10 +43,11 @@ from mogo.bundle import Bundle
 from mogo.generator import (DEFAULT_BUNDLE, STREAM_DECODE_EVERY, MotionGenerator,
                                     MotionStream)
 from mogo.sampling import Sampling, choose_token
+from mogo.motion.skeleton import MAX_FRAMES, MAX_SECONDS
 from mogo.token_generator import TokenGenerator
 
 PROMPT = "a person walks forward, then waves with the right hand."
-CLIP_FRAMES = 196  # HumanML3D's longest clip: 9.8 s at 20 fps
+CLIP_FRAMES = MAX_FRAMES  # HumanML3D's longest clip: 9.8 s at 20 fps
 SAMPLING = Sampling(temperature=1.0, top_p=0.9)  # the shipped defaults
 SPAN = 96  # steps averaged at each point of the long stream (a multiple of the decode burst)
 
@@ -173,7 +174,7 @@ def runtime_peak_rss(bundle_dir: Path) -> float:
         "import sys\n"
         "from mogo.generator import MotionGenerator\n"
         "g = MotionGenerator.load(sys.argv[1])\n"
-        f"g.generate({PROMPT!r}, seconds=9.8, seed=0)\n"
+        f"g.generate({PROMPT!r}, seconds={MAX_SECONDS!r}, seed=0)\n"
         f"s = g.stream({PROMPT!r}, seed=0)\n"
         "for _ in range(2000): s.step()\n"
         "assert 'torch' not in sys.modules\n"

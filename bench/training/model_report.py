@@ -13,11 +13,12 @@ from pathlib import Path
 import torch
 
 from mogo.export.train.datasets import HumanML3DFolder
-from mogo.export.train.train_t2m import (MAX_FRAMES, TextToMotion, TokenSpans, load_t2m,
+from mogo.export.train.train_t2m import (TextToMotion, TokenSpans, load_t2m,
                                    tokenize_split, validate)
 from mogo.export.train.train_vq import clip_batches, load_vq, whole_clips
 from mogo.export.train.training import Process
 from mogo.export.models.vq import reconstruction_metrics
+from mogo.motion.skeleton import MAX_FRAMES
 
 
 def main() -> None:

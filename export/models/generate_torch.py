@@ -16,12 +16,13 @@ import numpy as np
 import torch
 
 from mogo.export.models.t2m import T2M
+from mogo.motion.skeleton import MAX_FRAMES
 from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
 
 
 @torch.no_grad()
 def generate(model: T2M, prompt_embedding: torch.Tensor, num_frames: int | None = None,
-             max_frames: int = 196, temperature: float = 1.0, top_k: int = 0, top_p: float = 1.0,
+             max_frames: int = MAX_FRAMES, temperature: float = 1.0, top_k: int = 0, top_p: float = 1.0,
              guidance_scale: float = 1.0, seed: int = 0, use_cache: bool = True,
              window: int | None = None) -> np.ndarray:
     """prompt_embedding (text_dim,) -> token ids (T, L) int64.

@@ -16,7 +16,7 @@ import torch
 from torch.utils.data import Dataset
 
 from mogo.export.data.humanml3d import Caption, DatasetError, parse_caption_line
-from mogo.motion.skeleton import Skeleton, skeleton_for_feature_dim
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES, Skeleton, skeleton_for_feature_dim
 
 SPLITS = ("train", "val", "test")
 
@@ -273,8 +273,8 @@ class TextMotionDataset(_EpochSeeded):
     Item: dict(caption=str, motion=(T, D) float32 tensor, length=T, id=clip ID).
     """
 
-    def __init__(self, folder: HumanML3DFolder, split: str, min_frames: int = 40,
-                 max_frames: int = 196, seed: int = 0):
+    def __init__(self, folder: HumanML3DFolder, split: str, min_frames: int = MIN_FRAMES,
+                 max_frames: int = MAX_FRAMES, seed: int = 0):
         super().__init__(seed)
         if not 1 <= min_frames <= max_frames:
             raise ValueError(f"need 1 <= min_frames <= max_frames, got {min_frames}, {max_frames}")

@@ -33,8 +33,8 @@ from mogo.export.train.training import (Process, RunOptions, all_reduce_mean, ba
                                   load_checkpoint, merge_recipe, previous_run,
                                   resumed_metrics_log, save_checkpoint, seed_everything,
                                   start_process, steps_per_epoch, wrap_model)
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 
-MIN_FRAMES, MAX_FRAMES = 40, 196  # the caption spans the motion model trains on
 GRAD_CLIP = 1.0
 TOKENIZER = "tokenizer.json"
 VOCAB = dict(tiny=100, cpu_default=4000)

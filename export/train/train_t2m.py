@@ -45,9 +45,8 @@ from mogo.export.train.training import (Process, RunOptions, all_reduce_mean, ba
 from mogo.export.train.train_vq import load_vq, vq_checkpoint
 from mogo.export.models.vq import MoSAVQ, VQConfig
 from mogo.bundle import file_sha256
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 
-MIN_FRAMES = 40  # caption spans shorter than this are skipped (the standard loaders' rule)
-MAX_FRAMES = 196  # longer spans: a random window of this many frames each epoch
 WEIGHT_DECAY = 0.1
 GRAD_CLIP = 1.0
 TOKENIZE_BATCH = 128
