@@ -287,7 +287,7 @@ def test_generate_aligned_plays_the_steps_as_one_motion(generator, tmp_path):
 
 
 def test_generate_aligned_list_and_default(generator):
-    first, second = generator.generate(["jump twice", "sit down"], seed=1, align=True)
+    first, second = generator.generate_batch(["jump twice", "sit down"], seed=1, align=True)
     assert first.alignment.steps[0].prompt == "a person jumps twice."
     assert len(first.joints) == round(first.alignment.seconds * generator.fps)
     assert second.prompts == [(0, "a person sits down.")]

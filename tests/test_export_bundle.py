@@ -21,6 +21,7 @@ from mogo.export.train.train_vq import load_vq
 from mogo.export.train.training import load_checkpoint
 from mogo.bundle import file_sha256
 from mogo.generator import MotionGenerator
+from mogo.sampling import Sampling
 
 PROMPT = "a person walks forward."
 
@@ -60,14 +61,14 @@ def test_the_manifest_describes_the_bundle(runs):
     assert 0 < storage["vq_decoder_feature_max_abs_difference"] < 1e-2
 
 
-@pytest.mark.parametrize("options", [dict(temperature=0.0), dict(temperature=1.0, top_p=0.9)])
-def test_runtime_tokens_are_the_torch_references(runs, options):
+@pytest.mark.parametrize("sampling", [Sampling(temperature=0.0), Sampling(top_p=0.9)])
+def test_runtime_tokens_are_the_torch_references(runs, sampling):
     generator = MotionGenerator.load(runs / "bundle")
-    motion = generator.generate(PROMPT, seconds=1.5, seed=3, **options)
+    motion = generator.generate(PROMPT, seconds=1.5, seed=3, sampling=sampling)
     t2m, text_encoder, tokenizer = load_t2m(runs / "t2m")
     with torch.no_grad():
         embedding = text_encoder.encode(*encode_captions(tokenizer, [PROMPT]))[0]
-    reference = generate(t2m, embedding, num_frames=30, seed=3, **options)
+    reference = generate(t2m, embedding, num_frames=30, seed=3, sampling=sampling)
     assert np.array_equal(motion.tokens, reference)
 
 

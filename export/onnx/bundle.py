@@ -28,7 +28,8 @@ from mogo.token_generator import TokenGenerator
 INT8_MIN_AGREEMENT = 0.98  # share of greedy tokens int8 must keep to replace fp32
 CHECK_STEPS = 40  # steps of each check prompt
 CHECK_PROMPTS = 16  # distinct val captions the int8 check generates from
-DEFAULTS = dict(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=128, max_seconds=MAX_SECONDS)
+DEFAULT_SAMPLING = Sampling(top_p=0.9)  # what a bundle's manifest says, under Sampling's names
+DEFAULTS = dict(**asdict(DEFAULT_SAMPLING), window=128, max_seconds=MAX_SECONDS)
 
 
 
