@@ -12,7 +12,7 @@ from pathlib import Path
 
 import torch
 
-from mogo.export.train.datasets import HumanML3DFolder
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.train.train_t2m import (TextToMotion, TokenSpans, load_t2m,
                                    tokenize_split, validate)
 from mogo.export.train.train_vq import clip_batches, load_vq, whole_clips

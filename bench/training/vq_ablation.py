@@ -20,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from mogo.export.train.datasets import HumanML3DFolder
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.train.train_vq import clip_batches, load_vq, whole_clips
 from mogo.export.train.training import load_checkpoint
 from mogo.export.models.vq import reconstruction_metrics
