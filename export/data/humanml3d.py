@@ -98,14 +98,15 @@ class HumanML3DFolder:
         self.root = Path(root)
         if not self.root.is_dir():
             raise DatasetError(f"{self.root}: dataset folder not found")
-        for name in splits:
-            if name not in SPLITS:
-                raise ValueError(f"unknown split {name!r}; expected one of {', '.join(SPLITS)}")
-            if not (self.root / f"{name}.txt").is_file():
-                raise DatasetError(f"{self.root / f'{name}.txt'}: split file missing")
-        for sub in ("new_joint_vecs", "texts"):
-            if not (self.root / sub).is_dir():
-                raise DatasetError(f"{self.root / sub}: folder missing (HumanML3D layout)")
+        unknown = [name for name in splits if name not in SPLITS]
+        if unknown:
+            raise ValueError(f"unknown split {unknown[0]!r}; expected one of {', '.join(SPLITS)}")
+        missing = [f"{self.root / sub}: folder missing (HumanML3D layout)"
+                   for sub in ("new_joint_vecs", "texts") if not (self.root / sub).is_dir()]
+        missing += [f"{self.root / f'{name}.txt'}: split file missing" for name in splits
+                    if not (self.root / f"{name}.txt").is_file()]
+        if missing:  # all of them at once: a folder that is not the layout at all says so
+            raise DatasetError("; ".join(missing))
         if not root_contact_scale > 0:
             raise ValueError(f"root_contact_scale must be positive, got {root_contact_scale}")
         self.skeleton, self.mean, self.std = self._statistics(root_contact_scale)
