@@ -19,8 +19,9 @@ import unicodedata
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
+from mogo.motion.skeleton import MAX_SECONDS
+
 MIN_STEP_SECONDS = 1.0
-MAX_STEP_SECONDS = 9.8  # the longest clip the default model trained on
 
 
 @dataclass(frozen=True)
@@ -220,7 +221,7 @@ class RuleAligner(PromptAligner):
     no word is replaced or reported (typos are still fixed onto the rules' own words)."""
 
     def __init__(self, vocabulary: Iterable[str] | None = None,
-                 max_step_seconds: float = MAX_STEP_SECONDS):
+                 max_step_seconds: float = MAX_SECONDS):
         self.vocabulary = None if vocabulary is None else frozenset(vocabulary)
         self.max_step_seconds = max_step_seconds
         phrases = SUBJECTS + FILLERS + CAUSATIVES + NUMBERS + LEFT_ALONE + tuple(NOUNS)

@@ -8,8 +8,11 @@ import importlib.util
 import json
 import os
 import sys
+from dataclasses import fields
 from importlib.metadata import entry_points
 from pathlib import Path
+
+from mogo.sampling import Sampling
 
 PLUGIN_GROUP = "mogo.commands"
 
@@ -33,9 +36,10 @@ def _load_generator(args: argparse.Namespace):
     return MotionGenerator.load(args.bundle, threads=threads)
 
 
-def _sampling_options(args: argparse.Namespace) -> dict:
-    return dict(temperature=args.temperature, top_k=args.top_k, top_p=args.top_p,
-                guidance=args.guidance)
+def _sampling(args: argparse.Namespace, generator):
+    """The --temperature, --top-k, ... given, over the bundle's defaults."""
+    return generator.sampling(**{option.name: getattr(args, option.name)
+                                 for option in fields(Sampling)})
 
 
 def _read_schedule(path: Path) -> list[tuple[str, float]]:
@@ -86,12 +90,12 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
     generator = _load_generator(args)
-    options = _sampling_options(args)
+    sampling = _sampling(args, generator)
     if args.prompts_file:
-        motion = generator.play(schedule, seed=args.seed, **options)
+        motion = generator.play(schedule, seed=args.seed, sampling=sampling)
     else:
         motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
-                                    align=_aligner(args, generator), **options)
+                                    sampling=sampling, align=_aligner(args, generator))
     if motion.alignment is not None:
         print(motion.alignment.describe())
         if motion.alignment.note:
@@ -112,7 +116,7 @@ def _cmd_stream(args: argparse.Namespace) -> None:
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be at least 1, got {args.frames}")
     generator = _load_generator(args)
-    stream = generator.stream(args.text, seed=args.seed, **_sampling_options(args))
+    stream = generator.stream(args.text, seed=args.seed, sampling=_sampling(args, generator))
     try:
         for index, frame in enumerate(stream.frames(args.frames)):
             record = dict(frame=index, seconds=round(index / generator.fps, 4),
@@ -163,15 +167,14 @@ def _cmd_info(args: argparse.Namespace) -> None:
     print("\n".join(lines))
 
 
-def _sampling_arguments(command: argparse.ArgumentParser) -> None:
+def _generation_arguments(command: argparse.ArgumentParser) -> None:
+    """--bundle, --seed, a flag per field of Sampling (--top-k for top_k) and --threads."""
     command.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
     command.add_argument("--seed", type=int, help="same seed, same motion (default: random, "
                                                   "printed)")
-    command.add_argument("--temperature", type=float, help="0 = greedy (default: bundle's)")
-    command.add_argument("--top-k", type=int, help="0 = off (default: bundle's)")
-    command.add_argument("--top-p", type=float, help="1 = off (default: bundle's)")
-    command.add_argument("--guidance", type=float,
-                         help="classifier-free guidance scale, 1 = off (default: bundle's)")
+    for option in fields(Sampling):
+        command.add_argument("--" + option.name.replace("_", "-"), type=type(option.default),
+                             help=f"{option.metadata['help']} (default: the bundle's)")
     command.add_argument("--threads", type=int,
                          help="cores to use; the same motion for any count (default: 2 where "
                               "there are 2 or more, the fastest measured)")
@@ -200,14 +203,14 @@ def _add_runtime_commands(commands) -> None:
                                               "MOGO_LLM_MODEL)")
     generate.add_argument("--llm-timeout", type=float, default=10.0,
                           help="seconds to wait for the LLM before using the rules (default 10)")
-    _sampling_arguments(generate)
+    _generation_arguments(generate)
     generate.set_defaults(run=_cmd_generate)
 
     stream = commands.add_parser(
         "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)")
     stream.add_argument("text", help="what the person does")
     stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
-    _sampling_arguments(stream)
+    _generation_arguments(stream)
     stream.set_defaults(run=_cmd_stream)
 
     info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")

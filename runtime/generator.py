@@ -29,7 +29,7 @@ from mogo.bundle import Bundle, BundleError
 from mogo.motion.features import JointStream
 from mogo.clip import Motion
 from mogo.sampling import Sampling
-from mogo.motion.skeleton import SKELETONS
+from mogo.motion.skeleton import MAX_SECONDS, SKELETONS
 from mogo.stream_decoder import StreamingDecoder
 from mogo.token_generator import TokenGenerator, TokenStream
 
@@ -79,6 +79,11 @@ class MotionGenerator:
             raise ValueError(f"threads must be >= 1, got {threads}")
         return cls(Bundle.load(bundle_dir), threads)
 
+    @property
+    def max_seconds(self) -> float:
+        """The longest motion one prompt gets when the model ends it (the bundle's)."""
+        return float(self.defaults.get("max_seconds", MAX_SECONDS))
+
     # -- text --------------------------------------------------------------------------------
     def embed(self, texts: Sequence[str]) -> np.ndarray:
         """Prompt embeddings (B, text_dim) float32."""
@@ -97,53 +102,60 @@ class MotionGenerator:
         if isinstance(align, PromptAligner):
             return align
         if align is True:
-            return RuleAligner(self.vocabulary(), float(self.defaults.get("max_seconds", 9.8)))
+            return RuleAligner(self.vocabulary(), self.max_seconds)
         if align is False or align is None:
             return None
         raise ValueError(f"align must be True, False or a PromptAligner, got {align!r}")
 
     # -- whole clips ---------------------------------------------------------------------------
-    def generate(self, text: str | Sequence[str], seconds: float | None = None,
-                 seed: int | None = None, temperature: float | None = None,
-                 top_k: int | None = None, top_p: float | None = None,
-                 guidance: float | None = None,
-                 align: bool | PromptAligner = False) -> Motion | list[Motion]:
-        """One Motion per prompt (a list for a list of prompts). seconds=None lets the model
-        end the motion (at most the bundle's max_seconds); seed=None draws a fresh seed,
-        kept in Motion.seed so the result can be reproduced. align=True (or a PromptAligner)
-        rewrites each prompt into caption-style steps played as one motion (see
-        mogo.align); the steps are kept in Motion.alignment."""
-        texts = [text] if isinstance(text, str) else list(text)
-        if not texts:
-            raise ValueError("no prompt given")
-        options = dict(temperature=temperature, top_k=top_k, top_p=top_p, guidance=guidance)
-        sampling = self.sampling(**options)
+    def generate(self, text: str, seconds: float | None = None, seed: int | None = None,
+                 sampling: Sampling | None = None, align: bool | PromptAligner = False,
+                 **options) -> Motion:
+        """One prompt -> one Motion. seconds=None lets the model end the motion (at most the
+        bundle's max_seconds); seed=None draws a fresh seed, kept in Motion.seed so the result
+        can be reproduced. `sampling` and the keyword `options`: see `sampling()`.
+        align=True (or a PromptAligner) rewrites the prompt into caption-style steps (see
+        mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment."""
+        sampling = self.sampling(sampling, **options)
         steps = None if seconds is None else self._steps(seconds)
         seed = _fresh_seed() if seed is None else _checked_seed(seed)
         aligner = self.aligner(align)
         if aligner is not None:
-            motions = [self._play_aligned(aligner.align(_checked_prompt(t)), seconds, seed + k,
-                                          options) for k, t in enumerate(texts)]
-            return motions[0] if isinstance(text, str) else motions
-        max_steps = self._steps(float(self.defaults.get("max_seconds", 9.8)))
-        motions = []
-        for k, (prompt, embedding) in enumerate(zip(texts, self.embed(texts))):
-            tokens = self.tokens.generate(embedding, steps, max_steps, sampling, seed + k,
-                                          self.defaults.get("window"))
-            frames = None if seconds is None else round(seconds * self.fps)
-            motions.append(self.decode(tokens, [(0, prompt)], frames, seed + k))
-        return motions[0] if isinstance(text, str) else motions
+            return self._play_aligned(aligner.align(_checked_prompt(text)), seconds, seed,
+                                      sampling)
+        max_steps = self._steps(self.max_seconds)
+        tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
+                                      self.defaults.get("window"))
+        frames = None if seconds is None else round(seconds * self.fps)
+        return self.decode(tokens, [(0, text)], frames, seed)
+
+    def generate_batch(self, texts: Sequence[str], seconds: float | None = None,
+                       seed: int | None = None, sampling: Sampling | None = None,
+                       align: bool | PromptAligner = False, **options) -> list[Motion]:
+        """`generate` for each prompt, in order: prompt k with seed + k (seed=None: one fresh
+        seed for the batch), so any of them can be reproduced alone."""
+        if isinstance(texts, str):
+            raise ValueError("generate_batch takes a list of prompts; generate takes one")
+        if not texts:
+            raise ValueError("no prompt given")
+        for text in texts:
+            _checked_prompt(text)
+        sampling = self.sampling(sampling, **options)
+        seed = _fresh_seed() if seed is None else _checked_seed(seed)
+        aligner = self.aligner(align) or False
+        return [self.generate(text, seconds, seed + k, sampling, aligner)
+                for k, text in enumerate(texts)]
 
     def _play_aligned(self, alignment: Alignment, seconds: float | None, seed: int,
-                      options: dict) -> Motion:
+                      sampling: Sampling) -> Motion:
         if seconds is not None:
             alignment = alignment.scaled(seconds)
-        motion = self.play(alignment.schedule(), seed, **options)
+        motion = self.play(alignment.schedule(), seed, sampling)
         motion.alignment = alignment
         return motion
 
     def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
-             **options) -> Motion:
+             sampling: Sampling | None = None, **options) -> Motion:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
         fly: the same stream, so every switch is a smooth continuation."""
         if not schedule:
@@ -152,7 +164,7 @@ class MotionGenerator:
         for prompt, seconds in schedule:
             _checked_prompt(prompt)
             self._steps(seconds)
-        stream = self.stream(schedule[0][0], seed=seed, **options)
+        stream = self.stream(schedule[0][0], seed, sampling, **options)
         for k, (prompt, seconds) in enumerate(schedule):
             if k:
                 stream.set_prompt(prompt)
@@ -184,14 +196,12 @@ class MotionGenerator:
         return self._vq_encoder.run(normalised[None])[0]
 
     # -- streams -------------------------------------------------------------------------------
-    def stream(self, text: str, seed: int | None = None, temperature: float | None = None,
-               top_k: int | None = None, top_p: float | None = None,
-               guidance: float | None = None, window: int | None = None) -> MotionStream:
-        """An endless motion; see MotionStream."""
+    def stream(self, text: str, seed: int | None = None, sampling: Sampling | None = None,
+               window: int | None = None, **options) -> MotionStream:
+        """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`."""
         seed = _fresh_seed() if seed is None else _checked_seed(seed)
         window = self.defaults.get("window") if window is None else window
-        return MotionStream(self, text, seed, self.sampling(temperature, top_k, top_p, guidance),
-                            window)
+        return MotionStream(self, text, seed, self.sampling(sampling, **options), window)
 
     def streaming_decoder(self) -> StreamingDecoder:
         d = self._decoder
@@ -199,16 +209,13 @@ class MotionGenerator:
                                 self.codebook_size, ids_name=d["inputs"][0],
                                 features_name=d["outputs"][0], every=STREAM_DECODE_EVERY)
 
-    def sampling(self, temperature=None, top_k=None, top_p=None, guidance=None) -> Sampling:
-        """Sampling options, the bundle's defaults where not given."""
-        d = self.defaults
-
-        def pick(value, name, fallback):
-            return d.get(name, fallback) if value is None else value
-
-        return Sampling(float(pick(temperature, "temperature", 1.0)),
-                        int(pick(top_k, "top_k", 0)), float(pick(top_p, "top_p", 1.0)),
-                        float(pick(guidance, "guidance", 1.0)))
+    def sampling(self, sampling: Sampling | None = None, **options) -> Sampling:
+        """How a call draws its tokens: `sampling` (None: the bundle's defaults), with keyword
+        options named as Sampling's fields (temperature=0, top_p=0.9, ...; None: not given)
+        replacing single fields."""
+        if sampling is None:
+            sampling = Sampling.from_defaults(self.defaults)
+        return sampling.updated(options)
 
     def _steps(self, seconds: float) -> int:
         if not isinstance(seconds, (int, float)) or not math.isfinite(seconds) or seconds <= 0:

@@ -18,17 +18,25 @@ entry l. A greedy run draws them too, so the stream never depends on the setting
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
 
 @dataclass(frozen=True)
 class Sampling:
-    temperature: float = 1.0  # 0: argmax
-    top_k: int = 0  # 0: off
-    top_p: float = 1.0  # 1: off
-    guidance_scale: float = 1.0  # 1: conditional logits only (no unconditional pass)
+    """How each token is drawn: the one definition of the sampling options. The `mogo`
+    command's flags (--top-p ...), the keyword options of MotionGenerator.generate/stream/play
+    and the "defaults" of a bundle's manifest all use these fields' names; adding an option
+    means a field here and its use in `choose_tokens`."""
+    temperature: float = field(default=1.0, metadata=dict(
+        help="divides the logits; 0 = greedy (the likeliest token)"))
+    top_k: int = field(default=0, metadata=dict(help="keep the k likeliest tokens; 0 = off"))
+    top_p: float = field(default=1.0, metadata=dict(
+        help="keep the likeliest tokens that hold this share of the probability; 1 = off"))
+    guidance: float = field(default=1.0, metadata=dict(
+        help="classifier-free guidance scale; 1 = off (conditional logits only)"))
 
     def __post_init__(self):
         if not self.temperature >= 0:
@@ -41,7 +49,25 @@ class Sampling:
     @property
     def guided(self) -> bool:
         """Whether the unconditional logits are needed."""
-        return self.guidance_scale != 1.0
+        return self.guidance != 1.0
+
+    @classmethod
+    def from_defaults(cls, defaults: Mapping[str, object]) -> Sampling:
+        """A bundle's sampling: the manifest's "defaults" (which hold other keys too, such as
+        window and max_seconds), the fields' own defaults where it names none."""
+        names = {option.name for option in fields(cls)}
+        return cls().updated({name: value for name, value in defaults.items() if name in names})
+
+    def updated(self, options: Mapping[str, object]) -> Sampling:
+        """These options over this sampling; None means not given. Values are converted to
+        the field's type, as a manifest's JSON or a command line gives them."""
+        known = {option.name: type(option.default) for option in fields(self)}
+        unknown = sorted(set(options) - set(known))
+        if unknown:
+            raise TypeError(f"unknown sampling option {unknown[0]!r}; the options are "
+                            f"{', '.join(known)}")
+        return replace(self, **{name: known[name](value) for name, value in options.items()
+                                if value is not None})
 
 
 def make_rng(seed: int) -> np.random.Generator:
@@ -68,11 +94,11 @@ def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndar
     z = np.asarray(cond, dtype=np.float64)
     if sampling.guided:
         if uncond is None:
-            raise ValueError(f"guidance_scale {sampling.guidance_scale} needs unconditional logits")
+            raise ValueError(f"guidance {sampling.guidance} needs unconditional logits")
         u = np.asarray(uncond, dtype=np.float64)
         with np.errstate(invalid="ignore"):  # padding: -inf in both stays -inf
             z = np.where(np.isneginf(z) & np.isneginf(u), -np.inf,
-                         u + sampling.guidance_scale * (z - u))
+                         u + sampling.guidance * (z - u))
     rows = np.arange(len(z))
     if forbid is not None and any(f is not None for f in forbid):
         z = z.copy()

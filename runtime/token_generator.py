@@ -26,6 +26,7 @@ import numpy as np
 
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 from mogo._session import cpu_session
+from mogo.motion.skeleton import MAX_FRAMES
 
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
 
@@ -76,7 +77,7 @@ class TokenGenerator:
         return TokenStream(self, prompt_embedding, seed, sampling, window, allow_end)
 
     def generate(self, prompt_embedding: np.ndarray, num_frames: int | None = None,
-                 max_frames: int = 196, sampling: Sampling = Sampling(), seed: int = 0,
+                 max_frames: int = MAX_FRAMES, sampling: Sampling = Sampling(), seed: int = 0,
                  window: int | None = None) -> np.ndarray:
         """prompt_embedding (text_dim,) -> token ids (T, L) int64. num_frames given: exactly that
         many steps, the end token masked. None: until level 0 draws the end token or max_frames."""

@@ -2,13 +2,15 @@
 import json
 import subprocess
 import sys
+from dataclasses import fields
 
 import numpy as np
 import pytest
 
-from mogo.cli import main
+from mogo.cli import build_parser, main
 from mogo.motion.bvh import read_bvh
 from mogo.motion.skeleton import SMPL_22
+from mogo.sampling import Sampling
 
 
 def test_generate_writes_the_files_and_says_where(tmp_path, capsys):
@@ -56,6 +58,22 @@ def test_stream_prints_json_lines():
     lines = [json.loads(line) for line in result.stdout.splitlines()]
     assert [line["frame"] for line in lines] == [0, 1, 2, 3, 4]
     assert np.array(lines[0]["joints"]).shape == (22, 3)
+
+
+def test_every_sampling_field_is_a_flag_of_generate_and_stream(capsys):
+    options = fields(Sampling)
+    flags = [f"--{option.name.replace('_', '-')}" for option in options]
+    for verb in ("generate", "stream"):
+        given = [word for flag in flags for word in (flag, "1")]
+        args = build_parser().parse_args([verb, "walk", *given])
+        assert all(getattr(args, o.name) == type(o.default)(1) for o in options)
+        assert all(getattr(build_parser().parse_args([verb, "walk"]), o.name) is None
+                   for o in options)  # not given: the bundle's default
+        with pytest.raises(SystemExit):
+            build_parser().parse_args([verb, "--help"])
+        shown = "".join(capsys.readouterr().out.split())  # wrapped at any width
+        assert all(flag in shown and "".join(option.metadata["help"].split()) in shown
+                   for flag, option in zip(flags, options))
 
 
 def test_info_describes_the_default_bundle(capsys):

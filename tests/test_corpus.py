@@ -6,12 +6,11 @@ import pytest
 
 from mogo.export.data.animator import Segment
 from mogo.export.data.captions import JOINERS, TEMPLATES
-from mogo.export.data.corpus import (MAX_FRAMES, MIN_FRAMES, heldout_pairs, mirror_segment,
-                                synthesize_corpus)
+from mogo.export.data.corpus import heldout_pairs, mirror_segment, synthesize_corpus
 from mogo.export.data.humanml3d import parse_caption_line
 from mogo.motion.features import features_to_joints
 from mogo.motion.mirror import mirror_joints, mirror_text
-from mogo.motion.skeleton import SMPL_22
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES, SMPL_22
 
 CLIPS = 24
 SEED = 3

@@ -3,9 +3,10 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from mogo.export.train.datasets import (Caption, DatasetError, HumanML3DFolder, MotionCropDataset,
-                                 TextMotionDataset, WholeClipBatches, collate_text_motion,
-                                 parse_caption_line)
+from mogo.export.data.humanml3d import (Caption, DatasetError, HumanML3DFolder,
+                                        parse_caption_line)
+from mogo.export.train.datasets import (MotionCropDataset, TextMotionDataset, WholeClipBatches,
+                                        collate_text_motion)
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
 from conftest import CLIP_FRAMES
@@ -60,7 +61,6 @@ def test_normalize_round_trip(tiny_humanml3d):
     x = folder.features("000001")
     z = folder.normalize(x)
     np.testing.assert_allclose(folder.denormalize(z), x, atol=1e-5)
-    np.testing.assert_allclose(folder.normalize(torch.from_numpy(x)).numpy(), z, atol=1e-6)
     boosted = HumanML3DFolder(tiny_humanml3d, root_contact_scale=5.0)
     np.testing.assert_allclose(boosted.std[:4] * 5, folder.std[:4])
     np.testing.assert_allclose(boosted.std[-4:] * 5, folder.std[-4:])

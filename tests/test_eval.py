@@ -10,7 +10,8 @@ import pytest
 
 from mogo.bench.quality import evaluate as evaluate_module
 from mogo.bench.quality import semantic
-from mogo.bench.quality.evaluate import EvalOptions, SplitReader, evaluate
+from mogo.bench.quality.evaluate import EvalOptions, caption_items, evaluate
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.cli import main
 
 MM_ARGS = ["--mm-captions", "1", "--mm-generations", "10"]
@@ -82,20 +83,21 @@ class MeanFeatures:
         return np.stack([f[:, :8].mean(0) for f in features])
 
 
-def replay_real_clips(monkeypatch, reader: SplitReader) -> None:
+def replay_real_clips(monkeypatch, folder: HumanML3DFolder) -> None:
     """Generation replaced by the real clips: for tests of what comes after it."""
     def real(generator, items, seed, threads=1, label=""):
-        return [SimpleNamespace(features=reader.item_features(item),
-                                joints=reader.joints(item.clip_id)[item.start:item.end])
+        return [SimpleNamespace(features=folder.features(item.clip_id)[item.start:item.end],
+                                joints=folder.joints(item.clip_id)[item.start:item.end])
                 for item in items]
     monkeypatch.setattr(evaluate_module, "generate_items", real)
 
 
 def test_another_evaluator_plugs_in(corpus, monkeypatch):
-    reader = SplitReader(corpus)
-    replay_real_clips(monkeypatch, reader)
-    items = reader.items(32)
-    fake = MeanFeatures({i.caption: reader.item_features(i)[:, :8].mean(0) for i in items})
+    folder = HumanML3DFolder(corpus, splits=("test",))
+    replay_real_clips(monkeypatch, folder)
+    items = caption_items(folder, "test", 32)
+    fake = MeanFeatures({i.caption: folder.features(i.clip_id)[i.start:i.end, :8].mean(0)
+                         for i in items})
     options = EvalOptions(None, corpus, None, limit=32, repeats=2, mm_captions=0,
                           regenerate=True)
     result = evaluate(options, fake)
@@ -128,14 +130,14 @@ def test_bad_inputs_give_one_line_errors(case, message, corpus, evaluator_folder
 
 
 def test_semantic_checks_pass_real_clips_and_fail_wrong_parameters(corpus):
-    reader = SplitReader(corpus)
-    items = semantic.program_items(corpus, reader.ids)
+    folder = HumanML3DFolder(corpus, splits=("test",))
+    items = semantic.program_items(corpus, folder.ids("test"))
     assert len({item.primitive for item in items}) >= 10
     wrong = dict(left="right", right="left", both="left", forward="backward",
                  backward="forward")
     flipped = 0
     for item in items:
-        joints = reader.joints(item.clip_id)[item.start:item.end]
+        joints = folder.joints(item.clip_id)[item.start:item.end]
         assert semantic.check(item, joints, joints).passed, (item, semantic.check(item, joints))
         params = {k: wrong.get(v, v + 1 if k == "count" else v) if isinstance(v, (str, int))
                   and not isinstance(v, bool) and k in ("hand", "foot", "direction", "count")
@@ -172,7 +174,7 @@ def test_semantic_measurements_on_a_turned_clip():
 def test_quality_report(corpus, evaluator_folder, tmp_path, monkeypatch, capsys):
     from mogo.bench.quality import quality_report
 
-    replay_real_clips(monkeypatch, SplitReader(corpus))
+    replay_real_clips(monkeypatch, HumanML3DFolder(corpus, splits=("test",)))
     (tmp_path / "ablation.md").write_text("| variant | MPJPE (mm) |\n|---|---|\n"
                                           "| 6 levels | 20 |\n")
     out = tmp_path / "QUALITY.md"
@@ -212,7 +214,8 @@ def test_vq_reconstruction_writes_gifs_and_a_contact_sheet(corpus, tmp_path, mon
 def test_vq_report_splits_the_error_of_the_shipped_vq(corpus, monkeypatch, capsys):
     from mogo.bench.quality import vq_report
 
-    real = SplitReader(corpus).features(SplitReader(corpus).ids[0])
+    folder = HumanML3DFolder(corpus, splits=("test",))
+    real = folder.features(folder.ids("test")[0])
     assert vq_report.clip_errors(real, real) == (0.0, 0.0, 0.0)
     turned = real.copy()
     turned[:, 0] += 0.01  # a yaw velocity bias: the trajectory turns, the poses are as they were

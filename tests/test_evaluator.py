@@ -6,7 +6,7 @@ from conftest import interrupt_after_step, records
 from mogo.bench.quality.evaluator import OnnxEvaluator, TextMotionEvaluator
 from mogo.export.train import train_evaluator
 from mogo.cli import main
-from mogo.export.train.datasets import HumanML3DFolder
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
 from mogo.export.models.text_encoder import encode_captions
 from mogo.export.models.runs import load_checkpoint

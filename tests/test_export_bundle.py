@@ -19,6 +19,7 @@ from mogo.export.models.text_encoder import encode_captions
 from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
 from mogo.bundle import file_sha256
 from mogo.generator import MotionGenerator
+from mogo.sampling import Sampling
 
 PROMPT = "a person walks forward."
 
@@ -58,14 +59,14 @@ def test_the_manifest_describes_the_bundle(runs):
     assert 0 < storage["vq_decoder_feature_max_abs_difference"] < 1e-2
 
 
-@pytest.mark.parametrize("options", [dict(temperature=0.0), dict(temperature=1.0, top_p=0.9)])
-def test_runtime_tokens_are_the_torch_references(runs, options):
+@pytest.mark.parametrize("sampling", [Sampling(temperature=0.0), Sampling(top_p=0.9)])
+def test_runtime_tokens_are_the_torch_references(runs, sampling):
     generator = MotionGenerator.load(runs / "bundle")
-    motion = generator.generate(PROMPT, seconds=1.5, seed=3, **options)
+    motion = generator.generate(PROMPT, seconds=1.5, seed=3, sampling=sampling)
     t2m, text_encoder, tokenizer = load_t2m(runs / "t2m")
     with torch.no_grad():
         embedding = text_encoder.encode(*encode_captions(tokenizer, [PROMPT]))[0]
-    reference = generate(t2m, embedding, num_frames=30, seed=3, **options)
+    reference = generate(t2m, embedding, num_frames=30, seed=3, sampling=sampling)
     assert np.array_equal(motion.tokens, reference)
 
 

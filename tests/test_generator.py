@@ -7,12 +7,15 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from mogo.bundle import BundleError
 from mogo.generator import DEFAULT_BUNDLE, STREAM_DECODE_EVERY, MotionGenerator
+from mogo.motion.skeleton import MAX_FRAMES
+from mogo.sampling import Sampling
 
 
 @pytest.fixture(scope="module")
@@ -31,11 +34,11 @@ def test_generate_gives_a_motion_of_the_asked_length(generator):
 
 
 def test_the_model_can_end_the_motion_itself_and_batches_prompts(generator):
-    motions = generator.generate(["a person jumps on the spot three times.", "someone waves."],
-                                 seed=3)
+    motions = generator.generate_batch(["a person jumps on the spot three times.",
+                                        "someone waves."], seed=3)
     assert len(motions) == 2 and [m.seed for m in motions] == [3, 4]
     for motion in motions:
-        assert 1 <= len(motion.joints) <= round(9.8 * 20)
+        assert 1 <= len(motion.joints) <= MAX_FRAMES
 
 
 def test_same_seed_same_tokens_also_in_another_process(generator):
@@ -181,13 +184,25 @@ def test_a_20000_step_stream_keeps_memory_and_step_time_flat(generator):
     (lambda g: g.generate("walk", top_k=-3), "top_k must be >= 0"),
     (lambda g: g.generate("walk", top_p=0), r"top_p must be in \(0, 1\]"),
     (lambda g: g.generate("walk", seed=-1), "seed must be a non-negative integer"),
-    (lambda g: g.generate([]), "no prompt given"),
+    (lambda g: g.generate_batch([]), "no prompt given"),
+    (lambda g: g.generate_batch("walk"), "generate_batch takes a list of prompts"),
     (lambda g: g.play([]), "the schedule is empty"),
     (lambda g: g.stream(""), "the prompt is empty"),
 ])
 def test_bad_input_is_refused_clearly(generator, call, message):
     with pytest.raises(ValueError, match=message):
         call(generator)
+
+
+def test_sampling_is_one_object_or_its_fields_as_keywords(generator):
+    assert generator.sampling() == Sampling.from_defaults(generator.defaults)
+    assert generator.sampling(top_k=5) == replace(generator.sampling(), top_k=5)
+    assert generator.sampling(Sampling(temperature=0), top_p=0.5) == Sampling(0.0, 0, 0.5, 1.0)
+    given = generator.generate("a person squats.", seconds=1, seed=3, sampling=Sampling(top_k=9))
+    keywords = generator.generate("a person squats.", seconds=1, seed=3, top_k=9, top_p=1.0)
+    assert np.array_equal(given.tokens, keywords.tokens)
+    with pytest.raises(TypeError, match="unknown sampling option 'warmth'"):
+        generator.generate("walk", warmth=2)
 
 
 def test_unknown_characters_are_handled(generator):

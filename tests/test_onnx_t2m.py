@@ -14,8 +14,8 @@ from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
 from mogo._session import cpu_session
 from mogo.token_generator import TokenGenerator, balanced_groups
 
-SAMPLED = dict(temperature=1.0, top_k=6, top_p=0.9)
-GUIDED = dict(temperature=0.8, guidance_scale=2.5)
+SAMPLED = Sampling(temperature=1.0, top_k=6, top_p=0.9)
+GUIDED = Sampling(temperature=0.8, guidance=2.5)
 
 
 @pytest.fixture(scope="module")
@@ -104,17 +104,18 @@ def test_greedy_stream_equals_torch_cached_and_recomputed(model, generator):
     tokens = generator.generate(prompt.numpy(), max_frames=30, sampling=Sampling(temperature=0))
     assert tokens.dtype == np.int64 and tokens.shape[1] == model.config.num_levels
     for use_cache in (True, False):
-        expected = generate(model, prompt, max_frames=30, temperature=0, use_cache=use_cache)
+        expected = generate(model, prompt, max_frames=30, sampling=Sampling(temperature=0),
+                            use_cache=use_cache)
         np.testing.assert_array_equal(tokens, expected)
 
 
 @pytest.mark.parametrize("settings, seed", [(SAMPLED, 3), (GUIDED, 4)])
 def test_sampled_and_guided_streams_equal_torch(model, generator, settings, seed):
     prompt = prompts(model.config, 1)[0]
-    tokens = generator.generate(prompt.numpy(), num_frames=25, sampling=Sampling(**settings),
+    tokens = generator.generate(prompt.numpy(), num_frames=25, sampling=settings,
                                 seed=seed)
     np.testing.assert_array_equal(tokens, generate(model, prompt, num_frames=25, seed=seed,
-                                                   **settings))
+                                                   sampling=settings))
     assert len(np.unique(tokens[:, 0])) > 3
 
 
@@ -136,9 +137,10 @@ def test_end_token_and_forced_length(model, generator):
 
 def test_sliding_window_equals_torch_and_bounds_the_cache(model, generator):
     prompt = prompts(model.config, 1)[0]
-    expected = generate(model, prompt, num_frames=24, seed=5, window=5, **SAMPLED)
-    assert not np.array_equal(expected, generate(model, prompt, num_frames=24, seed=5, **SAMPLED))
-    stream = generator.start(prompt.numpy(), seed=5, sampling=Sampling(**SAMPLED), window=5,
+    expected = generate(model, prompt, num_frames=24, seed=5, window=5, sampling=SAMPLED)
+    assert not np.array_equal(expected, generate(model, prompt, num_frames=24, seed=5,
+                                                 sampling=SAMPLED))
+    stream = generator.start(prompt.numpy(), seed=5, sampling=SAMPLED, window=5,
                              allow_end=False)
     np.testing.assert_array_equal(np.array([stream.step() for _ in range(24)]), expected)
     order = np.argsort(stream.positions)  # a full window overwrites its oldest slot in place
@@ -172,7 +174,7 @@ def recomputed_continuation(model, prompt, ids, steps, sampling, seed):
 
 def test_set_prompt_reprefills_exactly(model, generator):
     first, second = prompts(model.config, 2, seed=6)
-    sampling = Sampling(temperature=1.0, guidance_scale=2.0)
+    sampling = Sampling(temperature=1.0, guidance=2.0)
 
     def stream(switch_to=None):
         s = generator.start(first.numpy(), seed=7, sampling=sampling, allow_end=False)
@@ -240,7 +242,7 @@ def test_text_encoder_graph_matches_torch(tmp_path):
 @pytest.mark.parametrize("window", [None, 4])
 def test_continue_from_takes_a_clip_as_the_past(model, generator, window):
     prompt = prompts(model.config, 1, seed=10)[0]
-    sampling = Sampling(**SAMPLED)
+    sampling = SAMPLED
     clip = np.random.default_rng(11).integers(0, model.config.codebook_size, (8, 3))
     stream = generator.start(prompt.numpy(), seed=12, sampling=sampling, window=window,
                              allow_end=False)
@@ -267,10 +269,10 @@ def test_levels_run_concurrently_give_the_same_tokens(exported, generator):
     prompt = prompts(model.config, 1, seed=3)[0].numpy()
     for settings in (SAMPLED, GUIDED):
         for window in (None, 4):
-            expected = generator.generate(prompt, num_frames=20, sampling=Sampling(**settings),
+            expected = generator.generate(prompt, num_frames=20, sampling=settings,
                                           seed=1, window=window)
             np.testing.assert_array_equal(
-                parallel.generate(prompt, num_frames=20, sampling=Sampling(**settings), seed=1,
+                parallel.generate(prompt, num_frames=20, sampling=settings, seed=1,
                                   window=window), expected)
     switched = []
     for g in (generator, parallel):  # the re-prefill of a prompt switch, too

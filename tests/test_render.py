@@ -37,6 +37,6 @@ def test_data_show_writes_gif(tiny_humanml3d, tmp_path, capsys):
     with Image.open(gif) as image:
         assert image.n_frames == 52  # one frame per feature row
     assert main(["data", "show", "999", "--data", str(tiny_humanml3d), "--gif", str(gif)]) == 2
-    assert "no clip '999'" in capsys.readouterr().err
+    assert "no such clip '999'" in capsys.readouterr().err
     assert main(["data", "show", "000004", "--data", str(tmp_path), "--gif", str(gif)]) == 2
     assert "new_joint_vecs: folder missing" in capsys.readouterr().err

@@ -145,13 +145,14 @@ def test_cache_matches_recomputation(model):
         assert past[0][0].shape == (2, heads, 26, dh)
 
 
-@pytest.mark.parametrize("settings", [dict(temperature=0.0),
-                                      dict(temperature=1.0, top_k=6, top_p=0.9, seed=3),
-                                      dict(temperature=0.8, guidance_scale=2.5, seed=4)])
-def test_generate_cached_equals_recomputed(model, settings):
+@pytest.mark.parametrize("sampling, seed", [(Sampling(temperature=0.0), 0),
+                                            (Sampling(temperature=1.0, top_k=6, top_p=0.9), 3),
+                                            (Sampling(temperature=0.8, guidance=2.5), 4)])
+def test_generate_cached_equals_recomputed(model, sampling, seed):
     prompt = torch.randn(model.config.text_dim)
-    cached = generate(model, prompt, num_frames=20, use_cache=True, **settings)
-    recomputed = generate(model, prompt, num_frames=20, use_cache=False, **settings)
+    cached = generate(model, prompt, num_frames=20, sampling=sampling, seed=seed, use_cache=True)
+    recomputed = generate(model, prompt, num_frames=20, sampling=sampling, seed=seed,
+                          use_cache=False)
     assert cached.shape == (20, model.config.num_levels) and cached.dtype == np.int64
     np.testing.assert_array_equal(cached, recomputed)
 
@@ -173,7 +174,7 @@ def test_end_token_and_forced_length():
     with torch.no_grad():
         model.levels[0].head.bias[config.end_token] = 100.0  # the model wants to stop at once
     assert generate(model, prompt, num_frames=7).shape == (7, 3)
-    assert generate(model, prompt, num_frames=7, temperature=0).shape == (7, 3)
+    assert generate(model, prompt, num_frames=7, sampling=Sampling(temperature=0)).shape == (7, 3)
     assert generate(model, prompt).shape == (1, 3)  # the end token is masked at step 0 only
     with torch.no_grad():
         model.levels[0].head.bias[config.end_token] = -100.0  # never stops
@@ -249,7 +250,7 @@ def test_top_k_and_top_p_masks():
 
 @pytest.mark.parametrize("sampling", [Sampling(), Sampling(temperature=0), Sampling(top_k=5),
                                       Sampling(top_p=0.6), Sampling(top_k=7, top_p=0.8),
-                                      Sampling(temperature=0.7, guidance_scale=2.0)])
+                                      Sampling(temperature=0.7, guidance=2.0)])
 def test_rows_chosen_together_equal_rows_chosen_alone(sampling):
     """The levels of a step are sampled in one call, shorter rows padded with -inf: each row
     gets the token it would get alone (ties included: integer logits)."""
@@ -272,11 +273,11 @@ def test_rows_chosen_together_equal_rows_chosen_alone(sampling):
 
 def test_guidance():
     cond, uncond = np.array([1.0, 2.0, 0.0]), np.array([0.0, 3.0, 0.5])
-    assert choose_token(cond, uncond, 0.3, Sampling(temperature=0, guidance_scale=0.0)) == 1
-    assert choose_token(cond, uncond, 0.3, Sampling(temperature=0, guidance_scale=3.0)) == 0
+    assert choose_token(cond, uncond, 0.3, Sampling(temperature=0, guidance=0.0)) == 1
+    assert choose_token(cond, uncond, 0.3, Sampling(temperature=0, guidance=3.0)) == 0
     assert choose_token(cond, None, 0.3, Sampling(temperature=0)) == 1
     with pytest.raises(ValueError, match="unconditional"):
-        choose_token(cond, None, 0.3, Sampling(guidance_scale=2.0))
+        choose_token(cond, None, 0.3, Sampling(guidance=2.0))
     with pytest.raises(ValueError):
         Sampling(top_p=0.0)
 

@@ -8,7 +8,8 @@ import torch
 from conftest import interrupt_after_step, mogo_on_two_gloo_processes, records
 from mogo.export.train import train_t2m
 from mogo.cli import main
-from mogo.export.train.datasets import HumanML3DFolder, MotionCropDataset
+from mogo.export.data.humanml3d import HumanML3DFolder
+from mogo.export.train.datasets import MotionCropDataset
 from mogo.export.models.generate_torch import generate
 from mogo.export.models.t2m import T2MConfig
 from mogo.export.models.text_encoder import encode_captions

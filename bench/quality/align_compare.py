@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from mogo.bench.quality.evaluate import COLUMNS, score
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.bench.quality.evaluator import OnnxEvaluator
 from mogo.align import plain_words
 from mogo.generator import MotionGenerator
@@ -132,9 +133,9 @@ def main() -> None:
     parser.add_argument("--evaluator", type=Path,
                         help="an evaluator folder: adds R-precision, FID and MM-Dist")
     args = parser.parse_args()
-    ids = (args.data / "test.txt").read_text().split()
+    folder = HumanML3DFolder(args.data, splits=("test",))
     programs = []
-    for clip in ids:
+    for clip in folder.ids("test"):
         program = json.loads((args.data / "programs" / f"{clip}.json").read_text())
         if program["mirror_of"] is None:
             programs.append(program)
@@ -162,7 +163,7 @@ def main() -> None:
             plain = generator.generate(text, seconds=seconds, seed=seed)
             aligned = generator.generate(text, seconds=seconds, seed=seed, align=rules)
             scored["caption"].append(program["captions"][0]["text"])
-            scored["real"].append(np.load(args.data / "new_joint_vecs" / f"{program['id']}.npy"))
+            scored["real"].append(folder.features(program["id"]))
             scored["without"].append(plain.features)
             scored["with"].append(aligned.features)
             for index in straight_locomotion(program):

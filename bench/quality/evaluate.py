@@ -18,7 +18,6 @@ take about 13 minutes on this project's 2-core CPU, so the default is 10 x 30.
 """
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -29,11 +28,11 @@ import numpy as np
 from mogo.export.data import metrics
 from mogo.bench.quality.evaluator import OnnxEvaluator, TextMotionEvaluator
 from mogo.progress import Progress
-from mogo.export.data.humanml3d import DatasetError, parse_caption_line
+from mogo.export.data.humanml3d import DatasetError, HumanML3DFolder
 from mogo.generator import MotionGenerator
 from mogo.clip import Motion
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 
-MIN_FRAMES, MAX_FRAMES = 40, 196
 COLUMNS = ("R-Precision Top-1", "Top-2", "Top-3", "FID", "MM-Dist", "Diversity",
            "MultiModality")
 
@@ -50,55 +49,26 @@ class TestItem:
         return self.end - self.start
 
 
-class SplitReader:
-    """A HumanML3D-layout folder's split, read with numpy alone (the torch datasets of
-    mogo.export.train.datasets are for training)."""
-
-    def __init__(self, data: str | os.PathLike, split: str = "test", fps: float = 20.0):
-        self.root, self.split, self.fps = Path(data), split, fps
-        path = self.root / f"{split}.txt"
-        if not self.root.is_dir():
-            raise DatasetError(f"{self.root}: dataset folder not found")
-        if not path.is_file():
-            raise DatasetError(f"{path}: split file missing")
-        self.ids = [line.strip() for line in path.read_text().splitlines() if line.strip()]
-
-    def features(self, clip_id: str) -> np.ndarray:
-        path = self.root / "new_joint_vecs" / f"{clip_id}.npy"
-        if not path.is_file():
-            raise DatasetError(f"{path}: file missing")
-        return np.load(path, allow_pickle=False).astype(np.float32)
-
-    def joints(self, clip_id: str) -> np.ndarray:
-        return np.load(self.root / "new_joints" / f"{clip_id}.npy", allow_pickle=False)
-
-    def items(self, limit: int | None = None, seed: int = 0) -> list[TestItem]:
-        """Every caption span of MIN..MAX_FRAMES rows (longer spans: their first MAX_FRAMES),
-        or a fixed random sample of `limit` of them, in split order."""
-        items = []
-        for clip_id in self.ids:
-            path = self.root / "texts" / f"{clip_id}.txt"
-            if not path.is_file():
-                continue
-            rows = len(self.features(clip_id))
-            for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
-                if not line.strip():
-                    continue
-                caption = parse_caption_line(line, self.fps, f"{path}:{number}")
-                end = rows if caption.end_frame is None else min(caption.end_frame, rows)
-                if end - caption.start_frame >= MIN_FRAMES:
-                    items.append(TestItem(clip_id, caption.text, caption.start_frame,
-                                          min(end, caption.start_frame + MAX_FRAMES)))
-        if not items:
-            raise DatasetError(f"{self.root / f'{self.split}.txt'}: no caption span of at least "
-                               f"{MIN_FRAMES} frames")
-        if limit is not None and limit < len(items):
-            keep = np.sort(np.random.default_rng(seed).permutation(len(items))[:limit])
-            items = [items[k] for k in keep]
-        return items
-
-    def item_features(self, item: TestItem) -> np.ndarray:
-        return self.features(item.clip_id)[item.start:item.end]
+def caption_items(folder: HumanML3DFolder, split: str = "test", limit: int | None = None,
+                  seed: int = 0) -> list[TestItem]:
+    """Every caption span of MIN..MAX_FRAMES rows of a split (longer spans: their first
+    MAX_FRAMES), or a fixed random sample of `limit` of them, in split order."""
+    items = []
+    for clip_id in folder.ids(split):
+        if not folder.has_captions(clip_id):
+            continue
+        rows = len(folder.features(clip_id))
+        for caption in folder.captions(clip_id):
+            start, end = caption.span(rows)
+            if end - start >= MIN_FRAMES:
+                items.append(TestItem(clip_id, caption.text, start, min(end, start + MAX_FRAMES)))
+    if not items:
+        raise DatasetError(f"{folder.root / f'{split}.txt'}: no caption span of at least "
+                           f"{MIN_FRAMES} frames")
+    if limit is not None and limit < len(items):
+        keep = np.sort(np.random.default_rng(seed).permutation(len(items))[:limit])
+        items = [items[k] for k in keep]
+    return items
 
 
 def parallel_map(fn: Callable, values: Sequence, threads: int, label: str, unit: str) -> list:
@@ -192,11 +162,11 @@ def evaluate(options: EvalOptions, evaluator: TextMotionEvaluator | None = None)
     options.check()
     if evaluator is None and options.evaluator is None:
         raise ValueError("give an evaluator folder or an evaluator")
-    reader = SplitReader(options.data)
+    folder = HumanML3DFolder(options.data, splits=("test",))
     evaluator = evaluator or OnnxEvaluator(options.evaluator, options.threads)
     generator = MotionGenerator.load(options.bundle)
-    items = reader.items(options.limit, options.seed)
-    real_features = [reader.item_features(item) for item in items]
+    items = caption_items(folder, "test", options.limit, options.seed)
+    real_features = [folder.features(item.clip_id)[item.start:item.end] for item in items]
     text = evaluator.embed_text([item.caption for item in items])
     real = evaluator.embed_motion(real_features)
     vq = evaluator.embed_motion(reconstruct(generator, real_features, options.threads))

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from mogo.export.data.show import first_caption
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.motion.features import features_to_joints
 from mogo.generator import MotionGenerator
 from mogo.clip import Motion
@@ -54,14 +54,13 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=4)
     args = parser.parse_args()
     generator = MotionGenerator.load(args.bundle)
-    ids = [line.strip() for line in (args.data / "test.txt").read_text().splitlines()
-           if line.strip()]
+    folder = HumanML3DFolder(args.data, splits=("test",))
     args.out.mkdir(parents=True, exist_ok=True)
     rows, errors = [], []
-    for clip_id in ids:
+    for clip_id in folder.ids("test"):
         if len(rows) == args.clips:
             break
-        features = np.load(args.data / "new_joint_vecs" / f"{clip_id}.npy", allow_pickle=False)
+        features = folder.features(clip_id)
         if len(features) < MIN_FRAMES or clip_id.startswith("M"):  # M: a mirror of another
             continue
         original = features_to_joints(features)
@@ -69,7 +68,7 @@ def main() -> None:
         original = original[:len(rebuilt)]
         error = 1000 * np.linalg.norm(rebuilt - original, axis=-1).mean()
         errors.append(error)
-        caption = first_caption(args.data / "texts" / f"{clip_id}.txt")
+        caption = folder.first_caption(clip_id)
         left = render_frames(original, f"{clip_id} original: {caption}", generator.fps)
         right = render_frames(rebuilt, f"VQ reconstruction, MPJPE {error:.1f} mm",
                               generator.fps)

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.bench.quality.evaluate import SplitReader, reconstruct
+from mogo.bench.quality.evaluate import reconstruct
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.motion.features import features_to_joints
 from mogo.generator import MotionGenerator
 
@@ -35,10 +36,10 @@ def clip_errors(real: np.ndarray, rebuilt: np.ndarray) -> tuple[float, float, fl
                  for f in (rebuilt, poses, trajectory))
 
 
-def report(generator: MotionGenerator, split: SplitReader, limit: int | None = None,
-           threads: int = 1) -> dict:
-    ids = split.ids[:limit]
-    real = [split.features(clip_id) for clip_id in ids]
+def report(generator: MotionGenerator, folder: HumanML3DFolder, split: str = "test",
+           limit: int | None = None, threads: int = 1) -> dict:
+    ids = folder.ids(split)[:limit]
+    real = [folder.features(clip_id) for clip_id in ids]
     errors = np.array([clip_errors(r, b) for r, b in
                        zip(real, reconstruct(generator, real, threads))])
     worst = int(np.argmax(errors[:, 0]))
@@ -68,11 +69,11 @@ def main() -> None:
     parser.add_argument("--limit", type=int, help="the first N clips of the split (default all)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
-    split = SplitReader(args.data, args.split)
+    folder = HumanML3DFolder(args.data, splits=(args.split,))
     rows = {}
     for bundle in args.bundle:
         generator = MotionGenerator.load(bundle)
-        rows[bundle or "default"] = report(generator, split, args.limit, args.threads)
+        rows[bundle or "default"] = report(generator, folder, args.split, args.limit, args.threads)
     print(f"{args.split} split of {args.data}, each clip encoded and decoded whole\n")
     print(format_table(rows))
 

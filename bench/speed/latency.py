@@ -36,18 +36,18 @@ import torch
 
 from mogo.bench.speed import machine
 from mogo.bench.speed.plot import log_line_chart
-from mogo.export.onnx.bundle import quantize_level_graph
+from mogo.export.onnx.bundle import DEFAULT_SAMPLING, quantize_level_graph
 from mogo.export.onnx.t2m_graphs import export_level
 from mogo.export.models.t2m import T2M, T2MConfig
 from mogo.bundle import Bundle
 from mogo.generator import (DEFAULT_BUNDLE, STREAM_DECODE_EVERY, MotionGenerator,
                                     MotionStream)
-from mogo.sampling import Sampling, choose_token
+from mogo.sampling import choose_token
+from mogo.motion.skeleton import MAX_FRAMES, MAX_SECONDS
 from mogo.token_generator import TokenGenerator
 
 PROMPT = "a person walks forward, then waves with the right hand."
-CLIP_FRAMES = 196  # HumanML3D's longest clip: 9.8 s at 20 fps
-SAMPLING = Sampling(temperature=1.0, top_p=0.9)  # the shipped defaults
+CLIP_FRAMES = MAX_FRAMES  # HumanML3D's longest clip: 9.8 s at 20 fps
 SPAN = 96  # steps averaged at each point of the long stream (a multiple of the decode burst)
 
 
@@ -173,7 +173,7 @@ def runtime_peak_rss(bundle_dir: Path) -> float:
         "import sys\n"
         "from mogo.generator import MotionGenerator\n"
         "g = MotionGenerator.load(sys.argv[1])\n"
-        f"g.generate({PROMPT!r}, seconds=9.8, seed=0)\n"
+        f"g.generate({PROMPT!r}, seconds={MAX_SECONDS!r}, seed=0)\n"
         f"s = g.stream({PROMPT!r}, seed=0)\n"
         "for _ in range(2000): s.step()\n"
         "assert 'torch' not in sys.modules\n"
@@ -228,7 +228,7 @@ def onnx_step(generator: TokenGenerator, config: T2MConfig, length: int) -> Call
         outputs = generator.each_level(lambda level: generator.run(
             level, prompt, uncond, token_ids, position, past_positions, caches[level]))
         for logits, _ in outputs:
-            choose_token(logits[0], None, 0.5, SAMPLING)
+            choose_token(logits[0], None, 0.5, DEFAULT_SAMPLING)
 
     return step
 
@@ -254,7 +254,7 @@ def torch_step(model: T2M, length: int, threads: int, cached: bool) -> Callable[
         for level in range(config.num_levels):
             logits, _ = model.level_forward(level, prompt, uncond, token_ids, positions,
                                             past_positions, pasts[level])
-            choose_token(logits[0].numpy(), None, 0.5, SAMPLING)
+            choose_token(logits[0].numpy(), None, 0.5, DEFAULT_SAMPLING)
 
     return step
 

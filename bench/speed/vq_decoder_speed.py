@@ -19,9 +19,10 @@ import torch
 
 from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder
 from mogo.export.models.vq import MoSAVQ, VQConfig
+from mogo.motion.skeleton import MAX_FRAMES
 from mogo.stream_decoder import StreamingDecoder
 
-CLIP_TOKENS = 196
+CLIP_TOKENS = MAX_FRAMES  # the longest HumanML3D clip at one token a frame (down_factor 1)
 
 
 def median_ms(call, repeats: int, warmup: int = 3) -> float:

@@ -14,7 +14,7 @@ import numpy as np
 from mogo.motion.quaternion import qfrom_axis_angle, qmul, qrot, qyaw
 from mogo.motion.skeleton import SMPL_22
 
-FPS = 20
+FPS = int(SMPL_22.fps)  # HumanML3D's frame rate, as an int for frame counts and files
 LEFT, RIGHT = 0, 1
 SIDES = np.array([1.0, -1.0])  # +X is the character's left
 X_AXIS, Z_AXIS = np.eye(3)[0], np.eye(3)[2]

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mogo.export.data.animator_body import FPS
 from mogo.export.data.animator import PRIMITIVES, Segment, animate, sample_segment
 from mogo.export.data.captions import JOINERS, TEMPLATES, caption_program, caption_segment
 from mogo.export.data.normalization import STD_FLOOR, feature_statistics
@@ -25,11 +26,9 @@ from mogo.progress import Progress
 from mogo.export.data.humanml3d import format_caption_line
 from mogo.motion.features import joints_to_features
 from mogo.motion.mirror import mirror_joints, mirror_text
-from mogo.motion.skeleton import SMPL_22
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES, SMPL_22
 
 GENERATOR_VERSION = 1
-FPS = 20
-MIN_FRAMES, MAX_FRAMES = 40, 196  # HumanML3D's clip lengths
 MAX_SEGMENTS = 3
 MAX_ATTEMPTS = 100  # program draws per clip before giving up on the length limits
 SPLIT_FRACTIONS = (("train", 0.80), ("val", 0.05), ("test", 0.15))

@@ -16,14 +16,14 @@ import numpy as np
 import torch
 
 from mogo.export.models.t2m import T2M
+from mogo.motion.skeleton import MAX_FRAMES
 from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
 
 
 @torch.no_grad()
 def generate(model: T2M, prompt_embedding: torch.Tensor, num_frames: int | None = None,
-             max_frames: int = 196, temperature: float = 1.0, top_k: int = 0, top_p: float = 1.0,
-             guidance_scale: float = 1.0, seed: int = 0, use_cache: bool = True,
-             window: int | None = None) -> np.ndarray:
+             max_frames: int = MAX_FRAMES, sampling: Sampling = Sampling(), seed: int = 0,
+             use_cache: bool = True, window: int | None = None) -> np.ndarray:
     """prompt_embedding (text_dim,) -> token ids (T, L) int64.
 
     num_frames given: exactly that many steps, the end token masked throughout. None: until
@@ -36,7 +36,6 @@ def generate(model: T2M, prompt_embedding: torch.Tensor, num_frames: int | None 
         raise ValueError(f"window needs use_cache=True and >= 1 steps, got {window}")
     config = model.config
     L = config.num_levels
-    sampling = Sampling(temperature, top_k, top_p, guidance_scale)
     uncond = torch.tensor([False, True][:2 if sampling.guided else 1])
     prompt = prompt_embedding.reshape(1, -1).expand(len(uncond), -1)
     rng = make_rng(seed)

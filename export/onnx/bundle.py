@@ -21,13 +21,15 @@ from mogo.export.onnx.t2m_graphs import export_level, export_text_encoder
 from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder, random_ids
 from mogo.export.models.t2m import T2M
 from mogo.bundle import FORMAT, FORMAT_VERSION, MANIFEST, Bundle, file_sha256
+from mogo.motion.skeleton import MAX_SECONDS
 from mogo.sampling import Sampling
 from mogo.token_generator import TokenGenerator
 
 INT8_MIN_AGREEMENT = 0.98  # share of greedy tokens int8 must keep to replace fp32
 CHECK_STEPS = 40  # steps of each check prompt
 CHECK_PROMPTS = 16  # distinct val captions the int8 check generates from
-DEFAULTS = dict(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=128, max_seconds=9.8)
+DEFAULT_SAMPLING = Sampling(top_p=0.9)  # what a bundle's manifest says, under Sampling's names
+DEFAULTS = dict(**asdict(DEFAULT_SAMPLING), window=128, max_seconds=MAX_SECONDS)
 
 
 

@@ -1,155 +1,18 @@
-"""Training data from any HumanML3D-layout folder (HumanML3D, KIT-ML, or `mogo data synth`).
-
-`HumanML3DFolder` checks the layout once, up front, so a broken folder fails before training
-with the file and the problem named; the torch datasets on top of it feed the VQ (random
-fixed-length crops, or whole clips batched by length) and the transformer (one item per
-caption, cut to its span).
+"""Torch datasets over a HumanML3D-layout folder (read and checked by
+mogo.export.data.humanml3d.HumanML3DFolder): they feed the VQ (random fixed-length crops, or
+whole clips batched by length) and the transformer (one item per caption, cut to its span).
 Whole splits are held in memory, normalised, as the standard HumanML3D loaders do.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from mogo.export.data.humanml3d import Caption, DatasetError, parse_caption_line
-from mogo.motion.skeleton import Skeleton, skeleton_for_feature_dim
-
-SPLITS = ("train", "val", "test")
-
-
-class HumanML3DFolder:
-    """new_joint_vecs/ID.npy (T x D), texts/ID.txt, Mean.npy, Std.npy, train/val/test.txt.
-
-    `root_contact_scale` > 1 divides the Std of the root dims (0:4) and of the foot contacts
-    (last 4) by it, so those features count that much more in a reconstruction loss (the
-    T2M/T2M-GPT training code uses 5). The default 1 is plain (x - Mean) / Std. `.mean` and
-    `.std` are the statistics actually used, i.e. what a model trained on them must be
-    exported with.
-    """
-
-    def __init__(self, root: str | Path, root_contact_scale: float = 1.0):
-        self.root = Path(root)
-        if not self.root.is_dir():
-            raise DatasetError(f"{self.root}: dataset folder not found")
-        for sub in ("new_joint_vecs", "texts"):
-            if not (self.root / sub).is_dir():
-                raise DatasetError(f"{self.root / sub}: folder missing (HumanML3D layout)")
-        if not root_contact_scale > 0:
-            raise ValueError(f"root_contact_scale must be positive, got {root_contact_scale}")
-
-        mean = self._load_array(self.root / "Mean.npy")
-        if mean.ndim != 1:
-            raise DatasetError(f"{self.root / 'Mean.npy'}: expected a vector (D,), "
-                               f"got shape {mean.shape}")
-        try:
-            self.skeleton: Skeleton = skeleton_for_feature_dim(mean.shape[0])
-        except ValueError as error:
-            raise DatasetError(f"{self.root / 'Mean.npy'}: {error}") from None
-        std = self._load_array(self.root / "Std.npy")
-        if std.shape != mean.shape:
-            raise DatasetError(f"{self.root / 'Std.npy'}: shape {std.shape} does not match "
-                               f"Mean.npy's {mean.shape}")
-        if np.any(std <= 0):
-            raise DatasetError(f"{self.root / 'Std.npy'}: {int(np.sum(std <= 0))} entries are "
-                               f"zero or negative")
-        std[:4] /= root_contact_scale  # std is a fresh float32 copy from _load_array
-        std[-4:] /= root_contact_scale
-        self.mean, self.std = mean, std
-
-        available = {p.stem for p in (self.root / "new_joint_vecs").glob("*.npy")}
-        self._splits = {name: self._read_split(name, available) for name in SPLITS}
-
-    @property
-    def feature_dim(self) -> int:
-        return self.skeleton.feature_dim
-
-    @property
-    def fps(self) -> float:
-        return self.skeleton.fps
-
-    def ids(self, split: str) -> list[str]:
-        if split not in SPLITS:
-            raise ValueError(f"unknown split {split!r}; expected one of {', '.join(SPLITS)}")
-        if not self._splits[split]:
-            raise DatasetError(f"{self.root / f'{split}.txt'}: lists no clip IDs")
-        return list(self._splits[split])
-
-    def features(self, clip_id: str) -> np.ndarray:
-        """Raw (unnormalised) features (T, D) float32 of one clip."""
-        path = self.root / "new_joint_vecs" / f"{clip_id}.npy"
-        if not path.is_file():
-            raise DatasetError(f"{path}: no such clip {clip_id!r}")
-        features = self._load_array(path)
-        if features.ndim != 2 or features.shape[1] != self.feature_dim or len(features) == 0:
-            raise DatasetError(f"{path}: expected (T, {self.feature_dim}) features with T >= 1, "
-                               f"got shape {features.shape}")
-        return features
-
-    def has_captions(self, clip_id: str) -> bool:
-        return (self.root / "texts" / f"{clip_id}.txt").is_file()
-
-    def captions(self, clip_id: str) -> list[Caption]:
-        path = self.root / "texts" / f"{clip_id}.txt"
-        if not path.is_file():
-            raise DatasetError(f"{path}: no caption file for clip {clip_id!r}")
-        lines = path.read_text(encoding="utf-8").splitlines()
-        return [parse_caption_line(line, self.fps, f"{path}:{number}")
-                for number, line in enumerate(lines, 1) if line.strip()]
-
-    def normalize(self, x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-        """(x - mean) / std over the last axis, for numpy arrays or torch tensors."""
-        mean, std = self._statistics_like(x)
-        return (x - mean) / std
-
-    def denormalize(self, x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-        mean, std = self._statistics_like(x)
-        return x * std + mean
-
-    def _statistics_like(self, x):
-        if x.shape[-1] != self.feature_dim:
-            raise ValueError(f"expected {self.feature_dim}-dim features, "
-                             f"got shape {tuple(x.shape)}")
-        if isinstance(x, torch.Tensor):
-            return (torch.as_tensor(self.mean, dtype=x.dtype, device=x.device),
-                    torch.as_tensor(self.std, dtype=x.dtype, device=x.device))
-        return self.mean, self.std
-
-    def _read_split(self, name: str, available: set[str]) -> list[str]:
-        path = self.root / f"{name}.txt"
-        if not path.is_file():
-            raise DatasetError(f"{path}: split file missing")
-        ids = []
-        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
-            clip_id = line.strip()
-            if not clip_id:
-                continue
-            if "/" in clip_id or "\\" in clip_id or clip_id in (".", ".."):
-                raise DatasetError(f"{path}:{number}: {clip_id!r} is not a clip ID")
-            ids.append(clip_id)
-        missing = [i for i in ids if i not in available]
-        if missing:
-            shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
-            raise DatasetError(f"{path}: {len(missing)} listed IDs have no "
-                               f"new_joint_vecs/ID.npy: {shown}")
-        return ids
-
-    @staticmethod
-    def _load_array(path: Path) -> np.ndarray:
-        if not path.is_file():
-            raise DatasetError(f"{path}: file missing")
-        try:
-            array = np.load(path, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as error:
-            raise DatasetError(f"{path}: not a readable .npy array ({error})") from None
-        if not np.issubdtype(array.dtype, np.number):
-            raise DatasetError(f"{path}: expected numbers, got dtype {array.dtype}")
-        if not np.all(np.isfinite(array)):
-            raise DatasetError(f"{path}: contains NaN or infinite values")
-        return array.astype(np.float32)
+from mogo.export.data.humanml3d import DatasetError, HumanML3DFolder
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 
 
 class _EpochSeeded(Dataset):
@@ -273,8 +136,8 @@ class TextMotionDataset(_EpochSeeded):
     Item: dict(caption=str, motion=(T, D) float32 tensor, length=T, id=clip ID).
     """
 
-    def __init__(self, folder: HumanML3DFolder, split: str, min_frames: int = 40,
-                 max_frames: int = 196, seed: int = 0):
+    def __init__(self, folder: HumanML3DFolder, split: str, min_frames: int = MIN_FRAMES,
+                 max_frames: int = MAX_FRAMES, seed: int = 0):
         super().__init__(seed)
         if not 1 <= min_frames <= max_frames:
             raise ValueError(f"need 1 <= min_frames <= max_frames, got {min_frames}, {max_frames}")
@@ -291,11 +154,11 @@ class TextMotionDataset(_EpochSeeded):
             clip = folder.normalize(folder.features(clip_id))
             kept = 0
             for caption in folder.captions(clip_id):
-                end = len(clip) if caption.end_frame is None else min(caption.end_frame, len(clip))
-                if end - caption.start_frame < min_frames:
+                start, end = caption.span(len(clip))
+                if end - start < min_frames:
                     self.num_short += 1
                     continue
-                self.spans.append(_Span(len(self.clips), caption.start_frame, end, caption.text))
+                self.spans.append(_Span(len(self.clips), start, end, caption.text))
                 kept += 1
             if kept:
                 self.ids.append(clip_id)

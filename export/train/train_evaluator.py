@@ -28,13 +28,14 @@ from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
 from mogo.export.models.runs import load_checkpoint
 from mogo.export.models.text_encoder import encode_captions, train_tokenizer
 from mogo.export.onnx.evaluator_graphs import export_evaluator
-from mogo.export.train.datasets import HumanML3DFolder, TextMotionDataset, collate_text_motion
+from mogo.export.data.humanml3d import HumanML3DFolder
+from mogo.export.train.datasets import TextMotionDataset, collate_text_motion
 from mogo.export.train.loop import Run, Trainer, train_loop
 from mogo.export.train.options import EvaluatorTrainOptions
 from mogo.export.train.training import (Process, end_process, finish_together, make_optimizer,
                                         merge_recipe, previous_run, start_process)
+from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 
-MIN_FRAMES, MAX_FRAMES = 40, 196  # the caption spans the motion model trains on
 TOKENIZER = "tokenizer.json"
 VOCAB = dict(tiny=100, cpu_default=4000)
 PRESETS = dict(tiny=EvaluatorConfig.tiny, cpu_default=EvaluatorConfig)

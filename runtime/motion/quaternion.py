@@ -79,55 +79,7 @@ def qto_matrix(q: np.ndarray) -> np.ndarray:
     ], axis=-2)
 
 
-def qfrom_matrix(m: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w >= 0) of rotation matrices (..., 3, 3)."""
-    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
-    # Four candidate solutions; use the numerically largest pivot for each matrix.
-    candidates = np.stack([
-        np.stack([1 + m00 + m11 + m22, m[..., 2, 1] - m[..., 1, 2],
-                  m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
-        np.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m00 - m11 - m22,
-                  m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
-        np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0],
-                  1 - m00 + m11 - m22, m[..., 1, 2] + m[..., 2, 1]], -1),
-        np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0],
-                  m[..., 1, 2] + m[..., 2, 1], 1 - m00 - m11 + m22], -1),
-    ], axis=-2)  # (..., 4, 4)
-    pivots = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22,
-                       1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
-    best = np.argmax(pivots, axis=-1)
-    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
-    q = qnormalize(q)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
 def qto_cont6d(q: np.ndarray) -> np.ndarray:
     """Continuous 6D representation: the first two columns of the rotation matrix."""
     m = qto_matrix(q)
     return np.concatenate([m[..., :, 0], m[..., :, 1]], axis=-1)
-
-
-def cont6d_to_matrix(d6: np.ndarray) -> np.ndarray:
-    """Rotation matrices from 6D rotations by Gram-Schmidt (Zhou et al. 2019)."""
-    a = d6[..., 0:3]
-    b = d6[..., 3:6]
-    x = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    b = b - np.sum(x * b, axis=-1, keepdims=True) * x
-    y = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    z = np.cross(x, y)
-    return np.stack([x, y, z], axis=-1)
-
-
-def qslerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Spherical interpolation from a to b at fraction t (broadcast over leading axes)."""
-    t = np.asarray(t, dtype=np.float64)[..., None]
-    dot = np.sum(a * b, axis=-1, keepdims=True)
-    b = np.where(dot < 0, -b, b)
-    dot = np.abs(dot)
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin_theta = np.sin(theta)
-    near = sin_theta < 1e-6
-    safe = np.where(near, 1.0, sin_theta)
-    wa = np.where(near, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
-    wb = np.where(near, t, np.sin(t * theta) / safe)
-    return qnormalize(wa * a + wb * b)

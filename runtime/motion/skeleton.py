@@ -145,6 +145,12 @@ KIT_21 = Skeleton(
 
 SKELETONS = {SMPL_22.name: SMPL_22, KIT_21.name: KIT_21}
 
+# HumanML3D's clip lengths: caption spans of MIN_FRAMES..MAX_FRAMES feature rows are what the
+# standard loaders train and evaluate on. At SMPL_22's 20 fps the longest is 9.8 s, the most a
+# bundle generates in one clip unless its manifest says otherwise.
+MIN_FRAMES, MAX_FRAMES = 40, 196
+MAX_SECONDS = MAX_FRAMES / SMPL_22.fps
+
 
 def skeleton_for_feature_dim(dim: int) -> Skeleton:
     for skeleton in SKELETONS.values():
