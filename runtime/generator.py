@@ -26,10 +26,10 @@ from tokenizers import Tokenizer
 from mogo._session import cpu_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.bundle import Bundle, BundleError
+from mogo.manifest import Graph
 from mogo.motion.features import JointStream
 from mogo.clip import Motion
 from mogo.sampling import Sampling
-from mogo.motion.skeleton import SKELETONS
 from mogo.stream_decoder import StreamingDecoder
 from mogo.token_generator import TokenGenerator, TokenStream
 
@@ -49,23 +49,21 @@ class MotionGenerator:
 
     def __init__(self, bundle: Bundle, threads: int = 1):
         self.bundle = bundle
-        manifest = bundle.manifest
-        self.skeleton = SKELETONS[manifest["skeleton"]]
-        self.fps = bundle.fps
-        self.defaults = manifest.get("defaults", {})
-        text = manifest["text"]
-        self.tokenizer = Tokenizer.from_file(str(bundle.path(text["tokenizer"])))
-        self._text = _Graph(bundle, text["encoder"], threads)
-        t2m = manifest["t2m"]
-        self.tokens = TokenGenerator([bundle.path(g["file"]) for g in t2m["levels"]],
-                                     t2m["levels"], t2m["end_token"], intra_op_threads=1,
+        manifest = self.manifest = bundle.manifest
+        self.skeleton = manifest.skeleton()
+        self.fps = manifest.fps
+        self.defaults = manifest.defaults
+        self.tokenizer = Tokenizer.from_file(str(bundle.path(manifest.text.tokenizer)))
+        self._text = _Graph(bundle, manifest.text.encoder, threads)
+        levels = manifest.t2m.levels
+        self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
+                                     manifest.end_token, intra_op_threads=1,
                                      level_workers=threads)
-        vq = manifest["vq"]
-        self.down_factor = int(vq["down_factor"])
-        self._decoder = vq["decoder"]
-        self._decoder_session = cpu_session(bundle.path(self._decoder["file"]), threads)
-        self._vq_encoder = _Graph(bundle, vq["encoder"], threads)
-        self.codebook_size = int(vq["codebook_size"])
+        self.down_factor = manifest.vq.down_factor
+        self._decoder = manifest.vq.decoder
+        self._decoder_session = cpu_session(bundle.path(self._decoder.file), threads)
+        self._vq_encoder = _Graph(bundle, manifest.vq.encoder, threads)
+        self.codebook_size = manifest.vq.codebook_size
 
     @classmethod
     def load(cls, bundle_dir: str | os.PathLike | None = None, threads: int = 1) -> MotionGenerator:
@@ -97,7 +95,7 @@ class MotionGenerator:
         if isinstance(align, PromptAligner):
             return align
         if align is True:
-            return RuleAligner(self.vocabulary(), float(self.defaults.get("max_seconds", 9.8)))
+            return RuleAligner(self.vocabulary(), self.defaults.max_seconds)
         if align is False or align is None:
             return None
         raise ValueError(f"align must be True, False or a PromptAligner, got {align!r}")
@@ -125,11 +123,11 @@ class MotionGenerator:
             motions = [self._play_aligned(aligner.align(_checked_prompt(t)), seconds, seed + k,
                                           options) for k, t in enumerate(texts)]
             return motions[0] if isinstance(text, str) else motions
-        max_steps = self._steps(float(self.defaults.get("max_seconds", 9.8)))
+        max_steps = self._steps(self.defaults.max_seconds)
         motions = []
         for k, (prompt, embedding) in enumerate(zip(texts, self.embed(texts))):
             tokens = self.tokens.generate(embedding, steps, max_steps, sampling, seed + k,
-                                          self.defaults.get("window"))
+                                          self.defaults.window)
             frames = None if seconds is None else round(seconds * self.fps)
             motions.append(self.decode(tokens, [(0, prompt)], frames, seed + k))
         return motions[0] if isinstance(text, str) else motions
@@ -171,9 +169,9 @@ class MotionGenerator:
     def encode_motion(self, motion: Motion) -> np.ndarray:
         """A clip's features -> its token steps (n, L), by the bundle's VQ encoder."""
         features = np.asarray(motion.features, np.float32)
-        if features.ndim != 2 or features.shape[1] != self.bundle.manifest["feature_dim"]:
-            raise ValueError(f"motion features must be (T, {self.bundle.manifest['feature_dim']})"
-                             f", got {features.shape}")
+        if features.ndim != 2 or features.shape[1] != self.manifest.feature_dim:
+            raise ValueError(f"motion features must be (T, {self.manifest.feature_dim}), got "
+                             f"{features.shape}")
         if not np.all(np.isfinite(features)):
             raise ValueError("motion features contain NaN or infinite values")
         usable = len(features) - len(features) % self.down_factor
@@ -189,26 +187,25 @@ class MotionGenerator:
                guidance: float | None = None, window: int | None = None) -> MotionStream:
         """An endless motion; see MotionStream."""
         seed = _fresh_seed() if seed is None else _checked_seed(seed)
-        window = self.defaults.get("window") if window is None else window
+        window = self.defaults.window if window is None else window
         return MotionStream(self, text, seed, self.sampling(temperature, top_k, top_p, guidance),
                             window)
 
     def streaming_decoder(self) -> StreamingDecoder:
         d = self._decoder
-        return StreamingDecoder(self._decoder_session, d["left_context"], d["lookahead"],
-                                self.codebook_size, ids_name=d["inputs"][0],
-                                features_name=d["outputs"][0], every=STREAM_DECODE_EVERY)
+        return StreamingDecoder(self._decoder_session, d.left_context, d.lookahead,
+                                self.codebook_size, ids_name=d.inputs[0],
+                                features_name=d.outputs[0], every=STREAM_DECODE_EVERY)
 
     def sampling(self, temperature=None, top_k=None, top_p=None, guidance=None) -> Sampling:
         """Sampling options, the bundle's defaults where not given."""
         d = self.defaults
 
-        def pick(value, name, fallback):
-            return d.get(name, fallback) if value is None else value
+        def pick(value, name):
+            return getattr(d, name) if value is None else value
 
-        return Sampling(float(pick(temperature, "temperature", 1.0)),
-                        int(pick(top_k, "top_k", 0)), float(pick(top_p, "top_p", 1.0)),
-                        float(pick(guidance, "guidance", 1.0)))
+        return Sampling(float(pick(temperature, "temperature")), int(pick(top_k, "top_k")),
+                        float(pick(top_p, "top_p")), float(pick(guidance, "guidance")))
 
     def _steps(self, seconds: float) -> int:
         if not isinstance(seconds, (int, float)) or not math.isfinite(seconds) or seconds <= 0:
@@ -289,7 +286,7 @@ class MotionStream:
         self._emit(np.zeros((0, self.generator.tokens.num_levels), np.int64), features)
         g = self.generator
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
-                 np.zeros((0, g.bundle.manifest["feature_dim"]), np.float32),
+                 np.zeros((0, g.manifest.feature_dim), np.float32),
                  np.zeros((0, g.skeleton.num_joints, 3), np.float32))
         tokens, features, joints = (np.concatenate(column)
                                     for column in zip(empty, *(self._record or [])))
@@ -316,9 +313,9 @@ class MotionStream:
 class _Graph:
     """A session with its manifest names: inputs in, first output out."""
 
-    def __init__(self, bundle: Bundle, entry: dict, threads: int):
-        self.session = cpu_session(bundle.path(entry["file"]), threads)
-        self.inputs, self.output = list(entry["inputs"]), entry["outputs"][0]
+    def __init__(self, bundle: Bundle, graph: Graph, threads: int):
+        self.session = cpu_session(bundle.path(graph.file), threads)
+        self.inputs, self.output = list(graph.inputs), graph.outputs[0]
 
     def run(self, *arrays: np.ndarray) -> np.ndarray:
         return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]
