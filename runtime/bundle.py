@@ -12,12 +12,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from mogo.manifest import MANIFEST, BundleError, Manifest
+from mogo.manifest import MANIFEST, BundleError, FileEntry, Manifest
 
 
 @dataclass(frozen=True)
@@ -57,6 +57,16 @@ def read_manifest(root: Path) -> Manifest:
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
         raise BundleError(f"{path}: not valid JSON ({error})") from None
     return Manifest.from_json(data, str(path))
+
+
+def write_manifest(root: Path, manifest: Manifest) -> Manifest:
+    """The manifest with the size and sha256 of every file in `root`, written as its
+    manifest.json (what `mogo export` does last); returns it."""
+    files = {p.name: FileEntry(bytes=p.stat().st_size, sha256=file_sha256(p))
+             for p in sorted(Path(root).iterdir()) if p.is_file() and p.name != MANIFEST}
+    manifest = replace(manifest, files=files)
+    (Path(root) / MANIFEST).write_text(manifest.dumps())
+    return manifest
 
 
 def verify_files(root: Path, manifest: Manifest) -> None:

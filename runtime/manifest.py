@@ -107,6 +107,13 @@ class MotionFormat:
     features: tuple[FeatureBlock, ...]
     normalization: Normalization
 
+    @classmethod
+    def of(cls, skeleton: Skeleton, normalization: Normalization) -> MotionFormat:
+        """Motion of `skeleton` in the features of mogo.motion.features (what `mogo export`
+        writes, from the runtime's own definitions)."""
+        return cls(skeleton.fps, SkeletonSpec.of(skeleton),
+                   tuple(FeatureBlock(*block) for block in feature_layout(skeleton)), normalization)
+
     @property
     def feature_dim(self) -> int:
         return self.features[-1].stop
@@ -279,7 +286,7 @@ class Manifest:
                               f"{self.vq.levels} VQ levels (vq.config.levels)")
         _check_skeleton(self.motion.skeleton)
         skeleton = self.skeleton()
-        expected = tuple(FeatureBlock(*block) for block in feature_layout(skeleton))
+        expected = MotionFormat.of(skeleton, self.motion.normalization).features
         if self.motion.features != expected:
             raise _KeyProblem("motion.features", "not the layout of mogo.motion.features for "
                               f"the {skeleton.name} skeleton ({_layout_text(expected)})")
