@@ -4,8 +4,8 @@
 The dataclasses below are the schema: each JSON key is a field of the same name, so adding a
 key is adding a field. Reading checks every key and type and refuses a manifest that does not
 match, naming the key ("manifest.json: t2m.levels[2].file: missing"). Each value is stored
-once; what follows from it is a property (the end token, the feature size, the skeleton's
-parents). A program in another language finds here all it needs to run a bundle: the graphs
+once; what follows from it is a property (the end token, the feature size) or is read from the
+graphs themselves (the cache sizes of the level graphs). A program in another language finds here all it needs to run a bundle: the graphs
 and their input/output names, the decoder's context, the normalisation, the sampling defaults,
 and the skeleton with the layout of the features the decoder writes.
 
@@ -76,7 +76,7 @@ class SkeletonSpec:
     """mogo.motion.skeleton.Skeleton as JSON (its fps is the bundle's)."""
     name: str
     joint_names: tuple[str, ...]
-    parents: tuple[int, ...]  # -1 for the root
+    parents: tuple[int, ...]  # -1 for the root; what the chains give (checked), for readers
     chains: tuple[tuple[int, ...], ...]  # kinematic chains, the order of the features' IK
     raw_offsets: tuple[tuple[float, float, float], ...]  # unit bone directions
     face_joints: tuple[int, int, int, int]  # right hip, left hip, right shoulder, left shoulder
