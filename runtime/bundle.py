@@ -4,31 +4,26 @@ manifest.json that describes them.
 Loading runs no code from the bundle (JSON, ONNX, .npy with allow_pickle=False) and trusts no
 file it cannot vouch for: every file the manifest names must be listed with its size and
 sha256, and must match, before any session is created. Everything the runtime knows about a
-model (sizes, graph names, fps, skeleton, decoder context) comes from here, never from code.
+model (sizes, graph names, fps, skeleton, decoder context) comes from the manifest (its schema:
+mogo.manifest), never from code.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-FORMAT = "mogo-bundle"
-FORMAT_VERSION = 1
-MANIFEST = "manifest.json"
-
-
-class BundleError(ValueError):
-    """A bundle that cannot be used; the message names the file and the problem."""
+from mogo.manifest import MANIFEST, BundleError, FileEntry, Manifest
 
 
 @dataclass(frozen=True)
 class Bundle:
     root: Path
-    manifest: dict
+    manifest: Manifest
     mean: np.ndarray  # (D,) float32
     std: np.ndarray  # (D,) float32
 
@@ -39,53 +34,45 @@ class Bundle:
             raise BundleError(f"{root}: no such bundle folder")
         manifest = read_manifest(root)
         verify_files(root, manifest)
-        mean = _array(root, manifest["normalization"]["mean"])
-        std = _array(root, manifest["normalization"]["std"])
-        dim = manifest["feature_dim"]
-        for name, array in (("mean", mean), ("std", std)):
-            if array.shape != (dim,):
-                raise BundleError(f"{root / manifest['normalization'][name]}: shape "
-                                  f"{array.shape}, expected ({dim},)")
+        norm = manifest.motion.normalization
+        mean, std = _array(root, norm.mean), _array(root, norm.std)
+        for name, array in ((norm.mean, mean), (norm.std, std)):
+            if array.shape != (manifest.feature_dim,):
+                raise BundleError(f"{root / name}: shape {array.shape}, expected "
+                                  f"({manifest.feature_dim},)")
         if np.any(std <= 0):
-            raise BundleError(f"{root / manifest['normalization']['std']}: has values <= 0")
+            raise BundleError(f"{root / norm.std}: has values <= 0")
         return cls(root, manifest, mean, std)
 
     def path(self, name: str) -> Path:
         return self.root / name
 
-    @property
-    def fps(self) -> float:
-        return float(self.manifest["fps"])
 
-    @property
-    def skeleton_name(self) -> str:
-        return self.manifest["skeleton"]
-
-
-def read_manifest(root: Path) -> dict:
+def read_manifest(root: Path) -> Manifest:
     path = root / MANIFEST
     if not path.is_file():
         raise BundleError(f"{path}: missing; a bundle folder holds a {MANIFEST}")
     try:
-        manifest = json.loads(path.read_text())
+        data = json.loads(path.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
         raise BundleError(f"{path}: not valid JSON ({error})") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-        raise BundleError(f"{path}: not a {FORMAT} manifest")
-    version = manifest.get("format_version")
-    if version != FORMAT_VERSION:
-        raise BundleError(f"{path}: format version {version!r}; this runtime reads version "
-                          f"{FORMAT_VERSION} (re-export the bundle, or upgrade mogo)")
-    for key in ("files", "fps", "skeleton", "feature_dim", "normalization", "text", "t2m", "vq"):
-        if key not in manifest:
-            raise BundleError(f"{path}: has no {key!r} entry")
+    return Manifest.from_json(data, str(path))
+
+
+def write_manifest(root: Path, manifest: Manifest) -> Manifest:
+    """The manifest with the size and sha256 of every file in `root`, written as its
+    manifest.json (what `mogo export` does last); returns it."""
+    files = {p.name: FileEntry(bytes=p.stat().st_size, sha256=file_sha256(p))
+             for p in sorted(Path(root).iterdir()) if p.is_file() and p.name != MANIFEST}
+    manifest = replace(manifest, files=files)
+    (Path(root) / MANIFEST).write_text(manifest.dumps())
     return manifest
 
 
-def verify_files(root: Path, manifest: dict) -> None:
+def verify_files(root: Path, manifest: Manifest) -> None:
     """Every file the manifest refers to is listed, present, of its size and sha256."""
-    files = manifest["files"]
-    for name in sorted(set(files) | _referenced_files(manifest)):
+    files = manifest.files
+    for name in sorted(set(files) | manifest.referenced_files()):
         if Path(name).is_absolute() or ".." in Path(name).parts:
             raise BundleError(f"{root / MANIFEST}: file name {name!r} leaves the bundle folder")
         if name not in files:
@@ -95,10 +82,10 @@ def verify_files(root: Path, manifest: dict) -> None:
         if not path.is_file():
             raise BundleError(f"{path}: missing from the bundle")
         size = path.stat().st_size
-        if size != entry["bytes"]:
-            raise BundleError(f"{path}: {size} bytes, the manifest says {entry['bytes']} "
+        if size != entry.bytes:
+            raise BundleError(f"{path}: {size} bytes, the manifest says {entry.bytes} "
                               "(truncated or replaced)")
-        if file_sha256(path) != entry["sha256"]:
+        if file_sha256(path) != entry.sha256:
             raise BundleError(f"{path}: sha256 does not match the manifest (corrupted or altered)")
 
 
@@ -108,25 +95,6 @@ def file_sha256(path: Path) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
-
-
-def _referenced_files(manifest: dict) -> set[str]:
-    """Every value under a "file" key or in "normalization", anywhere in the manifest."""
-    found = set(manifest["normalization"].values())
-
-    def walk(node) -> None:
-        if isinstance(node, dict):
-            for key, value in node.items():
-                if key in ("file", "tokenizer") and isinstance(value, str):
-                    found.add(value)
-                else:
-                    walk(value)
-        elif isinstance(node, list):
-            for value in node:
-                walk(value)
-
-    walk({k: v for k, v in manifest.items() if k != "files"})
-    return found
 
 
 def _array(root: Path, name: str) -> np.ndarray:

@@ -133,37 +133,35 @@ def _cmd_info(args: argparse.Namespace) -> None:
 
     bundle = Bundle.load(args.bundle or DEFAULT_BUNDLE)
     m = bundle.manifest
-    t2m, vq, text = m["t2m"], m["vq"], m["text"]
-    config = t2m["config"]
-    decoder = vq["decoder"]
+    t2m, vq, text, decoder = m.t2m.config, m.vq, m.text, m.vq.decoder
     lines = [
         f"bundle      {bundle.root}",
-        f"format      {m['format']} version {m['format_version']}",
-        f"motion      {m['skeleton']} skeleton, {m['feature_dim']}-dim features, {m['fps']:g} fps",
-        f"text        {text['kind']}, {text['embedding_dim']}-d prompt embedding, "
-        f"at most {text['max_length']} tokens",
-        f"transformer {t2m['num_levels']} levels, width {config['dim']}, layers "
-        f"{config['layers']}, heads {config['heads']}, {t2m['codebook_size']} codes + end token",
-        f"vq          {vq['levels']} levels of {vq['codebook_size']} codes, {vq['down_factor']} "
-        f"frame(s) per token, decoder context {decoder['left_context']} back / "
-        f"{decoder['lookahead']} ahead (tokens)",
-        "defaults    " + ", ".join(f"{k} {v}" for k, v in m.get("defaults", {}).items()),
+        f"format      {m.format} version {m.format_version}",
+        f"motion      {m.motion.skeleton.name} skeleton, {m.feature_dim}-dim features, "
+        f"{m.fps:g} fps, {len(m.motion.skeleton.joint_names)} joints",
+        f"text        {text.kind}, {t2m.get('text_dim')}-d prompt embedding, at most "
+        f"{text.max_length} tokens",
+        f"transformer {m.t2m.num_levels} levels, width {t2m.get('dim')}, layers "
+        f"{t2m.get('layers')}, heads {t2m.get('heads')}, {vq.codebook_size} codes + end token",
+        f"vq          {vq.levels} levels of {vq.codebook_size} codes, {vq.down_factor} "
+        f"frame(s) per token, decoder context {decoder.left_context} back / "
+        f"{decoder.lookahead} ahead (tokens)",
+        "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),
     ]
-    if "int8" in m:
-        check = m["int8"]
-        lines.append(f"int8        {'used' if check['used'] else 'not used'}: greedy token "
-                     f"agreement {check['greedy_token_agreement']:.1%} (threshold "
-                     f"{check['threshold']:.0%}), {check['scheme']}")
-    for part, info in m.get("training", {}).items():
-        recipe = info.get("recipe") or {}
+    if m.int8 is not None:
+        lines.append(f"int8        {'used' if m.int8.used else 'not used'}: greedy token "
+                     f"agreement {m.int8.greedy_token_agreement:.1%} (threshold "
+                     f"{m.int8.threshold:.0%}), {m.int8.scheme}")
+    for part, run in m.training.items():
+        recipe = run.recipe or {}  # the trainer's own record: read as it is, where present
         tuned = (f", {'the decoder' if recipe.get('tune') == 'decoder' else 'all weights'} "
                  f"fine-tuned from {recipe['init']}" if recipe.get("init") else "")
-        lines.append(f"trained     {part}: {info.get('step')} steps, batch "
+        lines.append(f"trained     {part}: {run.step} steps, batch "
                      f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
                      f"seed {recipe.get('seed')}{tuned}")
-    total = sum(entry["bytes"] for entry in m["files"].values())
-    lines.append(f"files       {len(m['files'])}, {total / 1e6:.1f} MB, sha256 verified")
-    lines += [f"  {name:20s} {entry['bytes'] / 1e6:8.2f} MB" for name, entry in m["files"].items()]
+    total = sum(entry.bytes for entry in m.files.values())
+    lines.append(f"files       {len(m.files)}, {total / 1e6:.1f} MB, sha256 verified")
+    lines += [f"  {name:20s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
     print("\n".join(lines))
 
 

@@ -26,10 +26,10 @@ from tokenizers import Tokenizer
 from mogo._session import cpu_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.bundle import Bundle, BundleError
+from mogo.manifest import Graph
 from mogo.motion.features import JointStream
 from mogo.clip import Motion
 from mogo.sampling import Sampling
-from mogo.motion.skeleton import MAX_SECONDS, SKELETONS
 from mogo.stream_decoder import StreamingDecoder
 from mogo.token_generator import TokenGenerator, TokenStream
 
@@ -49,23 +49,21 @@ class MotionGenerator:
 
     def __init__(self, bundle: Bundle, threads: int = 1):
         self.bundle = bundle
-        manifest = bundle.manifest
-        self.skeleton = SKELETONS[manifest["skeleton"]]
-        self.fps = bundle.fps
-        self.defaults = manifest.get("defaults", {})
-        text = manifest["text"]
-        self.tokenizer = Tokenizer.from_file(str(bundle.path(text["tokenizer"])))
-        self._text = _Graph(bundle, text["encoder"], threads)
-        t2m = manifest["t2m"]
-        self.tokens = TokenGenerator([bundle.path(g["file"]) for g in t2m["levels"]],
-                                     t2m["levels"], t2m["end_token"], intra_op_threads=1,
+        manifest = self.manifest = bundle.manifest
+        self.skeleton = manifest.skeleton()
+        self.fps = manifest.fps
+        self.defaults = manifest.defaults
+        self.tokenizer = Tokenizer.from_file(str(bundle.path(manifest.text.tokenizer)))
+        self._text = _Graph(bundle, manifest.text.encoder, threads)
+        levels = manifest.t2m.levels
+        self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
+                                     manifest.end_token, intra_op_threads=1,
                                      level_workers=threads)
-        vq = manifest["vq"]
-        self.down_factor = int(vq["down_factor"])
-        self._decoder = vq["decoder"]
-        self._decoder_session = cpu_session(bundle.path(self._decoder["file"]), threads)
-        self._vq_encoder = _Graph(bundle, vq["encoder"], threads)
-        self.codebook_size = int(vq["codebook_size"])
+        self.down_factor = manifest.vq.down_factor
+        self._decoder = manifest.vq.decoder
+        self._decoder_session = cpu_session(bundle.path(self._decoder.file), threads)
+        self._vq_encoder = _Graph(bundle, manifest.vq.encoder, threads)
+        self.codebook_size = manifest.vq.codebook_size
 
     @classmethod
     def load(cls, bundle_dir: str | os.PathLike | None = None, threads: int = 1) -> MotionGenerator:
@@ -78,11 +76,6 @@ class MotionGenerator:
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         return cls(Bundle.load(bundle_dir), threads)
-
-    @property
-    def max_seconds(self) -> float:
-        """The longest motion one prompt gets when the model ends it (the bundle's)."""
-        return float(self.defaults.get("max_seconds", MAX_SECONDS))
 
     # -- text --------------------------------------------------------------------------------
     def embed(self, texts: Sequence[str]) -> np.ndarray:
@@ -102,7 +95,7 @@ class MotionGenerator:
         if isinstance(align, PromptAligner):
             return align
         if align is True:
-            return RuleAligner(self.vocabulary(), self.max_seconds)
+            return RuleAligner(self.vocabulary(), self.defaults.max_seconds)
         if align is False or align is None:
             return None
         raise ValueError(f"align must be True, False or a PromptAligner, got {align!r}")
@@ -123,9 +116,9 @@ class MotionGenerator:
         if aligner is not None:
             return self._play_aligned(aligner.align(_checked_prompt(text)), seconds, seed,
                                       sampling)
-        max_steps = self._steps(self.max_seconds)
+        max_steps = self._steps(self.defaults.max_seconds)
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
-                                      self.defaults.get("window"))
+                                      self.defaults.window)
         frames = None if seconds is None else round(seconds * self.fps)
         return self.decode(tokens, [(0, text)], frames, seed)
 
@@ -183,9 +176,9 @@ class MotionGenerator:
     def encode_motion(self, motion: Motion) -> np.ndarray:
         """A clip's features -> its token steps (n, L), by the bundle's VQ encoder."""
         features = np.asarray(motion.features, np.float32)
-        if features.ndim != 2 or features.shape[1] != self.bundle.manifest["feature_dim"]:
-            raise ValueError(f"motion features must be (T, {self.bundle.manifest['feature_dim']})"
-                             f", got {features.shape}")
+        if features.ndim != 2 or features.shape[1] != self.manifest.feature_dim:
+            raise ValueError(f"motion features must be (T, {self.manifest.feature_dim}), got "
+                             f"{features.shape}")
         if not np.all(np.isfinite(features)):
             raise ValueError("motion features contain NaN or infinite values")
         usable = len(features) - len(features) % self.down_factor
@@ -200,21 +193,21 @@ class MotionGenerator:
                window: int | None = None, **options) -> MotionStream:
         """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`."""
         seed = _fresh_seed() if seed is None else _checked_seed(seed)
-        window = self.defaults.get("window") if window is None else window
+        window = self.defaults.window if window is None else window
         return MotionStream(self, text, seed, self.sampling(sampling, **options), window)
 
     def streaming_decoder(self) -> StreamingDecoder:
         d = self._decoder
-        return StreamingDecoder(self._decoder_session, d["left_context"], d["lookahead"],
-                                self.codebook_size, ids_name=d["inputs"][0],
-                                features_name=d["outputs"][0], every=STREAM_DECODE_EVERY)
+        return StreamingDecoder(self._decoder_session, d.left_context, d.lookahead,
+                                self.codebook_size, ids_name=d.inputs[0],
+                                features_name=d.outputs[0], every=STREAM_DECODE_EVERY)
 
     def sampling(self, sampling: Sampling | None = None, **options) -> Sampling:
         """How a call draws its tokens: `sampling` (None: the bundle's defaults), with keyword
         options named as Sampling's fields (temperature=0, top_p=0.9, ...; None: not given)
         replacing single fields."""
         if sampling is None:
-            sampling = Sampling.from_defaults(self.defaults)
+            sampling = Sampling.from_defaults(vars(self.defaults))
         return sampling.updated(options)
 
     def _steps(self, seconds: float) -> int:
@@ -296,7 +289,7 @@ class MotionStream:
         self._emit(np.zeros((0, self.generator.tokens.num_levels), np.int64), features)
         g = self.generator
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
-                 np.zeros((0, g.bundle.manifest["feature_dim"]), np.float32),
+                 np.zeros((0, g.manifest.feature_dim), np.float32),
                  np.zeros((0, g.skeleton.num_joints, 3), np.float32))
         tokens, features, joints = (np.concatenate(column)
                                     for column in zip(empty, *(self._record or [])))
@@ -323,9 +316,9 @@ class MotionStream:
 class _Graph:
     """A session with its manifest names: inputs in, first output out."""
 
-    def __init__(self, bundle: Bundle, entry: dict, threads: int):
-        self.session = cpu_session(bundle.path(entry["file"]), threads)
-        self.inputs, self.output = list(entry["inputs"]), entry["outputs"][0]
+    def __init__(self, bundle: Bundle, graph: Graph, threads: int):
+        self.session = cpu_session(bundle.path(graph.file), threads)
+        self.inputs, self.output = list(graph.inputs), graph.outputs[0]
 
     def run(self, *arrays: np.ndarray) -> np.ndarray:
         return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]

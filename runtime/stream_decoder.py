@@ -28,7 +28,7 @@ class StreamingDecoder:
     """Decodes a growing stream of token ids (n, L) into normalised features (frames, D).
 
     `left_context` and `lookahead` are the decoder's receptive field in tokens (from
-    mogo.export.onnx.vq_graphs.decoder_context, stored in the bundle manifest); the default names
+    the bundle manifest's vq.decoder, mogo.manifest.DecoderGraph); the default names
     are those mogo.export.onnx.vq_graphs writes. A session passed in is used as it is.
     """
 

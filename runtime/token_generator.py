@@ -11,9 +11,10 @@ batch of two rows, conditional and unconditional. The rules (uniforms, end token
 those of the torch reference `mogo.export.models.generate_torch.generate`, so both give the same
 tokens.
 
-Graph names come from the exporter's dict (mogo.export.onnx.t2m_graphs, later the bundle manifest),
-by role: the first five inputs are prompt, uncond, token_ids, positions, past_positions, then
-past key/value pairs layer by layer; output 0 is the logits, then the matching presents.
+Graph names come from the bundle manifest (mogo.manifest.Graph, written by
+mogo.export.onnx.t2m_graphs), by role: the first five inputs are prompt, uncond, token_ids,
+positions, past_positions, then past key/value pairs layer by layer; output 0 is the logits,
+then the matching presents. The cache sizes (heads, head_dim) are the graph's own input shapes.
 """
 from __future__ import annotations
 
@@ -26,17 +27,19 @@ import numpy as np
 
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 from mogo._session import cpu_session
+from mogo.manifest import Graph
 from mogo.motion.skeleton import MAX_FRAMES
 
+LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"]  # then the pasts
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
 
 
 class TokenGenerator:
     """The level graphs of one model; `start` opens a stream on them (streams share sessions)."""
 
-    def __init__(self, level_paths: Sequence[str | os.PathLike], graphs: Sequence[dict],
+    def __init__(self, level_paths: Sequence[str | os.PathLike], graphs: Sequence[Graph],
                  end_token: int, intra_op_threads: int = 1, level_workers: int = 1):
-        """graphs[l]: inputs, outputs (names in protocol order), heads, head_dim of level l.
+        """graphs[l]: the input and output names of level l (protocol order).
         level_workers > 1 runs the levels of a step in that many groups at once, balanced by
         layer count (each session then keeps `intra_op_threads`, best 1)."""
         if level_workers < 1:
@@ -47,10 +50,11 @@ class TokenGenerator:
         for level, (session, graph) in enumerate(zip(self.sessions, graphs)):
             names = ([i.name for i in session.get_inputs()],
                      [o.name for o in session.get_outputs()])
-            if names != (list(graph["inputs"]), list(graph["outputs"])):
+            if names != (list(graph.inputs), list(graph.outputs)):
                 raise ValueError(f"level {level}: the graph has inputs and outputs {names}, "
-                                 f"the manifest says {graph['inputs']}, {graph['outputs']}")
+                                 f"the manifest says {list(graph.inputs)}, {list(graph.outputs)}")
         self.graphs = list(graphs)
+        self.cache_shapes = [_cache_shape(session) for session in self.sessions]
         self.end_token = end_token
         self.num_levels = len(graphs)
         self.num_classes = end_token + 1  # level 0's logits: every code and the end token
@@ -66,7 +70,8 @@ class TokenGenerator:
         return twin
 
     def _spread_levels(self, level_workers: int) -> None:
-        self.level_groups = balanced_groups([g["num_layers"] for g in self.graphs], level_workers)
+        self.level_groups = balanced_groups([layers for layers, _, _ in self.cache_shapes],
+                                            level_workers)
         self._pool = (ThreadPoolExecutor(len(self.level_groups) - 1, "mogo-level")
                       if len(self.level_groups) > 1 else None)
 
@@ -95,9 +100,9 @@ class TokenGenerator:
             past: Cache) -> tuple[np.ndarray, Cache]:
         """One call of a level graph -> logits of the last position (batch, K[+1]), presents."""
         graph = self.graphs[level]
-        feed = dict(zip(graph["inputs"], [prompt, uncond, token_ids, positions, past_positions,
-                                          *past]))
-        logits, *presents = self.sessions[level].run(graph["outputs"], feed)
+        feed = dict(zip(graph.inputs, [prompt, uncond, token_ids, positions, past_positions,
+                                       *past]))
+        logits, *presents = self.sessions[level].run(list(graph.outputs), feed)
         return logits, presents
 
     def each_level(self, call: Callable[[int], tuple]) -> list[tuple]:
@@ -117,9 +122,9 @@ class TokenGenerator:
 
     def empty_cache(self, level: int, batch: int) -> Cache:
         """The past of a prefill: every layer's key and value with no slots."""
-        graph = self.graphs[level]
-        empty = np.zeros((batch, graph["heads"], 0, graph["head_dim"]), np.float32)
-        return [empty] * (2 * graph["num_layers"])
+        layers, heads, head_dim = self.cache_shapes[level]
+        empty = np.zeros((batch, heads, 0, head_dim), np.float32)
+        return [empty] * (2 * layers)
 
 
 class TokenStream:
@@ -242,3 +247,14 @@ def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:
         load, members = loads[lightest]
         loads[lightest] = (load + layers[level], members + [level])
     return sorted((sorted(members) for _, members in loads if members), key=lambda m: m[0])
+
+
+def _cache_shape(session) -> tuple[int, int, int]:
+    """(layers, heads, head_dim) of a level graph: its past inputs, key and value per layer,
+    are (batch, heads, past, head_dim) with heads and head_dim fixed."""
+    pasts = session.get_inputs()[len(LEVEL_INPUTS):]
+    if not pasts or len(pasts) % 2:
+        raise ValueError(f"a level graph has {len(pasts)} past inputs, expected key and value "
+                         "pairs")
+    _, heads, _, head_dim = pasts[0].shape
+    return len(pasts) // 2, int(heads), int(head_dim)

@@ -53,8 +53,8 @@ def test_interleaved_rotates_and_respects_rounds():
 def test_touched_bytes_leave_out_embedding_tables(tmp_path):
     config = T2MConfig.tiny()
     model, folder, graphs = latency.exported_model(config, tmp_path)
-    fp32 = latency.touched_weight_bytes([folder / g["file"] for g in graphs])
-    int8 = latency.touched_weight_bytes([folder / "int8" / g["file"] for g in graphs])
+    fp32 = latency.touched_weight_bytes([folder / g.file for g in graphs])
+    int8 = latency.touched_weight_bytes([folder / "int8" / g.file for g in graphs])
     tables = sum(p.numel() for p in model.token_embeddings.parameters()) * 4
     everything = sum(p.numel() for p in model.parameters()) * 4
     assert 0 < int8 < fp32 < everything - tables + 4096  # what the graph adds: folded constants

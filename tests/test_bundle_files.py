@@ -1,11 +1,33 @@
-"""Bundle verification on a hand-made folder (no models needed): what is refused, and how."""
+"""Bundle verification on a hand-made folder (no models needed): what is refused, and how; the
+manifest schema (mogo.manifest) on it and on the shipped bundle."""
 import json
+import re
 
 import numpy as np
 import pytest
 
-from mogo.export.onnx.bundle import write_manifest
-from mogo.bundle import MANIFEST, Bundle, BundleError
+from mogo.bundle import MANIFEST, Bundle, BundleError, read_manifest, write_manifest
+from mogo.generator import DEFAULT_BUNDLE
+from mogo.manifest import (T2M, VQ, DecoderGraph, Defaults, Graph, Manifest, MotionFormat,
+                           Normalization, Text)
+from mogo.motion.skeleton import SMPL_22
+
+GRAPHS = ("text_encoder.onnx", "level_0.onnx", "vq_encoder.onnx", "vq_decoder.onnx")
+
+
+def small_manifest() -> Manifest:
+    """A manifest of the hand-made folder: one level, the HumanML3D skeleton."""
+    return Manifest(
+        motion=MotionFormat.of(SMPL_22, Normalization(mean="mean.npy", std="std.npy")),
+        text=Text(tokenizer="tokenizer.json", max_length=8, kind="SmallTextEncoder",
+                  encoder=Graph("text_encoder.onnx", ("token_ids", "attention_mask"),
+                                ("prompt_embedding",))),
+        t2m=T2M(config=dict(dim=16), levels=(Graph("level_0.onnx", ("prompt",), ("logits",)),)),
+        vq=VQ(config=dict(feature_dim=263, levels=1, codebook_size=8, down_factor=1),
+              encoder=Graph("vq_encoder.onnx", ("features",), ("ids",)),
+              decoder=DecoderGraph("vq_decoder.onnx", ("ids",), ("features",), 2, 2)),
+        defaults=Defaults(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=16,
+                          max_seconds=9.8))
 
 
 @pytest.fixture
@@ -14,13 +36,10 @@ def bundle(tmp_path):
     root.mkdir()
     np.save(root / "mean.npy", np.zeros(263, np.float32))
     np.save(root / "std.npy", np.ones(263, np.float32))
-    (root / "level_0.onnx").write_bytes(b"graph bytes " * 100)
+    for name in GRAPHS:
+        (root / name).write_bytes(b"graph bytes " * 100)
     (root / "tokenizer.json").write_text("{}")
-    manifest = dict(format="mogo-bundle", format_version=1, fps=20.0, skeleton="humanml3d",
-                    feature_dim=263, normalization=dict(mean="mean.npy", std="std.npy"),
-                    text=dict(tokenizer="tokenizer.json"),
-                    t2m=dict(levels=[dict(file="level_0.onnx")]), vq={})
-    write_manifest(root, manifest)
+    write_manifest(root, small_manifest())
     return root
 
 
@@ -30,10 +49,9 @@ def _manifest(root):
 
 def test_a_good_bundle_loads(bundle):
     loaded = Bundle.load(bundle)
-    assert loaded.fps == 20.0 and loaded.skeleton_name == "humanml3d"
+    assert loaded.manifest.fps == 20.0 and loaded.manifest.motion.skeleton.name == "humanml3d"
     assert loaded.mean.shape == (263,) and loaded.std.dtype == np.float32
-    assert set(_manifest(bundle)["files"]) == {"mean.npy", "std.npy", "level_0.onnx",
-                                               "tokenizer.json"}
+    assert set(_manifest(bundle)["files"]) == {"mean.npy", "std.npy", "tokenizer.json", *GRAPHS}
 
 
 @pytest.mark.parametrize("damage,message", [
@@ -60,7 +78,7 @@ def test_manifest_problems_are_refused(bundle, tmp_path):
     _edit(bundle, lambda m: m.update(format_version=99))
     with pytest.raises(BundleError, match="format version 99"):
         Bundle.load(bundle)
-    _edit(bundle, lambda m: m.update(format_version=1))
+    _edit(bundle, lambda m: m.update(format_version=2))
     _edit(bundle, lambda m: m["files"].pop("level_0.onnx"))
     with pytest.raises(BundleError, match="refers to level_0.onnx but lists no checksum"):
         Bundle.load(bundle)
@@ -71,12 +89,63 @@ def test_manifest_problems_are_refused(bundle, tmp_path):
         Bundle.load(tmp_path / "nowhere")
 
 
+def _skeleton(m):
+    return m["motion"]["skeleton"]
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda m: m["t2m"]["levels"][0].pop("file"), "t2m.levels[0].file: missing"),
+    (lambda m: m.pop("defaults"), "defaults: missing"),
+    (lambda m: m["motion"].update(fps="20"), "motion.fps: expected a number, got '20'"),
+    (lambda m: m["defaults"].update(top_k=True), "defaults.top_k: expected an integer"),
+    (lambda m: m["defaults"].update(temprature=1.0), "defaults.temprature: unknown key"),
+    (lambda m: m["text"]["encoder"].update(inputs="token_ids"),
+     "text.encoder.inputs: expected a list"),
+    (lambda m: m["vq"]["decoder"].pop("lookahead"), "vq.decoder.lookahead: missing"),
+    (lambda m: m["vq"]["config"].pop("down_factor"),
+     "vq.config.down_factor: missing or not a positive integer"),
+    (lambda m: m["vq"]["config"].update(feature_dim=251),
+     "vq.config.feature_dim: 251, the feature layout (motion.features) has 263"),
+    (lambda m: m["vq"]["config"].update(levels=2), "t2m.levels: 1 graphs for 2 VQ levels"),
+    (lambda m: _skeleton(m)["face_joints"].pop(), "motion.skeleton.face_joints: 3 items, "
+                                                  "expected 4"),
+    (lambda m: _skeleton(m)["parents"].reverse(), "motion.skeleton.parents: [19, 18, 17"),
+    (lambda m: _skeleton(m)["rest_offsets"].pop(), "motion.skeleton.rest_offsets: 21 rows for "
+                                                   "22 joints"),
+    (lambda m: m["motion"]["features"][3].update(stop=66), "motion.features: not the layout"),
+    (lambda m: m.update(format_version=1), "format version 1; this runtime reads version 2 "
+                                           "(re-export the bundle with `mogo export`"),
+])
+def test_a_manifest_off_the_schema_is_refused_naming_the_key(bundle, change, message):
+    _edit(bundle, change)
+    with pytest.raises(BundleError, match=re.escape(f"manifest.json: {message}")):
+        Bundle.load(bundle)
+
+
+def test_the_manifest_reads_back_what_was_written(bundle):
+    manifest = write_manifest(bundle, small_manifest())
+    assert Manifest.from_json(json.loads(manifest.dumps())) == manifest == read_manifest(bundle)
+    assert "rest_offsets" in _skeleton(_manifest(bundle)) and "int8" not in _manifest(bundle)
+
+
+def test_the_shipped_bundle_is_in_the_current_form_with_the_runtimes_skeleton():
+    text = (DEFAULT_BUNDLE / MANIFEST).read_text()
+    manifest = Manifest.from_json(json.loads(text))
+    assert manifest.dumps() == text  # what `mogo export` would write
+    skeleton = manifest.skeleton()
+    assert skeleton.joint_names == SMPL_22.joint_names and skeleton.chains == SMPL_22.chains
+    assert np.array_equal(skeleton.parents, SMPL_22.parents) and skeleton.fps == SMPL_22.fps
+    for name in ("raw_offsets", "rest_offsets"):
+        assert np.array_equal(getattr(skeleton, name), getattr(SMPL_22, name)), name
+    assert manifest.feature_dim == SMPL_22.feature_dim and manifest.end_token == 512
+
+
 def test_arrays_are_checked(bundle):
     np.save(bundle / "std.npy", np.zeros(263, np.float32))
-    write_manifest(bundle, _manifest(bundle))
+    write_manifest(bundle, read_manifest(bundle))
     with pytest.raises(BundleError, match="std.npy: has values <= 0"):
         Bundle.load(bundle)
     np.save(bundle / "std.npy", np.array([object()], dtype=object), allow_pickle=True)
-    write_manifest(bundle, _manifest(bundle))
+    write_manifest(bundle, read_manifest(bundle))
     with pytest.raises(BundleError, match="std.npy: not a plain .npy array"):
         Bundle.load(bundle)

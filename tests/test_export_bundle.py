@@ -1,7 +1,7 @@
 """`mogo export` end to end on tiny runs: the bundle it writes loads in the runtime, whose
 tokens are the torch reference's; int8 and fp16 storage are measured, not assumed."""
-import json
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,13 +11,15 @@ from conftest import make_tiny_humanml3d
 import onnx
 from onnx import numpy_helper
 
-from mogo.export.onnx.bundle import _quantize_levels, write_manifest
+from mogo.export.onnx.bundle import _quantize_levels
 from mogo.cli import main
 from mogo.export.models.generate_torch import generate
 from mogo.export.onnx.vq_graphs import vq_from_bundle
 from mogo.export.models.text_encoder import encode_captions
 from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
-from mogo.bundle import file_sha256
+from mogo.bundle import file_sha256, read_manifest, write_manifest
+from mogo.manifest import SkeletonSpec
+from mogo.motion.skeleton import SMPL_22
 from mogo.generator import MotionGenerator
 from mogo.sampling import Sampling
 
@@ -44,19 +46,20 @@ def runs(tmp_path_factory):
 
 
 def test_the_manifest_describes_the_bundle(runs):
-    manifest = json.loads((runs / "bundle" / "manifest.json").read_text())
+    manifest = read_manifest(runs / "bundle")
     expected = {"manifest.json", "tokenizer.json", "text_encoder.onnx", "vq_encoder.onnx",
                 "vq_decoder.onnx", "mean.npy", "std.npy"} | {f"level_{l}.onnx" for l in range(3)}
     assert {p.name for p in (runs / "bundle").iterdir()} == expected
-    assert set(manifest["files"]) == expected - {"manifest.json"}
-    assert manifest["skeleton"] == "humanml3d" and manifest["fps"] == 20.0
-    assert manifest["t2m"]["num_levels"] == 3 and manifest["training"]["t2m"]["step"] == 3
-    assert "int8" not in manifest
-    storage = manifest["fp16_storage"]
-    assert storage["files"] == ["text_encoder.onnx", "vq_decoder.onnx", "vq_encoder.onnx"]
-    assert storage["prompt_embedding_max_abs_difference"] < 1e-2
-    assert storage["vq_encoder_token_agreement"] > 0.9
-    assert 0 < storage["vq_decoder_feature_max_abs_difference"] < 1e-2
+    assert set(manifest.files) == expected - {"manifest.json"}
+    assert manifest.motion.skeleton == SkeletonSpec.of(SMPL_22) and manifest.fps == 20.0
+    assert manifest.skeleton().feature_dim == manifest.feature_dim == 263
+    assert manifest.t2m.num_levels == 3 and manifest.training["t2m"].step == 3
+    assert manifest.int8 is None
+    storage = manifest.fp16_storage
+    assert storage.files == ("text_encoder.onnx", "vq_decoder.onnx", "vq_encoder.onnx")
+    assert storage.prompt_embedding_max_abs_difference < 1e-2
+    assert storage.vq_encoder_token_agreement > 0.9
+    assert 0 < storage.vq_decoder_feature_max_abs_difference < 1e-2
 
 
 @pytest.mark.parametrize("sampling", [Sampling(temperature=0.0), Sampling(top_p=0.9)])
@@ -73,15 +76,15 @@ def test_runtime_tokens_are_the_torch_references(runs, sampling):
 def test_int8_levels_are_checked_and_kept_only_if_they_agree(runs, tmp_path):
     bundle = tmp_path / "bundle"
     shutil.copytree(runs / "bundle", bundle)
-    manifest = json.loads((bundle / "manifest.json").read_text())
-    levels = manifest["t2m"]["levels"]
+    manifest = read_manifest(bundle)
+    levels = manifest.t2m.levels
     _, text_encoder, tokenizer = load_t2m(runs / "t2m")
-    fp32_size = sum((bundle / level["file"]).stat().st_size for level in levels)
-    check = _quantize_levels(bundle, levels, manifest["t2m"]["end_token"], text_encoder,
+    fp32_size = sum((bundle / level.file).stat().st_size for level in levels)
+    check = _quantize_levels(bundle, levels, manifest.end_token, text_encoder,
                              tokenizer, [PROMPT, "someone jumps."])
-    assert 0 <= check["greedy_token_agreement"] <= 1 and check["prompts"] == 2
-    size = sum((bundle / level["file"]).stat().st_size for level in levels)
-    assert (size < fp32_size) == check["used"]
+    assert 0 <= check.greedy_token_agreement <= 1 and check.prompts == 2
+    size = sum((bundle / level.file).stat().st_size for level in levels)
+    assert (size < fp32_size) == check.used
     assert not (bundle / "int8").exists()
 
 
@@ -129,8 +132,7 @@ def test_a_bundles_vq_reads_back_into_torch(runs, tmp_path):
                  if np.array_equal(numpy_helper.to_array(t), original["quantizer.scale"].numpy()))
     scale.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(scale) * 2, scale.name))
     onnx.save(graph, bundle / "vq_decoder.onnx")
-    manifest = json.loads((bundle / "manifest.json").read_text())
-    write_manifest(bundle, manifest)
+    write_manifest(bundle, read_manifest(bundle))
     with pytest.raises(ValueError, match="do not read back into the model"):
         vq_from_bundle(bundle)
 
@@ -143,21 +145,22 @@ def test_a_bundles_decoder_is_fine_tuned_and_replaced_without_its_runs(runs, tmp
     assert main(["train", "vq", "--out", str(tuned), "--init", str(bundle), "--tune", "decoder",
                  "--whole-clips", "--lr", "1e-2", *common]) == 0
     recipe = load_checkpoint(tuned / "best.pt")["recipe"]
-    manifest = json.loads((bundle / "manifest.json").read_text())
+    manifest = read_manifest(bundle)
     assert recipe["init"] == str(bundle.resolve()) and recipe["whole_clips"]
-    assert recipe["tokens_sha256"] == manifest["files"]["vq_encoder.onnx"]["sha256"]
+    assert recipe["tokens_sha256"] == manifest.files["vq_encoder.onnx"].sha256
     new = tmp_path / "new"
     assert main(["export", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)]) == 0
-    written = json.loads((new / "manifest.json").read_text())
-    changed = {name for name, entry in written["files"].items()
-               if entry != manifest["files"][name]}
-    assert changed == {"vq_decoder.onnx"} and written["files"].keys() == manifest["files"].keys()
+    written = read_manifest(new)
+    changed = {name for name, entry in written.files.items() if entry != manifest.files[name]}
+    assert changed == {"vq_decoder.onnx"} and written.files.keys() == manifest.files.keys()
     assert all(file_sha256(new / name) == file_sha256(bundle / name)
-               for name in written["files"] if name not in changed)
-    assert written["training"]["vq"]["recipe"]["tune"] == "decoder"
-    assert written["training"]["vq"]["token_agreement_with_bundle"] == 1.0
-    assert written["training"]["t2m"] == manifest["training"]["t2m"]
-    assert 0 < written["fp16_storage"]["vq_decoder_feature_max_abs_difference"] < 1e-2
+               for name in written.files if name not in changed)
+    assert written.training["vq"].recipe["tune"] == "decoder"
+    assert written.training["vq"].token_agreement_with_bundle == 1.0
+    assert written.training["t2m"] == manifest.training["t2m"]
+    assert 0 < written.fp16_storage.vq_decoder_feature_max_abs_difference < 1e-2
+    assert replace(written, files={}, training={}, fp16_storage=None) == \
+        replace(manifest, files={}, training={}, fp16_storage=None)  # the rest as it was
     old_motion = MotionGenerator.load(bundle).generate(PROMPT, seconds=1.0, seed=0)
     new_motion = MotionGenerator.load(new).generate(PROMPT, seconds=1.0, seed=0)
     assert np.array_equal(old_motion.tokens, new_motion.tokens)

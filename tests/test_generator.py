@@ -72,7 +72,7 @@ def test_sessions_in_parallel_threads_do_not_affect_each_other(generator):
 
 
 def test_streamed_frames_equal_the_offline_decode(generator):
-    lookahead = generator.bundle.manifest["vq"]["decoder"]["lookahead"]
+    lookahead = generator.manifest.vq.decoder.lookahead
     stream = generator.stream("a person jogs in a circle.", seed=2)
     streamed = np.concatenate([stream.step() for _ in range(100)])
     assert 100 - lookahead - STREAM_DECODE_EVERY < len(streamed) <= 100 - lookahead
@@ -88,7 +88,7 @@ def test_streamed_frames_equal_the_offline_decode(generator):
 
 def test_frames_iterator_and_lookahead(generator):
     stream = generator.stream("a person walks forward.", seed=0)
-    lookahead = generator.bundle.manifest["vq"]["decoder"]["lookahead"]
+    lookahead = generator.manifest.vq.decoder.lookahead
     assert all(len(stream.step()) == 0 for _ in range(lookahead))  # waiting for right context
     assert len(stream.step()) == 1  # the first frame as soon as it can be, then bursts
     frames = list(stream.frames(limit=10))
@@ -113,7 +113,7 @@ def test_prompt_switch_keeps_the_past_changes_the_future_without_a_jump(generato
                                 (switch, "a person jumps on the spot.")]
     assert np.array_equal(switched.tokens[:switch], plain.tokens[:switch])
     assert not np.array_equal(switched.tokens[switch:], plain.tokens[switch:])
-    lookahead = generator.bundle.manifest["vq"]["decoder"]["lookahead"]
+    lookahead = generator.manifest.vq.decoder.lookahead
     before = switch - lookahead  # frames not yet influenced by any token after the switch
     np.testing.assert_allclose(switched.joints[:before], plain.joints[:before], atol=1e-5)
     moves = np.abs(np.diff(switched.joints, axis=0)).max(axis=(1, 2))  # per-frame joint motion
@@ -167,7 +167,7 @@ def test_a_20000_step_stream_keeps_memory_and_step_time_flat(generator):
             start = time.perf_counter()
             stream.step()
             times[row, k] = time.perf_counter() - start
-    ready = 20_000 - generator.bundle.manifest["vq"]["decoder"]["lookahead"]
+    ready = 20_000 - generator.manifest.vq.decoder.lookahead
     assert ready - STREAM_DECODE_EVERY < late.frames_emitted <= ready
     first, last = np.median(times, axis=1)
     assert last / first < 1.15, f"step time {first * 1e3:.2f} ms -> {last * 1e3:.2f} ms"
@@ -195,7 +195,7 @@ def test_bad_input_is_refused_clearly(generator, call, message):
 
 
 def test_sampling_is_one_object_or_its_fields_as_keywords(generator):
-    assert generator.sampling() == Sampling.from_defaults(generator.defaults)
+    assert generator.sampling() == Sampling.from_defaults(vars(generator.defaults))
     assert generator.sampling(top_k=5) == replace(generator.sampling(), top_k=5)
     assert generator.sampling(Sampling(temperature=0), top_p=0.5) == Sampling(0.0, 0, 0.5, 1.0)
     given = generator.generate("a person squats.", seconds=1, seed=3, sampling=Sampling(top_k=9))

@@ -12,7 +12,7 @@ from mogo.export.models.text_encoder import (SmallTextEncoder, SmallTextEncoderC
                                       train_tokenizer)
 from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
 from mogo._session import cpu_session
-from mogo.token_generator import TokenGenerator, balanced_groups
+from mogo.token_generator import LEVEL_INPUTS, TokenGenerator, balanced_groups
 
 SAMPLED = Sampling(temperature=1.0, top_k=6, top_p=0.9)
 GUIDED = Sampling(temperature=0.8, guidance=2.5)
@@ -56,9 +56,11 @@ def test_level_graphs_have_the_protocol_names_and_dynamic_axes(exported):
         assert proto.opset_import[0].version == OPSET
         inputs = {v.name: dims(v) for v in proto.graph.input}
         outputs = {v.name: dims(v) for v in proto.graph.output}
-        assert list(inputs) == graph["inputs"] and list(outputs) == graph["outputs"]
+        assert tuple(inputs) == graph.inputs and tuple(outputs) == graph.outputs
+        assert graph.file == path.name
         layers, H, dh = config.layers[level], config.heads[level], config.head_dim
-        assert (graph["num_layers"], graph["heads"], graph["head_dim"]) == (layers, H, dh)
+        assert inputs["past_key_values.0.key"] == ["batch", H, "past", dh]
+        assert len(graph.inputs) == len(LEVEL_INPUTS) + 2 * layers
         assert inputs["prompt"] == ["batch", config.text_dim]
         assert inputs["uncond"] == ["batch"]
         assert inputs["token_ids"] == ["batch", "seq", config.num_levels]
@@ -207,6 +209,12 @@ def test_set_prompt_before_the_first_step_and_in_a_window(generator, model):
     assert stream.step() is not None and stream.positions.max() == 10
 
 
+def test_generator_reads_the_cache_sizes_from_the_graphs(model, generator):
+    c = model.config
+    assert generator.cache_shapes == [(c.layers[l], c.heads[l], c.head_dim)
+                                      for l in range(c.num_levels)]
+
+
 def test_generator_checks_names_and_runs_one_thread_without_spinning(exported):
     model, paths, graphs = exported
     with pytest.raises(ValueError, match="level 0"):
@@ -232,7 +240,7 @@ def test_text_encoder_graph_matches_torch(tmp_path):
     for batch in (captions[:3], ["a person walks forward and waves and jumps up and down"],
                   ["jumps"]):
         ids, mask = encode_captions(tokenizer, batch)
-        (embedding,) = session.run(names["outputs"], dict(zip(names["inputs"],
+        (embedding,) = session.run(list(names.outputs), dict(zip(names.inputs,
                                                               [ids.numpy(), mask.numpy()])))
         with torch.no_grad():
             expected = encoder.encode(ids, mask).numpy()

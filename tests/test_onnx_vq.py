@@ -11,6 +11,7 @@ from mogo.export.onnx.t2m_graphs import OPSET
 from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder
 from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
 from mogo._session import cpu_session
+from mogo.manifest import DecoderGraph, Graph
 from mogo.stream_decoder import StreamingDecoder
 
 VARIANTS = {"down1": dict(down_factor=1), "down2": dict(down_factor=2),
@@ -34,9 +35,8 @@ def exported(request, tmp_path_factory):
         model.quantizer.codebook += 1e-2 * torch.randn_like(model.quantizer.codebook)
     model.eval()
     folder = tmp_path_factory.mktemp(request.param)
-    decoder = dict(export_vq_decoder(model, folder / "vq_decoder.onnx"),
-                   file=folder / "vq_decoder.onnx")
-    return model, decoder, cpu_session(decoder["file"]), folder
+    decoder = export_vq_decoder(model, folder / "vq_decoder.onnx")
+    return model, decoder, cpu_session(folder / decoder.file), folder
 
 
 @pytest.fixture(scope="module")
@@ -45,15 +45,15 @@ def encoder(exported):
     model, _, _, folder = exported
     if model.config.causal and model.config.down_factor == 1:
         pytest.skip("the causal encoder is checked at down_factor 2")
-    graph = dict(export_vq_encoder(model, folder / "vq_encoder.onnx"),
-                 file=folder / "vq_encoder.onnx")
-    return graph, cpu_session(graph["file"])
+    graph = export_vq_encoder(model, folder / "vq_encoder.onnx")
+    return graph, cpu_session(folder / graph.file)
 
 
-def streaming_decoder(graph: dict, session, **changes) -> StreamingDecoder:
-    args = dict(left_context=graph["left_context"], lookahead=graph["lookahead"],
-                codebook_size=graph["codebook_size"], ids_name=graph["inputs"][0],
-                features_name=graph["outputs"][0])
+def streaming_decoder(graph: DecoderGraph, session, config: VQConfig,
+                      **changes) -> StreamingDecoder:
+    args = dict(left_context=graph.left_context, lookahead=graph.lookahead,
+                codebook_size=config.codebook_size, ids_name=graph.inputs[0],
+                features_name=graph.outputs[0])
     return StreamingDecoder(session, **{**args, **changes})
 
 
@@ -65,32 +65,29 @@ def dims(value_info):
     return [d.dim_param or d.dim_value for d in value_info.type.tensor_type.shape.dim]
 
 
-def check_graph(graph: dict, config: VQConfig, input_dims: list, output_width: int) -> None:
-    """The sizes, opset, names and dims, dynamic ones named (an output's by an expression)."""
-    sizes = dict(levels=config.levels, codebook_size=config.codebook_size,
-                 down_factor=config.down_factor, feature_dim=config.feature_dim)
-    assert graph.items() >= sizes.items()
-    proto = onnx.load(graph["file"])
+def check_graph(graph: Graph, folder, input_dims: list, output_width: int) -> None:
+    """The opset, names and dims, dynamic ones named (an output's by an expression)."""
+    proto = onnx.load(folder / graph.file)
     assert proto.opset_import[0].version == OPSET
     (graph_input,), (graph_output,) = proto.graph.input, proto.graph.output
-    assert ([graph_input.name], [graph_output.name]) == (graph["inputs"], graph["outputs"])
+    assert ((graph_input.name,), (graph_output.name,)) == (graph.inputs, graph.outputs)
     assert dims(graph_input) == input_dims
     batch, length, width = dims(graph_output)
     assert (batch, width) == ("batch", output_width) and isinstance(length, str)
 
 
 def test_decoder_graph_and_its_receptive_field(exported):
-    model, decoder, _, _ = exported
+    model, decoder, _, folder = exported
     c = model.config
-    check_graph(decoder, c, ["batch", "tokens", c.levels], c.feature_dim)
+    check_graph(decoder, folder, ["batch", "tokens", c.levels], c.feature_dim)
     left, lookahead = decoder_receptive_field(c)
-    assert (decoder["left_context"], decoder["lookahead"]) == (left, lookahead)
+    assert (decoder.left_context, decoder.lookahead) == (left, lookahead)
     assert lookahead == 0 if c.causal else lookahead > 0
 
 
 def test_encoder_graph(exported, encoder):
-    c = exported[0].config
-    check_graph(encoder[0], c, ["batch", "frames", c.feature_dim], c.levels)
+    c, folder = exported[0].config, exported[3]
+    check_graph(encoder[0], folder, ["batch", "frames", c.feature_dim], c.levels)
 
 
 @torch.no_grad()
@@ -101,7 +98,7 @@ def test_encoder_gives_the_torch_ids(exported, encoder):
     down, seen = model.config.down_factor, set()
     for batch, frames in [(1, 1), (3, 5), (2, 8), (4, 37), (1, 61)]:
         x = torch.randn(batch, frames, model.config.feature_dim)
-        (ids,) = session.run(graph["outputs"], {graph["inputs"][0]: x.numpy()})
+        (ids,) = session.run(list(graph.outputs), {graph.inputs[0]: x.numpy()})
         tokens = -(-frames // down)
         padded = torch.cat([x, x[:, -1:].expand(-1, tokens * down - frames, -1)], dim=1)
         expected = model.encode(padded).numpy()
@@ -117,7 +114,7 @@ def test_decoder_matches_torch(exported):
     rng = np.random.default_rng(0)
     for batch, tokens in [(1, 1), (2, 2), (3, 7), (1, 50)]:
         ids = random_ids(rng, model.config, batch, tokens)
-        (features,) = session.run(decoder["outputs"], {decoder["inputs"][0]: ids})
+        (features,) = session.run(list(decoder.outputs), {decoder.inputs[0]: ids})
         expected = model.decode(torch.from_numpy(ids)).numpy()
         assert features.shape == (batch, tokens * model.config.down_factor, expected.shape[2])
         np.testing.assert_allclose(features, expected, rtol=0, atol=1e-4)
@@ -130,15 +127,15 @@ def test_stream_of_2000_tokens_in_random_pushes_equals_the_offline_decode(export
     model, graph, session, _ = exported
     rng = np.random.default_rng(1)
     ids = random_ids(rng, model.config, 2000)
-    stream = streaming_decoder(graph, session, every=every)
-    bound = graph["left_context"] + graph["lookahead"] + every - 1
+    stream = streaming_decoder(graph, session, model.config, every=every)
+    bound = graph.left_context + graph.lookahead + every - 1
     chunks, start = [], 0
     while start < len(ids):
         stop = start + int(rng.integers(0, 6))
         chunks.append(stream.push(ids[start:stop]))
         start = stop
         assert stream.buffered_tokens <= bound
-        ready = max(0, min(start, 2000) - graph["lookahead"])
+        ready = max(0, min(start, 2000) - graph.lookahead)
         assert ready - every < stream.emitted <= ready or stream.emitted == ready
     chunks.append(stream.flush())
     offline = stream.decode_offline(ids)
@@ -151,8 +148,9 @@ def test_a_smaller_context_than_the_receptive_field_is_not_exact(exported):
     """The equality above needs the whole receptive field: one token less breaks it."""
     model, graph, session, _ = exported
     ids = random_ids(np.random.default_rng(2), model.config, 120)
-    stream = streaming_decoder(graph, session, left_context=graph["left_context"] - 1,
-                               lookahead=max(0, graph["lookahead"] - 1))
+    stream = streaming_decoder(graph, session, model.config,
+                               left_context=graph.left_context - 1,
+                               lookahead=max(0, graph.lookahead - 1))
     frames = np.concatenate([stream.push(ids[i:i + 1]) for i in range(len(ids))]
                             + [stream.flush()])
     assert np.abs(frames - stream.decode_offline(ids)).max() > 1e-3
@@ -164,7 +162,7 @@ def test_a_causal_stream_emits_each_token_frames_as_soon_as_it_is_pushed(exporte
         pytest.skip("a centred decoder waits for its lookahead")
     down = model.config.down_factor
     ids = random_ids(np.random.default_rng(3), model.config, 60)
-    stream = streaming_decoder(graph, session)
+    stream = streaming_decoder(graph, session, model.config)
     offline = stream.decode_offline(ids)
     for t in range(len(ids)):
         frames = stream.push(ids[t:t + 1])
@@ -175,7 +173,7 @@ def test_a_causal_stream_emits_each_token_frames_as_soon_as_it_is_pushed(exporte
 def test_bad_ids_are_refused_clearly(exported):
     model, graph, session, _ = exported
     c = model.config
-    stream = streaming_decoder(graph, session)
+    stream = streaming_decoder(graph, session, model.config)
     good = random_ids(np.random.default_rng(4), c, 3)
     cases = [(good[:, :-1], "shape"), (good[0], "shape"), (good[None], "shape"),
              (good - c.codebook_size, rf"\[0, {c.codebook_size}\)"),
@@ -185,5 +183,5 @@ def test_bad_ids_are_refused_clearly(exported):
         for call in (stream.push, stream.decode_offline):
             with pytest.raises(ValueError, match=message):
                 call(ids)
-    fresh = streaming_decoder(graph, session)
+    fresh = streaming_decoder(graph, session, model.config)
     np.testing.assert_array_equal(stream.push(good), fresh.push(good))  # nothing was taken

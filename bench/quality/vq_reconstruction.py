@@ -29,7 +29,7 @@ THUMBNAIL = 128
 def reconstruct(generator: MotionGenerator, features: np.ndarray) -> np.ndarray:
     """Features (T, D) -> joints (T', J, 3) of their VQ round trip (T' = T cut to whole
     tokens)."""
-    joints = features_to_joints(features)
+    joints = features_to_joints(features, generator.skeleton)
     motion = Motion(features, joints, generator.fps, np.zeros((0, 0), np.int64),
                     generator.skeleton)
     tokens = generator.encode_motion(motion)
@@ -63,7 +63,7 @@ def main() -> None:
         features = folder.features(clip_id)
         if len(features) < MIN_FRAMES or clip_id.startswith("M"):  # M: a mirror of another
             continue
-        original = features_to_joints(features)
+        original = features_to_joints(features, generator.skeleton)
         rebuilt = reconstruct(generator, features)
         original = original[:len(rebuilt)]
         error = 1000 * np.linalg.norm(rebuilt - original, axis=-1).mean()

@@ -21,18 +21,22 @@ from mogo.bench.quality.evaluate import reconstruct
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.motion.features import features_to_joints
 from mogo.generator import MotionGenerator
+from mogo.motion.skeleton import Skeleton
 
 ROOT_FEATURES = slice(0, 4)  # yaw velocity, XZ velocity, height
 
 
-def clip_errors(real: np.ndarray, rebuilt: np.ndarray) -> tuple[float, float, float]:
+def clip_errors(real: np.ndarray, rebuilt: np.ndarray,
+                skeleton: Skeleton | None = None) -> tuple[float, float, float]:
     """MPJPE (mm) of a clip's reconstruction (T, D): whole, with the true root features (the
-    poses alone), and with every feature true but the root's (the trajectory alone)."""
-    joints = features_to_joints(real)
+    poses alone), and with every feature true but the root's (the trajectory alone); joints
+    of `skeleton` (a bundle's), else of the skeleton with D-dim features."""
+    joints = features_to_joints(real, skeleton)
     poses, trajectory = rebuilt.copy(), real.copy()
     poses[:, ROOT_FEATURES] = real[:, ROOT_FEATURES]
     trajectory[:, ROOT_FEATURES] = rebuilt[:, ROOT_FEATURES]
-    return tuple(1000 * float(np.linalg.norm(features_to_joints(f) - joints, axis=-1).mean())
+    return tuple(1000 * float(np.linalg.norm(features_to_joints(f, skeleton) - joints,
+                                             axis=-1).mean())
                  for f in (rebuilt, poses, trajectory))
 
 
@@ -40,7 +44,7 @@ def report(generator: MotionGenerator, folder: HumanML3DFolder, split: str = "te
            limit: int | None = None, threads: int = 1) -> dict:
     ids = folder.ids(split)[:limit]
     real = [folder.features(clip_id) for clip_id in ids]
-    errors = np.array([clip_errors(r, b) for r, b in
+    errors = np.array([clip_errors(r, b, generator.skeleton) for r, b in
                        zip(real, reconstruct(generator, real, threads))])
     worst = int(np.argmax(errors[:, 0]))
     return dict(clips=len(ids), mpjpe_mm=float(errors[:, 0].mean()),

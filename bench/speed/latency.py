@@ -40,6 +40,7 @@ from mogo.export.onnx.bundle import DEFAULT_SAMPLING, quantize_level_graph
 from mogo.export.onnx.t2m_graphs import export_level
 from mogo.export.models.t2m import T2M, T2MConfig
 from mogo.bundle import Bundle
+from mogo.manifest import Graph
 from mogo.generator import (DEFAULT_BUNDLE, STREAM_DECODE_EVERY, MotionGenerator,
                                     MotionStream)
 from mogo.sampling import choose_token
@@ -125,9 +126,9 @@ def product(bundle_dir: Path, settings: Settings) -> dict:
         rows[t].update(stream_step_ms=means,
                        stream_flatness=old_over_fresh(streams[t], g.stream(PROMPT, seed=2)))
     bundle = Bundle.load(bundle_dir)
-    return dict(threads=rows, disk_mb=sum(f["bytes"] for f in bundle.manifest["files"].values())
+    return dict(threads=rows, disk_mb=sum(f.bytes for f in bundle.manifest.files.values())
                 / 1e6, peak_rss_mib=runtime_peak_rss(bundle_dir), clip_seconds=seconds,
-                window=bundle.manifest.get("defaults", {}).get("window"),
+                window=bundle.manifest.defaults.window,
                 binned_step_ms={t: binned(step_times[t]) for t in generators})
 
 
@@ -187,11 +188,11 @@ def runtime_peak_rss(bundle_dir: Path) -> float:
 
 # -- part 2: the step -------------------------------------------------------------------------------
 def size_configs(bundle_dir: Path) -> dict[str, T2MConfig]:
-    bundle_config = dict(Bundle.load(bundle_dir).manifest["t2m"]["config"])
+    bundle_config = dict(Bundle.load(bundle_dir).manifest.t2m.config)
     return dict(bundle=T2MConfig(**bundle_config), paper=T2MConfig.paper(), tiny=T2MConfig.tiny())
 
 
-def exported_model(config: T2MConfig, work: Path) -> tuple[T2M, Path, list[dict]]:
+def exported_model(config: T2MConfig, work: Path) -> tuple[T2M, Path, list[Graph]]:
     """The model with seed-0 random weights and its fp32 and int8 level graphs, exported once
     into `work` (keyed by the config and the torch version) and reused by later runs."""
     key = hashlib.sha256(json.dumps([asdict(config), torch.__version__]).encode()).hexdigest()
@@ -200,16 +201,17 @@ def exported_model(config: T2MConfig, work: Path) -> tuple[T2M, Path, list[dict]
     model = T2M(config).eval()
     index = folder / "graphs.json"
     if index.is_file():
-        return model, folder, json.loads(index.read_text())
+        return model, folder, [Graph(g["file"], tuple(g["inputs"]), tuple(g["outputs"]))
+                               for g in json.loads(index.read_text())]
     (folder / "int8").mkdir(parents=True, exist_ok=True)
     graphs = []
     for level in range(config.num_levels):
         log(f"exporting level {level + 1}/{config.num_levels} ({config.layers[level]} layers, "
             f"width {config.dim}) fp32 and int8 into {folder}")
         path = folder / f"level_{level}.onnx"
-        graphs.append(dict(file=path.name, **export_level(model, level, path)))
+        graphs.append(export_level(model, level, path))
         quantize_level_graph(path, folder / "int8" / path.name)
-    index.write_text(json.dumps(graphs))
+    index.write_text(json.dumps([asdict(g) for g in graphs]))
     return model, folder, graphs
 
 
@@ -221,8 +223,8 @@ def onnx_step(generator: TokenGenerator, config: T2MConfig, length: int) -> Call
     token_ids = np.zeros((1, 1, config.num_levels), np.int64)
     position = np.array([length], np.int64)
     past_positions = np.arange(length, dtype=np.int64)
-    caches = [[rng.standard_normal((1, g["heads"], length, g["head_dim"])).astype(np.float32)
-               for _ in range(2 * g["num_layers"])] for g in generator.graphs]
+    caches = [[rng.standard_normal((1, heads, length, head_dim)).astype(np.float32)
+               for _ in range(2 * layers)] for layers, heads, head_dim in generator.cache_shapes]
 
     def step() -> None:
         outputs = generator.each_level(lambda level: generator.run(
@@ -259,13 +261,13 @@ def torch_step(model: T2M, length: int, threads: int, cached: bool) -> Callable[
     return step
 
 
-def step_backends(model: T2M, folder: Path, graphs: list[dict],
+def step_backends(model: T2M, folder: Path, graphs: list[Graph],
                   threads: tuple[int, ...]) -> dict[str, tuple[str, int, Callable]]:
     """name -> (weights kind for the floor, cores used, factory(length) -> step callable)."""
     end = model.config.end_token
     backends = {}
     for kind, sub in (("fp32", folder), ("int8", folder / "int8")):
-        paths = [sub / g["file"] for g in graphs]
+        paths = [sub / g.file for g in graphs]
         single = TokenGenerator(paths, graphs, end, intra_op_threads=1)
         for t in threads:
             generators = {f"onnxruntime {kind}, {t} thread{'s' * (t > 1)}": single}
@@ -325,8 +327,8 @@ def step_table(size: str, config: T2MConfig, work: Path, settings: Settings,
     """Part 2 for one model size."""
     model, folder, graphs = exported_model(config, work)
     backends = step_backends(model, folder, graphs, settings.threads)
-    weights = {"fp32": touched_weight_bytes([folder / g["file"] for g in graphs]),
-               "int8": touched_weight_bytes([folder / "int8" / g["file"] for g in graphs])}
+    weights = {"fp32": touched_weight_bytes([folder / g.file for g in graphs]),
+               "int8": touched_weight_bytes([folder / "int8" / g.file for g in graphs])}
     weights["fp32 recompute"] = weights["fp32"]
     rows = {name: dict(kind=kind, threads=threads, step_ms={}, floor_ms={})
             for name, (kind, threads, _) in backends.items()}

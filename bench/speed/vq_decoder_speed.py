@@ -41,14 +41,14 @@ def measure(config: VQConfig, folder: Path, repeats: int) -> dict:
     model = MoSAVQ(config).eval()
     export_vq_encoder(model, folder / "vq_encoder.onnx")
     graph = export_vq_decoder(model, folder / "vq_decoder.onnx")
-    decoder = StreamingDecoder(folder / "vq_decoder.onnx", graph["left_context"],
-                               graph["lookahead"], graph["codebook_size"], intra_op_threads=1)
+    decoder = StreamingDecoder(folder / "vq_decoder.onnx", graph.left_context,
+                               graph.lookahead, config.codebook_size, intra_op_threads=1)
     rng = np.random.default_rng(0)
     clip = rng.integers(config.codebook_size, size=(CLIP_TOKENS, config.levels))
     stream = iter(rng.integers(config.codebook_size, size=(10**6, 1, config.levels)))
-    for ids in (next(stream) for _ in range(graph["left_context"] + graph["lookahead"] + 1)):
+    for ids in (next(stream) for _ in range(graph.left_context + graph.lookahead + 1)):
         decoder.push(ids)  # past the stream's start: every push decodes a full window
-    return dict(context=f"{graph['left_context']} + {graph['lookahead']}",
+    return dict(context=f"{graph.left_context} + {graph.lookahead}",
                 clip_ms=median_ms(lambda: decoder.decode_offline(clip), repeats),
                 push_ms=median_ms(lambda: decoder.push(next(stream)), 10 * repeats),
                 encoder_mb=(folder / "vq_encoder.onnx").stat().st_size / 2**20,

@@ -1,14 +1,14 @@
 """`mogo export`: trained models -> a bundle folder the torch-free runtime loads.
 
-The manifest (format in mogo.bundle) holds everything the runtime needs to know about
-the model: sizes, graph input/output names, fps, skeleton, normalisation files, the decoder's
-context, sampling defaults, how it was trained, and each file's size and sha256.
+The manifest (its schema: mogo.manifest) holds everything the runtime needs to know about
+the model: graph input/output names, fps, skeleton and feature layout, normalisation files, the
+decoder's context, sampling defaults, how it was trained, and each file's size and sha256.
 """
 from __future__ import annotations
 
-import json
 import shutil
-from dataclasses import asdict
+from collections.abc import Sequence
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +19,11 @@ from tokenizers import Tokenizer
 
 from mogo.export.onnx.t2m_graphs import export_level, export_text_encoder
 from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder, random_ids
-from mogo.export.models.t2m import T2M
-from mogo.bundle import FORMAT, FORMAT_VERSION, MANIFEST, Bundle, file_sha256
+from mogo.export.models.t2m import T2M as T2MModel
+from mogo.bundle import Bundle, write_manifest
+from mogo.manifest import (VQ, Defaults, Fp16Storage, Graph, Int8Check, Manifest, MotionFormat,
+                           Normalization, T2M, Text, TrainingRun)
+from mogo.motion.skeleton import Skeleton
 from mogo.motion.skeleton import MAX_SECONDS
 from mogo.sampling import Sampling
 from mogo.token_generator import TokenGenerator
@@ -32,8 +35,7 @@ DEFAULT_SAMPLING = Sampling(top_p=0.9)  # what a bundle's manifest says, under S
 DEFAULTS = dict(**asdict(DEFAULT_SAMPLING), window=128, max_seconds=MAX_SECONDS)
 
 
-
-def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) -> dict:
+def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) -> Manifest:
     """`mogo export`: the trained runs (their best.pt) -> a bundle folder; returns the manifest."""
     from mogo.export.models.runs import (load_checkpoint, load_t2m, load_vq, read_tokens,
                                          t2m_checkpoint, tokens_sha256, vq_checkpoint)
@@ -51,16 +53,15 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
                              ["captions"])
     provenance = dict(
         vq=_vq_provenance(vq_state),
-        t2m=dict(step=t2m_state["step"], recipe=t2m_state["config"]["recipe"],
-                 data=t2m_state["config"]["data"],
-                 best_val_loss=t2m_state.get("best_val_loss")))
+        t2m=TrainingRun(step=t2m_state["step"], recipe=t2m_state["config"]["recipe"],
+                        data=t2m_state["config"]["data"],
+                        best_val_loss=t2m_state.get("best_val_loss")))
     return write_bundle(Path(out), vq=vq, t2m=t2m, text_encoder=text_encoder,
-                        tokenizer=tokenizer, fps=skeleton.fps, skeleton=skeleton.name,
-                        provenance=provenance, check_prompts=list(captions)[:CHECK_PROMPTS],
-                        int8=int8)
+                        tokenizer=tokenizer, skeleton=skeleton, provenance=provenance,
+                        check_prompts=list(captions)[:CHECK_PROMPTS], int8=int8)
 
 
-def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> dict:
+def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     """`mogo export --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of RUN, for a
     decoder fine-tune of OLD's own VQ (`mogo train vq --init OLD --tune decoder`), which needs
     none of OLD's training runs. Every other file is copied byte for byte, so RUN's encoder
@@ -71,7 +72,7 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> dict:
 
     old = Bundle.load(bundle_dir)
     vq = load_vq(vq_run)
-    if asdict(vq.config) != old.manifest["vq"]["config"]:
+    if asdict(vq.config) != old.manifest.vq.config:
         raise ValueError(f"{vq_run} is another VQ model than {bundle_dir}'s (its config differs)")
     if not (np.array_equal(vq.mean.numpy(), old.mean) and np.array_equal(vq.std.numpy(), old.std)):
         raise ValueError(f"{vq_run} normalises with other statistics than {bundle_dir} (trained "
@@ -82,26 +83,27 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> dict:
                          f"{agreement:.1%}): only a decoder fine-tune of the bundle's VQ fits its "
                          "level graphs")
     out = _new_folder(out)
-    manifest = json.loads(json.dumps(old.manifest))
-    decoder = manifest["vq"]["decoder"]["file"]
-    for name in manifest.pop("files"):
+    manifest = old.manifest
+    decoder = manifest.vq.decoder.file
+    for name in manifest.files:
         if name != decoder:
             shutil.copy2(old.path(name), out / name)
-    manifest["vq"]["decoder"] = dict(file=decoder, **export_vq_decoder(vq, out / decoder))
+    graph = export_vq_decoder(vq, out / decoder)
     codes = _check_codes(vq)
     before, after = _outputs_before_and_after_fp16(out / decoder, {"ids": codes.numpy()})
-    storage = manifest.setdefault("fp16_storage", dict(files=[]))
-    storage["files"] = sorted(set(storage["files"]) | {decoder})
-    storage["vq_decoder_feature_max_abs_difference"] = float(np.abs(before - after).max())
-    manifest["training"]["vq"] = dict(_vq_provenance(load_checkpoint(vq_checkpoint(vq_run))),
-                                      token_agreement_with_bundle=agreement)
-    write_manifest(out, manifest)
-    return manifest
+    storage = manifest.fp16_storage or Fp16Storage(files=())
+    storage = replace(storage, files=tuple(sorted(set(storage.files) | {decoder})),
+                      vq_decoder_feature_max_abs_difference=float(np.abs(before - after).max()))
+    trained = replace(_vq_provenance(load_checkpoint(vq_checkpoint(vq_run))),
+                      token_agreement_with_bundle=agreement)
+    return write_manifest(out, replace(manifest, vq=replace(manifest.vq, decoder=graph),
+                                       fp16_storage=storage,
+                                       training={**manifest.training, "vq": trained}))
 
 
-def _vq_provenance(state: dict) -> dict:
-    return dict(step=state["step"], recipe=state.get("recipe"), data=state.get("data"),
-                best_val_mpjpe_mm=state.get("best_val_mpjpe_mm"))
+def _vq_provenance(state: dict) -> TrainingRun:
+    return TrainingRun(step=state["step"], recipe=state.get("recipe"), data=state.get("data"),
+                       best_val_mpjpe_mm=state.get("best_val_mpjpe_mm"))
 
 
 def _new_folder(out: Path) -> Path:
@@ -112,9 +114,10 @@ def _new_folder(out: Path) -> Path:
     return out
 
 
-def write_bundle(out: Path, *, vq, t2m: T2M, text_encoder, tokenizer: Tokenizer, fps: float,
-                 skeleton: str, provenance: dict, check_prompts: list[str],
-                 int8: bool = False, defaults: dict | None = None) -> dict:
+def write_bundle(out: Path, *, vq, t2m: T2MModel, text_encoder, tokenizer: Tokenizer,
+                 skeleton: Skeleton, provenance: dict[str, TrainingRun],
+                 check_prompts: list[str], int8: bool = False,
+                 defaults: dict | None = None) -> Manifest:
     """Export every graph into the new folder `out` and write its manifest; returns it.
     With `int8`, the level graphs are quantised and kept only if greedy tokens on
     `check_prompts` agree with fp32 on at least INT8_MIN_AGREEMENT of steps (measured either
@@ -122,50 +125,26 @@ def write_bundle(out: Path, *, vq, t2m: T2M, text_encoder, tokenizer: Tokenizer,
     out = _new_folder(out)
     tokenizer.save(str(out / "tokenizer.json"))
     max_length = tokenizer.truncation["max_length"]
-    text = dict(file="text_encoder.onnx", tokenizer="tokenizer.json", max_length=max_length,
-                embedding_dim=text_encoder.output_dim, kind=type(text_encoder).__name__,
-                encoder=dict(file="text_encoder.onnx",
-                             **export_text_encoder(text_encoder, out / "text_encoder.onnx",
-                                                   max_length)))
-    del text["file"]
-    config = t2m.config
-    levels = [dict(file=f"level_{level}.onnx",
-                   **export_level(t2m, level, out / f"level_{level}.onnx"))
-              for level in range(config.num_levels)]
-    vq_encoder = export_vq_encoder(vq, out / "vq_encoder.onnx")
-    vq_decoder = export_vq_decoder(vq, out / "vq_decoder.onnx")
+    text = Text(tokenizer="tokenizer.json", max_length=max_length,
+                kind=type(text_encoder).__name__,
+                encoder=export_text_encoder(text_encoder, out / "text_encoder.onnx", max_length))
+    levels = tuple(export_level(t2m, level, out / f"level_{level}.onnx")
+                   for level in range(t2m.config.num_levels))
+    vq_graphs = VQ(config=asdict(vq.config),
+                   encoder=export_vq_encoder(vq, out / "vq_encoder.onnx"),
+                   decoder=export_vq_decoder(vq, out / "vq_decoder.onnx"))
     np.save(out / "mean.npy", vq.mean.detach().cpu().numpy().astype(np.float32))
     np.save(out / "std.npy", vq.std.detach().cpu().numpy().astype(np.float32))
-
-    manifest = dict(
-        format=FORMAT, format_version=FORMAT_VERSION,
-        fps=fps, skeleton=skeleton, feature_dim=vq.config.feature_dim,
-        normalization=dict(mean="mean.npy", std="std.npy"),
-        text=text,
-        t2m=dict(config=asdict(config), num_levels=config.num_levels,
-                 codebook_size=config.codebook_size, end_token=config.end_token, levels=levels),
-        vq=dict(config=asdict(vq.config), levels=vq.config.levels,
-                codebook_size=vq.config.codebook_size, down_factor=vq.config.down_factor,
-                encoder=dict(file="vq_encoder.onnx", **vq_encoder),
-                decoder=dict(file="vq_decoder.onnx", **vq_decoder)),
-        defaults=dict(DEFAULTS, **(defaults or {})),
-        training=provenance,
-    )
+    manifest = Manifest(
+        motion=MotionFormat.of(skeleton, Normalization(mean="mean.npy", std="std.npy")),
+        text=text, t2m=T2M(config=asdict(t2m.config), levels=levels), vq=vq_graphs,
+        defaults=Defaults(**dict(DEFAULTS, **(defaults or {}))), training=provenance)
     if int8:
-        manifest["int8"] = _quantize_levels(out, levels, config.end_token, text_encoder,
-                                            tokenizer, check_prompts)
-    manifest["fp16_storage"] = _store_graphs_fp16(out, vq, text_encoder, tokenizer,
-                                                  check_prompts)
-    write_manifest(out, manifest)
-    return manifest
-
-
-def write_manifest(out: Path, manifest: dict) -> None:
-    """Add the size and sha256 of every file in `out` and write manifest.json."""
-    files = {p.name: dict(bytes=p.stat().st_size, sha256=file_sha256(p))
-             for p in sorted(out.iterdir()) if p.is_file() and p.name != MANIFEST}
-    manifest["files"] = files
-    (out / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
+        check = _quantize_levels(out, levels, manifest.end_token, text_encoder, tokenizer,
+                                 check_prompts)
+        manifest = replace(manifest, int8=check)
+    storage = _store_graphs_fp16(out, vq, text_encoder, tokenizer, check_prompts)
+    return write_manifest(out, replace(manifest, fp16_storage=storage))
 
 
 FP16_MIN_ELEMENTS = 1024  # smaller tensors (biases, norms) stay fp32
@@ -192,7 +171,7 @@ def store_weights_fp16(path: Path) -> None:
 
 @torch.no_grad()
 def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
-                       prompts: list[str]) -> dict:
+                       prompts: list[str]) -> Fp16Storage:
     """fp16 storage (`store_weights_fp16`) for the text encoder and the VQ encoder and decoder,
     measured against fp32: the largest prompt-embedding difference on the check prompts, VQ
     token agreement on features decoded from random tokens, and the largest difference of
@@ -215,10 +194,11 @@ def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
         return float(np.abs(before[name] - after[name]).max())
 
     agreement = np.mean(before["vq_encoder.onnx"] == after["vq_encoder.onnx"])
-    return dict(files=sorted(feeds),
-                prompt_embedding_max_abs_difference=largest_difference("text_encoder.onnx"),
-                vq_encoder_token_agreement=round(float(agreement), 4),
-                vq_decoder_feature_max_abs_difference=largest_difference("vq_decoder.onnx"))
+    return Fp16Storage(
+        files=tuple(sorted(feeds)),
+        prompt_embedding_max_abs_difference=largest_difference("text_encoder.onnx"),
+        vq_encoder_token_agreement=round(float(agreement), 4),
+        vq_decoder_feature_max_abs_difference=largest_difference("vq_decoder.onnx"))
 
 
 def _check_codes(vq) -> torch.Tensor:
@@ -249,8 +229,8 @@ def quantize_level_graph(source: Path, target: Path) -> None:
 
 
 @torch.no_grad()
-def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder,
-                     tokenizer: Tokenizer, prompts: list[str]) -> dict:
+def _quantize_levels(out: Path, levels: Sequence[Graph], end_token: int, text_encoder,
+                     tokenizer: Tokenizer, prompts: list[str]) -> Int8Check:
     """Dynamic int8 (QUInt8 weights of the MatMuls, the setting that kept accuracy on a CPU
     without VNNI, where QInt8 did not, and of the token-embedding Gathers, which each level
     graph holds its own copy of) of every level graph, checked by token agreement:
@@ -262,13 +242,13 @@ def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder
     staging = out / "int8"
     staging.mkdir()
     for level in levels:
-        quantize_level_graph(out / level["file"], staging / level["file"])
+        quantize_level_graph(out / level.file, staging / level.file)
     encoded = tokenizer.encode_batch(prompts)
     ids = torch.tensor([e.ids for e in encoded])
     mask = torch.tensor([e.attention_mask for e in encoded])
     embeddings = text_encoder.encode(ids, mask).numpy()
-    fp32 = TokenGenerator([out / l["file"] for l in levels], levels, end_token)
-    quantised = TokenGenerator([staging / l["file"] for l in levels], levels, end_token)
+    fp32 = TokenGenerator([out / l.file for l in levels], levels, end_token)
+    quantised = TokenGenerator([staging / l.file for l in levels], levels, end_token)
     greedy = Sampling(temperature=0.0)
     same = total = 0
     for embedding in embeddings:
@@ -283,8 +263,9 @@ def _quantize_levels(out: Path, levels: list[dict], end_token: int, text_encoder
     used = agreement >= INT8_MIN_AGREEMENT
     if used:
         for level in levels:
-            shutil.move(staging / level["file"], out / level["file"])
+            shutil.move(staging / level.file, out / level.file)
     shutil.rmtree(staging)
-    return dict(used=used, greedy_token_agreement=round(agreement, 4),
-                threshold=INT8_MIN_AGREEMENT, prompts=len(prompts), steps_per_prompt=CHECK_STEPS,
-                scheme="dynamic QUInt8 weights of MatMul and Gather (token embeddings)")
+    return Int8Check(used=used, greedy_token_agreement=round(agreement, 4),
+                     threshold=INT8_MIN_AGREEMENT, prompts=len(prompts),
+                     steps_per_prompt=CHECK_STEPS,
+                     scheme="dynamic QUInt8 weights of MatMul and Gather (token embeddings)")

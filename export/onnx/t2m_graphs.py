@@ -18,6 +18,7 @@ more long on every axis.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import torch
 from torch import Tensor, nn
@@ -25,9 +26,10 @@ from torch.export import Dim
 
 from mogo.export.models.t2m import T2M
 from mogo.export.models.text_encoder import TextEncoder
+from mogo.manifest import Graph
+from mogo.token_generator import LEVEL_INPUTS
 
 OPSET = 20
-LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"]
 
 
 def cache_names(num_layers: int) -> tuple[list[str], list[str]]:
@@ -62,9 +64,9 @@ class EncodeText(nn.Module):
         return self.encoder.encode(token_ids, attention_mask)
 
 
-def export_level(model: T2M, level: int, path: str | os.PathLike) -> dict:
-    """Write the graph of `level` to `path` (one self-contained file). Returns what the runtime
-    needs to drive it: input and output names in protocol order, layers, heads, head_dim."""
+def export_level(model: T2M, level: int, path: str | os.PathLike) -> Graph:
+    """Write the graph of `level` to `path` (one self-contained file). Returns its manifest
+    entry: input and output names in protocol order (the cache sizes are in the input shapes)."""
     config = model.config
     layers, heads, head_dim = config.layers[level], config.heads[level], config.head_dim
     batch, seq, past = 2, 3, 4  # >= 2 and distinct, so that no axis is fixed or merged
@@ -78,12 +80,12 @@ def export_level(model: T2M, level: int, path: str | os.PathLike) -> dict:
     past_names, present_names = cache_names(layers)
     names = dict(inputs=LEVEL_INPUTS + past_names, outputs=["logits"] + present_names)
     export_module(LevelStep(model, level), examples, path, names, dynamic_shapes)
-    return dict(names, num_layers=layers, heads=heads, head_dim=head_dim)
+    return _graph(path, names)
 
 
-def export_text_encoder(encoder: TextEncoder, path: str | os.PathLike, max_length: int) -> dict:
+def export_text_encoder(encoder: TextEncoder, path: str | os.PathLike, max_length: int) -> Graph:
     """Write the text encoder, token_ids and attention_mask (batch, seq <= max_length) int64 ->
-    prompt_embedding (batch, output_dim), to `path`. Returns its input and output names."""
+    prompt_embedding (batch, output_dim), to `path`. Returns its manifest entry."""
     if max_length < 2:
         raise ValueError(f"max_length must be >= 2 to export a dynamic length, got {max_length}")
     token_ids = torch.zeros(2, max_length, dtype=torch.long)
@@ -92,7 +94,11 @@ def export_text_encoder(encoder: TextEncoder, path: str | os.PathLike, max_lengt
     names = dict(inputs=["token_ids", "attention_mask"], outputs=["prompt_embedding"])
     export_module(EncodeText(encoder), (token_ids, attention_mask), path, names,
             ({0: b, 1: s}, {0: b, 1: s}))
-    return names
+    return _graph(path, names)
+
+
+def _graph(path: str | os.PathLike, names: dict) -> Graph:
+    return Graph(Path(path).name, tuple(names["inputs"]), tuple(names["outputs"]))
 
 
 def export_module(module: nn.Module, examples: tuple, path: str | os.PathLike, names: dict,

@@ -15,7 +15,7 @@ whose ties go to the first index as torch.argmin's do, and the code lookups as G
 ops: onnxruntime gives the same ids as torch (tests/test_onnx_vq.py). The examples are 2 or more
 long on every dynamic axis, since the exporter silently fixes an axis traced with size 0 or 1.
 
-The decoder's entry also carries its receptive field in tokens (`decoder_context`), which the
+The decoder's entry also carries its receptive field in tokens (`export_vq_decoder`), which the
 streaming decoder (mogo.stream_decoder) needs to know when a frame is final.
 
 `vq_from_bundle` goes the other way: a bundle's two graphs back into a MoSAVQ, so that a
@@ -29,6 +29,7 @@ returned.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -41,6 +42,7 @@ from mogo.export.onnx.t2m_graphs import export_module
 from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
 from mogo._session import cpu_session
 from mogo.bundle import Bundle
+from mogo.manifest import DecoderGraph, Graph
 
 IMPORT_MAX_DIFFERENCE = 1e-4  # decoded features, torch against the bundle's decoder graph
 MIN_TOKEN_AGREEMENT = 0.99  # ids, torch against the bundle's encoder graph
@@ -73,36 +75,25 @@ class DecodeIds(nn.Module):
         return self.model.decode(ids)
 
 
-def decoder_context(model: MoSAVQ) -> dict:
-    """The decoder's receptive field in tokens: the frames of token t depend on tokens
-    t - left_context .. t + lookahead (what the streaming decoder is built with)."""
-    left_context, lookahead = decoder_receptive_field(model.config)
-    return dict(left_context=left_context, lookahead=lookahead)
-
-
-def export_vq_encoder(model: MoSAVQ, path: str | os.PathLike) -> dict:
-    """Write the encoder graph to `path`. Returns its input and output names and the sizes."""
+def export_vq_encoder(model: MoSAVQ, path: str | os.PathLike) -> Graph:
+    """Write the encoder graph to `path`. Returns its manifest entry."""
     c = model.config
     features = torch.zeros(2, 3 * c.down_factor + 1, c.feature_dim)  # not whole tokens
     names = dict(inputs=["features"], outputs=["ids"])
     export_module(EncodeIds(model), (features,), path, names,
                   ({0: Dim("batch"), 1: Dim("frames")},))
-    return dict(names, **_sizes(model))
+    return Graph(Path(path).name, ("features",), ("ids",))
 
 
-def export_vq_decoder(model: MoSAVQ, path: str | os.PathLike) -> dict:
-    """Write the decoder graph to `path`. Returns its input and output names, the sizes and
-    the receptive field (`decoder_context`)."""
+def export_vq_decoder(model: MoSAVQ, path: str | os.PathLike) -> DecoderGraph:
+    """Write the decoder graph to `path`. Returns its manifest entry, with the receptive field
+    in tokens: the frames of token t depend on tokens t - left_context .. t + lookahead (what
+    the streaming decoder is built with)."""
     ids = torch.zeros(2, 3, model.config.levels, dtype=torch.long)
     names = dict(inputs=["ids"], outputs=["features"])
     export_module(DecodeIds(model), (ids,), path, names, ({0: Dim("batch"), 1: Dim("tokens")},))
-    return dict(names, **_sizes(model), **decoder_context(model))
-
-
-def _sizes(model: MoSAVQ) -> dict:
-    c = model.config
-    return dict(levels=c.levels, codebook_size=c.codebook_size, down_factor=c.down_factor,
-                feature_dim=c.feature_dim)
+    left_context, lookahead = decoder_receptive_field(model.config)
+    return DecoderGraph(Path(path).name, ("ids",), ("features",), left_context, lookahead)
 
 
 def vq_from_bundle(root: str | os.PathLike) -> MoSAVQ:
@@ -111,11 +102,11 @@ def vq_from_bundle(root: str | os.PathLike) -> MoSAVQ:
     none), so it suits decoder fine-tuning, not training the codebooks on. Raises ValueError
     when the graphs cannot be read back into the model exactly."""
     bundle = Bundle.load(root)
-    entry = bundle.manifest["vq"]
-    model = MoSAVQ(VQConfig(**entry["config"]), bundle.mean, bundle.std)
+    vq = bundle.manifest.vq
+    model = MoSAVQ(VQConfig(**vq.config), bundle.mean, bundle.std)
     state = model.state_dict()
-    graphs = {part: onnx.load(bundle.path(entry[part]["file"])).graph
-              for part in ("encoder", "decoder")}
+    graphs = {part: onnx.load(bundle.path(graph.file)).graph
+              for part, graph in (("encoder", vq.encoder), ("decoder", vq.decoder))}
     weights = {}
     for graph in graphs.values():
         for tensor in graph.initializer:
@@ -187,9 +178,9 @@ def token_agreement(model: MoSAVQ, bundle: Bundle) -> float:
     features decoded (by the model) from random ids: whether the bundle's level graphs, trained
     on its tokens, fit the model's decoder."""
     features = model.eval().decode(random_ids(model.config, 2, 48, seed=0))
-    entry = bundle.manifest["vq"]["encoder"]
-    graph_ids = cpu_session(bundle.path(entry["file"])).run(
-        None, {entry["inputs"][0]: features.numpy()})[0]
+    graph = bundle.manifest.vq.encoder
+    graph_ids = cpu_session(bundle.path(graph.file)).run(
+        None, {graph.inputs[0]: features.numpy()})[0]
     return float(np.mean(model.encode(features).numpy() == graph_ids))
 
 
@@ -197,10 +188,10 @@ def token_agreement(model: MoSAVQ, bundle: Bundle) -> float:
 def _check_against_graphs(model: MoSAVQ, bundle: Bundle) -> None:
     """Random ids decoded, and what they decode to encoded, in torch and in the bundle's
     graphs."""
-    entry = bundle.manifest["vq"]["decoder"]
+    graph = bundle.manifest.vq.decoder
     ids = random_ids(model.config, 2, 48, seed=1)
-    graph_features = cpu_session(bundle.path(entry["file"])).run(
-        None, {entry["inputs"][0]: ids.numpy()})[0]
+    graph_features = cpu_session(bundle.path(graph.file)).run(
+        None, {graph.inputs[0]: ids.numpy()})[0]
     difference = float(np.abs(model.decode(ids).numpy() - graph_features).max())
     agreement = token_agreement(model, bundle)
     if difference > IMPORT_MAX_DIFFERENCE or agreement < MIN_TOKEN_AGREEMENT:

@@ -19,7 +19,6 @@ stand.
 """
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, replace
@@ -101,7 +100,7 @@ def read_init(path: Path) -> tuple[dict, Path]:
     back from its graphs (`vq_from_bundle`). A bundle's tokens are named by the
     tokens_sha256 its VQ was trained with, else by its encoder graph's sha256; "ema" is False
     for a bundle, which holds no EMA codebook statistics."""
-    from mogo.bundle import MANIFEST
+    from mogo.bundle import MANIFEST, read_manifest
 
     path = Path(path)
     if not (path / MANIFEST).is_file():
@@ -110,10 +109,10 @@ def read_init(path: Path) -> tuple[dict, Path]:
     from mogo.export.onnx.vq_graphs import vq_from_bundle
 
     model = vq_from_bundle(path)
-    manifest = json.loads((path / MANIFEST).read_text())
-    recipe = (manifest.get("training", {}).get("vq") or {}).get("recipe") or {}
-    tokens = recipe.get("tokens_sha256") or \
-        manifest["files"][manifest["vq"]["encoder"]["file"]]["sha256"]
+    manifest = read_manifest(path)
+    trained = manifest.training.get("vq")
+    recipe = (trained.recipe if trained else None) or {}  # the trainer's own record
+    tokens = recipe.get("tokens_sha256") or manifest.files[manifest.vq.encoder.file].sha256
     return dict(config=asdict(model.config), model=model.state_dict(), ema=False,
                 recipe=dict(preset=recipe.get("preset", "cpu_default"),
                             tokens_sha256=tokens)), path

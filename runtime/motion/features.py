@@ -24,6 +24,17 @@ FOOT_CONTACT_THRESHOLD = 0.002  # squared per-frame displacement (m^2), as in Hu
 FACING_SMOOTHING_FRAMES = 20.0  # Gaussian sigma on the facing direction, as in HumanML3D
 
 
+def feature_layout(skeleton: Skeleton) -> list[tuple[str, int, int]]:
+    """The blocks of a feature row as (name, start, stop), in the order of the docstring above:
+    what a bundle's manifest states for programs that read the features without this code."""
+    j = skeleton.num_joints
+    widths = [("root_yaw_velocity", 1), ("root_xz_velocity", 2), ("root_height", 1),
+              ("joint_positions", 3 * (j - 1)), ("joint_rotations_6d", 6 * (j - 1)),
+              ("joint_velocities", 3 * j), ("foot_contacts", 4)]
+    stops = np.cumsum([width for _, width in widths])
+    return [(name, int(stop - width), int(stop)) for (name, width), stop in zip(widths, stops)]
+
+
 def features_to_joints(features: np.ndarray, skeleton: Skeleton | None = None) -> np.ndarray:
     """Recover joint positions (..., T, J, 3) from features (..., T, D)."""
     features = np.asarray(features)

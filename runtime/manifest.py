@@ -1,0 +1,389 @@
+"""The bundle manifest as code: the one schema of manifest.json, which `mogo export` writes
+(`Manifest.to_json`) and everything else reads (`Manifest.from_json`).
+
+The dataclasses below are the schema: each JSON key is a field of the same name, so adding a
+key is adding a field. Reading checks every key and type and refuses a manifest that does not
+match, naming the key ("manifest.json: t2m.levels[2].file: missing"). Each value is stored
+once; what follows from it is a property (the end token, the feature size) or is read from the
+graphs themselves (the cache sizes of the level graphs). A program in another language finds here all it needs to run a bundle: the graphs
+and their input/output names, the decoder's context, the normalisation, the sampling defaults,
+and the skeleton with the layout of the features the decoder writes.
+
+The model configs (`t2m.config`, `vq.config`) are the arguments that rebuild the torch models;
+they are kept whole, and the runtime reads from them only the sizes declared in CONFIG_KEYS.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import types
+import typing
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mogo.motion.features import feature_layout
+from mogo.motion.skeleton import Skeleton
+
+FORMAT = "mogo-bundle"
+FORMAT_VERSION = 2  # 2: skeleton and feature layout under "motion"; no value stored twice
+MANIFEST = "manifest.json"
+
+
+class BundleError(ValueError):
+    """A bundle that cannot be used; the message names the file (and key) and the problem."""
+
+
+@dataclass(frozen=True)
+class FileEntry:
+    bytes: int
+    sha256: str
+
+
+@dataclass(frozen=True)
+class Graph:
+    """An ONNX file of the bundle and its input and output names, in protocol order."""
+    file: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class DecoderGraph(Graph):
+    """The VQ decoder: the frames of token t depend on tokens t - left_context .. t + lookahead."""
+    left_context: int
+    lookahead: int
+
+
+@dataclass(frozen=True)
+class Normalization:
+    """.npy files (feature_dim,) float32: the graphs see (features - mean) / std."""
+    mean: str
+    std: str
+
+
+@dataclass(frozen=True)
+class FeatureBlock:
+    """Columns start:stop of a feature row (see mogo.motion.features)."""
+    name: str
+    start: int
+    stop: int
+
+
+@dataclass(frozen=True)
+class SkeletonSpec:
+    """mogo.motion.skeleton.Skeleton as JSON (its fps is the bundle's)."""
+    name: str
+    joint_names: tuple[str, ...]
+    parents: tuple[int, ...]  # -1 for the root; what the chains give (checked), for readers
+    chains: tuple[tuple[int, ...], ...]  # kinematic chains, the order of the features' IK
+    raw_offsets: tuple[tuple[float, float, float], ...]  # unit bone directions
+    face_joints: tuple[int, int, int, int]  # right hip, left hip, right shoulder, left shoulder
+    left_foot: tuple[int, int]  # ankle, toe
+    right_foot: tuple[int, int]
+    rest_offsets: tuple[tuple[float, float, float], ...] | None = None  # metres, Y up
+
+    @classmethod
+    def of(cls, skeleton: Skeleton) -> SkeletonSpec:
+        rest = None if skeleton.rest_offsets is None else _rows(skeleton.rest_offsets)
+        return cls(skeleton.name, tuple(skeleton.joint_names),
+                   tuple(int(p) for p in skeleton.parents), tuple(map(tuple, skeleton.chains)),
+                   _rows(skeleton.raw_offsets), tuple(skeleton.face_joints),
+                   tuple(skeleton.left_foot), tuple(skeleton.right_foot), rest)
+
+    def skeleton(self, fps: float) -> Skeleton:
+        rest = None if self.rest_offsets is None else np.array(self.rest_offsets, np.float64)
+        return Skeleton(self.name, self.joint_names, self.chains,
+                        np.array(self.raw_offsets, np.float64), rest, self.face_joints,
+                        self.left_foot, self.right_foot, fps)
+
+
+@dataclass(frozen=True)
+class MotionFormat:
+    """What a frame of the bundle's motion is."""
+    fps: float
+    skeleton: SkeletonSpec
+    features: tuple[FeatureBlock, ...]
+    normalization: Normalization
+
+    @classmethod
+    def of(cls, skeleton: Skeleton, normalization: Normalization) -> MotionFormat:
+        """Motion of `skeleton` in the features of mogo.motion.features (what `mogo export`
+        writes, from the runtime's own definitions)."""
+        return cls(skeleton.fps, SkeletonSpec.of(skeleton),
+                   tuple(FeatureBlock(*block) for block in feature_layout(skeleton)), normalization)
+
+    @property
+    def feature_dim(self) -> int:
+        return self.features[-1].stop
+
+
+@dataclass(frozen=True)
+class Text:
+    """Prompt -> tokenizer (truncating at max_length) -> encoder graph -> prompt embedding."""
+    tokenizer: str
+    max_length: int
+    kind: str  # the text encoder's class
+    encoder: Graph
+
+
+@dataclass(frozen=True)
+class T2M:
+    """One graph per level, coarse to fine (protocol in mogo.token_generator); the cache
+    sizes are in the graphs' input shapes."""
+    config: dict
+    levels: tuple[Graph, ...]
+
+    @property
+    def num_levels(self) -> int:
+        return len(self.levels)
+
+
+@dataclass(frozen=True)
+class VQ:
+    config: dict
+    encoder: Graph
+    decoder: DecoderGraph
+
+    @property
+    def levels(self) -> int:
+        return self.config["levels"]
+
+    @property
+    def codebook_size(self) -> int:
+        return self.config["codebook_size"]
+
+    @property
+    def down_factor(self) -> int:
+        """Frames per token step."""
+        return self.config["down_factor"]
+
+
+@dataclass(frozen=True)
+class Defaults:
+    """Sampling defaults (mogo.sampling), the KV window in token steps (None: unbounded) and
+    the longest motion `generate` lets the model end on its own."""
+    temperature: float
+    top_k: int
+    top_p: float
+    guidance: float
+    window: int | None
+    max_seconds: float
+
+
+@dataclass(frozen=True)
+class TrainingRun:
+    """How one model of the bundle was trained; recipe is the trainer's own record."""
+    step: int
+    recipe: dict | None = None
+    data: str | None = None
+    best_val_mpjpe_mm: float | None = None
+    best_val_loss: float | None = None
+    token_agreement_with_bundle: float | None = None  # a decoder replaced in a bundle
+
+
+@dataclass(frozen=True)
+class Int8Check:
+    """Whether the level graphs are int8: greedy-token agreement with fp32 on check prompts."""
+    used: bool
+    greedy_token_agreement: float
+    threshold: float
+    prompts: int
+    steps_per_prompt: int
+    scheme: str
+
+
+@dataclass(frozen=True)
+class Fp16Storage:
+    """Graphs whose large weights are stored as fp16 (computed in fp32), and what it costs."""
+    files: tuple[str, ...]
+    prompt_embedding_max_abs_difference: float | None = None
+    vq_encoder_token_agreement: float | None = None
+    vq_decoder_feature_max_abs_difference: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class Manifest:
+    format: str = FORMAT
+    format_version: int = FORMAT_VERSION
+    motion: MotionFormat
+    text: Text
+    t2m: T2M
+    vq: VQ
+    defaults: Defaults
+    training: dict[str, TrainingRun] = field(default_factory=dict)
+    int8: Int8Check | None = None
+    fp16_storage: Fp16Storage | None = None
+    files: dict[str, FileEntry] = field(default_factory=dict)  # every file: size and sha256
+
+    @property
+    def fps(self) -> float:
+        return self.motion.fps
+
+    @property
+    def feature_dim(self) -> int:
+        return self.motion.feature_dim
+
+    @property
+    def end_token(self) -> int:
+        """Level 0's extra class after the codes: the motion ends."""
+        return self.vq.codebook_size
+
+    def skeleton(self) -> Skeleton:
+        return self.motion.skeleton.skeleton(self.fps)
+
+    def graphs(self) -> list[Graph]:
+        return [self.text.encoder, *self.t2m.levels, self.vq.encoder, self.vq.decoder]
+
+    def referenced_files(self) -> set[str]:
+        """Every file the manifest names outside `files`."""
+        norm = self.motion.normalization
+        return {norm.mean, norm.std, self.text.tokenizer, *(g.file for g in self.graphs())}
+
+    @classmethod
+    def from_json(cls, data: object, source: str = MANIFEST) -> Manifest:
+        """The manifest of parsed JSON; BundleError naming `source` and the key where it does
+        not match the schema."""
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise BundleError(f"{source}: not a {FORMAT} manifest")
+        version = data.get("format_version")
+        if version != FORMAT_VERSION:
+            raise BundleError(f"{source}: format version {version!r}; this runtime reads "
+                              f"version {FORMAT_VERSION} (re-export the bundle with "
+                              "`mogo export`, or upgrade mogo)")
+        try:
+            manifest = _read(cls, data, "")
+            manifest._check()
+        except _KeyProblem as problem:
+            raise BundleError(f"{source}: {problem.path}: {problem.what}") from None
+        return manifest
+
+    def to_json(self) -> dict:
+        return _write(self)
+
+    def dumps(self) -> str:
+        """The text of manifest.json: indented, each list of plain values on one line."""
+        def one_line(match: re.Match) -> str:
+            return re.sub(r"\n\s*", "", re.sub(r",\n\s*", ", ", match[0]))
+
+        text = json.dumps(self.to_json(), indent=1)
+        return re.sub(r"\[[^\[\]{}]*\]|\{[^\[\]{}]*\}", one_line, text) + "\n"
+
+    def _check(self) -> None:
+        """What the types alone do not say: sizes that must agree."""
+        for name, kind in CONFIG_KEYS.items():
+            value = self.vq.config.get(name)
+            if type(value) is not kind or value < 1:
+                raise _KeyProblem(f"vq.config.{name}", "missing or not a positive integer")
+        if self.vq.config["feature_dim"] != self.feature_dim:
+            raise _KeyProblem("vq.config.feature_dim", f"{self.vq.config['feature_dim']}, the "
+                              f"feature layout (motion.features) has {self.feature_dim}")
+        if not self.t2m.levels:
+            raise _KeyProblem("t2m.levels", "empty")
+        if self.t2m.num_levels != self.vq.levels:
+            raise _KeyProblem("t2m.levels", f"{self.t2m.num_levels} graphs for "
+                              f"{self.vq.levels} VQ levels (vq.config.levels)")
+        _check_skeleton(self.motion.skeleton)
+        skeleton = self.skeleton()
+        expected = MotionFormat.of(skeleton, self.motion.normalization).features
+        if self.motion.features != expected:
+            raise _KeyProblem("motion.features", "not the layout of mogo.motion.features for "
+                              f"the {skeleton.name} skeleton ({_layout_text(expected)})")
+
+
+CONFIG_KEYS = dict(feature_dim=int, levels=int, codebook_size=int, down_factor=int)  # of vq.config
+
+
+def _check_skeleton(spec: SkeletonSpec) -> None:
+    joints = len(spec.joint_names)
+    for name in ("parents", "raw_offsets", "rest_offsets"):
+        value = getattr(spec, name)
+        if value is not None and len(value) != joints:
+            raise _KeyProblem(f"motion.skeleton.{name}", f"{len(value)} rows for {joints} joints")
+    indices = [*spec.face_joints, *spec.left_foot, *spec.right_foot, *sum(spec.chains, ())]
+    if any(not 0 <= j < joints for j in indices):
+        raise _KeyProblem("motion.skeleton", f"a joint index outside 0..{joints - 1}")
+    derived = tuple(int(p) for p in spec.skeleton(0.0).parents)
+    if spec.parents != derived:
+        raise _KeyProblem("motion.skeleton.parents", f"{list(spec.parents)}, the chains give "
+                          f"{list(derived)}")
+
+
+def _layout_text(blocks: tuple[FeatureBlock, ...]) -> str:
+    return ", ".join(f"{b.name} {b.start}:{b.stop}" for b in blocks)
+
+
+def _rows(array: np.ndarray) -> tuple[tuple[float, ...], ...]:
+    return tuple(tuple(float(x) for x in row) for row in array)
+
+
+# -- the checked reader and the writer ------------------------------------------------------------
+class _KeyProblem(Exception):
+    def __init__(self, path: str, what: str):
+        super().__init__(f"{path}: {what}")
+        self.path, self.what = path, what
+
+
+_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
+          dict: "an object", list: "a list"}
+
+
+def _read(kind, value, path: str):
+    """`value` (parsed JSON) as `kind` (a type of the schema), or _KeyProblem at `path`."""
+    args = typing.get_args(kind)
+    if typing.get_origin(kind) in (typing.Union, types.UnionType):  # X | None
+        if value is None:
+            return None
+        return _read(next(a for a in args if a is not type(None)), value, path)
+    if dataclasses.is_dataclass(kind):
+        return _read_object(kind, _expect(value, dict, path), path)
+    if typing.get_origin(kind) is tuple:
+        items = _expect(value, list, path)
+        if Ellipsis not in args and len(items) != len(args):
+            raise _KeyProblem(path, f"{len(items)} items, expected {len(args)}")
+        item_kinds = [args[0]] * len(items) if Ellipsis in args else args
+        return tuple(_read(k, v, f"{path}[{i}]") for i, (k, v) in enumerate(zip(item_kinds, items)))
+    if typing.get_origin(kind) is dict:
+        return {key: _read(args[1], v, f"{path}.{key}")
+                for key, v in _expect(value, dict, path).items()}
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return _expect(value, kind, path)
+
+
+def _read_object(cls, value: dict, path: str):
+    hints = typing.get_type_hints(cls)
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    for key in value:
+        if key not in known:
+            raise _KeyProblem(_join(path, key), "unknown key")
+    values = {}
+    for name, f in known.items():
+        if name in value:
+            values[name] = _read(hints[name], value[name], _join(path, name))
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise _KeyProblem(_join(path, name), "missing")
+    return cls(**values)
+
+
+def _expect(value, kind, path: str):
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise _KeyProblem(path, f"expected {_NAMES.get(kind, kind.__name__)}, got {value!r}")
+    return value
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def _write(value):
+    """A schema object as plain JSON values; a None field with a None default is left out."""
+    if dataclasses.is_dataclass(value):
+        return {f.name: _write(getattr(value, f.name)) for f in dataclasses.fields(value)
+                if not (getattr(value, f.name) is None and f.default is None)}
+    if isinstance(value, (tuple, list)):
+        return [_write(v) for v in value]
+    if isinstance(value, dict):
+        return {key: _write(v) for key, v in value.items()}
+    return value
