@@ -9,7 +9,7 @@ import torch
 from PIL import Image
 from torch.utils.flop_counter import FlopCounterMode
 
-from mogo.bench.speed import latency
+from mogo.bench.speed import latency, step, timing
 from mogo.bench.speed.plot import log_line_chart
 from mogo.cli import main
 from mogo.export.models.t2m import T2M, T2MConfig
@@ -32,33 +32,33 @@ def test_step_flops_equal_torch_flop_counter(cached):
                                 torch.zeros(1, len(positions), config.num_levels,
                                             dtype=torch.long),
                                 positions, torch.arange(length) if cached else None, past)
-    expected = latency.step_flops(config, length if cached else 0, 1 if cached else length + 1)
+    expected = step.step_flops(config, length if cached else 0, 1 if cached else length + 1)
     assert counter.get_total_flops() == expected
 
 
 def test_clip_interpolates_the_measured_step_times():
-    flat = latency.clip_seconds({1: 2.0, 200: 2.0})
-    assert flat == pytest.approx(latency.CLIP_FRAMES * 2.0 / 1e3)
-    growing = latency.clip_seconds({0: 0.0, 195: 195.0})  # step n takes n ms
-    assert growing == pytest.approx(sum(range(latency.CLIP_FRAMES)) / 1e3)
+    flat = step.clip_seconds({1: 2.0, 200: 2.0})
+    assert flat == pytest.approx(step.CLIP_FRAMES * 2.0 / 1e3)
+    growing = step.clip_seconds({0: 0.0, 195: 195.0})  # step n takes n ms
+    assert growing == pytest.approx(sum(range(step.CLIP_FRAMES)) / 1e3)
 
 
 def test_interleaved_rotates_and_respects_rounds():
     order = []
-    medians = latency.interleaved({"a": lambda: order.append("a"), "b": lambda: order.append("b")},
+    medians = timing.interleaved({"a": lambda: order.append("a"), "b": lambda: order.append("b")},
                                   rounds=4, budget_s=100.0, warmup=0)
     assert order == ["a", "b", "b", "a", "a", "b", "b", "a"] and set(medians) == {"a", "b"}
 
 
 def test_touched_bytes_leave_out_embedding_tables(tmp_path):
     config = T2MConfig.tiny()
-    model, folder, graphs = latency.exported_model(config, tmp_path)
-    fp32 = latency.touched_weight_bytes([folder / g.file for g in graphs])
-    int8 = latency.touched_weight_bytes([folder / "int8" / g.file for g in graphs])
+    model, folder, graphs = step.exported_model(config, tmp_path)
+    fp32 = step.touched_weight_bytes([folder / g.file for g in graphs])
+    int8 = step.touched_weight_bytes([folder / "int8" / g.file for g in graphs])
     tables = sum(p.numel() for p in model.token_embeddings.parameters()) * 4
     everything = sum(p.numel() for p in model.parameters()) * 4
     assert 0 < int8 < fp32 < everything - tables + 4096  # what the graph adds: folded constants
-    again = latency.exported_model(config, tmp_path)  # reused, not exported again
+    again = step.exported_model(config, tmp_path)  # reused, not exported again
     assert again[1] == folder and again[2] == graphs
 
 
@@ -73,7 +73,7 @@ def test_plot_is_a_small_png(tmp_path):
 
 
 def test_quick_run_writes_tables_json_and_plots(tmp_path, capsys):
-    settings = replace(latency.QUICK, long_steps=2 * latency.SPAN)
+    settings = replace(timing.QUICK, long_steps=2 * latency.SPAN)
     report = latency.run(DEFAULT_BUNDLE, tmp_path / "out", tmp_path / "work", settings)
     printed = capsys.readouterr().out
     assert "time to first frame" in printed and "tiny model: backend" in printed
