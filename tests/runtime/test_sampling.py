@@ -39,6 +39,19 @@ def test_many_ties_keep_id_order_and_the_cdf_is_inverted_exactly(uniform):
     assert choose_token(np.zeros(600), None, uniform, Sampling()) == math.floor(600 * uniform)
 
 
+def test_ties_among_many_values_keep_id_order_within_each_value():
+    """600 logits of three values: sorted by value, ids ascending within a value; the draw for
+    u is the entry where the cumulative weight first exceeds u times the total, computed here
+    in plain Python."""
+    values = np.random.default_rng(3).integers(0, 3, 600).astype(np.float64)
+    order = sorted(range(600), key=lambda i: (-values[i], i))
+    weights = [math.exp(values[i] - 2) for i in order]
+    total, cumulative = sum(weights), np.cumsum(weights)
+    for u in np.linspace(0.0005, 0.9995, 200):
+        expected = order[int(np.searchsorted(cumulative, u * total, side="right"))]
+        assert choose_token(values, None, u, Sampling()) == expected
+
+
 def test_the_first_entry_whose_cumulative_weight_exceeds_u_times_the_total_is_taken():
     """Four equal weights: c = 1, 2, 3, 4 and u * total = 1.0 exactly for u = 0.25. The rule is
     c > u * total (strict), so id 1 and not id 0."""
@@ -91,6 +104,13 @@ def test_top_p_keeps_entries_whose_preceding_mass_is_below_top_p(top_p, last_kep
     sampling = Sampling(top_p=top_p)
     assert choose_token(PROBS, None, 0.9999, sampling) == last_kept
     assert choose_token(PROBS, None, 0.0, sampling) == 0
+
+
+def test_top_p_drops_an_entry_whose_preceding_mass_equals_top_p():
+    """Four equal weights, top_p=0.5: the masses before the entries are 0, 1/4, 1/2, 3/4 (all
+    exact); 1/2 is not < 0.5, so ids 0 and 1 stay, and u -> 1 draws id 1."""
+    assert choose_token(np.zeros(4), None, 0.9999, Sampling(top_p=0.5)) == 1
+    assert choose_token(np.zeros(4), None, 0.9999, Sampling(top_p=0.5001)) == 2
 
 
 def test_top_p_is_measured_on_what_top_k_kept():
