@@ -13,6 +13,11 @@ from mogo.sampling import choose_token, choose_tokens, make_rng, step_uniforms
 GREEDY = Sampling(temperature=0)
 
 
+def guided(scale: float, temperature=1.0, top_k=0, top_p=1.0) -> Sampling:
+    """Sampling with guidance `scale` (the field is the fourth, whatever its name)."""
+    return Sampling(temperature, top_k, top_p, scale)
+
+
 def test_this_file_imports_no_torch(run_without_torch):
     done = run_without_torch(f"import runpy\nrunpy.run_path({__file__!r})\n")
     assert done.returncode == 0, done.stderr
@@ -149,7 +154,7 @@ def test_guidance_is_uncond_plus_scale_times_the_difference(scale, token):
     """Effective logits u + s (c - u) = [0, 3s, 3 - 3s]: id 1 from s = 0.5 on (a tie at 0.5,
     the lower id), id 2 below. s = 1 is the conditional logits alone; s < 1 is applied as
     written (s = 0: the unconditional logits), not refused and not ignored."""
-    sampling = Sampling(temperature=0, guidance_scale=scale)
+    sampling = guided(scale, temperature=0)
     assert sampling.guided == (scale != 1)
     assert choose_token(COND, UNCOND, 0.5, sampling) == token
 
@@ -159,7 +164,7 @@ def test_guided_sampling_draws_from_the_effective_logits():
     cond, uncond = rng.normal(size=(2, 8, 64)) * 2
     for scale in (0.5, 2.0, 3.5):
         effective = uncond + scale * (cond - uncond)
-        for sampling in (Sampling(guidance_scale=scale), Sampling(guidance_scale=scale, top_p=0.7)):
+        for sampling in (guided(scale), guided(scale, top_p=0.7)):
             plain = Sampling(sampling.temperature, sampling.top_k, sampling.top_p)
             for u in np.linspace(0.01, 0.99, 25):
                 uniforms = np.full(8, u)
@@ -170,12 +175,11 @@ def test_guided_sampling_draws_from_the_effective_logits():
 def test_scale_one_ignores_the_unconditional_logits_and_other_scales_need_them():
     assert choose_token(COND, UNCOND, 0.5, GREEDY) == choose_token(COND, None, 0.5, GREEDY) == 1
     with pytest.raises(ValueError, match="needs unconditional logits"):
-        choose_token(COND, None, 0.5, Sampling(guidance_scale=2.0))
+        choose_token(COND, None, 0.5, guided(2.0))
 
 
-@pytest.mark.parametrize("sampling", [Sampling(temperature=0, guidance_scale=2.0),
-                                      Sampling(guidance_scale=2.0),
-                                      Sampling(guidance_scale=0.5, top_k=5)])
+@pytest.mark.parametrize("sampling", [guided(2.0, temperature=0), guided(2.0),
+                                      guided(0.5, top_k=5)])
 def test_guidance_never_picks_a_padding_column(sampling):
     """A finer level has one class less than level 0 (no end token): its row is padded with
     -inf in both branches, where u + s (c - u) would be NaN, which argmax would pick."""
@@ -190,7 +194,7 @@ def test_guidance_never_picks_a_padding_column(sampling):
 
 def test_guidance_keeps_the_forbidden_token_out():
     cond, uncond = np.array([0.0, 1.0, 5.0]), np.array([0.0, 1.0, 1.0])
-    assert choose_token(cond, uncond, 0.5, Sampling(temperature=0, guidance_scale=2.0),
+    assert choose_token(cond, uncond, 0.5, guided(2.0, temperature=0),
                         forbid=2) == 1
 
 
@@ -233,10 +237,10 @@ def generator():
 
 
 def test_a_batch_of_prompts_draws_each_with_its_own_seed(generator):
-    """generate([a, b], seed=s) is generate(a, seed=s) and generate(b, seed=s + 1), as
+    """A batch [a, b] with seed s is generate(a, seed=s) and generate(b, seed=s + 1), as
     Motion.seed says."""
     prompts = ["a person walks forward.", "someone waves."]
-    batch = generator.generate(prompts, seconds=1.5, seed=5)
+    batch = generate_batch(generator, prompts, seconds=1.5, seed=5)
     alone = [generator.generate(p, seconds=1.5, seed=5 + k) for k, p in enumerate(prompts)]
     assert [m.seed for m in batch] == [5, 6]
     for together, single in zip(batch, alone):
@@ -244,3 +248,11 @@ def test_a_batch_of_prompts_draws_each_with_its_own_seed(generator):
         assert np.array_equal(together.joints, single.joints)
     same_seed = generator.generate(prompts[1], seconds=1.5, seed=5)
     assert not np.array_equal(same_seed.tokens, batch[1].tokens)
+
+
+def generate_batch(generator, prompts, **options):
+    """generate_batch where the API has it (issue 17 splits it off generate), else generate on a
+    list, as before."""
+    if hasattr(generator, "generate_batch"):
+        return generator.generate_batch(prompts, **options)
+    return generator.generate(prompts, **options)

@@ -10,17 +10,18 @@ steps held) and not from the stream's bookkeeping. A stream that has just re-pre
 cache (set_prompt, continue_from) must give those logits. (A stream that only slid its window
 need not: its kept slots were computed when older steps were still visible.)"""
 import copy
+import json
 
 import numpy as np
 import pytest
 
 import mogo.token_generator as token_loop
-from mogo import MotionGenerator, Sampling
+from mogo import DEFAULT_BUNDLE, MotionGenerator, Sampling
 from mogo.token_generator import balanced_groups
 
 PROMPTS = ["a person walks forward.", "a person jumps on the spot.", "someone waves."]
 TOP_P = Sampling(top_p=0.9)
-GUIDED = Sampling(top_p=0.9, guidance_scale=2.0)
+GUIDED = Sampling(1.0, 0, 0.9, 2.0)  # guidance 2 (the fourth field)
 SAME_CACHE = 2e-4  # logits of two prefills of the same slots (slot order may differ)
 
 
@@ -203,7 +204,7 @@ def past_lengths(tokens, monkeypatch):
 
 
 def test_generate_and_stream_slide_the_bundles_window(generator, past_lengths):
-    window = generator.bundle.manifest["defaults"]["window"]
+    window = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())["defaults"]["window"]
     steps = window + 30
     generator.generate(PROMPTS[0], seconds=steps / generator.fps, seed=1)
     assert max(past_lengths) == 1 + window
