@@ -1,0 +1,140 @@
+"""mogo.stream_decoder on the shipped VQ decoder: streamed frames are the offline decode of the
+same tokens, whatever the burst size, the push sizes and the length (around the lookahead and
+the whole receptive field); the first frame comes as soon as its right context exists; the
+buffer stays bounded; and the receptive field the manifest states is the decoder's own."""
+import json
+
+import numpy as np
+import pytest
+
+from mogo import DEFAULT_BUNDLE, MotionGenerator
+from mogo.stream_decoder import StreamingDecoder
+
+# the receptive field as the manifest states it (the lengths below are chosen around it)
+DECODER = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())["vq"]["decoder"]
+LEFT, LOOKAHEAD = DECODER["left_context"], DECODER["lookahead"]
+
+
+def test_this_file_imports_no_torch(run_without_torch):
+    done = run_without_torch(f"import runpy\nrunpy.run_path({__file__!r})\n")
+    assert done.returncode == 0, done.stderr
+
+
+@pytest.fixture(scope="module")
+def generator():
+    return MotionGenerator.load()
+
+
+@pytest.fixture(scope="module")
+def shipped(generator) -> StreamingDecoder:
+    """The runtime's own streaming decoder of the shipped bundle: its session, graph names and
+    sizes."""
+    d = generator.streaming_decoder()
+    assert (d.left_context, d.lookahead) == (LEFT, LOOKAHEAD)
+    return d
+
+
+def decoder(shipped, every=1) -> StreamingDecoder:
+    return StreamingDecoder(shipped.session, LEFT, LOOKAHEAD, shipped.codebook_size,
+                            ids_name=shipped.ids_name, features_name=shipped.features_name,
+                            every=every)
+
+
+def random_ids(shipped, n: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, shipped.codebook_size, (n, shipped.levels))
+
+
+def streamed(d: StreamingDecoder, ids: np.ndarray, chunk: int) -> list[np.ndarray]:
+    """The frames each push returned, then the flush's."""
+    return [d.push(ids[i:i + chunk]) for i in range(0, len(ids), chunk)] + [d.flush()]
+
+
+LENGTHS = [1, LOOKAHEAD, LOOKAHEAD + 1, LOOKAHEAD + 2, LEFT + LOOKAHEAD + 1,
+           LEFT + LOOKAHEAD + 2, 2 * (LEFT + LOOKAHEAD) + 7]
+
+
+@pytest.mark.parametrize("every", [1, 3, 8])
+@pytest.mark.parametrize("chunk", [1, 5])
+@pytest.mark.parametrize("length", LENGTHS)
+def test_streamed_frames_are_the_offline_decode(generator, shipped, every, chunk, length):
+    ids = random_ids(shipped, length, seed=length)
+    d = decoder(shipped, every)
+    offline = d.decode_offline(ids)
+    frames = np.concatenate(streamed(d, ids, chunk))
+    assert frames.shape == offline.shape == (length * generator.down_factor,
+                                             shipped.feature_dim)
+    np.testing.assert_allclose(frames, offline, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("every", [1, 8])
+def test_the_first_frame_comes_once_its_lookahead_is_pushed_then_bursts_of_every(shipped, every):
+    d = decoder(shipped, every)
+    ids = random_ids(shipped, LOOKAHEAD + 1 + 3 * every)
+    counts = [len(d.push(ids[i:i + 1])) for i in range(len(ids))]
+    assert counts[:LOOKAHEAD] == [0] * LOOKAHEAD  # waiting for the first frame's right context
+    assert counts[LOOKAHEAD] == 1  # token 0 has its lookahead: its frame at once
+    burst = [0] * (every - 1) + [every]
+    assert counts[LOOKAHEAD + 1:] == burst * 3
+    assert d.emitted == 1 + 3 * every and d.pushed == len(ids)
+
+
+def test_a_push_of_many_tokens_returns_every_frame_that_became_final(shipped):
+    d = decoder(shipped, every=8)
+    assert len(d.push(random_ids(shipped, LOOKAHEAD + 5))) == 5
+    assert len(d.push(random_ids(shipped, 2, seed=1))) == 0  # 2 < every since the last burst
+    assert len(d.push(random_ids(shipped, 6, seed=2))) == 8
+
+
+@pytest.mark.parametrize("every,chunk", [(1, 1), (8, 1), (8, 3), (5, 7)])
+def test_the_buffer_stays_bounded(shipped, every, chunk):
+    """At most left_context + lookahead + every - 1 tokens are held between calls, however
+    long the stream."""
+    d = decoder(shipped, every)
+    ids = random_ids(shipped, 160)
+    bound = LEFT + LOOKAHEAD + every - 1
+    for i in range(0, len(ids), chunk):
+        d.push(ids[i:i + chunk])
+        assert d.buffered_tokens <= bound
+    assert d.buffered_tokens >= LEFT + LOOKAHEAD  # ... and no less than the receptive field
+
+
+def test_flush_starts_a_new_stream(shipped):
+    d = decoder(shipped, every=8)
+    ids = random_ids(shipped, 50)
+    first = np.concatenate(streamed(d, ids, 4))
+    assert d.pushed == d.emitted == d.buffered_tokens == 0
+    second = np.concatenate(streamed(d, ids, 4))
+    np.testing.assert_array_equal(first, second)
+
+
+def test_the_stated_receptive_field_holds(shipped):
+    """Changing token j changes no frame before j - lookahead and none after j + left_context:
+    what the streaming decoder relies on (a receptive field wider than the manifest says would
+    make streamed frames differ from offline ones)."""
+    d = decoder(shipped)
+    ids = random_ids(shipped, 3 * (LEFT + LOOKAHEAD))
+    base = d.decode_offline(ids)
+    for j in (LEFT + LOOKAHEAD, len(ids) // 2):
+        changed = ids.copy()
+        changed[j] = (changed[j] + 1) % shipped.codebook_size
+        moved = np.abs(d.decode_offline(changed) - base).max(axis=1)
+        assert moved[:j - LOOKAHEAD].max() < 1e-6 and moved[j + LEFT + 1:].max() < 1e-6
+        assert moved[j] > 1e-3
+
+
+def test_empty_input_and_bad_ids(shipped):
+    d = decoder(shipped)
+    levels, codes = shipped.levels, shipped.codebook_size
+    assert d.decode_offline(np.zeros((0, levels), np.int64)).shape == (0, shipped.feature_dim)
+    assert d.flush().shape == (0, shipped.feature_dim)
+    for ids, message in [(np.full((2, levels), codes), "must lie in"),
+                         (np.full((2, levels), -1), "must lie in"),
+                         (np.zeros((2, levels), np.float32), "must be integers"),
+                         (np.zeros((2, levels + 1), np.int64), "must be"),
+                         (np.zeros(levels, np.int64), "must be")]:
+        with pytest.raises(ValueError, match=message):
+            d.push(ids)
+    with pytest.raises(ValueError, match="every must be >= 1"):
+        decoder(shipped, every=0)
+    with pytest.raises(ValueError, match="left_context, lookahead >= 0"):
+        StreamingDecoder(shipped.session, -1, LOOKAHEAD, codes)
