@@ -134,3 +134,12 @@ def test_the_mogo_command_runs_its_runtime_verbs_without_torch(run_without_torch
         "assert code == 0, code\n", block_export=False)
     assert result.returncode == 0, result.stderr
     assert sorted(p.suffix for p in tmp_path.iterdir()) == [".bvh", ".gif", ".json", ".npy"]
+
+
+def test_the_runtime_tests_run_without_torch(run_without_torch):
+    """tests/runtime/ checks the runtime as a user of the base install has it: no torch."""
+    tests = Path(__file__).parent
+    for path in sorted((tests / "runtime").glob("test_*.py")):
+        done = run_without_torch(f"import runpy\nsys.path.insert(0, {str(tests)!r})\n"
+                                 f"runpy.run_path({str(path)!r})\n")
+        assert done.returncode == 0, f"{path.name}: {done.stderr[-2000:]}"

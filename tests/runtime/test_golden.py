@@ -117,11 +117,6 @@ def record() -> None:
     print(f"wrote {len(document['cases'])} cases to {GOLDEN}")
 
 
-def test_this_file_imports_no_torch(run_without_torch):
-    done = run_without_torch(f"import runpy\nrunpy.run_path({__file__!r})\n")
-    assert done.returncode == 0, done.stderr
-
-
 @pytest.fixture(scope="module")
 def computed():
     return outputs(MotionGenerator.load())

@@ -18,11 +18,6 @@ def guided(scale: float, temperature=1.0, top_k=0, top_p=1.0) -> Sampling:
     return Sampling(temperature, top_k, top_p, scale)
 
 
-def test_this_file_imports_no_torch(run_without_torch):
-    done = run_without_torch(f"import runpy\nrunpy.run_path({__file__!r})\n")
-    assert done.returncode == 0, done.stderr
-
-
 # -- ties and the inverse CDF -----------------------------------------------------------------
 def test_greedy_takes_the_first_of_tied_maxima():
     assert choose_token(np.array([1.0, 3.0, 3.0, 0.0]), None, 0.99, GREEDY) == 1

@@ -15,11 +15,6 @@ DECODER = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())["vq"]["deco
 LEFT, LOOKAHEAD = DECODER["left_context"], DECODER["lookahead"]
 
 
-def test_this_file_imports_no_torch(run_without_torch):
-    done = run_without_torch(f"import runpy\nrunpy.run_path({__file__!r})\n")
-    assert done.returncode == 0, done.stderr
-
-
 @pytest.fixture(scope="module")
 def generator():
     return MotionGenerator.load()

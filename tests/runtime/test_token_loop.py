@@ -25,11 +25,6 @@ GUIDED = Sampling(1.0, 0, 0.9, 2.0)  # guidance 2 (the fourth field)
 SAME_CACHE = 2e-4  # logits of two prefills of the same slots (slot order may differ)
 
 
-def test_this_file_imports_no_torch(run_without_torch):
-    done = run_without_torch(f"import runpy\nrunpy.run_path({__file__!r})\n")
-    assert done.returncode == 0, done.stderr
-
-
 @pytest.fixture(scope="module")
 def generator():
     return MotionGenerator.load()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import make_tiny_humanml3d
+from helpers import make_tiny_humanml3d
 import onnx
 from onnx import numpy_helper
 

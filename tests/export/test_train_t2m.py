@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import interrupt_after_step, mogo_on_two_gloo_processes, records
+from helpers import interrupt_after_step, mogo_on_two_gloo_processes, records
 from mogo.export.train import train_t2m
 from mogo.cli import main
 from mogo.export.data.humanml3d import HumanML3DFolder

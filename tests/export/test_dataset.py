@@ -9,7 +9,7 @@ from mogo.export.train.datasets import (MotionCropDataset, TextMotionDataset, Wh
                                         collate_text_motion)
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
-from conftest import CLIP_FRAMES
+from helpers import CLIP_FRAMES
 
 
 def test_folder_loads_layout(tiny_humanml3d):

@@ -4,32 +4,9 @@ import pytest
 from mogo.motion.features import (JointStream, canonicalize, facing_directions,
                                    features_to_joints, joints_to_features)
 from mogo.motion.mirror import mirror_joints, mirror_text
-from mogo.motion.quaternion import qrot, qyaw
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
-
-def rest_pose(skeleton):
-    offsets = skeleton.rest_offsets
-    if offsets is None:  # KIT: unit-ish bones along the raw directions
-        offsets = skeleton.raw_offsets * 0.25
-    pose = np.zeros((skeleton.num_joints, 3))
-    for joint, parent in enumerate(skeleton.parents):
-        if parent >= 0:
-            pose[joint] = pose[parent] + offsets[joint]
-    pose[:, 1] -= pose[:, 1].min()
-    return pose
-
-
-def travelling_clip(rng, skeleton=SMPL_22, frames=120, turn_degrees=180.0, backwards=False,
-                    jitter=0.02):
-    """A jittered rest pose travelling along a curve while turning by `turn_degrees`."""
-    facing = np.radians(turn_degrees) * np.linspace(0, 1, frames) ** 2 + rng.uniform(-np.pi, np.pi)
-    step = 0.06 * (-1 if backwards else 1)
-    heading = np.stack([np.sin(facing), np.zeros(frames), np.cos(facing)], -1)
-    root = np.cumsum(step * heading, axis=0) + rng.normal(size=3) * [3, 0, 3]
-    root[:, 1] = 0.03 * np.sin(np.arange(frames) / 3)
-    body = rest_pose(skeleton)[None] + rng.normal(scale=jitter, size=(frames, skeleton.num_joints, 3))
-    return qrot(qyaw(facing)[:, None], body) + root[:, None]
+from helpers import rest_pose, travelling_clip
 
 
 @pytest.mark.parametrize("turn,backwards", [(0.0, False), (180.0, False), (180.0, True),

@@ -5,7 +5,7 @@ from mogo.cli import main
 from mogo.export.data.convert import resample
 from mogo.motion.features import features_to_joints
 
-from test_features import travelling_clip
+from helpers import travelling_clip
 
 
 def test_convert_writes_a_humanml3d_folder(tmp_path):

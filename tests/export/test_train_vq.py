@@ -5,7 +5,7 @@ import os
 import pytest
 import torch
 
-from conftest import interrupt_after_step, mogo_on_two_gloo_processes, records
+from helpers import interrupt_after_step, mogo_on_two_gloo_processes, records
 from mogo.cli import main
 from mogo.export.models.runs import load_checkpoint, load_vq
 from mogo.bundle import file_sha256

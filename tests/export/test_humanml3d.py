@@ -5,7 +5,7 @@ import pytest
 
 from mogo.export.data.humanml3d import DatasetError, HumanML3DFolder
 
-from conftest import CLIP_FRAMES
+from helpers import CLIP_FRAMES
 
 
 def test_a_tool_reads_only_the_splits_it_needs(tiny_humanml3d):

@@ -6,7 +6,7 @@ from mogo.cli import main
 from mogo.motion.render import render_frames, save_gif
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
-from test_features import travelling_clip
+from helpers import travelling_clip
 
 
 @pytest.mark.parametrize("skeleton", [SMPL_22, KIT_21])

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import interrupt_after_step, records
+from helpers import interrupt_after_step, records
 from mogo.bench.quality.evaluator import OnnxEvaluator, TextMotionEvaluator
 from mogo.export.train import train_evaluator
 from mogo.cli import main
