@@ -10,7 +10,7 @@ from pathlib import Path
 
 from mogo.cli import CliError, require_torch
 from mogo.export.train.options import (EvaluatorTrainOptions, T2MTrainOptions, VQTrainOptions,
-                                      add_arguments, from_arguments)
+                                       add_arguments, from_arguments)
 
 
 def _cmd_data_synth(args: argparse.Namespace) -> None:

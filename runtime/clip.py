@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.motion import bvh, render
 from mogo.align import Alignment
+from mogo.motion import bvh, render
 from mogo.motion.skeleton import Skeleton
 
 

@@ -26,9 +26,9 @@ from tokenizers import Tokenizer
 from mogo._session import cpu_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.bundle import Bundle, BundleError
+from mogo.clip import Motion
 from mogo.manifest import Graph
 from mogo.motion.features import JointStream
-from mogo.clip import Motion
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StreamingDecoder
 from mogo.token_generator import TokenGenerator, TokenStream

@@ -25,10 +25,10 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 from mogo._session import cpu_session
 from mogo.manifest import Graph
 from mogo.motion.skeleton import MAX_FRAMES
+from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 
 LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"]  # then the pasts
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)

@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.bench.quality.evaluate import COLUMNS, score
-from mogo.export.data.humanml3d import HumanML3DFolder
-from mogo.bench.quality.evaluator import OnnxEvaluator
 from mogo.align import plain_words
+from mogo.bench.quality.evaluate import COLUMNS, score
+from mogo.bench.quality.evaluator import OnnxEvaluator
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.generator import MotionGenerator
 
 DIRECTIONS = {"forward": ["ahead", "straight ahead", "forward"], "backward": ["backwards", "back"],

@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.export.data import metrics
 from mogo.bench.quality.evaluator import OnnxEvaluator, TextMotionEvaluator
-from mogo.progress import Progress
+from mogo.clip import Motion
+from mogo.export.data import metrics
 from mogo.export.data.humanml3d import DatasetError, HumanML3DFolder
 from mogo.generator import MotionGenerator
-from mogo.clip import Motion
 from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
+from mogo.progress import Progress
 
 COLUMNS = ("R-Precision Top-1", "Top-2", "Top-3", "FID", "MM-Dist", "Diversity",
            "MultiModality")

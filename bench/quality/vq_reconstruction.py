@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from mogo.export.data.humanml3d import HumanML3DFolder
-from mogo.motion.features import features_to_joints
-from mogo.generator import MotionGenerator
 from mogo.clip import Motion
+from mogo.export.data.humanml3d import HumanML3DFolder
+from mogo.generator import MotionGenerator
+from mogo.motion.features import features_to_joints
 from mogo.motion.render import render_frames
 
 MIN_FRAMES = 80

@@ -19,8 +19,8 @@ import numpy as np
 
 from mogo.bench.quality.evaluate import reconstruct
 from mogo.export.data.humanml3d import HumanML3DFolder
-from mogo.motion.features import features_to_joints
 from mogo.generator import MotionGenerator
+from mogo.motion.features import features_to_joints
 from mogo.motion.skeleton import Skeleton
 
 ROOT_FEATURES = slice(0, 4)  # yaw velocity, XZ velocity, height

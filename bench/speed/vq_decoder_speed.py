@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder
 from mogo.export.models.vq import MoSAVQ, VQConfig
+from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder
 from mogo.motion.skeleton import MAX_FRAMES
 from mogo.stream_decoder import StreamingDecoder
 

@@ -15,10 +15,10 @@ import torch
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.models.runs import load_t2m, load_vq
 from mogo.export.models.t2m import TextToMotion
+from mogo.export.models.vq import reconstruction_metrics
 from mogo.export.train.train_t2m import TokenSpans, tokenize_split, validate
 from mogo.export.train.train_vq import clip_batches, whole_clips
 from mogo.export.train.training import Process
-from mogo.export.models.vq import reconstruction_metrics
 from mogo.motion.skeleton import MAX_FRAMES
 
 

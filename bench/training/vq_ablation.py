@@ -22,8 +22,8 @@ import torch
 
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.models.runs import load_checkpoint, load_vq
-from mogo.export.train.train_vq import clip_batches, whole_clips
 from mogo.export.models.vq import reconstruction_metrics
+from mogo.export.train.train_vq import clip_batches, whole_clips
 
 VARIANTS = {  # name: extra `mogo train vq` arguments
     "6 levels (default)": [],

@@ -16,8 +16,7 @@ import numpy as np
 
 from mogo.export.data.animator_body import FPS, Body, Track, pose_joints
 from mogo.export.data.animator_moves import (Place, bow, clap, idle, jump, jumping_jacks, kick,
-                                             perform, punch, raise_arms, sit, squat, stretch,
-                                             wave)
+                                             perform, punch, raise_arms, sit, squat, stretch, wave)
 from mogo.export.data.animator_steps import locomotion, turning
 
 

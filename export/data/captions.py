@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mogo.export.data.animator import Segment
 from mogo.align import conjugate  # shared with prompt alignment
+from mogo.export.data.animator import Segment
 
 POOLS = ("train", "heldout")
 SUBJECTS = ("a person", "someone", "a man", "a woman", "the person", "a figure")

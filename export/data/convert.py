@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from mogo.export.data.normalization import feature_statistics
-from mogo.progress import Progress
 from mogo.motion.features import joints_to_features
 from mogo.motion.skeleton import SKELETONS
+from mogo.progress import Progress
 
 SPLIT_FRACTIONS = (("train", 0.80), ("val", 0.05), ("test", 0.15))
 

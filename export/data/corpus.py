@@ -18,15 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.export.data.animator_body import FPS
 from mogo.export.data.animator import PRIMITIVES, Segment, animate, sample_segment
+from mogo.export.data.animator_body import FPS
 from mogo.export.data.captions import JOINERS, TEMPLATES, caption_program, caption_segment
-from mogo.export.data.normalization import STD_FLOOR, feature_statistics
-from mogo.progress import Progress
 from mogo.export.data.humanml3d import format_caption_line
+from mogo.export.data.normalization import STD_FLOOR, feature_statistics
 from mogo.motion.features import joints_to_features
 from mogo.motion.mirror import mirror_joints, mirror_text
 from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES, SMPL_22
+from mogo.progress import Progress
 
 GENERATOR_VERSION = 1
 MAX_SEGMENTS = 3

@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass, replace
 from typing import Protocol, runtime_checkable
 
 import torch
-from torch import Tensor, nn
 from tokenizers import Tokenizer, decoders, models, normalizers, pre_tokenizers, processors
+from torch import Tensor, nn
 
 SPECIAL_TOKENS = ("[PAD]", "[UNK]", "[CLS]")  # ids 0, 1, 2
 PAD_ID = 0

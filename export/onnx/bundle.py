@@ -17,14 +17,13 @@ import torch
 from onnx import numpy_helper
 from tokenizers import Tokenizer
 
+from mogo.bundle import Bundle, write_manifest
+from mogo.export.models.t2m import T2M as T2MModel
 from mogo.export.onnx.t2m_graphs import export_level, export_text_encoder
 from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder, random_ids
-from mogo.export.models.t2m import T2M as T2MModel
-from mogo.bundle import Bundle, write_manifest
-from mogo.manifest import (VQ, Defaults, Fp16Storage, Graph, Int8Check, Manifest, MotionFormat,
-                           Normalization, T2M, Text, TrainingRun)
-from mogo.motion.skeleton import Skeleton
-from mogo.motion.skeleton import MAX_SECONDS
+from mogo.manifest import (T2M, VQ, Defaults, Fp16Storage, Graph, Int8Check, Manifest, MotionFormat,
+                           Normalization, Text, TrainingRun)
+from mogo.motion.skeleton import MAX_SECONDS, Skeleton
 from mogo.sampling import Sampling
 from mogo.token_generator import TokenGenerator
 
@@ -67,8 +66,8 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     none of OLD's training runs. Every other file is copied byte for byte, so RUN's encoder
     must give OLD's tokens (checked through OLD's encoder graph) and RUN must share OLD's
     normalisation: that is what OLD's level graphs were trained on. Returns the manifest."""
-    from mogo.export.onnx.vq_graphs import MIN_TOKEN_AGREEMENT, token_agreement
     from mogo.export.models.runs import load_checkpoint, load_vq, vq_checkpoint
+    from mogo.export.onnx.vq_graphs import MIN_TOKEN_AGREEMENT, token_agreement
 
     old = Bundle.load(bundle_dir)
     vq = load_vq(vq_run)

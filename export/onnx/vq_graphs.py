@@ -38,10 +38,10 @@ from onnx import numpy_helper
 from torch import Tensor, nn
 from torch.export import Dim
 
-from mogo.export.onnx.t2m_graphs import export_module
-from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
 from mogo._session import cpu_session
 from mogo.bundle import Bundle
+from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
+from mogo.export.onnx.t2m_graphs import export_module
 from mogo.manifest import DecoderGraph, Graph
 
 IMPORT_MAX_DIFFERENCE = 1e-4  # decoded features, torch against the bundle's decoder graph

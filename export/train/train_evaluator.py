@@ -23,12 +23,12 @@ from tokenizers import Tokenizer
 from torch import Tensor, nn
 from torch.utils.data import Dataset
 
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.data.metrics import R_PRECISION_BATCH, matching_score, r_precision
 from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
 from mogo.export.models.runs import load_checkpoint
 from mogo.export.models.text_encoder import encode_captions, train_tokenizer
 from mogo.export.onnx.evaluator_graphs import export_evaluator
-from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.train.datasets import TextMotionDataset, collate_text_motion
 from mogo.export.train.loop import Run, Trainer, train_loop
 from mogo.export.train.options import EvaluatorTrainOptions

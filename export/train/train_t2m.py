@@ -28,19 +28,19 @@ from torch import Tensor, nn
 from torch.utils.data import Dataset
 
 from mogo.bundle import file_sha256
-from mogo.progress import Progress
+from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.models.runs import build_text_to_motion, load_vq, read_tokens, vq_checkpoint
 from mogo.export.models.t2m import T2MConfig, TextToMotion
 from mogo.export.models.text_encoder import TEXT_ENCODERS, encode_captions
 from mogo.export.models.vq import MoSAVQ, VQConfig
-from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.train.datasets import TextMotionDataset, _EpochSeeded
 from mogo.export.train.loop import Run, Trainer, train_loop
 from mogo.export.train.options import T2MTrainOptions
-from mogo.export.train.training import (Process, all_reduce_mean, end_process,
-                                        equal_length_groups, finish_together, make_optimizer,
-                                        merge_recipe, previous_run, start_process)
+from mogo.export.train.training import (Process, all_reduce_mean, end_process, equal_length_groups,
+                                        finish_together, make_optimizer, merge_recipe, previous_run,
+                                        start_process)
 from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
+from mogo.progress import Progress
 
 TOKENIZE_BATCH = 128
 TOKENIZER = "tokenizer.json"

@@ -35,8 +35,7 @@ from mogo.export.train.datasets import (HumanML3DFolder, MotionCropDataset, Whol
 from mogo.export.train.loop import Run, Trainer, train_loop
 from mogo.export.train.options import VQTrainOptions
 from mogo.export.train.training import (Process, WeightAverage, end_process, equal_length_groups,
-                                        finish_together, merge_recipe, previous_run,
-                                        start_process)
+                                        finish_together, merge_recipe, previous_run, start_process)
 
 PRESETS: dict[str, Callable[[], VQConfig]] = dict(
     tiny=VQConfig.tiny, cpu_default=VQConfig.cpu_default, paper=VQConfig.paper)

@@ -11,8 +11,8 @@ import pytest
 from mogo.bench.quality import evaluate as evaluate_module
 from mogo.bench.quality import semantic
 from mogo.bench.quality.evaluate import EvalOptions, caption_items, evaluate
-from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.cli import main
+from mogo.export.data.humanml3d import HumanML3DFolder
 
 MM_ARGS = ["--mm-captions", "1", "--mm-generations", "10"]
 
@@ -33,8 +33,8 @@ def evaluator_folder(corpus, tmp_path_factory):
     import torch
 
     from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
-    from mogo.export.onnx.evaluator_graphs import export_evaluator
     from mogo.export.models.text_encoder import train_tokenizer
+    from mogo.export.onnx.evaluator_graphs import export_evaluator
 
     captions = [c.split("#")[0] for p in (corpus / "texts").glob("*.txt")
                 for c in p.read_text().splitlines()]

@@ -5,7 +5,7 @@ import pytest
 
 from mogo.export.data.animator import PRIMITIVES, Segment, animate, sample_segment
 from mogo.motion.features import (facing_directions, features_to_joints, foot_contacts,
-                                   joints_to_features)
+                                  joints_to_features)
 from mogo.motion.skeleton import SMPL_22
 
 NAMES = ("walk", "jog", "run", "turn", "jump", "squat", "sit", "bow", "wave", "raise_arms",

@@ -5,8 +5,8 @@ import pytest
 
 from mogo.export.data.animator import PRIMITIVES, Segment, sample_segment
 from mogo.export.data.captions import (JOINERS, POOLS, SUBJECTS, TEMPLATES, caption_program,
-                                  caption_segment, conjugate, count_noun, render, templates,
-                                  times_word)
+                                       caption_segment, conjugate, count_noun, render, templates,
+                                       times_word)
 
 DRAWS = 300  # random segments per template: enough to meet every param combination it fits
 

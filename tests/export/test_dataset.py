@@ -3,8 +3,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from mogo.export.data.humanml3d import (Caption, DatasetError, HumanML3DFolder,
-                                        parse_caption_line)
+from mogo.export.data.humanml3d import Caption, DatasetError, HumanML3DFolder, parse_caption_line
 from mogo.export.train.datasets import (MotionCropDataset, TextMotionDataset, WholeClipBatches,
                                         collate_text_motion)
 from mogo.motion.skeleton import KIT_21, SMPL_22

@@ -2,14 +2,15 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import interrupt_after_step, records
 from mogo.bench.quality.evaluator import OnnxEvaluator, TextMotionEvaluator
-from mogo.export.train import train_evaluator
 from mogo.cli import main
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.models.evaluator import Evaluator, EvaluatorConfig
-from mogo.export.models.text_encoder import encode_captions
 from mogo.export.models.runs import load_checkpoint
+from mogo.export.models.text_encoder import encode_captions
+from mogo.export.train import train_evaluator
+
+from helpers import interrupt_after_step, records
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -4,24 +4,24 @@ import shutil
 from dataclasses import replace
 
 import numpy as np
+import onnx
 import pytest
 import torch
-
-from helpers import make_tiny_humanml3d
-import onnx
 from onnx import numpy_helper
 
-from mogo.export.onnx.bundle import _quantize_levels
+from mogo.bundle import file_sha256, read_manifest, write_manifest
 from mogo.cli import main
 from mogo.export.models.generate_torch import generate
-from mogo.export.onnx.vq_graphs import vq_from_bundle
-from mogo.export.models.text_encoder import encode_captions
 from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
-from mogo.bundle import file_sha256, read_manifest, write_manifest
+from mogo.export.models.text_encoder import encode_captions
+from mogo.export.onnx.bundle import _quantize_levels
+from mogo.export.onnx.vq_graphs import vq_from_bundle
+from mogo.generator import MotionGenerator
 from mogo.manifest import SkeletonSpec
 from mogo.motion.skeleton import SMPL_22
-from mogo.generator import MotionGenerator
 from mogo.sampling import Sampling
+
+from helpers import make_tiny_humanml3d
 
 PROMPT = "a person walks forward."
 

@@ -5,13 +5,13 @@ import onnx
 import pytest
 import torch
 
-from mogo.export.models.generate_torch import generate, step_inputs
-from mogo.export.onnx.t2m_graphs import OPSET, export_level, export_text_encoder
-from mogo.export.models.t2m import T2M, T2MConfig
-from mogo.export.models.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig, encode_captions,
-                                      train_tokenizer)
-from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
 from mogo._session import cpu_session
+from mogo.export.models.generate_torch import generate, step_inputs
+from mogo.export.models.t2m import T2M, T2MConfig
+from mogo.export.models.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig,
+                                             encode_captions, train_tokenizer)
+from mogo.export.onnx.t2m_graphs import OPSET, export_level, export_text_encoder
+from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
 from mogo.token_generator import LEVEL_INPUTS, TokenGenerator, balanced_groups
 
 SAMPLED = Sampling(temperature=1.0, top_k=6, top_p=0.9)

@@ -7,10 +7,10 @@ import onnx
 import pytest
 import torch
 
+from mogo._session import cpu_session
+from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
 from mogo.export.onnx.t2m_graphs import OPSET
 from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder
-from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
-from mogo._session import cpu_session
 from mogo.manifest import DecoderGraph, Graph
 from mogo.stream_decoder import StreamingDecoder
 

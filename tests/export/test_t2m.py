@@ -5,8 +5,7 @@ import torch
 
 from mogo.export.models.generate_torch import generate
 from mogo.export.models.t2m import T2M, RelativeAttention, T2MConfig, corrupt_tokens
-from mogo.sampling import (Sampling, choose_token, choose_tokens, make_rng,
-                                   step_uniforms)
+from mogo.sampling import Sampling, choose_token, choose_tokens, make_rng, step_uniforms
 
 B, T = 2, 12
 

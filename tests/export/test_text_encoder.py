@@ -5,8 +5,8 @@ from tokenizers import Tokenizer
 
 from mogo.export.models.t2m import T2M, T2MConfig
 from mogo.export.models.text_encoder import (PAD_ID, SPECIAL_TOKENS, SmallTextEncoder,
-                                      SmallTextEncoderConfig, TextEncoder, encode_captions,
-                                      train_tokenizer)
+                                             SmallTextEncoderConfig, TextEncoder, encode_captions,
+                                             train_tokenizer)
 
 CAPTIONS = ["a person walks forward.", "someone jumps up and down!", "a man waves his right hand",
             "the person turns around slowly.", "a woman kicks with her left leg"] * 3

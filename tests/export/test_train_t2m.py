@@ -5,18 +5,19 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import interrupt_after_step, mogo_on_two_gloo_processes, records
-from mogo.export.train import train_t2m
 from mogo.cli import main
 from mogo.export.data.humanml3d import HumanML3DFolder
-from mogo.export.train.datasets import MotionCropDataset
 from mogo.export.models.generate_torch import generate
+from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
 from mogo.export.models.t2m import T2MConfig
 from mogo.export.models.text_encoder import encode_captions
-from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
+from mogo.export.models.vq import MoSAVQ, VQConfig
+from mogo.export.train import train_t2m
+from mogo.export.train.datasets import MotionCropDataset
 from mogo.export.train.options import T2MTrainOptions
 from mogo.export.train.training import save_checkpoint
-from mogo.export.models.vq import MoSAVQ, VQConfig
+
+from helpers import interrupt_after_step, mogo_on_two_gloo_processes, records
 
 TRAIN_SPANS, VAL_SPANS = 13, 4  # the tiny_humanml3d captions of at least 40 frames
 

@@ -5,11 +5,11 @@ import os
 import pytest
 import torch
 
-from helpers import interrupt_after_step, mogo_on_two_gloo_processes, records
+from mogo.bundle import file_sha256
 from mogo.cli import main
 from mogo.export.models.runs import load_checkpoint, load_vq
-from mogo.bundle import file_sha256
 
+from helpers import interrupt_after_step, mogo_on_two_gloo_processes, records
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

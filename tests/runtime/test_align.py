@@ -7,8 +7,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
-from mogo.cli import main
 from mogo.align import AlignedStep, Alignment, RuleAligner, edit_distance, plain_words
+from mogo.cli import main
 from mogo.generator import MotionGenerator
 from mogo.llm_align import LLMAligner
 from mogo.motion.skeleton import MAX_SECONDS

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from mogo.motion.features import (JointStream, canonicalize, facing_directions,
-                                   features_to_joints, joints_to_features)
+from mogo.motion.features import (JointStream, canonicalize, facing_directions, features_to_joints,
+                                  joints_to_features)
 from mogo.motion.mirror import mirror_joints, mirror_text
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
