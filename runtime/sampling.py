@@ -12,16 +12,35 @@ logits they pick the same token. For one level at one step, in float64:
            -> top-p: keep entries whose preceding mass c - p is < top_p * c[-1]   (1 = off)
            -> inverse CDF: the first kept entry with c > uniform * c[-1]
 
+The options (checked by Sampling itself, so the API and the command refuse the same values):
+temperature 0 or from 1e-6 on, top_k >= 0 (any k above the number of classes keeps them all),
+top_p in (0, 1], guidance finite with |s| <= 1e6. These bounds keep every step above finite in
+float64 for any float32 logits; s < 1 is applied as written (s = 0: the unconditional logits).
+
 Uniforms come from numpy.random.Generator(PCG64(seed)): at the start of every step,
 `rng.random(num_levels)`, drawn whether or not every level ends up sampled; level l uses
 entry l. A greedy run draws them too, so the stream never depends on the settings.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
+from numbers import Integral, Real
 
 import numpy as np
+
+MIN_TEMPERATURE = 1e-6  # below it (but above 0) logits / temperature can overflow float64
+MAX_GUIDANCE = 1e6  # beyond it uncond + s * (cond - uncond) can
+
+
+class SamplingError(ValueError):
+    """A sampling option out of its range: `option` (the field's name) and `problem`, so the
+    `mogo` command can name its own flag (--top-p) where the API names the field (top_p)."""
+
+    def __init__(self, option: str, problem: str):
+        super().__init__(f"{option} {problem}")
+        self.option, self.problem = option, problem
 
 
 @dataclass(frozen=True)
@@ -39,12 +58,24 @@ class Sampling:
         help="classifier-free guidance scale; 1 = off (conditional logits only)"))
 
     def __post_init__(self):
-        if not self.temperature >= 0:
-            raise ValueError(f"temperature must be >= 0, got {self.temperature}")
+        for option in fields(self):
+            _store_number(self, option.name, type(option.default))
+        for name in ("temperature", "top_p", "guidance"):
+            if not math.isfinite(getattr(self, name)):
+                raise SamplingError(name, f"must be finite, got {getattr(self, name)}")
+        if self.temperature < 0:
+            raise SamplingError("temperature", f"must be >= 0 (0 = greedy), got "
+                                               f"{self.temperature}")
+        if 0 < self.temperature < MIN_TEMPERATURE:
+            raise SamplingError("temperature", f"must be 0 (greedy) or at least "
+                                               f"{MIN_TEMPERATURE:g}, got {self.temperature:g}")
         if self.top_k < 0:
-            raise ValueError(f"top_k must be >= 0 (0 = off), got {self.top_k}")
+            raise SamplingError("top_k", f"must be >= 0 (0 = off), got {self.top_k}")
         if not 0 < self.top_p <= 1:
-            raise ValueError(f"top_p must be in (0, 1] (1 = off), got {self.top_p}")
+            raise SamplingError("top_p", f"must be in (0, 1] (1 = off), got {self.top_p}")
+        if abs(self.guidance) > MAX_GUIDANCE:
+            raise SamplingError("guidance", f"must be between -{MAX_GUIDANCE:.0f} and "
+                                            f"{MAX_GUIDANCE:.0f}, got {self.guidance:g}")
 
     @property
     def guided(self) -> bool:
@@ -59,15 +90,27 @@ class Sampling:
         return cls().updated({name: value for name, value in defaults.items() if name in names})
 
     def updated(self, options: Mapping[str, object]) -> Sampling:
-        """These options over this sampling; None means not given. Values are converted to
-        the field's type, as a manifest's JSON or a command line gives them."""
-        known = {option.name: type(option.default) for option in fields(self)}
+        """These options over this sampling; None means not given."""
+        known = [option.name for option in fields(self)]
         unknown = sorted(set(options) - set(known))
         if unknown:
             raise TypeError(f"unknown sampling option {unknown[0]!r}; the options are "
                             f"{', '.join(known)}")
-        return replace(self, **{name: known[name](value) for name, value in options.items()
+        return replace(self, **{name: value for name, value in options.items()
                                 if value is not None})
+
+
+def _store_number(sampling: Sampling, name: str, kind: type) -> None:
+    """A field given as any number (numpy's too) stored as its own type, int or float; no
+    text, no bool."""
+    value = getattr(sampling, name)
+    if isinstance(value, bool) or not isinstance(value, Integral if kind is int else Real):
+        raise TypeError(f"{name} must be {'an integer' if kind is int else 'a number'}, got "
+                        f"{type(value).__name__}")
+    try:
+        object.__setattr__(sampling, name, kind(value))
+    except OverflowError:  # an int beyond float's range
+        raise SamplingError(name, "must be finite, got a number beyond float's range") from None
 
 
 def make_rng(seed: int) -> np.random.Generator:
@@ -112,7 +155,7 @@ def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndar
     z = np.take_along_axis(z, order, axis=1)
     keep = np.count_nonzero(np.isfinite(z), axis=1)
     if sampling.top_k:
-        keep = np.minimum(keep, sampling.top_k)
+        keep = np.minimum(keep, min(sampling.top_k, z.shape[1]))
     inside = np.arange(z.shape[1])[None] < keep[:, None]
     p = np.where(inside, np.exp(z - z[:, :1]), 0.0)
     c = np.cumsum(p, axis=1)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from mogo import MotionGenerator, Sampling
-from mogo.sampling import choose_token, choose_tokens, make_rng, step_uniforms
+from mogo.sampling import (SamplingError, choose_token, choose_tokens, make_rng,
+                           step_uniforms)
 
 GREEDY = Sampling(temperature=0)
 
@@ -216,14 +217,63 @@ def test_the_seed_maps_to_pcg64_uniforms_one_per_level_per_step():
 
 @pytest.mark.parametrize("options,message", [
     (dict(temperature=-0.1), "temperature must be >= 0"),
-    (dict(temperature=float("nan")), "temperature must be >= 0"),
+    (dict(temperature=float("nan")), "temperature must be finite, got nan"),
+    (dict(temperature=float("inf")), "temperature must be finite, got inf"),
+    (dict(temperature=1e-320), r"temperature must be 0 \(greedy\) or at least 1e-06"),
+    (dict(temperature=10**400), "temperature must be finite"),
     (dict(top_k=-1), "top_k must be >= 0"),
     (dict(top_p=0.0), r"top_p must be in \(0, 1\]"),
     (dict(top_p=1.5), r"top_p must be in \(0, 1\]"),
+    (dict(top_p=float("nan")), "top_p must be finite, got nan"),
+    (dict(guidance=float("nan")), "guidance must be finite, got nan"),
+    (dict(guidance=float("-inf")), "guidance must be finite, got -inf"),
+    (dict(guidance=1e300), "guidance must be between -1000000 and 1000000"),
 ])
 def test_bad_options_are_refused(options, message):
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(SamplingError, match=message) as refused:
         Sampling(**options)
+    assert refused.value.option == next(iter(options))  # for the command's flag name
+
+
+@pytest.mark.parametrize("options,message", [
+    (dict(temperature="0.5"), "temperature must be a number, got str"),
+    (dict(top_k=2.0), "top_k must be an integer, got float"),
+    (dict(guidance=True), "guidance must be a number, got bool"),
+    (dict(top_p=None), "top_p must be a number, got NoneType"),
+])
+def test_options_of_the_wrong_type_are_refused(options, message):
+    """No text converted behind the caller's back, no bool taken for a number."""
+    with pytest.raises(TypeError, match=message):
+        Sampling(**options)
+
+
+def test_numpy_numbers_are_stored_as_the_fields_own_types():
+    sampling = Sampling(np.float32(0.5), np.int64(7), np.float64(0.9), 2)
+    assert sampling == Sampling(0.5, 7, 0.9, 2.0)
+    assert [type(getattr(sampling, f)) for f in ("temperature", "top_k", "top_p", "guidance")] \
+        == [float, int, float, float]
+
+
+def test_top_k_beyond_the_number_of_classes_keeps_them_all():
+    """k above the row's width is top-k off, however large (2**70 overflowed numpy)."""
+    logits = np.random.default_rng(4).normal(size=(3, 513))
+    for u in (0.1, 0.5, 0.9):
+        uniforms = np.full(3, u)
+        assert np.array_equal(choose_tokens(logits, None, uniforms, Sampling(top_k=2**70)),
+                              choose_tokens(logits, None, uniforms, Sampling()))
+
+
+@pytest.mark.parametrize("sampling", [Sampling(temperature=1e-6), guided(-1e6), guided(1e6),
+                                      guided(1e6, temperature=1e-6, top_p=0.5)])
+def test_the_extremes_allowed_still_give_real_tokens(sampling):
+    """At the bounds the float64 arithmetic stays finite for float32 logits of any size: the
+    token is a real class, never a -inf padding column."""
+    big = np.finfo(np.float32).max
+    cond = np.array([[big, -big, 0.0, -np.inf], [1.0, 2.0, -3.0, -np.inf]])
+    uncond = np.array([[-big, big, 1.0, -np.inf], [0.5, -2.0, 3.0, -np.inf]])
+    for u in (0.0, 0.5, 0.9999):
+        tokens = choose_tokens(cond, uncond, np.full(2, u), sampling)
+        assert all(0 <= t < 3 for t in tokens)
 
 
 @pytest.fixture(scope="module")
