@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,8 @@ from tokenizers import Tokenizer
 
 from mogo._session import cpu_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
+from mogo.arguments import (checked_int, checked_prompt, checked_schedule, checked_seconds,
+                            plural, read_prompt)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import Graph
@@ -54,6 +56,8 @@ class MotionGenerator:
         self.fps = manifest.fps
         self.defaults = manifest.defaults
         self.tokenizer = Tokenizer.from_file(str(bundle.path(manifest.text.tokenizer)))
+        self._counter = Tokenizer.from_str(self.tokenizer.to_str())  # sees what is cut
+        self._counter.no_truncation()
         self._text = _Graph(bundle, manifest.text.encoder, threads)
         levels = manifest.t2m.levels
         self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
@@ -73,14 +77,12 @@ class MotionGenerator:
                 raise BundleError(f"no default bundle is installed at {DEFAULT_BUNDLE}; "
                                   "pass the path of a bundle folder")
             bundle_dir = DEFAULT_BUNDLE
-        if threads < 1:
-            raise ValueError(f"threads must be >= 1, got {threads}")
-        return cls(Bundle.load(bundle_dir), threads)
+        return cls(Bundle.load(bundle_dir), checked_int(threads, "threads", 1))
 
     # -- text --------------------------------------------------------------------------------
     def embed(self, texts: Sequence[str]) -> np.ndarray:
         """Prompt embeddings (B, text_dim) float32."""
-        texts = [_checked_prompt(t) for t in texts]
+        texts = [checked_prompt(t) for t in texts]
         encodings = self.tokenizer.encode_batch(texts)
         ids = np.array([e.ids for e in encodings], np.int64)
         mask = np.array([e.attention_mask for e in encodings], np.int64)
@@ -110,12 +112,17 @@ class MotionGenerator:
         align=True (or a PromptAligner) rewrites the prompt into caption-style steps (see
         mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment."""
         sampling = self.sampling(sampling, **options)
-        steps = None if seconds is None else self._steps(seconds)
-        seed = _fresh_seed() if seed is None else _checked_seed(seed)
+        seconds = None if seconds is None else self._seconds(seconds)
+        seed = _fresh_seed() if seed is None else checked_int(seed, "seed", 0)
         aligner = self.aligner(align)
+        text = checked_prompt(text) if aligner else self._prompt(text)
+        return self._generate(text, seconds, seed, sampling, aligner)
+
+    def _generate(self, text: str, seconds: float | None, seed: int, sampling: Sampling,
+                  aligner: PromptAligner | None) -> Motion:
         if aligner is not None:
-            return self._play_aligned(aligner.align(_checked_prompt(text)), seconds, seed,
-                                      sampling)
+            return self._play_aligned(aligner.align(text), seconds, seed, sampling)
+        steps = None if seconds is None else self._steps(seconds)
         max_steps = self._steps(self.defaults.max_seconds)
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
                                       self.defaults.window)
@@ -129,21 +136,24 @@ class MotionGenerator:
         seed for the batch), so any of them can be reproduced alone."""
         if isinstance(texts, str):
             raise ValueError("generate_batch takes a list of prompts; generate takes one")
-        if not texts:
+        if not isinstance(texts, Iterable):
+            raise TypeError(f"texts must be a list of prompts, got {type(texts).__name__}")
+        if not (texts := list(texts)):
             raise ValueError("no prompt given")
-        for text in texts:
-            _checked_prompt(text)
         sampling = self.sampling(sampling, **options)
-        seed = _fresh_seed() if seed is None else _checked_seed(seed)
-        aligner = self.aligner(align) or False
-        return [self.generate(text, seconds, seed + k, sampling, aligner)
+        seconds = None if seconds is None else self._seconds(seconds)
+        seed = _fresh_seed() if seed is None else checked_int(seed, "seed", 0)
+        aligner = self.aligner(align)
+        texts = [checked_prompt(text, f"texts[{k}]") if aligner
+                 else self._prompt(text, f"texts[{k}]") for k, text in enumerate(texts)]
+        return [self._generate(text, seconds, seed + k, sampling, aligner)
                 for k, text in enumerate(texts)]
 
     def _play_aligned(self, alignment: Alignment, seconds: float | None, seed: int,
                       sampling: Sampling) -> Motion:
         if seconds is not None:
             alignment = alignment.scaled(seconds)
-        motion = self.play(alignment.schedule(), seed, sampling)
+        motion = self._play(alignment.schedule(), seed, sampling)
         motion.alignment = alignment
         return motion
 
@@ -151,16 +161,23 @@ class MotionGenerator:
              sampling: Sampling | None = None, **options) -> Motion:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
         fly: the same stream, so every switch is a smooth continuation."""
-        if not schedule:
-            raise ValueError("the schedule is empty")
-        seed = _fresh_seed() if seed is None else _checked_seed(seed)
-        for prompt, seconds in schedule:
-            _checked_prompt(prompt)
-            self._steps(seconds)
-        stream = self.stream(schedule[0][0], seed, sampling, **options)
+        sampling = self.sampling(sampling, **options)
+        seed = _fresh_seed() if seed is None else checked_int(seed, "seed", 0)
+        entries = []
+        for k, entry in enumerate(checked_schedule(schedule)):
+            try:
+                seconds = self._seconds(entry[1])
+                entries.append((self._prompt(entry[0], "prompt"), seconds))
+            except (TypeError, ValueError) as error:  # which entry, for a long schedule
+                raise type(error)(f"schedule[{k}]: {error}") from None
+        return self._play(entries, seed, sampling)
+
+    def _play(self, schedule: list[tuple[str, float]], seed: int,
+              sampling: Sampling) -> Motion:
+        stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window)
         for k, (prompt, seconds) in enumerate(schedule):
             if k:
-                stream.set_prompt(prompt)
+                stream._switch_prompt(prompt)
             stream.advance(self._steps(seconds))
         return stream.finish()
 
@@ -175,6 +192,9 @@ class MotionGenerator:
 
     def encode_motion(self, motion: Motion) -> np.ndarray:
         """A clip's features -> its token steps (n, L), by the bundle's VQ encoder."""
+        if not isinstance(motion, Motion):
+            raise TypeError(f"motion must be a Motion (from generate, play or a stream's "
+                            f"finish), got {type(motion).__name__}")
         features = np.asarray(motion.features, np.float32)
         if features.ndim != 2 or features.shape[1] != self.manifest.feature_dim:
             raise ValueError(f"motion features must be (T, {self.manifest.feature_dim}), got "
@@ -183,7 +203,7 @@ class MotionGenerator:
             raise ValueError("motion features contain NaN or infinite values")
         usable = len(features) - len(features) % self.down_factor
         if usable < self.down_factor:
-            raise ValueError(f"the motion has {len(features)} frames; at least "
+            raise ValueError(f"the motion has {plural(len(features), 'frame')}; at least "
                              f"{self.down_factor} are needed")
         normalised = (features[:usable] - self.bundle.mean) / self.bundle.std
         return self._vq_encoder.run(normalised[None])[0]
@@ -192,9 +212,10 @@ class MotionGenerator:
     def stream(self, text: str, seed: int | None = None, sampling: Sampling | None = None,
                window: int | None = None, **options) -> MotionStream:
         """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`."""
-        seed = _fresh_seed() if seed is None else _checked_seed(seed)
-        window = self.defaults.window if window is None else window
-        return MotionStream(self, text, seed, self.sampling(sampling, **options), window)
+        sampling = self.sampling(sampling, **options)
+        seed = _fresh_seed() if seed is None else checked_int(seed, "seed", 0)
+        window = self.defaults.window if window is None else checked_int(window, "window", 1)
+        return MotionStream(self, self._prompt(text), seed, sampling, window)
 
     def streaming_decoder(self) -> StreamingDecoder:
         d = self._decoder
@@ -208,15 +229,21 @@ class MotionGenerator:
         replacing single fields."""
         if sampling is None:
             sampling = Sampling.from_defaults(vars(self.defaults))
+        if not isinstance(sampling, Sampling):
+            raise TypeError(f"sampling must be a Sampling or None, got {type(sampling).__name__}")
         return sampling.updated(options)
 
+    def _seconds(self, seconds: object) -> float:
+        return checked_seconds(seconds, self.down_factor / self.fps, self.fps,
+                               MAX_GENERATE_SECONDS)
+
     def _steps(self, seconds: float) -> int:
-        if not isinstance(seconds, (int, float)) or not math.isfinite(seconds) or seconds <= 0:
-            raise ValueError(f"seconds must be a positive number, got {seconds!r}")
-        if seconds > MAX_GENERATE_SECONDS:
-            raise ValueError(f"seconds must be at most {MAX_GENERATE_SECONDS:.0f} in one call, "
-                             f"got {seconds}; use a stream for longer motion")
         return max(1, math.ceil(round(seconds * self.fps) / self.down_factor))
+
+    def _prompt(self, text: object, name: str = "text") -> str:
+        """A prompt checked where it enters the API (see mogo.arguments.read_prompt)."""
+        return read_prompt(text, self._counter, self.manifest.text.max_length,
+                           len(self.vocabulary()), name)
 
 
 class MotionStream:
@@ -229,7 +256,7 @@ class MotionStream:
                  window: int | None):
         self.generator = generator
         self.seed = seed
-        self.prompts: list[tuple[int, str]] = [(0, _checked_prompt(text))]
+        self.prompts: list[tuple[int, str]] = [(0, text)]  # checked by the generator
         embedding = generator.embed([text])[0]
         self._tokens: TokenStream = generator.tokens.start(embedding, seed, sampling, window,
                                                            allow_end=False)
@@ -261,6 +288,10 @@ class MotionStream:
 
     def set_prompt(self, text: str) -> None:
         """Switch the prompt from the next step on (exact: the cache is re-prefilled)."""
+        self._switch_prompt(self.generator._prompt(text))
+
+    def _switch_prompt(self, text: str) -> None:
+        """`set_prompt` for a prompt already checked (a schedule's)."""
         embedding = self.generator.embed([text])[0]
         self._tokens.set_prompt(embedding)
         self.prompts.append((self.frames_emitted + self._pending_frames(), text))
@@ -322,20 +353,6 @@ class _Graph:
 
     def run(self, *arrays: np.ndarray) -> np.ndarray:
         return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]
-
-
-def _checked_prompt(text: str) -> str:
-    if not isinstance(text, str):
-        raise ValueError(f"a prompt must be text, got {type(text).__name__}")
-    if not text.strip():
-        raise ValueError("the prompt is empty")
-    return text.strip()
-
-
-def _checked_seed(seed: int) -> int:
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    return int(seed)
 
 
 def _fresh_seed() -> int:

@@ -183,7 +183,7 @@ def test_a_20000_step_stream_keeps_memory_and_step_time_flat(generator):
     (lambda g: g.generate("walk", temperature=-1), "temperature must be >= 0"),
     (lambda g: g.generate("walk", top_k=-3), "top_k must be >= 0"),
     (lambda g: g.generate("walk", top_p=0), r"top_p must be in \(0, 1\]"),
-    (lambda g: g.generate("walk", seed=-1), "seed must be a non-negative integer"),
+    (lambda g: g.generate("walk", seed=-1), "seed must be >= 0, got -1"),
     (lambda g: g.generate_batch([]), "no prompt given"),
     (lambda g: g.generate_batch("walk"), "generate_batch takes a list of prompts"),
     (lambda g: g.play([]), "the schedule is empty"),

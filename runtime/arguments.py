@@ -1,0 +1,127 @@
+"""The public API's argument checks, in one place: a wrong type is a TypeError and a wrong
+value a ValueError, each naming the argument, raised where it enters the API rather than from
+deep inside numpy or onnxruntime. (Sampling options check themselves: mogo.sampling.)"""
+from __future__ import annotations
+
+import reprlib
+import string
+import warnings
+from collections.abc import Iterable, Sequence
+from numbers import Integral, Real
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the `mogo` command imports this module for PromptWarning alone
+    from tokenizers import Tokenizer
+
+UNKNOWN, SPECIAL_TOKENS = "[UNK]", ("[PAD]", "[UNK]", "[CLS]")  # a bundle tokenizer's
+
+
+class PromptWarning(UserWarning):
+    """A prompt the model reads only in part: words it does not know, or tokens beyond its text
+    encoder's length. The motion follows the rest; the `mogo` command prints a `note:` line."""
+
+
+class UnknownPromptWarning(PromptWarning):
+    """A prompt with no word the model knows: it makes one generic motion for it. A warning,
+    not an error, in the API (measurements feed such prompts on purpose; make it one with
+    warnings.simplefilter("error", UnknownPromptWarning)); the `mogo` command refuses it."""
+
+
+def checked_prompt(text: object, name: str = "text") -> str:
+    if not isinstance(text, str):
+        raise TypeError(f"{name} must be a string (the prompt), got {type(text).__name__}")
+    if not text.strip():
+        raise ValueError("the prompt is empty")
+    return text.strip()
+
+
+def read_prompt(text: object, tokenizer: Tokenizer, max_length: int, vocabulary_size: int,
+                name: str = "text") -> str:
+    """A prompt checked: text and not empty; a prompt with no word the model knows, words it
+    does not know and tokens past the text encoder's `max_length` (counted by the untruncated
+    `tokenizer`) are told by a PromptWarning, for the caller's line. A word is known when it is
+    one token of the vocabulary: others become [UNK] or are spelled out in single letters
+    (w ##a ##l ##k ##e ##d), and their meaning is lost."""
+    text = checked_prompt(text, name)
+    encoding = tokenizer.encode(text)
+    words: dict[int, list[int]] = {}  # word -> its tokens' indices ([CLS] has no word)
+    for index, word in enumerate(encoding.word_ids):
+        if word is not None:
+            words.setdefault(word, []).append(index)
+    known, unknown = False, []
+    for indices in words.values():
+        token = encoding.tokens[indices[0]]
+        if len(indices) == 1 and token not in SPECIAL_TOKENS:
+            known = known or any(c.isalpha() for c in token)
+        elif spelled := text[encoding.offsets[indices[0]][0]:
+                             encoding.offsets[indices[-1]][1]].strip(string.punctuation):
+            unknown.append(spelled)
+    unknown = list(dict.fromkeys(unknown))
+    listed = ", ".join(map(repr, unknown[:8])) + (f" and {len(unknown) - 8} more"
+                                                  if len(unknown) > 8 else "")
+    if not known:
+        warnings.warn(f"the model knows no word of the prompt {short(text)} and makes a generic "
+                      f"motion for it: it knows the {vocabulary_size} words of its training "
+                      "captions, such as 'a person walks forward' (align=True, or --align "
+                      "rules, maps some other words onto them)", UnknownPromptWarning,
+                      stacklevel=4)
+    elif unknown:
+        warnings.warn(f"the model does not know {listed}: their meaning is lost",
+                      PromptWarning, stacklevel=4)
+    if len(encoding.ids) > max_length:
+        read = text[:encoding.offsets[max_length - 1][1]]
+        warnings.warn(f"the prompt is {len(encoding.ids)} tokens long and the model reads only "
+                      f"{max_length}: everything after {short(read[-30:])} is ignored (play the "
+                      "parts one after another instead)", PromptWarning, stacklevel=4)
+    return text
+
+
+def checked_seconds(seconds: object, minimum: float, fps: float, maximum: float) -> float:
+    """A length: a number from `minimum` (one token step) up to `maximum`."""
+    if isinstance(seconds, bool) or not isinstance(seconds, Real):
+        raise TypeError(f"seconds must be a number, got {type(seconds).__name__}")
+    if not seconds > 0:
+        raise ValueError(f"seconds must be a positive number, got {seconds!r}")
+    if seconds > maximum:
+        raise ValueError(f"seconds must be at most {maximum:.0f} in one call, got {seconds}; "
+                         "use a stream for longer motion")
+    if float(seconds) < minimum:
+        raise ValueError(f"seconds must be at least {minimum:g} (one token step, "
+                         f"{plural(round(minimum * fps), 'frame')} at {fps:g} fps), got "
+                         f"{float(seconds):g}")
+    return float(seconds)
+
+
+def checked_int(value: object, name: str, minimum: int) -> int:
+    """An integer argument (numpy's too; not a bool) of at least `minimum`."""
+    if isinstance(value, bool) or not isinstance(value, Integral):
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    return int(value)
+
+
+def checked_schedule(schedule: object) -> list:
+    """A schedule's shape: a non-empty list of (prompt, seconds) pairs (their values are the
+    generator's to check)."""
+    if isinstance(schedule, (str, bytes)) or not isinstance(schedule, Iterable):
+        raise TypeError(f"schedule must be a list of (prompt, seconds) pairs, got "
+                        f"{type(schedule).__name__}")
+    entries = list(schedule)
+    if not entries:
+        raise ValueError("the schedule is empty")
+    for k, entry in enumerate(entries):
+        if isinstance(entry, (str, bytes)) or not isinstance(entry, Sequence) or len(entry) != 2:
+            raise TypeError(f"schedule[{k}] must be a (prompt, seconds) pair, got "
+                            f"{reprlib.repr(entry)}")
+    return entries
+
+
+def short(text: str, limit: int = 60) -> str:
+    """Quoted on one line, cut to about `limit` characters, for messages."""
+    return repr(text if len(text) <= limit else text[:limit - 3] + "...")
+
+
+def plural(count: int, noun: str) -> str:
+    """'1 frame', '2 frames': counts as messages print them."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
