@@ -69,10 +69,10 @@ def read_prompt(text: object, tokenizer: Tokenizer, max_length: int, vocabulary_
         warnings.warn(f"the model does not know {listed}: their meaning is lost",
                       PromptWarning, stacklevel=4)
     if len(encoding.ids) > max_length:
-        read = text[:encoding.offsets[max_length - 1][1]]
+        read = text[:encoding.offsets[max_length - 1][1]].split()[-5:]  # its last words
         warnings.warn(f"the prompt is {len(encoding.ids)} tokens long and the model reads only "
-                      f"{max_length}: everything after {short(read[-30:])} is ignored (play the "
-                      "parts one after another instead)", PromptWarning, stacklevel=4)
+                      f"{max_length}: everything after {short(' '.join(read))} is ignored "
+                      "(play the parts one after another instead)", PromptWarning, stacklevel=4)
     return text
 
 

@@ -4,15 +4,21 @@ themselves through the "mogo.commands" entry points, so this module never import
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import json
+import math
 import os
+import re
 import sys
+import warnings
+from collections.abc import Callable
 from dataclasses import fields
-from importlib.metadata import entry_points
+from importlib.metadata import PackageNotFoundError, entry_points, version
 from pathlib import Path
 
-from mogo.sampling import Sampling
+from mogo.arguments import PromptWarning, UnknownPromptWarning, plural
+from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
 
@@ -37,27 +43,45 @@ def _load_generator(args: argparse.Namespace):
 
 
 def _sampling(args: argparse.Namespace, generator):
-    """The --temperature, --top-k, ... given, over the bundle's defaults."""
-    return generator.sampling(**{option.name: getattr(args, option.name)
-                                 for option in fields(Sampling)})
+    """The --temperature, --top-k, ... given, over the bundle's defaults; a bad value is
+    named by its flag."""
+    given = {option.name: getattr(args, option.name) for option in fields(Sampling)}
+    defaults = generator.sampling()
+    try:
+        return defaults.updated(given)
+    except SamplingError as error:
+        raise CliError(f"--{error.option.replace('_', '-')} {error.problem}") from None
 
 
 def _read_schedule(path: Path) -> list[tuple[str, float]]:
-    """Lines "SECONDS PROMPT" (blank lines and # comments skipped)."""
+    """Lines "SECONDS PROMPT", any whitespace between (blank lines and # comments skipped);
+    what is wrong in the file is named by file:line."""
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        data = path.read_bytes()
     except OSError as error:
         raise CliError(f"cannot read the prompts file {path}: {error.strerror}") from None
+    try:
+        lines = data.decode("utf-8-sig").splitlines()
+    except UnicodeDecodeError as error:
+        line = data[:error.start].count(b"\n") + 1
+        raise CliError(f"{path}:{line}: not UTF-8 text (byte 0x{data[error.start]:02x}); save "
+                       "the prompts file as UTF-8") from None
     schedule = []
     for number, line in enumerate(lines, 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
-        seconds, _, prompt = line.strip().partition(" ")
+        seconds, prompt = (line.split(None, 1) + [""])[:2]
         try:
-            schedule.append((prompt.strip(), float(seconds)))
+            length = float(seconds)
         except ValueError:
             raise CliError(f"{path}:{number}: expected 'SECONDS PROMPT', got {line.strip()!r}"
                            ) from None
+        if not math.isfinite(length) or length <= 0:
+            raise CliError(f"{path}:{number}: the seconds must be a positive number, got "
+                           f"{seconds!r}")
+        if not prompt.strip():
+            raise CliError(f"{path}:{number}: no prompt after the seconds")
+        schedule.append((prompt.strip(), length))
     if not schedule:
         raise CliError(f"{path}: no 'SECONDS PROMPT' lines")
     return schedule
@@ -106,7 +130,8 @@ def _cmd_generate(args: argparse.Namespace) -> None:
                motion.save_gif(stem.with_suffix(".gif")),
                motion.save_npy(stem.with_suffix(".npy")),
                motion.save_json(stem.with_suffix(".json"))]
-    print(f"{motion.seconds:.1f} s of motion ({len(motion.joints)} frames, seed {motion.seed}) "
+    frames = plural(len(motion.joints), "frame")
+    print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
           f"for: {motion.caption}")
     for path in written:
         print(f"wrote {path}")
@@ -143,9 +168,9 @@ def _cmd_info(args: argparse.Namespace) -> None:
         f"{text.max_length} tokens",
         f"transformer {m.t2m.num_levels} levels, width {t2m.get('dim')}, layers "
         f"{t2m.get('layers')}, heads {t2m.get('heads')}, {vq.codebook_size} codes + end token",
-        f"vq          {vq.levels} levels of {vq.codebook_size} codes, {vq.down_factor} "
-        f"frame(s) per token, decoder context {decoder.left_context} back / "
-        f"{decoder.lookahead} ahead (tokens)",
+        f"vq          {vq.levels} levels of {vq.codebook_size} codes, "
+        f"{plural(vq.down_factor, 'frame')} per token, decoder context "
+        f"{decoder.left_context} back / {decoder.lookahead} ahead (tokens)",
         "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),
     ]
     if m.int8 is not None:
@@ -155,7 +180,8 @@ def _cmd_info(args: argparse.Namespace) -> None:
     for part, run in m.training.items():
         recipe = run.recipe or {}  # the trainer's own record: read as it is, where present
         tuned = (f", {'the decoder' if recipe.get('tune') == 'decoder' else 'all weights'} "
-                 f"fine-tuned from {recipe['init']}" if recipe.get("init") else "")
+                 f"fine-tuned from {_built_path(recipe['init'])}" if recipe.get("init")
+                 else "")
         lines.append(f"trained     {part}: {run.step} steps, batch "
                      f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
                      f"seed {recipe.get('seed')}{tuned}")
@@ -163,6 +189,36 @@ def _cmd_info(args: argparse.Namespace) -> None:
     lines.append(f"files       {len(m.files)}, {total / 1e6:.1f} MB, sha256 verified")
     lines += [f"  {name:20s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
     print("\n".join(lines))
+
+
+def _built_path(path: object) -> str:
+    """A path the bundle's trainer recorded: its last part alone, the rest names folders of the
+    machine that built the bundle, not this one."""
+    name = re.split(r"[\\/]", str(path).rstrip("/\\"))[-1]
+    return f"{name} (a path on the build machine)" if name else "a path on the build machine"
+
+
+def _noting_prompts(command: Callable[[argparse.Namespace], None]):
+    """`command` with a PromptWarning (words the model does not know, a prompt cut at the text
+    encoder's length) as a `note:` line on stderr, stdout staying the output; a prompt with no
+    known word refused, since its motion would be a generic one."""
+    @functools.wraps(command)
+    def run(args: argparse.Namespace) -> None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default", PromptWarning)  # each note once, whatever is set
+            show = warnings.showwarning
+
+            def note(message, category, *where, **options):
+                if issubclass(category, UnknownPromptWarning):
+                    raise CliError(str(message))
+                if issubclass(category, PromptWarning):
+                    print(f"note: {message}", file=sys.stderr)
+                else:
+                    show(message, category, *where, **options)
+
+            warnings.showwarning = note
+            command(args)
+    return run
 
 
 def _generation_arguments(command: argparse.ArgumentParser) -> None:
@@ -202,23 +258,39 @@ def _add_runtime_commands(commands) -> None:
     generate.add_argument("--llm-timeout", type=float, default=10.0,
                           help="seconds to wait for the LLM before using the rules (default 10)")
     _generation_arguments(generate)
-    generate.set_defaults(run=_cmd_generate)
+    generate.set_defaults(run=_noting_prompts(_cmd_generate))
 
     stream = commands.add_parser(
         "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)")
     stream.add_argument("text", help="what the person does")
     stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
     _generation_arguments(stream)
-    stream.set_defaults(run=_cmd_stream)
+    stream.set_defaults(run=_noting_prompts(_cmd_stream))
 
     info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
     info.add_argument("bundle", nargs="?", help="bundle folder")
     info.set_defaults(run=_cmd_info)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors (unknown flag, 'x' for a number) as the one `mogo: error:`
+    line every bad input gets, instead of a usage block; --help still shows the usage."""
+
+    def error(self, message: str):
+        self.exit(2, f"mogo: error: {message} (see {self.prog} --help)\n")
+
+
+def _version() -> str:
+    try:
+        return version("mogo")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="mogo", description="MOGO: text to 3D human motion, token by token, on a CPU.")
+    parser.add_argument("--version", action="version", version=f"mogo {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_runtime_commands(commands)
     for plugin in sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):

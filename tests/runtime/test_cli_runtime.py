@@ -89,7 +89,7 @@ def test_info_describes_the_default_bundle(capsys):
     (["generate", "walk", "--seconds", "0"], "seconds must be a positive number"),
     (["generate", "walk", "--seconds", "100000"], "at most 600"),
     (["generate", "walk", "--temperature", "-1"], "temperature must be >= 0"),
-    (["generate", "walk", "--top-p", "2"], "top_p must be in"),
+    (["generate", "walk", "--top-p", "2"], "--top-p must be in"),
     (["generate", "walk", "--bundle", "/nonexistent/bundle"], "no such bundle folder"),
     (["generate"], "give a prompt"),
     (["stream", "walk", "--frames", "0"], "--frames must be at least 1"),
@@ -113,7 +113,8 @@ def test_thread_count_does_not_change_the_motion(tmp_path):
 def test_unwritable_output_folder_and_bad_prompts_file(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    assert main(["generate", "walk", "--seconds", "1", "--out", str(blocker / "out")]) == 2
+    assert main(["generate", "a person walks.", "--seconds", "1", "--out",
+                 str(blocker / "out")]) == 2
     assert "cannot create the output folder" in capsys.readouterr().err
     schedule = tmp_path / "plan.txt"
     schedule.write_text("a person walks\n")
