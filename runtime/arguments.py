@@ -92,12 +92,14 @@ def checked_seconds(seconds: object, minimum: float, fps: float, maximum: float)
     return float(seconds)
 
 
-def checked_int(value: object, name: str, minimum: int) -> int:
-    """An integer argument (numpy's too; not a bool) of at least `minimum`."""
+def checked_int(value: object, name: str, minimum: int, maximum: int | None = None) -> int:
+    """An integer argument (numpy's too; not a bool) from `minimum` up to `maximum`."""
     if isinstance(value, bool) or not isinstance(value, Integral):
         raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
     if value < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be at most {maximum}, got {value}")
     return int(value)
 
 

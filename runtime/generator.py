@@ -37,6 +37,7 @@ from mogo.token_generator import TokenGenerator, TokenStream
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
+MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
 STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
 
 
@@ -77,7 +78,7 @@ class MotionGenerator:
                 raise BundleError(f"no default bundle is installed at {DEFAULT_BUNDLE}; "
                                   "pass the path of a bundle folder")
             bundle_dir = DEFAULT_BUNDLE
-        return cls(Bundle.load(bundle_dir), checked_int(threads, "threads", 1))
+        return cls(Bundle.load(bundle_dir), checked_int(threads, "threads", 1, MAX_THREADS))
 
     # -- text --------------------------------------------------------------------------------
     def embed(self, texts: Sequence[str]) -> np.ndarray:

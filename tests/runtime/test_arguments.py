@@ -47,6 +47,7 @@ def test_a_wrong_type_is_a_type_error_naming_the_argument(generator, call, messa
     ("2", TypeError, "threads must be an integer, got str"),
     (1.5, TypeError, "threads must be an integer, got float"),
     (0, ValueError, "threads must be >= 1, got 0"),
+    (2**70, ValueError, "threads must be at most 256"),  # was a pybind11 dump from onnxruntime
 ])
 def test_load_checks_threads_before_reading_the_bundle(threads, error, message):
     with pytest.raises(error, match=message):
