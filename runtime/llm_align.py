@@ -15,10 +15,12 @@ import json
 import os
 import urllib.error
 import urllib.request
+from numbers import Real
 
 from mogo.align import AlignedStep, Alignment, PromptAligner, RuleAligner
 
 MAX_STEPS = 8
+MAX_TIMEOUT = 3600.0  # seconds; an aligner waiting longer has hung
 STEP_SECONDS = (0.5, 30.0)
 
 SYSTEM_PROMPT = """\
@@ -80,6 +82,11 @@ class LLMAligner(PromptAligner):
                              "MOGO_LLM_URL, e.g. http://localhost:8080/v1")
         self.model = model or os.environ.get("MOGO_LLM_MODEL") or "default"
         self.api_key = api_key or os.environ.get("MOGO_LLM_API_KEY")
+        if isinstance(timeout, bool) or not isinstance(timeout, Real):
+            raise TypeError(f"timeout must be a number of seconds, got {type(timeout).__name__}")
+        if not 0 < timeout <= MAX_TIMEOUT:  # nan, inf and 1e300 were a traceback or a wrong note
+            raise ValueError(f"the LLM timeout must be a positive number of seconds up to "
+                             f"{MAX_TIMEOUT:.0f}, got {timeout:g}")
         self.timeout = timeout
         self.fallback = fallback or RuleAligner()
 

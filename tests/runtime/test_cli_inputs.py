@@ -55,6 +55,15 @@ def test_bad_values_to_stream_name_their_flag_on_one_line(flags, message, capsys
     assert capsys.readouterr().out == ""
 
 
+@pytest.mark.parametrize("timeout", ["inf", "1e300", "nan", "-1", "0"])
+def test_a_bad_llm_timeout_is_refused(timeout, monkeypatch, tmp_path, capsys):
+    """inf and 1e300 were a traceback (socket), nan and -1 a note about the server."""
+    monkeypatch.setenv("MOGO_LLM_URL", "http://127.0.0.1:9/v1")
+    assert "the LLM timeout must be a positive number of seconds up to 3600" in refused(
+        ["generate", "walk forward then wave", "--align", "llm", "--llm-timeout", timeout,
+         "--out", str(tmp_path)], capsys)
+
+
 def test_a_command_missing_is_one_line_too(capsys):
     assert "the following arguments are required: COMMAND" in refused([], capsys)
 
