@@ -83,7 +83,9 @@ class MotionGenerator:
     # -- text --------------------------------------------------------------------------------
     def embed(self, texts: Sequence[str]) -> np.ndarray:
         """Prompt embeddings (B, text_dim) float32."""
-        texts = [checked_prompt(t) for t in texts]
+        if isinstance(texts, str):  # not one embedding per character
+            raise TypeError("texts must be a list of prompts, got one str")
+        texts = [checked_prompt(t, f"texts[{k}]") for k, t in enumerate(texts)]
         encodings = self.tokenizer.encode_batch(texts)
         ids = np.array([e.ids for e in encodings], np.int64)
         mask = np.array([e.attention_mask for e in encodings], np.int64)
@@ -278,6 +280,7 @@ class MotionStream:
     def frames(self, limit: int | None = None) -> Iterator[np.ndarray]:
         """Frames (J, 3) one by one, forever or `limit` of them. Frames decoded but not yet
         yielded (the decoder gives them in bursts) wait for the next frames() or step()."""
+        limit = None if limit is None else checked_int(limit, "limit", 0)
         yielded = 0
         while limit is None or yielded < limit:
             if not len(self._unread):
@@ -309,6 +312,7 @@ class MotionStream:
 
     def advance(self, steps: int) -> None:
         """Draw `steps` token steps, keeping everything for `finish()`."""
+        steps = checked_int(steps, "steps", 0)
         if self._record is None:
             self._record = []
         for _ in range(steps):

@@ -55,7 +55,8 @@ class Sampling:
     top_p: float = field(default=1.0, metadata=dict(
         help="keep the likeliest tokens that hold this share of the probability; 1 = off"))
     guidance: float = field(default=1.0, metadata=dict(
-        help="classifier-free guidance scale; 1 = off (conditional logits only)"))
+        help="classifier-free guidance scale; 1 = off (conditional logits only), above 1 "
+             "follows the prompt more, below 1 less (0 = the unconditional logits)"))
 
     def __post_init__(self):
         for option in fields(self):

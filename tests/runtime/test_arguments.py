@@ -37,6 +37,9 @@ def generator():
     (lambda g: g.stream("a person walks.", seed=0).continue_from([1, 2, 3]),
      "motion must be a Motion .*got list"),
     (lambda g: g.encode_motion(np.zeros((40, 263))), "motion must be a Motion .*got ndarray"),
+    (lambda g: g.embed("a person walks."), "texts must be a list of prompts, got one str"),
+    (lambda g: next(g.stream("a person walks.").frames("3")), "limit must be an integer"),
+    (lambda g: g.stream("a person walks.").advance(2.5), "steps must be an integer"),
 ])
 def test_a_wrong_type_is_a_type_error_naming_the_argument(generator, call, message):
     with pytest.raises(TypeError, match=message):
