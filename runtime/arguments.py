@@ -57,15 +57,15 @@ def read_prompt(text: object, tokenizer: Tokenizer, max_length: int, vocabulary_
                              encoding.offsets[indices[-1]][1]].strip(string.punctuation):
             unknown.append(spelled)
     unknown = list(dict.fromkeys(unknown))
-    listed = ", ".join(map(repr, unknown[:8])) + (f" and {len(unknown) - 8} more"
-                                                  if len(unknown) > 8 else "")
     if not known:
-        warnings.warn(f"the model knows no word of the prompt {short(text)} and makes a generic "
-                      f"motion for it: it knows the {vocabulary_size} words of its training "
-                      "captions, such as 'a person walks forward' (align=True, or --align "
-                      "rules, maps some other words onto them)", UnknownPromptWarning,
+        warnings.warn(f"the model knows no word of the prompt {short(text)}, so its motion "
+                      f"would be a generic one: it knows the {vocabulary_size} words of its "
+                      "training captions, such as 'a person walks forward' (align=True, or "
+                      "--align rules, maps some other words onto them)", UnknownPromptWarning,
                       stacklevel=4)
     elif unknown:
+        listed = ", ".join(map(repr, unknown[:8])) + (f" and {len(unknown) - 8} more"
+                                                      if len(unknown) > 8 else "")
         warnings.warn(f"the model does not know {listed}: their meaning is lost",
                       PromptWarning, stacklevel=4)
     if len(encoding.ids) > max_length:
