@@ -5,9 +5,10 @@ The dataclasses below are the schema: each JSON key is a field of the same name,
 key is adding a field. Reading checks every key and type and refuses a manifest that does not
 match, naming the key ("manifest.json: t2m.levels[2].file: missing"). Each value is stored
 once; what follows from it is a property (the end token, the feature size) or is read from the
-graphs themselves (the cache sizes of the level graphs). A program in another language finds here all it needs to run a bundle: the graphs
-and their input/output names, the decoder's context, the normalisation, the sampling defaults,
-and the skeleton with the layout of the features the decoder writes.
+graphs themselves (the cache sizes of the level graphs). A program in another language finds
+here all it needs to run a bundle: the graphs and their input/output names, the decoder's
+context, the normalisation, the sampling defaults, and the skeleton with the layout of the
+features the decoder writes.
 
 The model configs (`t2m.config`, `vq.config`) are the arguments that rebuild the torch models;
 they are kept whole, and the runtime reads from them only the sizes declared in CONFIG_KEYS.
