@@ -3,8 +3,9 @@
 One step = every level once, coarse to fine, at the next position: position 0 is the prompt
 prefix (the first step is the prefill), position n >= 1 holds the tokens of step n - 1 and
 predicts step n. Each level's presents are fed back as its pasts on the next step, untouched;
-once the sliding window is full, the newest slot overwrites the oldest in place (slot order
-means nothing: every slot carries its position), so no step copies the cache. The levels of
+once the sliding window is full, the newest slot overwrites the oldest in place (every slot
+carries its position, so slot order does not change the attention; with int8 graphs it changes
+the rounding slightly, ~0.06 in logits of ~15), so no step copies the cache. The levels of
 one step are independent (level l sees only earlier steps), so with several workers they run
 concurrently, each on one core, and are sampled afterwards in level order. Guidance runs a
 batch of two rows, conditional and unconditional. The rules (uniforms, end token, window) are
@@ -189,7 +190,8 @@ class TokenStream:
     def set_prompt(self, prompt_embedding: np.ndarray) -> None:
         """Condition the following steps on a new prompt: one prefill of every cache slot, the
         prefix under the new prompt and the kept steps with their tokens, so the model then sees
-        exactly what it would if the stream had been those steps under that prompt."""
+        what it would if the stream had been those steps under that prompt (exactly with float
+        graphs; int8 graphs round a little differently by slot order and prefill length)."""
         self.prompt = self._batch(prompt_embedding)
         if len(self.positions):  # before the first step there is nothing cached yet
             self._prefill()
