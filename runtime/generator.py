@@ -117,6 +117,8 @@ class MotionGenerator:
             return self._play_aligned(aligner.align(_checked_prompt(text)), seconds, seed,
                                       sampling)
         max_steps = self._steps(self.defaults.max_seconds)
+        if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
+            steps += self._decoder.lookahead
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
                                       self.defaults.window)
         frames = None if seconds is None else round(seconds * self.fps)
@@ -166,11 +168,16 @@ class MotionGenerator:
 
     def decode(self, tokens: np.ndarray, prompts: list[tuple[int, str]],
                frames: int | None = None, seed: int | None = None) -> Motion:
-        """Token steps (n, L) -> Motion (features and joints), cut to `frames` when given."""
+        """Token steps (n, L) -> Motion (features and joints), cut to `frames` when given.
+        Steps past the cut are only the right context of the last kept frames (decoded
+        without it, against the zero padding of an end, they collapse): Motion.tokens keeps
+        the steps the kept frames come from."""
         decoder = self.streaming_decoder()
         normalised = decoder.decode_offline(tokens)[:frames]
         features = normalised * self.bundle.std + self.bundle.mean
         joints = JointStream(self.skeleton).push(features)
+        if frames is not None:
+            tokens = tokens[:math.ceil(frames / self.down_factor)]
         return Motion(features, joints, self.fps, tokens, self.skeleton, prompts, seed)
 
     def encode_motion(self, motion: Motion) -> np.ndarray:
@@ -283,11 +290,14 @@ class MotionStream:
             self.step()
 
     def finish(self) -> Motion:
-        """End the stream: the remaining frames (decoded with the end padding) and, if the
-        stream was recorded by `advance`, the whole Motion."""
-        features = self._decoder.flush()
-        self._emit(np.zeros((0, self.generator.tokens.num_levels), np.int64), features)
+        """End the stream: the remaining frames and, if the stream was recorded by `advance`,
+        the whole Motion. The stream is cut, not ended: it draws the decoder's lookahead in
+        more steps, not kept, as the right context of its last frames (as `generate` does), so
+        they are the frames the stream would have emitted had it gone on."""
         g = self.generator
+        context = [self._tokens.step() for _ in range(self._decoder.lookahead)]
+        features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
+        self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features)
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
                  np.zeros((0, g.manifest.feature_dim), np.float32),
                  np.zeros((0, g.skeleton.num_joints, 3), np.float32))
