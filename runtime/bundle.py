@@ -115,11 +115,20 @@ def file_sha256(path: Path) -> str:
 
 
 def _array(root: Path, name: str) -> np.ndarray:
+    """A normalisation array as float32; BundleError unless it is a .npy array of finite
+    numbers there."""
     path = root / name
+    with path.open("rb") as handle:
+        if handle.read(len(np.lib.format.MAGIC_PREFIX)) != np.lib.format.MAGIC_PREFIX:
+            raise BundleError(f"{path}: not a .npy array file")
     try:
         array = np.load(path, allow_pickle=False)
     except (ValueError, EOFError, OSError) as error:
         raise BundleError(f"{path}: not a plain .npy array ({error})") from None
+    if not np.issubdtype(array.dtype, np.number) or np.issubdtype(array.dtype, np.complexfloating):
+        raise BundleError(f"{path}: holds {array.dtype} values, expected real numbers")
+    with np.errstate(over="ignore"):
+        array = array.astype(np.float32)
     if not np.all(np.isfinite(array)):
-        raise BundleError(f"{path}: contains NaN or infinite values")
-    return array.astype(np.float32)
+        raise BundleError(f"{path}: contains NaN or infinite values (as float32)")
+    return array

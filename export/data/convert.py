@@ -125,7 +125,6 @@ def _convert_clip(path: Path, out_dir: Path, skeleton: Skeleton,
 BODY_LENGTH_RANGE = (0.5, 2.5)
 UNITS = (("centimetres", 100.0), ("millimetres", 1000.0), ("inches", 1 / 0.0254),
          ("feet", 1 / 0.3048))
-NPY_MAGIC = b"\x93NUMPY"
 MAX_COORDINATE = 1e4  # metres; beyond, float32 features lose the millimetre
 
 
@@ -134,12 +133,12 @@ def read_clip(path: Path, skeleton: Skeleton) -> np.ndarray:
     the wrong shape, not finite numbers, or not in metres (judged by the body's size)."""
     try:
         with path.open("rb") as handle:
-            is_npy = handle.read(len(NPY_MAGIC)) == NPY_MAGIC
+            is_npy = handle.read(len(np.lib.format.MAGIC_PREFIX)) == np.lib.format.MAGIC_PREFIX
         joints = np.load(path, allow_pickle=False) if is_npy else None
     except OSError as error:
         raise ValueError(f"{path}: cannot read it ({error.strerror or error})") from None
     except (ValueError, EOFError) as error:
-        raise ValueError(f"{path}: a damaged .npy file ({error})") from None
+        raise ValueError(f"{path}: not a plain .npy array ({error})") from None
     if joints is None:
         raise ValueError(f"{path}: not a .npy array file")
     if not (np.issubdtype(joints.dtype, np.floating) or np.issubdtype(joints.dtype, np.integer)):

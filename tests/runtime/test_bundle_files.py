@@ -239,3 +239,16 @@ def test_a_damaged_tokenizer_is_one_line_naming_it(shipped_copy):
 def test_info_says_what_it_checked(capsys):
     assert main(["info"]) == 0
     assert "sha256 verified; 9 graphs open with the manifest's names" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("write,message", [
+    (lambda p: p.write_text("hello"), "mean.npy: not a .npy array file"),
+    (lambda p: p.write_bytes(p.read_bytes()[:200]), "mean.npy: not a plain .npy array (Failed"),
+    (lambda p: np.save(p, np.full(263, "a")), "mean.npy: holds <U1 values, expected real numbers"),
+    (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: contains NaN or infinite values"),
+])
+def test_a_bad_normalisation_array_is_one_line_naming_it(bundle, write, message):
+    write(bundle / "mean.npy")
+    write_manifest(bundle, read_manifest(bundle))
+    with pytest.raises(BundleError, match=re.escape(message)):
+        Bundle.load(bundle)
