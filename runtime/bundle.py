@@ -32,8 +32,9 @@ class Bundle:
     def load(cls, root: str | os.PathLike) -> Bundle:
         root = Path(root)
         if not root.is_dir():
-            raise BundleError(f"{root}: " + ("a file, not a bundle folder" if root.exists()
-                                             else "no such bundle folder"))
+            hint = f"; give its folder, {root.parent}" if root.name == MANIFEST else ""
+            raise BundleError(f"{root}: " + (f"a file, not a bundle folder{hint}"
+                                             if root.exists() else "no such bundle folder"))
         if not os.access(root, os.R_OK | os.X_OK):
             raise BundleError(f"{root}: no permission to read this bundle folder")
         manifest = read_manifest(root)
@@ -71,6 +72,8 @@ def read_manifest(root: Path) -> Manifest:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
         raise BundleError(f"{path}: not valid JSON ({error})") from None
+    except RecursionError:
+        raise BundleError(f"{path}: not a manifest (nested too deeply)") from None
     except OSError as error:
         raise BundleError(f"{path}: cannot read it ({error.strerror})") from None
     return Manifest.from_json(data, str(path))

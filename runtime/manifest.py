@@ -250,6 +250,9 @@ class Manifest:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise BundleError(f"{source}: not a {FORMAT} manifest")
         version = data.get("format_version")
+        if type(version) is not int:
+            raise BundleError(f"{source}: format_version: " + (
+                "missing" if version is None else f"expected an integer, got {version!r}"))
         if version != FORMAT_VERSION:
             raise BundleError(f"{source}: format version {version!r}; this runtime reads "
                               f"version {FORMAT_VERSION} (re-export the bundle with "

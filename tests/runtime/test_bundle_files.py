@@ -171,6 +171,8 @@ def test_arrays_are_checked(bundle):
     (lambda m: m["defaults"].update(max_seconds=-1), "defaults.max_seconds: -1.0, must be > 0"),
     (lambda m: m["vq"]["decoder"].update(lookahead=-2), "vq.decoder.lookahead: -2, must be >= 0"),
     (lambda m: m["text"].update(max_length=0), "text.max_length: 0, must be > 0"),
+    (lambda m: m.update(format_version="2"), "format_version: expected an integer, got '2'"),
+    (lambda m: m.pop("format_version"), "format_version: missing"),
 ])
 def test_a_bad_value_in_the_manifest_names_the_file_and_key(bundle, change, message):
     _edit(bundle, change)
@@ -182,6 +184,8 @@ def test_a_bundle_path_that_is_no_bundle_folder_gets_one_line(bundle, tmp_path):
     (tmp_path / "file").write_text("x")
     (tmp_path / "empty").mkdir()
     for path, message in ((tmp_path / "file", "a file, not a bundle folder"),
+                          (bundle / MANIFEST, f"a file, not a bundle folder; give its folder, "
+                                              f"{bundle}"),
                           (tmp_path / "empty", "an empty folder; a bundle folder holds a "
                                                "manifest.json")):
         with pytest.raises(BundleError, match=re.escape(f"{path}: {message}")):
@@ -251,4 +255,10 @@ def test_a_bad_normalisation_array_is_one_line_naming_it(bundle, write, message)
     write(bundle / "mean.npy")
     write_manifest(bundle, read_manifest(bundle))
     with pytest.raises(BundleError, match=re.escape(message)):
+        Bundle.load(bundle)
+
+
+def test_a_manifest_nested_too_deeply_is_one_line(bundle):
+    (bundle / MANIFEST).write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(BundleError, match="manifest.json: not a manifest \\(nested too deeply"):
         Bundle.load(bundle)
