@@ -160,7 +160,8 @@ def _cmd_info(args: argparse.Namespace) -> None:
                      f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
                      f"seed {recipe.get('seed')}{tuned}")
     total = sum(entry.bytes for entry in m.files.values())
-    lines.append(f"files       {len(m.files)}, {total / 1e6:.1f} MB, sha256 verified")
+    lines.append(f"files       {len(m.files)}, {total / 1e6:.1f} MB, sha256 verified; "
+                 f"{bundle.open_graphs()} graphs open with the manifest's names")
     lines += [f"  {name:20s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
     print("\n".join(lines))
 

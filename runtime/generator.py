@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from tokenizers import Tokenizer
 
-from mogo._session import cpu_session
+from mogo._session import graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
@@ -53,7 +53,7 @@ class MotionGenerator:
         self.skeleton = manifest.skeleton()
         self.fps = manifest.fps
         self.defaults = manifest.defaults
-        self.tokenizer = Tokenizer.from_file(str(bundle.path(manifest.text.tokenizer)))
+        self.tokenizer = _tokenizer(bundle.path(manifest.text.tokenizer))
         self._text = _Graph(bundle, manifest.text.encoder, threads)
         levels = manifest.t2m.levels
         self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
@@ -61,7 +61,8 @@ class MotionGenerator:
                                      level_workers=threads)
         self.down_factor = manifest.vq.down_factor
         self._decoder = manifest.vq.decoder
-        self._decoder_session = cpu_session(bundle.path(self._decoder.file), threads)
+        self._decoder_session = graph_session(bundle.path(self._decoder.file), self._decoder,
+                                              threads)
         self._vq_encoder = _Graph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
 
@@ -327,11 +328,19 @@ class _Graph:
     """A session with its manifest names: inputs in, first output out."""
 
     def __init__(self, bundle: Bundle, graph: Graph, threads: int):
-        self.session = cpu_session(bundle.path(graph.file), threads)
+        self.session = graph_session(bundle.path(graph.file), graph, threads)
         self.inputs, self.output = list(graph.inputs), graph.outputs[0]
 
     def run(self, *arrays: np.ndarray) -> np.ndarray:
         return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]
+
+
+def _tokenizer(path: Path) -> Tokenizer:
+    try:
+        return Tokenizer.from_file(str(path))
+    except Exception as error:  # tokenizers raises a bare Exception
+        cause = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise BundleError(f"{path}: not a tokenizer file: {cause}") from None
 
 
 def _checked_prompt(text: str) -> str:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import re
 import types
 import typing
@@ -26,6 +27,7 @@ import numpy as np
 
 from mogo.motion.features import feature_layout
 from mogo.motion.skeleton import Skeleton
+from mogo.sampling import Sampling
 
 FORMAT = "mogo-bundle"
 FORMAT_VERSION = 2  # 2: skeleton and feature layout under "motion"; no value stored twice
@@ -249,6 +251,9 @@ class Manifest:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise BundleError(f"{source}: not a {FORMAT} manifest")
         version = data.get("format_version")
+        if type(version) is not int:
+            raise BundleError(f"{source}: format_version: " + (
+                "missing" if version is None else f"expected an integer, got {version!r}"))
         if version != FORMAT_VERSION:
             raise BundleError(f"{source}: format version {version!r}; this runtime reads "
                               f"version {FORMAT_VERSION} (re-export the bundle with "
@@ -285,6 +290,7 @@ class Manifest:
         if self.t2m.num_levels != self.vq.levels:
             raise _KeyProblem("t2m.levels", f"{self.t2m.num_levels} graphs for "
                               f"{self.vq.levels} VQ levels (vq.config.levels)")
+        _check_ranges(self)
         _check_skeleton(self.motion.skeleton)
         skeleton = self.skeleton()
         expected = MotionFormat.of(skeleton, self.motion.normalization).features
@@ -294,6 +300,27 @@ class Manifest:
 
 
 CONFIG_KEYS = dict(feature_dim=int, levels=int, codebook_size=int, down_factor=int)  # of vq.config
+
+
+def _check_ranges(manifest: Manifest) -> None:
+    """Numbers the runtime would otherwise trip over later, far from the manifest."""
+    d = manifest.defaults
+    for name, value in vars(d).items():
+        try:  # the sampling defaults: the same rules as the options of a call
+            Sampling.from_defaults({name: value})
+        except ValueError as error:
+            raise _KeyProblem(f"defaults.{name}", str(error)) from None
+    positive = {"motion.fps": manifest.fps, "defaults.max_seconds": d.max_seconds,
+                "text.max_length": manifest.text.max_length,
+                "defaults.window": 1 if d.window is None else d.window}
+    at_least_zero = {"vq.decoder.left_context": manifest.vq.decoder.left_context,
+                     "vq.decoder.lookahead": manifest.vq.decoder.lookahead}
+    for path, value in positive.items():
+        if not value > 0:
+            raise _KeyProblem(path, f"{value!r}, must be > 0")
+    for path, value in at_least_zero.items():
+        if value < 0:
+            raise _KeyProblem(path, f"{value!r}, must be >= 0")
 
 
 def _check_skeleton(spec: SkeletonSpec) -> None:
@@ -348,7 +375,9 @@ def _read(kind, value, path: str):
     if typing.get_origin(kind) is dict:
         return {key: _read(args[1], v, f"{path}.{key}")
                 for key, v in _expect(value, dict, path).items()}
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+    if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(min(abs(value), math.inf)):  # NaN, Infinity (JSON allows them)
+            raise _KeyProblem(path, f"expected a finite number, got {value!r}")
         return float(value)
     return _expect(value, kind, path)
 

@@ -26,8 +26,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from mogo._session import cpu_session
-from mogo.manifest import Graph
+from mogo._session import graph_session
+from mogo.manifest import BundleError, Graph
 from mogo.motion.skeleton import MAX_FRAMES
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 
@@ -47,15 +47,11 @@ class TokenGenerator:
             raise ValueError(f"level_workers must be >= 1, got {level_workers}")
         if len(level_paths) != len(graphs):
             raise ValueError(f"{len(level_paths)} graph files for {len(graphs)} graph entries")
-        self.sessions = [cpu_session(path, intra_op_threads) for path in level_paths]
-        for level, (session, graph) in enumerate(zip(self.sessions, graphs)):
-            names = ([i.name for i in session.get_inputs()],
-                     [o.name for o in session.get_outputs()])
-            if names != (list(graph.inputs), list(graph.outputs)):
-                raise ValueError(f"level {level}: the graph has inputs and outputs {names}, "
-                                 f"the manifest says {list(graph.inputs)}, {list(graph.outputs)}")
+        self.sessions = [graph_session(path, graph, intra_op_threads)
+                         for path, graph in zip(level_paths, graphs)]
         self.graphs = list(graphs)
-        self.cache_shapes = [_cache_shape(session) for session in self.sessions]
+        self.cache_shapes = [_cache_shape(session, path)
+                             for session, path in zip(self.sessions, level_paths)]
         self.end_token = end_token
         self.num_levels = len(graphs)
         self.num_classes = end_token + 1  # level 0's logits: every code and the end token
@@ -251,12 +247,13 @@ def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:
     return sorted((sorted(members) for _, members in loads if members), key=lambda m: m[0])
 
 
-def _cache_shape(session) -> tuple[int, int, int]:
+def _cache_shape(session, path) -> tuple[int, int, int]:
     """(layers, heads, head_dim) of a level graph: its past inputs, key and value per layer,
     are (batch, heads, past, head_dim) with heads and head_dim fixed."""
     pasts = session.get_inputs()[len(LEVEL_INPUTS):]
-    if not pasts or len(pasts) % 2:
-        raise ValueError(f"a level graph has {len(pasts)} past inputs, expected key and value "
-                         "pairs")
-    _, heads, _, head_dim = pasts[0].shape
-    return len(pasts) // 2, int(heads), int(head_dim)
+    shape = pasts[0].shape if pasts else []
+    if not pasts or len(pasts) % 2 or len(shape) != 4 or not all(
+            isinstance(size, int) for size in (shape[1], shape[3])):
+        raise BundleError(f"{path}: not a level graph: expected key and value pairs of past "
+                          f"inputs (batch, heads, past, head_dim) after {LEVEL_INPUTS}")
+    return len(pasts) // 2, shape[1], shape[3]
