@@ -260,7 +260,7 @@ def _wrap(text: str, font: ImageFont.FreeTypeFont, width_px: int, max_lines: int
     shown = text[:(max_lines + 1) * max(int(width_px), 1)]
     average = max(font.getlength(shown), 1.0) / len(shown)
     chars = min(len(shown), max(8, int(width_px / average)))
-    while chars > 8 and max(font.getlength(line) for line in textwrap.wrap(shown, chars)) > width_px:
+    while chars > 8 and max(map(font.getlength, textwrap.wrap(shown, chars))) > width_px:
         chars -= 1
     lines = textwrap.wrap(shown, chars)
     if len(lines) > max_lines or len(shown) < len(text):
