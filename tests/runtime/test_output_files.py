@@ -5,6 +5,7 @@ import errno
 import json
 import math
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -228,6 +229,23 @@ def test_a_closed_or_full_standard_output_is_one_line(tmp_path):
                                 "on device\n")
     code, error = run_mogo("stream", "walk", close_stdout=True)  # `mogo stream | head`
     assert (code, error) == (0, "")
+
+
+def small_file_limit():
+    """In the child: files past 40 kB fail to grow (EFBIG), as on a disk that is full."""
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (40_000, 40_000))
+
+
+def test_a_real_write_failure_is_one_line_and_changes_nothing(tmp_path):
+    motion(0).save_take(tmp_path, "walk")
+    before = contents(tmp_path)
+    done = subprocess.run([sys.executable, "-m", "mogo", "generate", "walk", "--seconds", "2",
+                           "--out", str(tmp_path), "--name", "walk", "--overwrite"],
+                          capture_output=True, text=True, preexec_fn=small_file_limit)
+    assert done.returncode == 2  # the .bvh fits, the .gif does not
+    assert done.stderr == f"mogo: error: {tmp_path / 'walk.gif'}: File too large\n"
+    assert contents(tmp_path) == before
 
 
 SLOW_WRITER = textwrap.dedent("""
