@@ -75,7 +75,8 @@ class Motion:
                  else files.numbered(folder, name, TAKE))
         return files.write_all(writers, names, replace=overwrite)
 
-    def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False):
+    def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False
+                   ) -> None:
         bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations)
 
     def _write_gif(self, path: Path) -> None:
