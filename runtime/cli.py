@@ -236,7 +236,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:  # Ctrl-C while the verbs load: a quiet stop, as during a run
+        return 130
     status = _run(args)
     if hasattr(args, "finish"):  # a verb that must end its process its own way
         args.finish(status)
