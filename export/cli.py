@@ -103,7 +103,9 @@ def add_commands(commands) -> None:
         "convert", help="turn a folder of joint-position .npy files (T x J x 3, metres, Y up) "
                         "into HumanML3D features")
     convert.add_argument("--joints", required=True, help="folder of .npy joint positions")
-    convert.add_argument("--out", required=True, help="output folder (HumanML3D layout)")
+    convert.add_argument("--out", required=True,
+                         help="output folder (HumanML3D layout): new or empty; written whole or "
+                              "not at all")
     convert.add_argument("--skeleton", default="humanml3d", choices=["humanml3d", "kit"])
     convert.add_argument("--fps", type=float, default=None,
                          help="frame rate of the source clips; resampled to the skeleton's "

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mogo._session import graph_session
 from mogo.manifest import MANIFEST, BundleError, FileEntry, Manifest
 
 
@@ -31,7 +32,11 @@ class Bundle:
     def load(cls, root: str | os.PathLike) -> Bundle:
         root = Path(root)
         if not root.is_dir():
-            raise BundleError(f"{root}: no such bundle folder")
+            hint = f"; give its folder, {root.parent}" if root.name == MANIFEST else ""
+            raise BundleError(f"{root}: " + (f"a file, not a bundle folder{hint}"
+                                             if root.exists() else "no such bundle folder"))
+        if not os.access(root, os.R_OK | os.X_OK):
+            raise BundleError(f"{root}: no permission to read this bundle folder")
         manifest = read_manifest(root)
         verify_files(root, manifest)
         norm = manifest.motion.normalization
@@ -47,15 +52,30 @@ class Bundle:
     def path(self, name: str) -> Path:
         return self.root / name
 
+    def open_graphs(self) -> int:
+        """Opens every graph as the runtime does (onnxruntime parses it; its input and output
+        names are checked against the manifest), which a matching sha256 does not vouch for:
+        the manifest may have been written after a graph was damaged. Returns how many."""
+        for graph in self.manifest.graphs():
+            graph_session(self.path(graph.file), graph)
+        return len(self.manifest.graphs())
+
 
 def read_manifest(root: Path) -> Manifest:
     path = root / MANIFEST
     if not path.is_file():
+        if root.is_dir() and not any(root.iterdir()):
+            raise BundleError(f"{root}: an empty folder; a bundle folder holds a {MANIFEST} "
+                              "and the files it lists")
         raise BundleError(f"{path}: missing; a bundle folder holds a {MANIFEST}")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
         raise BundleError(f"{path}: not valid JSON ({error})") from None
+    except RecursionError:
+        raise BundleError(f"{path}: not a manifest (nested too deeply)") from None
+    except OSError as error:
+        raise BundleError(f"{path}: cannot read it ({error.strerror})") from None
     return Manifest.from_json(data, str(path))
 
 
@@ -98,11 +118,20 @@ def file_sha256(path: Path) -> str:
 
 
 def _array(root: Path, name: str) -> np.ndarray:
+    """A normalisation array as float32; BundleError unless it is a .npy array of finite
+    numbers there."""
     path = root / name
+    with path.open("rb") as handle:
+        if handle.read(len(np.lib.format.MAGIC_PREFIX)) != np.lib.format.MAGIC_PREFIX:
+            raise BundleError(f"{path}: not a .npy array file")
     try:
         array = np.load(path, allow_pickle=False)
-    except ValueError as error:
+    except (ValueError, EOFError, OSError) as error:
         raise BundleError(f"{path}: not a plain .npy array ({error})") from None
+    if not np.issubdtype(array.dtype, np.number) or np.issubdtype(array.dtype, np.complexfloating):
+        raise BundleError(f"{path}: holds {array.dtype} values, expected real numbers")
+    with np.errstate(over="ignore"):
+        array = array.astype(np.float32)
     if not np.all(np.isfinite(array)):
-        raise BundleError(f"{path}: contains NaN or infinite values")
-    return array.astype(np.float32)
+        raise BundleError(f"{path}: contains NaN or infinite values (as float32)")
+    return array

@@ -105,6 +105,8 @@ def _aligner(args: argparse.Namespace, generator):
 
 
 def _cmd_generate(args: argparse.Namespace) -> None:
+    from mogo.clip import check_take
+
     if args.prompts_file:
         if args.text is not None or args.seconds is not None:
             raise CliError("give either a prompt (with --seconds) or --prompts-file, not both")
@@ -113,6 +115,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         schedule = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
+    folder = check_take(args.out, args.name, args.overwrite, what="--name")  # before the work
     generator = _load_generator(args)
     sampling = _sampling(args, generator)
     if args.prompts_file:
@@ -124,15 +127,16 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         print(motion.alignment.describe())
         if motion.alignment.note:
             print(f"note: {motion.alignment.note}")
-    stem = Path(args.out) / (args.name or _file_stem(motion.caption))
-    written = [motion.save_bvh(stem.with_suffix(".bvh"),
-                               bone_translations=args.bvh_bone_translations),
-               motion.save_gif(stem.with_suffix(".gif")),
-               motion.save_npy(stem.with_suffix(".npy")),
-               motion.save_json(stem.with_suffix(".json"))]
+    name = args.name or _file_stem(motion.caption)
+    written = motion.save_take(folder, name, overwrite=args.overwrite,
+                               bone_translations=args.bvh_bone_translations)
     frames = plural(len(motion.joints), "frame")
     print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
           f"for: {motion.caption}")
+    taken = written[0].name.removesuffix(written[0].suffix)
+    if taken != name:
+        print(f"note: {folder / name}.* is an earlier take, kept; this one is {taken} "
+              f"(--overwrite replaces)")
     for path in written:
         print(f"wrote {path}")
 
@@ -149,7 +153,7 @@ def _cmd_stream(args: argparse.Namespace) -> None:
             sys.stdout.write(json.dumps(record, separators=(",", ":")) + "\n")
             sys.stdout.flush()
     except BrokenPipeError:  # the reading program stopped: a normal way to end a stream
-        sys.stdout = None
+        _silence_stdout()
 
 
 def _cmd_info(args: argparse.Namespace) -> None:
@@ -186,7 +190,8 @@ def _cmd_info(args: argparse.Namespace) -> None:
                      f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
                      f"seed {recipe.get('seed')}{tuned}")
     total = sum(entry.bytes for entry in m.files.values())
-    lines.append(f"files       {len(m.files)}, {total / 1e6:.1f} MB, sha256 verified")
+    lines.append(f"files       {len(m.files)}, {total / 1e6:.1f} MB, sha256 verified; "
+                 f"{bundle.open_graphs()} graphs open with the manifest's names")
     lines += [f"  {name:20s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
     print("\n".join(lines))
 
@@ -243,7 +248,11 @@ def _add_runtime_commands(commands) -> None:
     generate.add_argument("--prompts-file", help="a schedule instead of one prompt: lines "
                                                  "'SECONDS PROMPT', played as one motion")
     generate.add_argument("--out", default="out", help="output folder (default out/)")
-    generate.add_argument("--name", help="file name without extension (default: from the prompt)")
+    generate.add_argument("--name", help="file name without extension (default: from the "
+                                         "prompt)")
+    generate.add_argument("--overwrite", action="store_true",
+                          help="replace an earlier take of the same name (default: keep it, and "
+                               "name this one NAME-2, NAME-3, ...: the first free)")
     generate.add_argument("--bvh-bone-translations", action="store_true",
                           help="position channels on every BVH joint: the joints back exactly, "
                                "bone stretch included (default: a rigid skeleton, rotations only)")
@@ -299,7 +308,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:  # Ctrl-C while the verbs load: a quiet stop, as during a run
+        return 130
     status = _run(args)
     if hasattr(args, "finish"):  # a verb that must end its process its own way
         args.finish(status)
@@ -307,17 +319,69 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    stdout, sys.stdout = sys.stdout, _Stdout(sys.stdout)
     try:
         args.run(args)
+        sys.stdout.flush()  # a closed pipe or a full disk shows here, not at Python's exit
     except CliError as error:
         print(f"mogo: error: {error}", file=sys.stderr)
         return 2
-    except (ValueError, FileNotFoundError, NotADirectoryError, PermissionError) as error:
-        print(f"mogo: error: {error}", file=sys.stderr)
+    except (ValueError, OSError) as error:
+        print(f"mogo: error: {_describe(error)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+    finally:
+        sys.stdout = stdout if isinstance(sys.stdout, _Stdout) else sys.stdout
     return 0
+
+
+class _Stdout:
+    """sys.stdout while a verb runs: its write errors name it, as Python's do not."""
+
+    NAME = "<stdout>"
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+    def write(self, text: str) -> int:
+        return self._named(self._stream.write, text)
+
+    def flush(self) -> None:
+        self._named(self._stream.flush)
+
+    def _named(self, method, *args):
+        try:
+            return method(*args)
+        except OSError as error:  # OSError(EPIPE, ...) is a BrokenPipeError again
+            raise OSError(error.errno, error.strerror, self.NAME) from None
+
+
+def _describe(error: Exception) -> str:
+    """One line for an error: an OSError as "FILE: what happened" (Python's own str() is
+    "[Errno 28] No space left on device", without the file, when writing fails)."""
+    if not isinstance(error, OSError):
+        return str(error)
+    if error.filename == _Stdout.NAME:
+        _silence_stdout()
+        return f"cannot write to standard output: {error.strerror}"
+    if error.strerror and error.filename is not None:
+        return f"{error.filename}: {error.strerror}"
+    return error.strerror or str(error)
+
+
+def _silence_stdout() -> None:
+    """Standard output pointed at os.devnull: what it could not take is dropped, without
+    Python's "Exception ignored ... BrokenPipeError" at exit."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # no file descriptor behind sys.stdout
+        sys.stdout = None
 
 
 if __name__ == "__main__":

@@ -1,13 +1,17 @@
-"""A generated motion and the files it can be written as (npy, BVH, GIF, JSON)."""
+"""A generated motion and the files it can be written as (npy, BVH, GIF, JSON), each one whole
+(see mogo.files), and the four of them as one take."""
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
+from mogo import files
 from mogo.align import Alignment
 from mogo.motion import bvh, render
 from mogo.motion.skeleton import Skeleton
@@ -33,55 +37,95 @@ class Motion:
         return ", then ".join(text for _, text in self.prompts)
 
     def save_npy(self, path: str | os.PathLike) -> Path:
-        """Joint positions (T, J, 3) float32, as HumanML3D's new_joints/ holds them."""
-        path = _writable(path)
-        np.save(path, self.joints.astype(np.float32))
-        return path
+        """Joint positions (T, J, 3) float32, as HumanML3D's new_joints/ holds them. As with
+        numpy.save, ".npy" is added to a name without it; the path written is returned."""
+        return _save(_npy_path(path), partial(_write_array, self.joints))
 
     def save_features(self, path: str | os.PathLike) -> Path:
-        """The 263-dim features (T, D), as HumanML3D's new_joint_vecs/ holds them."""
-        path = _writable(path)
-        np.save(path, self.features.astype(np.float32))
-        return path
+        """The 263-dim features (T, D), as HumanML3D's new_joint_vecs/ holds them (".npy" is
+        added as by save_npy)."""
+        return _save(_npy_path(path), partial(_write_array, self.features))
 
     def save_bvh(self, path: str | os.PathLike, scale: float = 1.0,
                  bone_translations: bool = False) -> Path:
         """A BVH with per-joint rotations, in metres (scale=100 for centimetres);
         bone_translations=True adds per-joint position channels, so the file gives these
         joints back exactly despite the bone-length jitter of generated motion."""
-        path = _writable(path)
-        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations)
-        return path
+        return _save(Path(path), partial(self._write_bvh, scale=scale,
+                                         bone_translations=bone_translations))
 
     def save_gif(self, path: str | os.PathLike) -> Path:
         """A stick-figure animation with the caption and a floor grid."""
-        return render.save_gif(self.joints, _writable(path), self.caption, self.fps,
-                               self.skeleton)
+        return _save(Path(path), self._write_gif)
 
     def save_json(self, path: str | os.PathLike) -> Path:
         """Everything a web viewer needs: skeleton, fps, prompts and joints per frame (and
-        the aligned steps, when prompt alignment made them)."""
-        path = _writable(path)
+        the aligned steps, when prompt alignment made them). Strict JSON: no NaN."""
+        return _save(Path(path), self._write_json)
+
+    def save_take(self, folder: str | os.PathLike, name: str, overwrite: bool = False,
+                  bone_translations: bool = False) -> list[Path]:
+        """The .bvh, .gif, .npy and .json of this motion as one take, written all or none.
+        An earlier take named `name` is kept (this one is named name-2, name-3, ...: the
+        first free), unless overwrite=True replaces it. Returns the four paths written."""
+        folder = check_take(folder, name, overwrite)
+        writers = [partial(self._write_bvh, bone_translations=bone_translations),
+                   self._write_gif, partial(_write_array, self.joints), self._write_json]
+        names = ([[folder / (name + suffix) for suffix in TAKE]] if overwrite
+                 else files.numbered(folder, name, TAKE))
+        return files.write_all(writers, names, replace=overwrite)
+
+    def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False
+                   ) -> None:
+        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations)
+
+    def _write_gif(self, path: Path) -> None:
+        render.save_gif(self.joints, path, self.caption, self.fps, self.skeleton)
+
+    def _write_json(self, path: Path) -> None:
+        if not np.all(np.isfinite(self.joints)):
+            raise ValueError("joints contain NaN or infinite values: not writable as JSON")
+        if not math.isfinite(self.fps) or self.fps <= 0:
+            raise ValueError(f"fps must be a positive number, got {self.fps}")
         document = dict(
-            fps=self.fps, skeleton=self.skeleton.name,
+            fps=float(self.fps), skeleton=self.skeleton.name,
             joint_names=list(self.skeleton.joint_names),
             parents=[int(p) for p in self.skeleton.parents],
-            prompts=[dict(frame=frame, text=text) for frame, text in self.prompts],
-            seed=self.seed, frames=np.round(self.joints, 5).tolist())
+            prompts=[dict(frame=int(frame), text=text) for frame, text in self.prompts],
+            seed=None if self.seed is None else int(self.seed),
+            frames=np.round(self.joints, 5).tolist())
         if self.alignment is not None:
             document["alignment"] = self.alignment.as_dict()
-        path.write_text(json.dumps(document) + "\n")
-        return path
+        with open(path, "w", encoding="utf-8") as file:
+            file.write(json.dumps(document, allow_nan=False) + "\n")
 
 
-def _writable(path: str | os.PathLike) -> Path:
-    """The path, its folder made; a clear error where the folder cannot be written."""
+TAKE = (".bvh", ".gif", ".npy", ".json")  # the files of one take, in the order written
+
+
+def check_take(folder: str | os.PathLike, name: str | None, overwrite: bool = False,
+               what: str = "name") -> Path:
+    """The checks save_take makes, for a caller to make before the work of generating: the
+    folder takes files, the name is a plain file name, nothing but files is to be replaced.
+    `what` names the name in messages (e.g. "--name")."""
+    folder = files.check_folder(folder)
+    if name is not None:
+        files.check_name(name, folder, TAKE, what)
+        if overwrite:
+            files.check_replaceable(folder / (name + suffix) for suffix in TAKE)
+    return folder
+
+
+def _save(path: Path, write: files.Writer) -> Path:
+    """One file, whole: it replaces the file there only once written completely."""
+    return files.write_all([write], [[path]], replace=True)[0]
+
+
+def _npy_path(path: str | os.PathLike) -> Path:
     path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise PermissionError(f"cannot create the output folder {path.parent}: "
-                              f"{error.strerror}") from None
-    if not os.access(path.parent, os.W_OK):
-        raise PermissionError(f"the output folder {path.parent} is not writable")
-    return path
+    return path if path.name.endswith(".npy") else path.with_name(path.name + ".npy")
+
+
+def _write_array(array: np.ndarray, path: Path) -> None:
+    with open(path, "wb") as file:  # a file, not a name: numpy would add ".npy" to a name
+        np.save(file, np.asarray(array, dtype=np.float32))

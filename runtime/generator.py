@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from tokenizers import Tokenizer
 
-from mogo._session import cpu_session
+from mogo._session import graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.arguments import (checked_int, checked_prompt, checked_schedule, checked_seconds,
                             plural, read_prompt)
@@ -56,7 +56,7 @@ class MotionGenerator:
         self.skeleton = manifest.skeleton()
         self.fps = manifest.fps
         self.defaults = manifest.defaults
-        self.tokenizer = Tokenizer.from_file(str(bundle.path(manifest.text.tokenizer)))
+        self.tokenizer = _tokenizer(bundle.path(manifest.text.tokenizer))
         self._counter = Tokenizer.from_str(self.tokenizer.to_str())  # sees what is cut
         self._counter.no_truncation()
         self._text = _Graph(bundle, manifest.text.encoder, threads)
@@ -66,7 +66,8 @@ class MotionGenerator:
                                      level_workers=threads)
         self.down_factor = manifest.vq.down_factor
         self._decoder = manifest.vq.decoder
-        self._decoder_session = cpu_session(bundle.path(self._decoder.file), threads)
+        self._decoder_session = graph_session(bundle.path(self._decoder.file), self._decoder,
+                                              threads)
         self._vq_encoder = _Graph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
 
@@ -127,6 +128,8 @@ class MotionGenerator:
             return self._play_aligned(aligner.align(text), seconds, seed, sampling)
         steps = None if seconds is None else self._steps(seconds)
         max_steps = self._steps(self.defaults.max_seconds)
+        if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
+            steps += self._decoder.lookahead
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
                                       self.defaults.window)
         frames = None if seconds is None else round(seconds * self.fps)
@@ -186,11 +189,16 @@ class MotionGenerator:
 
     def decode(self, tokens: np.ndarray, prompts: list[tuple[int, str]],
                frames: int | None = None, seed: int | None = None) -> Motion:
-        """Token steps (n, L) -> Motion (features and joints), cut to `frames` when given."""
+        """Token steps (n, L) -> Motion (features and joints), cut to `frames` when given.
+        Steps past the cut are only the right context of the last kept frames (decoded
+        without it, against the zero padding of an end, they collapse): Motion.tokens keeps
+        the steps the kept frames come from."""
         decoder = self.streaming_decoder()
         normalised = decoder.decode_offline(tokens)[:frames]
         features = normalised * self.bundle.std + self.bundle.mean
         joints = JointStream(self.skeleton).push(features)
+        if frames is not None:
+            tokens = tokens[:math.ceil(frames / self.down_factor)]
         return Motion(features, joints, self.fps, tokens, self.skeleton, prompts, seed)
 
     def encode_motion(self, motion: Motion) -> np.ndarray:
@@ -319,11 +327,14 @@ class MotionStream:
             self.step()
 
     def finish(self) -> Motion:
-        """End the stream: the remaining frames (decoded with the end padding) and, if the
-        stream was recorded by `advance`, the whole Motion."""
-        features = self._decoder.flush()
-        self._emit(np.zeros((0, self.generator.tokens.num_levels), np.int64), features)
+        """End the stream: the remaining frames and, if the stream was recorded by `advance`,
+        the whole Motion. The stream is cut, not ended: it draws the decoder's lookahead in
+        more steps, not kept, as the right context of its last frames (as `generate` does), so
+        they are the frames the stream would have emitted had it gone on."""
         g = self.generator
+        context = [self._tokens.step() for _ in range(self._decoder.lookahead)]
+        features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
+        self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features)
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
                  np.zeros((0, g.manifest.feature_dim), np.float32),
                  np.zeros((0, g.skeleton.num_joints, 3), np.float32))
@@ -353,11 +364,19 @@ class _Graph:
     """A session with its manifest names: inputs in, first output out."""
 
     def __init__(self, bundle: Bundle, graph: Graph, threads: int):
-        self.session = cpu_session(bundle.path(graph.file), threads)
+        self.session = graph_session(bundle.path(graph.file), graph, threads)
         self.inputs, self.output = list(graph.inputs), graph.outputs[0]
 
     def run(self, *arrays: np.ndarray) -> np.ndarray:
         return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]
+
+
+def _tokenizer(path: Path) -> Tokenizer:
+    try:
+        return Tokenizer.from_file(str(path))
+    except Exception as error:  # tokenizers raises a bare Exception
+        cause = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise BundleError(f"{path}: not a tokenizer file: {cause}") from None
 
 
 def _fresh_seed() -> int:

@@ -5,26 +5,26 @@ The dataclasses below are the schema: each JSON key is a field of the same name,
 key is adding a field. Reading checks every key and type and refuses a manifest that does not
 match, naming the key ("manifest.json: t2m.levels[2].file: missing"). Each value is stored
 once; what follows from it is a property (the end token, the feature size) or is read from the
-graphs themselves (the cache sizes of the level graphs). A program in another language finds here all it needs to run a bundle: the graphs
-and their input/output names, the decoder's context, the normalisation, the sampling defaults,
-and the skeleton with the layout of the features the decoder writes.
+graphs themselves (the cache sizes of the level graphs). A program in another language finds
+here all it needs to run a bundle: the graphs and their input/output names, the decoder's
+context, the normalisation, the sampling defaults, and the skeleton with the layout of the
+features the decoder writes.
 
 The model configs (`t2m.config`, `vq.config`) are the arguments that rebuild the torch models;
 they are kept whole, and the runtime reads from them only the sizes declared in CONFIG_KEYS.
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import re
-import types
-import typing
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from mogo._json_schema import KeyProblem, read, write
 from mogo.motion.features import feature_layout
 from mogo.motion.skeleton import Skeleton
+from mogo.sampling import Sampling
 
 FORMAT = "mogo-bundle"
 FORMAT_VERSION = 2  # 2: skeleton and feature layout under "motion"; no value stored twice
@@ -248,19 +248,22 @@ class Manifest:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise BundleError(f"{source}: not a {FORMAT} manifest")
         version = data.get("format_version")
+        if type(version) is not int:
+            raise BundleError(f"{source}: format_version: " + (
+                "missing" if version is None else f"expected an integer, got {version!r}"))
         if version != FORMAT_VERSION:
             raise BundleError(f"{source}: format version {version!r}; this runtime reads "
                               f"version {FORMAT_VERSION} (re-export the bundle with "
                               "`mogo export`, or upgrade mogo)")
         try:
-            manifest = _read(cls, data, "")
+            manifest = read(cls, data, "")
             manifest._check()
-        except _KeyProblem as problem:
+        except KeyProblem as problem:
             raise BundleError(f"{source}: {problem.path}: {problem.what}") from None
         return manifest
 
     def to_json(self) -> dict:
-        return _write(self)
+        return write(self)
 
     def dumps(self) -> str:
         """The text of manifest.json: indented, each list of plain values on one line."""
@@ -275,24 +278,46 @@ class Manifest:
         for name, kind in CONFIG_KEYS.items():
             value = self.vq.config.get(name)
             if type(value) is not kind or value < 1:
-                raise _KeyProblem(f"vq.config.{name}", "missing or not a positive integer")
+                raise KeyProblem(f"vq.config.{name}", "missing or not a positive integer")
         if self.vq.config["feature_dim"] != self.feature_dim:
-            raise _KeyProblem("vq.config.feature_dim", f"{self.vq.config['feature_dim']}, the "
+            raise KeyProblem("vq.config.feature_dim", f"{self.vq.config['feature_dim']}, the "
                               f"feature layout (motion.features) has {self.feature_dim}")
         if not self.t2m.levels:
-            raise _KeyProblem("t2m.levels", "empty")
+            raise KeyProblem("t2m.levels", "empty")
         if self.t2m.num_levels != self.vq.levels:
-            raise _KeyProblem("t2m.levels", f"{self.t2m.num_levels} graphs for "
+            raise KeyProblem("t2m.levels", f"{self.t2m.num_levels} graphs for "
                               f"{self.vq.levels} VQ levels (vq.config.levels)")
+        _check_ranges(self)
         _check_skeleton(self.motion.skeleton)
         skeleton = self.skeleton()
         expected = MotionFormat.of(skeleton, self.motion.normalization).features
         if self.motion.features != expected:
-            raise _KeyProblem("motion.features", "not the layout of mogo.motion.features for "
+            raise KeyProblem("motion.features", "not the layout of mogo.motion.features for "
                               f"the {skeleton.name} skeleton ({_layout_text(expected)})")
 
 
 CONFIG_KEYS = dict(feature_dim=int, levels=int, codebook_size=int, down_factor=int)  # of vq.config
+
+
+def _check_ranges(manifest: Manifest) -> None:
+    """Numbers the runtime would otherwise trip over later, far from the manifest."""
+    d = manifest.defaults
+    for name, value in vars(d).items():
+        try:  # the sampling defaults: the same rules as the options of a call
+            Sampling.from_defaults({name: value})
+        except (TypeError, ValueError) as error:  # Sampling refuses text or bool as a number
+            raise KeyProblem(f"defaults.{name}", str(error)) from None
+    positive = {"motion.fps": manifest.fps, "defaults.max_seconds": d.max_seconds,
+                "text.max_length": manifest.text.max_length,
+                "defaults.window": 1 if d.window is None else d.window}
+    at_least_zero = {"vq.decoder.left_context": manifest.vq.decoder.left_context,
+                     "vq.decoder.lookahead": manifest.vq.decoder.lookahead}
+    for path, value in positive.items():
+        if not value > 0:
+            raise KeyProblem(path, f"{value!r}, must be > 0")
+    for path, value in at_least_zero.items():
+        if value < 0:
+            raise KeyProblem(path, f"{value!r}, must be >= 0")
 
 
 def _check_skeleton(spec: SkeletonSpec) -> None:
@@ -300,13 +325,13 @@ def _check_skeleton(spec: SkeletonSpec) -> None:
     for name in ("parents", "raw_offsets", "rest_offsets"):
         value = getattr(spec, name)
         if value is not None and len(value) != joints:
-            raise _KeyProblem(f"motion.skeleton.{name}", f"{len(value)} rows for {joints} joints")
+            raise KeyProblem(f"motion.skeleton.{name}", f"{len(value)} rows for {joints} joints")
     indices = [*spec.face_joints, *spec.left_foot, *spec.right_foot, *sum(spec.chains, ())]
     if any(not 0 <= j < joints for j in indices):
-        raise _KeyProblem("motion.skeleton", f"a joint index outside 0..{joints - 1}")
+        raise KeyProblem("motion.skeleton", f"a joint index outside 0..{joints - 1}")
     derived = tuple(int(p) for p in spec.skeleton(0.0).parents)
     if spec.parents != derived:
-        raise _KeyProblem("motion.skeleton.parents", f"{list(spec.parents)}, the chains give "
+        raise KeyProblem("motion.skeleton.parents", f"{list(spec.parents)}, the chains give "
                           f"{list(derived)}")
 
 
@@ -316,74 +341,3 @@ def _layout_text(blocks: tuple[FeatureBlock, ...]) -> str:
 
 def _rows(array: np.ndarray) -> tuple[tuple[float, ...], ...]:
     return tuple(tuple(float(x) for x in row) for row in array)
-
-
-# -- the checked reader and the writer ------------------------------------------------------------
-class _KeyProblem(Exception):
-    def __init__(self, path: str, what: str):
-        super().__init__(f"{path}: {what}")
-        self.path, self.what = path, what
-
-
-_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
-          dict: "an object", list: "a list"}
-
-
-def _read(kind, value, path: str):
-    """`value` (parsed JSON) as `kind` (a type of the schema), or _KeyProblem at `path`."""
-    args = typing.get_args(kind)
-    if typing.get_origin(kind) in (typing.Union, types.UnionType):  # X | None
-        if value is None:
-            return None
-        return _read(next(a for a in args if a is not type(None)), value, path)
-    if dataclasses.is_dataclass(kind):
-        return _read_object(kind, _expect(value, dict, path), path)
-    if typing.get_origin(kind) is tuple:
-        items = _expect(value, list, path)
-        if Ellipsis not in args and len(items) != len(args):
-            raise _KeyProblem(path, f"{len(items)} items, expected {len(args)}")
-        item_kinds = [args[0]] * len(items) if Ellipsis in args else args
-        return tuple(_read(k, v, f"{path}[{i}]") for i, (k, v) in enumerate(zip(item_kinds, items)))
-    if typing.get_origin(kind) is dict:
-        return {key: _read(args[1], v, f"{path}.{key}")
-                for key, v in _expect(value, dict, path).items()}
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    return _expect(value, kind, path)
-
-
-def _read_object(cls, value: dict, path: str):
-    hints = typing.get_type_hints(cls)
-    known = {f.name: f for f in dataclasses.fields(cls)}
-    for key in value:
-        if key not in known:
-            raise _KeyProblem(_join(path, key), "unknown key")
-    values = {}
-    for name, f in known.items():
-        if name in value:
-            values[name] = _read(hints[name], value[name], _join(path, name))
-        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise _KeyProblem(_join(path, name), "missing")
-    return cls(**values)
-
-
-def _expect(value, kind, path: str):
-    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-        raise _KeyProblem(path, f"expected {_NAMES.get(kind, kind.__name__)}, got {value!r}")
-    return value
-
-
-def _join(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else key
-
-
-def _write(value):
-    """A schema object as plain JSON values; a None field with a None default is left out."""
-    if dataclasses.is_dataclass(value):
-        return {f.name: _write(getattr(value, f.name)) for f in dataclasses.fields(value)
-                if not (getattr(value, f.name) is None and f.default is None)}
-    if isinstance(value, (tuple, list)):
-        return [_write(v) for v in value]
-    if isinstance(value, dict):
-        return {key: _write(v) for key, v in value.items()}
-    return value

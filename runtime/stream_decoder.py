@@ -74,9 +74,15 @@ class StreamingDecoder:
             return np.zeros((0, self.feature_dim), np.float32)
         return self._emit(ready)
 
-    def flush(self) -> np.ndarray:
-        """End the stream: return its remaining frames, decoded with the end padding an offline
-        decode sees, and get ready for a new stream."""
+    def flush(self, context: np.ndarray | None = None) -> np.ndarray:
+        """End the stream: return its remaining frames and get ready for a new stream.
+        `context`: token ids (n, L) that follow the end, the right context of the last frames
+        (their own frames are not returned): a cut stream's last frames then are those of the
+        offline decode of the stream and the context. Without it they see the end padding an
+        offline decode of the stream alone sees, which collapses them when the motion does
+        not end there."""
+        if context is not None:
+            self._tokens = np.concatenate([self._tokens, self._checked(context)])
         frames = self._emit(self.pushed)
         self.reset()
         return frames

@@ -3,8 +3,9 @@
 One step = every level once, coarse to fine, at the next position: position 0 is the prompt
 prefix (the first step is the prefill), position n >= 1 holds the tokens of step n - 1 and
 predicts step n. Each level's presents are fed back as its pasts on the next step, untouched;
-once the sliding window is full, the newest slot overwrites the oldest in place (slot order
-means nothing: every slot carries its position), so no step copies the cache. The levels of
+once the sliding window is full, the newest slot overwrites the oldest in place (every slot
+carries its position, so slot order does not change the attention; with int8 graphs it changes
+the rounding slightly, ~0.06 in logits of ~15), so no step copies the cache. The levels of
 one step are independent (level l sees only earlier steps), so with several workers they run
 concurrently, each on one core, and are sampled afterwards in level order. Guidance runs a
 batch of two rows, conditional and unconditional. The rules (uniforms, end token, window) are
@@ -25,8 +26,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from mogo._session import cpu_session
-from mogo.manifest import Graph
+from mogo._session import graph_session
+from mogo.manifest import BundleError, Graph
 from mogo.motion.skeleton import MAX_FRAMES
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 
@@ -46,15 +47,11 @@ class TokenGenerator:
             raise ValueError(f"level_workers must be >= 1, got {level_workers}")
         if len(level_paths) != len(graphs):
             raise ValueError(f"{len(level_paths)} graph files for {len(graphs)} graph entries")
-        self.sessions = [cpu_session(path, intra_op_threads) for path in level_paths]
-        for level, (session, graph) in enumerate(zip(self.sessions, graphs)):
-            names = ([i.name for i in session.get_inputs()],
-                     [o.name for o in session.get_outputs()])
-            if names != (list(graph.inputs), list(graph.outputs)):
-                raise ValueError(f"level {level}: the graph has inputs and outputs {names}, "
-                                 f"the manifest says {list(graph.inputs)}, {list(graph.outputs)}")
+        self.sessions = [graph_session(path, graph, intra_op_threads)
+                         for path, graph in zip(level_paths, graphs)]
         self.graphs = list(graphs)
-        self.cache_shapes = [_cache_shape(session) for session in self.sessions]
+        self.cache_shapes = [_cache_shape(session, path)
+                             for session, path in zip(self.sessions, level_paths)]
         self.end_token = end_token
         self.num_levels = len(graphs)
         self.num_classes = end_token + 1  # level 0's logits: every code and the end token
@@ -189,7 +186,8 @@ class TokenStream:
     def set_prompt(self, prompt_embedding: np.ndarray) -> None:
         """Condition the following steps on a new prompt: one prefill of every cache slot, the
         prefix under the new prompt and the kept steps with their tokens, so the model then sees
-        exactly what it would if the stream had been those steps under that prompt."""
+        what it would if the stream had been those steps under that prompt (exactly with float
+        graphs; int8 graphs round a little differently by slot order and prefill length)."""
         self.prompt = self._batch(prompt_embedding)
         if len(self.positions):  # before the first step there is nothing cached yet
             self._prefill()
@@ -249,12 +247,13 @@ def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:
     return sorted((sorted(members) for _, members in loads if members), key=lambda m: m[0])
 
 
-def _cache_shape(session) -> tuple[int, int, int]:
+def _cache_shape(session, path) -> tuple[int, int, int]:
     """(layers, heads, head_dim) of a level graph: its past inputs, key and value per layer,
     are (batch, heads, past, head_dim) with heads and head_dim fixed."""
     pasts = session.get_inputs()[len(LEVEL_INPUTS):]
-    if not pasts or len(pasts) % 2:
-        raise ValueError(f"a level graph has {len(pasts)} past inputs, expected key and value "
-                         "pairs")
-    _, heads, _, head_dim = pasts[0].shape
-    return len(pasts) // 2, int(heads), int(head_dim)
+    shape = pasts[0].shape if pasts else []
+    if not pasts or len(pasts) % 2 or len(shape) != 4 or not all(
+            isinstance(size, int) for size in (shape[1], shape[3])):
+        raise BundleError(f"{path}: not a level graph: expected key and value pairs of past "
+                          f"inputs (batch, heads, past, head_dim) after {LEVEL_INPUTS}")
+    return len(pasts) // 2, shape[1], shape[3]

@@ -100,5 +100,6 @@ def travelling_clip(rng, skeleton=SMPL_22, frames=120, turn_degrees=180.0, backw
     heading = np.stack([np.sin(facing), np.zeros(frames), np.cos(facing)], -1)
     root = np.cumsum(step * heading, axis=0) + rng.normal(size=3) * [3, 0, 3]
     root[:, 1] = 0.03 * np.sin(np.arange(frames) / 3)
-    body = rest_pose(skeleton)[None] + rng.normal(scale=jitter, size=(frames, skeleton.num_joints, 3))
+    noise = rng.normal(scale=jitter, size=(frames, skeleton.num_joints, 3))
+    body = rest_pose(skeleton)[None] + noise
     return qrot(qyaw(facing)[:, None], body) + root[:, None]

@@ -52,7 +52,8 @@ def imported_modules(path: Path) -> list[str]:
             names += [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:  # relative: resolve against the file's package
-                base = package_of(path).split(".")[: len(package_of(path).split(".")) - node.level + 1]
+                parts = package_of(path).split(".")
+                base = parts[: len(parts) - node.level + 1]
                 names.append(".".join(base + ([node.module] if node.module else [])))
             else:
                 names.append(node.module)

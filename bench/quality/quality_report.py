@@ -1,11 +1,12 @@
 """The quality report of a bundle (default: the shipped one), as markdown, in one command:
 
-    python -m mogo.bench.quality.quality_report --data DIR --evaluator RUN/evaluator --out docs/quality.md
+    python -m mogo.bench.quality.quality_report --data DIR --evaluator RUN/evaluator \
+        --out docs/quality.md
 
 the metric table of `mogo eval`, the per-primitive semantic pass rates (mogo.bench.quality.semantic)
 for the real and the generated clips, and the MoSA-VQ ablation table that
-`python -m mogo.bench.training.vq_ablation --runs RUNS` writes to RUNS/ablation.md (`--ablation RUNS`;
-the report says when there is none). Torch-free.
+`python -m mogo.bench.training.vq_ablation --runs RUNS` writes to RUNS/ablation.md
+(`--ablation RUNS`; the report says when there is none). Torch-free.
 """
 from __future__ import annotations
 
@@ -26,8 +27,8 @@ def ablation_section(ablation: Path | None) -> str:
                                           else ablation)
     if path is None or not path.is_file():
         where = f" ({path} does not exist)" if path is not None else ""
-        return (f"Missing{where}: run `python -m mogo.bench.training.vq_ablation --data DIR --runs RUNS` "
-                f"and pass `--ablation RUNS`.")
+        return (f"Missing{where}: run `python -m mogo.bench.training.vq_ablation --data DIR "
+                f"--runs RUNS` and pass `--ablation RUNS`.")
     return path.read_text().strip()
 
 
@@ -47,7 +48,8 @@ def report(args: argparse.Namespace) -> str:
                       f"top-1/2/3 {val.get('r1', float('nan')):.3f} / "
                       f"{val.get('r2', float('nan')):.3f} / {val.get('r3', float('nan')):.3f} "
                       f"(batches of 32)" if val else f"`{args.evaluator}`")
-    command = "python -m mogo.bench.quality.quality_report " + " ".join(map(shlex.quote, sys.argv[1:]))
+    command = ("python -m mogo.bench.quality.quality_report "
+               + " ".join(map(shlex.quote, sys.argv[1:])))
     return "\n".join([
         f"# Quality report: {args.bundle or 'the default bundle'}", "",
         f"Regenerate with `{command}` (torch-free; {seconds / 60:.0f} min on this project's "
@@ -63,8 +65,9 @@ def report(args: argparse.Namespace) -> str:
         format_table(metrics), "",
         "## Does the motion do what the caption says?", "",
         f"Captions that describe one program segment, checked on joint positions "
-        f"(mogo.bench.quality.semantic). Real clips: every such caption of the test split. Generated: "
-        f"{args.per_primitive} captions per primitive, generated with the real length. The "
+        f"(mogo.bench.quality.semantic). Real clips: every such caption of the test split. "
+        f"Generated: {args.per_primitive} captions per primitive, generated with the real "
+        f"length. The "
         f"last column runs the same checks on the real clip of another primitive: how often a "
         f"check passes what it should not.", "",
         format_semantic(semantic), "",

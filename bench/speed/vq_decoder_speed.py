@@ -1,4 +1,5 @@
-"""How fast the ONNX VQ decoder runs on one CPU thread: `python -m mogo.bench.speed.vq_decoder_speed`.
+"""How fast the ONNX VQ decoder runs on one CPU thread:
+`python -m mogo.bench.speed.vq_decoder_speed`.
 
 Exports `VQConfig.cpu_default()` with random weights (the cost does not depend on them), centred
 and causal, and prints a markdown table: the time to decode a 196-token clip in one call, the

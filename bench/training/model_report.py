@@ -1,5 +1,5 @@
-"""Test-split figures of trained runs: `python -m mogo.bench.training.model_report --data DIR --vq RUN
---t2m RUN`.
+"""Test-split figures of trained runs:
+`python -m mogo.bench.training.model_report --data DIR --vq RUN --t2m RUN`.
 
 Prints a markdown table: the VQ's reconstruction of whole test clips (MPJPE on recovered
 joints, root trajectory included, and with the first k levels) and the transformer's

@@ -20,7 +20,8 @@ import numpy as np
 
 from mogo.export.data.animator import PRIMITIVES, Segment, animate, sample_segment
 from mogo.export.data.animator_body import FPS
-from mogo.export.data.captions import JOINERS, TEMPLATES, caption_program, caption_segment
+from mogo.export.data.caption_templates import JOINERS, TEMPLATES
+from mogo.export.data.captions import caption_program, caption_segment
 from mogo.export.data.humanml3d import format_caption_line
 from mogo.export.data.normalization import STD_FLOOR, feature_statistics
 from mogo.motion.features import joints_to_features

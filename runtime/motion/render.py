@@ -8,13 +8,15 @@ second).
 """
 from __future__ import annotations
 
+import itertools
 import math
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO, Iterator
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFont
+from PIL import GifImagePlugin, Image, ImageChops, ImageDraw, ImageFont
 
 from .skeleton import KIT_21, SMPL_22, Skeleton
 
@@ -54,6 +56,14 @@ def render_frames(joints: np.ndarray, caption: str = "", fps: float | None = Non
     The skeleton is inferred from J (22: HumanML3D, 21: KIT-ML) when not given; `fps`
     (default: the skeleton's) labels the frame counter and times the camera's pan.
     """
+    return list(iter_frames(joints, caption, fps, skeleton, camera))
+
+
+def iter_frames(joints: np.ndarray, caption: str = "", fps: float | None = None,
+                skeleton: Skeleton | None = None, camera: Camera = Camera()
+                ) -> Iterator[Image.Image]:
+    """render_frames one image at a time, so a clip of any length needs the memory of one
+    image; the joints are checked now, before the first image is asked for."""
     joints = np.asarray(joints, dtype=np.float64)
     skeleton = _check_joints(joints, skeleton)
     fps = skeleton.fps if fps is None else fps
@@ -61,61 +71,104 @@ def render_frames(joints: np.ndarray, caption: str = "", fps: float | None = Non
         raise ValueError(f"fps must be positive, got {fps}")
     frames = joints.shape[0]
     font = ImageFont.load_default(size=13)
-    caption_lines = _wrap(caption, font, camera.size - 16, max_lines=3)
-
     look_at = np.zeros((frames, 3))
     look_at[:, [0, 2]] = _follow(joints[:, 0, [0, 2]], camera.follow_seconds * fps)
     look_at[:, 1] = camera.look_height
-    project = _projector(camera, look_at)  # (T, ..., 3) world -> (T, ..., 2) pixels, depth
-
-    bones = [(int(p), j) for j, p in enumerate(skeleton.parents) if p >= 0]
-    bone_colours = _bone_colours(skeleton, bones)
-    parent_idx = np.array([p for p, _ in bones])
-    child_idx = np.array([c for _, c in bones])
-    pixels, depth = project(joints)  # (T, J, 2), (T, J)
-    shadow = joints.copy()
-    shadow[..., 1] = 0.0
-    shadow_pixels, _ = project(shadow)
-    bone_depth = depth[:, parent_idx] + depth[:, child_idx]  # (T, B)
-    grid_pixels, _ = project(_grid_lines(look_at, camera).reshape(frames, -1, 3))
-    grid_pixels = grid_pixels.reshape(frames, -1, 2, 2)  # (T, lines, ends, xy)
-
     base = Image.new("P", (camera.size, camera.size), BACKGROUND)
     base.putpalette([c for rgb in PALETTE for c in rgb])
-    for i, line in enumerate(caption_lines):  # drawn once: text rendering is the slow part
-        ImageDraw.Draw(base).text((8, 6 + 16 * i), line, fill=TEXT, font=font)
-    images = []
-    for t in range(frames):
-        image = base.copy()
-        draw = ImageDraw.Draw(image)
-        for a, b in grid_pixels[t]:
-            draw.line([tuple(a), tuple(b)], fill=GRID, width=1)
-        for p, c in bones:
-            draw.line([tuple(shadow_pixels[t, p]), tuple(shadow_pixels[t, c])], fill=SHADOW,
-                      width=3)
-        for k in np.argsort(-bone_depth[t]):  # far bones first, near ones drawn over them
-            p, c = bones[k]
-            draw.line([tuple(pixels[t, p]), tuple(pixels[t, c])], fill=bone_colours[k], width=4)
-        for x, y in pixels[t]:
-            draw.ellipse([x - 2.5, y - 2.5, x + 2.5, y + 2.5], fill=TEXT)
-        draw.text((8, camera.size - 20), f"frame {t + 1}/{frames}   {t / fps:.2f} s",
-                  fill=TEXT, font=font)
-        images.append(image)
-    return images
+    for i, line in enumerate(_wrap(caption, font, camera.size - 16, max_lines=3)):
+        ImageDraw.Draw(base).text((8, 6 + 16 * i), line, fill=TEXT, font=font)  # drawn once
+    return _images(joints, look_at, skeleton, camera, base, fps, font)
+
+
+def _images(joints: np.ndarray, look_at: np.ndarray, skeleton: Skeleton, camera: Camera,
+            base: Image.Image, fps: float, font: ImageFont.FreeTypeFont) -> Iterator[Image.Image]:
+    frames = len(joints)
+    for start in range(0, frames, _CHUNK):
+        scene = _Scene.project(joints[start:start + _CHUNK], look_at[start:start + _CHUNK],
+                               skeleton, camera)
+        for t in range(start, start + len(scene.pixels)):
+            yield _draw(base.copy(), scene, t - start, f"frame {t + 1}/{frames}   {t / fps:.2f} s",
+                        font)
+
+
+_CHUNK = 256  # frames projected at a time: vectorised, yet memory does not grow with the clip
+
+
+@dataclass(frozen=True)
+class _Scene:
+    """What some frames are drawn from, projected to pixels."""
+
+    bones: list[tuple[int, int]]  # (parent, child)
+    bone_colours: list[int]
+    pixels: np.ndarray  # (T, J, 2)
+    shadow_pixels: np.ndarray  # (T, J, 2)
+    bone_depth: np.ndarray  # (T, B)
+    grid_pixels: np.ndarray  # (T, lines, ends, xy)
+
+    @classmethod
+    def project(cls, joints: np.ndarray, look_at: np.ndarray, skeleton: Skeleton,
+                camera: Camera) -> _Scene:
+        project = _projector(camera, look_at)  # (T, ..., 3) world -> (T, ..., 2) pixels, depth
+        bones = [(int(p), j) for j, p in enumerate(skeleton.parents) if p >= 0]
+        parents, children = np.array(bones).T
+        pixels, depth = project(joints)  # (T, J, 2), (T, J)
+        shadow = joints.copy()
+        shadow[..., 1] = 0.0
+        grid_pixels, _ = project(_grid_lines(look_at, camera).reshape(len(joints), -1, 3))
+        return cls(bones, _bone_colours(skeleton, bones), pixels, project(shadow)[0],
+                   depth[:, parents] + depth[:, children],
+                   grid_pixels.reshape(len(joints), -1, 2, 2))
+
+
+def _draw(image: Image.Image, scene: _Scene, t: int, label: str,
+          font: ImageFont.FreeTypeFont) -> Image.Image:
+    """Frame t drawn over the background image (caption included)."""
+    draw = ImageDraw.Draw(image)
+    for a, b in scene.grid_pixels[t]:
+        draw.line([tuple(a), tuple(b)], fill=GRID, width=1)
+    shadow, pixels = scene.shadow_pixels[t], scene.pixels[t]
+    for p, c in scene.bones:
+        draw.line([tuple(shadow[p]), tuple(shadow[c])], fill=SHADOW, width=3)
+    for k in np.argsort(-scene.bone_depth[t]):  # far bones first, near ones drawn over them
+        p, c = scene.bones[k]
+        draw.line([tuple(pixels[p]), tuple(pixels[c])], fill=scene.bone_colours[k], width=4)
+    for x, y in pixels:
+        draw.ellipse([x - 2.5, y - 2.5, x + 2.5, y + 2.5], fill=TEXT)
+    draw.text((8, image.size[1] - 20), label, fill=TEXT, font=font)
+    return image
 
 
 def save_gif(joints: np.ndarray, path: str | Path, caption: str = "", fps: float | None = None,
              skeleton: Skeleton | None = None, camera: Camera = Camera()) -> Path:
-    """Write a looping stick-figure GIF of `joints` (T, J, 3) with one GIF frame per frame."""
+    """Write a looping stick-figure GIF of `joints` (T, J, 3) with one GIF frame per frame,
+    frame by frame: the memory of a few images, whatever the clip's length."""
     joints = np.asarray(joints, dtype=np.float64)
     fps = _check_joints(joints, skeleton).fps if fps is None else fps
-    images = render_frames(joints, caption, fps, skeleton, camera)
+    images = iter_frames(joints, caption, fps, skeleton, camera)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    # The frame counter changes every frame, so Pillow never merges identical frames.
-    images[0].save(path, save_all=True, append_images=images[1:], duration=1000.0 / fps,
-                   loop=0, optimize=False)
+    with open(path, "wb") as file:
+        write_gif(file, images, 1000.0 / fps)
     return path
+
+
+def write_gif(file: BinaryIO, images: Iterator[Image.Image], duration_ms: float) -> None:
+    """A looping GIF of palette images that share one palette, written as they come (Pillow's
+    own save_all holds every frame until the end). As Pillow writes them, each frame after
+    the first is only the rectangle that changed; the frame counter changes every frame, so
+    no frame is ever empty."""
+    first = next(images)
+    header, _ = GifImagePlugin.getheader(first, info=dict(loop=0, duration=duration_ms))
+    file.writelines(header)
+    previous = None
+    for image in itertools.chain([first], images):
+        box = ((0, 0, *image.size) if previous is None else
+               ImageChops.subtract_modulo(image, previous).getbbox() or (0, 0, 1, 1))
+        file.writelines(GifImagePlugin.getdata(image.crop(box), offset=box[:2],
+                                               duration=duration_ms))
+        previous = image
+    file.write(b";")
 
 
 def _check_joints(joints: np.ndarray, skeleton: Skeleton | None) -> Skeleton:
@@ -198,15 +251,19 @@ def _bone_colours(skeleton: Skeleton, bones: list[tuple[int, int]]) -> list[int]
 
 
 def _wrap(text: str, font: ImageFont.FreeTypeFont, width_px: int, max_lines: int) -> list[str]:
-    """Wrap to lines that fit `width_px`, ending with an ellipsis if it needs more lines."""
+    """Wrap to lines that fit `width_px`, ending with an ellipsis if it needs more lines.
+    Only the text that can show is measured (no glyph is narrower than a pixel), and the
+    search for the line length starts at the font's average, so any caption wraps at once."""
     text = " ".join(text.split())
     if not text:
         return []
-    chars = len(text)
-    while chars > 8 and max(font.getlength(line) for line in textwrap.wrap(text, chars)) > width_px:
-        chars -= 2
-    lines = textwrap.wrap(text, chars)
-    if len(lines) > max_lines:
+    shown = text[:(max_lines + 1) * max(int(width_px), 1)]
+    average = max(font.getlength(shown), 1.0) / len(shown)
+    chars = min(len(shown), max(8, int(width_px / average)))
+    while chars > 8 and max(map(font.getlength, textwrap.wrap(shown, chars))) > width_px:
+        chars -= 1
+    lines = textwrap.wrap(shown, chars)
+    if len(lines) > max_lines or len(shown) < len(text):
         lines = lines[:max_lines]
         lines[-1] = textwrap.shorten(lines[-1] + " ...", chars, placeholder=" ...")
     return lines

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from mogo.export.data.animator import PRIMITIVES, Segment, sample_segment
-from mogo.export.data.captions import (JOINERS, POOLS, SUBJECTS, TEMPLATES, caption_program,
-                                       caption_segment, conjugate, count_noun, render, templates,
-                                       times_word)
+from mogo.export.data.caption_templates import JOINERS, POOLS, SUBJECTS, TEMPLATES
+from mogo.export.data.captions import (caption_program, caption_segment, conjugate, count_noun,
+                                       render, templates, times_word)
 
 DRAWS = 300  # random segments per template: enough to meet every param combination it fits
 

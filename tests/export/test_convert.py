@@ -1,9 +1,12 @@
+import re
+
 import numpy as np
 import pytest
 
 from mogo.cli import main
-from mogo.export.data.convert import resample
+from mogo.export.data.convert import read_clip, resample
 from mogo.motion.features import features_to_joints
+from mogo.motion.skeleton import KIT_21, SMPL_22
 
 from helpers import travelling_clip
 
@@ -34,7 +37,7 @@ def test_convert_names_the_bad_file(tmp_path, capsys):
     np.save(joints_dir / "broken.npy", np.zeros((30, 17, 3)))
     assert main(["data", "convert", "--joints", str(joints_dir), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert "broken.npy" in err and "joints must be" in err
+    assert "broken.npy: shape (30, 17, 3), expected (T, 22, 3)" in err
     assert main(["data", "convert", "--joints", str(tmp_path / "nope"), "--out", "x"]) == 2
 
 
@@ -46,3 +49,114 @@ def test_resample_keeps_duration_and_endpoints():
     np.testing.assert_allclose(out[-1], clip[-1], atol=1e-9)
     with pytest.raises(ValueError, match="fps must be positive"):
         resample(clip, 0.0, 20.0)
+
+
+# -- what issue 18 found accepted or worded wrongly -----------------------------------------------
+def _clip(frames=50):
+    return travelling_clip(np.random.default_rng(3), frames=frames)
+
+
+def _with_glitch(value):
+    clip = _clip()
+    clip[5, 0, 0] = value
+    return clip
+
+
+@pytest.mark.parametrize("write,message", [
+    (lambda p: p.write_text("hello"), "not a .npy array file"),
+    (lambda p: np.savez(p.open("wb"), a=_clip()), "not a .npy array file"),
+    (lambda p: (np.save(p, _clip()), p.write_bytes(p.read_bytes()[:500])),
+     "not a plain .npy array (Failed to read all data"),
+    (lambda p: np.save(p, _clip() * 100), "from ankle to head along the bones, a person 0.5 "
+                                          "to 2.5 m; in centimetres? divide by 100"),
+    (lambda p: np.save(p, _clip() * 1000), "in millimetres? divide by 1000"),
+    (lambda p: np.save(p, _clip() / 0.0254), "in inches? divide by 39.37"),
+    (lambda p: np.save(p, _clip() * 1e30), "e+30; joints are metres, within 10000 m of the "
+                                           "origin"),
+    (lambda p: np.save(p, _with_glitch(1e30)), "coordinates up to 1e+30"),
+    (lambda p: np.save(p, _with_glitch(np.nan)), "holds NaN or infinite coordinates"),
+    (lambda p: np.save(p, _with_glitch(-np.inf)), "holds NaN or infinite coordinates"),
+    (lambda p: np.save(p, _clip()[:, :21]), "shape (50, 21, 3), expected (T, 22, 3) "
+                                            "for the humanml3d skeleton (--skeleton)"),
+    (lambda p: np.save(p, _clip()[:1]), "1 frame(s); a clip needs at least 2"),
+    (lambda p: np.save(p, np.full((50, 22, 3), "a")), "holds <U1 values, expected joint"),
+])
+def test_a_bad_clip_among_good_ones_is_one_line_and_leaves_no_folder(tmp_path, capsys, write,
+                                                                      message):
+    joints_dir = tmp_path / "mocap"
+    joints_dir.mkdir()
+    for k in range(3):
+        np.save(joints_dir / f"good{k}.npy", _clip())
+    write(joints_dir / "x.npy")
+    out = tmp_path / "out"
+    assert main(["data", "convert", "--joints", str(joints_dir), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"mogo: error: {joints_dir / 'x.npy'}: ") and err.count("\n") == 1
+    assert message in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mocap"]  # no out, no staging
+
+
+def test_a_bad_clip_message_in_full(tmp_path):
+    np.save(tmp_path / "x.npy", _clip() * 100)
+    with pytest.raises(ValueError, match=re.escape(f"{tmp_path / 'x.npy'}: the body measures")):
+        read_clip(tmp_path / "x.npy", SMPL_22)
+
+
+def test_metres_pass_for_both_skeletons(tmp_path):
+    for skeleton in (SMPL_22, KIT_21):
+        np.save(tmp_path / "x.npy", travelling_clip(np.random.default_rng(0), skeleton))
+        assert read_clip(tmp_path / "x.npy", skeleton).shape[1:] == (skeleton.num_joints, 3)
+
+
+@pytest.mark.parametrize("fps", ["nan", "0", "-1", "inf", "0.001"])
+def test_a_bad_source_frame_rate_is_one_line(tmp_path, capsys, fps):
+    joints_dir = tmp_path / "mocap"
+    joints_dir.mkdir()
+    np.save(joints_dir / "good.npy", _clip())
+    assert main(["data", "convert", "--joints", str(joints_dir), "--out", str(tmp_path / "o"),
+                 "--fps", fps]) == 2
+    assert capsys.readouterr().err == ("mogo: error: the source frame rate (--fps) must be a "
+                                       f"number of frames per second, at least 1, got "
+                                       f"{float(fps)}\n")
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_failure_while_converting_leaves_no_folder(tmp_path, capsys):
+    """Two frames at 1000 fps are one frame at 20: found only when resampling, after the
+    other clips were written (into the staging folder, removed)."""
+    joints_dir = tmp_path / "mocap"
+    joints_dir.mkdir()
+    np.save(joints_dir / "a.npy", _clip(frames=200))
+    np.save(joints_dir / "b.npy", _clip()[:2])
+    assert main(["data", "convert", "--joints", str(joints_dir), "--out", str(tmp_path / "o"),
+                 "--fps", "1000"]) == 2
+    assert f"{joints_dir / 'b.npy'}: a clip needs at least 2 frames" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mocap"]
+
+
+def test_an_out_folder_with_files_is_refused_and_an_empty_one_used(tmp_path, capsys):
+    joints_dir = tmp_path / "mocap"
+    joints_dir.mkdir()
+    np.save(joints_dir / "good.npy", _clip())
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "keep.txt").write_text("my work")
+    assert main(["data", "convert", "--joints", str(joints_dir), "--out", str(mine)]) == 2
+    assert capsys.readouterr().err == (f"mogo: error: {mine}: exists and is not an empty "
+                                       "folder; give a new --out (nothing is overwritten)\n")
+    assert [p.name for p in mine.iterdir()] == ["keep.txt"]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["data", "convert", "--joints", str(joints_dir), "--out", str(empty)]) == 0
+    assert (empty / "Mean.npy").is_file()
+
+
+def test_an_out_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
+    joints_dir = tmp_path / "mocap"
+    joints_dir.mkdir()
+    np.save(joints_dir / "good.npy", _clip())
+    (tmp_path / "file").write_text("x")
+    assert main(["data", "convert", "--joints", str(joints_dir), "--out",
+                 str(tmp_path / "file" / "out")]) == 2
+    assert capsys.readouterr().err.startswith(f"mogo: error: {tmp_path / 'file' / 'out'}: "
+                                              "cannot create it")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mogo.export.data.animator import Segment
-from mogo.export.data.captions import JOINERS, TEMPLATES
+from mogo.export.data.caption_templates import JOINERS, TEMPLATES
 from mogo.export.data.corpus import heldout_pairs, mirror_segment, synthesize_corpus
 from mogo.export.data.humanml3d import parse_caption_line
 from mogo.motion.features import features_to_joints

@@ -1,13 +1,16 @@
 """Bundle verification on a hand-made folder (no models needed): what is refused, and how; the
-manifest schema (mogo.manifest) on it and on the shipped bundle."""
+manifest schema (mogo.manifest) on it and on the shipped bundle; damaged graphs on a copy of
+the shipped bundle."""
 import json
 import re
+import shutil
 
 import numpy as np
 import pytest
 
 from mogo.bundle import MANIFEST, Bundle, BundleError, read_manifest, write_manifest
-from mogo.generator import DEFAULT_BUNDLE
+from mogo.cli import main
+from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
 from mogo.manifest import (T2M, VQ, DecoderGraph, Defaults, Graph, Manifest, MotionFormat,
                            Normalization, Text)
 from mogo.motion.skeleton import SMPL_22
@@ -148,4 +151,114 @@ def test_arrays_are_checked(bundle):
     np.save(bundle / "std.npy", np.array([object()], dtype=object), allow_pickle=True)
     write_manifest(bundle, read_manifest(bundle))
     with pytest.raises(BundleError, match="std.npy: not a plain .npy array"):
+        Bundle.load(bundle)
+
+
+# -- what issue 18 found accepted or worded wrongly -----------------------------------------------
+@pytest.mark.parametrize("change,message", [
+    (lambda m: m["files"]["level_0.onnx"].pop("sha256"), "files.level_0.onnx.sha256: missing"),
+    (lambda m: m["motion"]["normalization"].pop("mean"), "motion.normalization.mean: missing"),
+    (lambda m: m["files"]["level_0.onnx"].update(bytes="1200"),
+     "files.level_0.onnx.bytes: expected an integer, got '1200'"),
+    (lambda m: m["motion"].update(fps="twenty"), "motion.fps: expected a number, got 'twenty'"),
+    (lambda m: m["motion"].update(fps=0), "motion.fps: 0.0, must be > 0"),
+    (lambda m: m["defaults"].update(top_k=-5), "defaults.top_k: top_k must be >= 0"),
+    (lambda m: m["defaults"].update(temperature=-1.0), "defaults.temperature: temperature must"),
+    (lambda m: m["defaults"].update(guidance=float("nan")),
+     "defaults.guidance: expected a finite number, got nan"),
+    (lambda m: m["defaults"].update(top_p=float("inf")), "defaults.top_p: expected a finite"),
+    (lambda m: m["defaults"].update(window=0), "defaults.window: 0, must be > 0"),
+    (lambda m: m["defaults"].update(max_seconds=-1), "defaults.max_seconds: -1.0, must be > 0"),
+    (lambda m: m["vq"]["decoder"].update(lookahead=-2), "vq.decoder.lookahead: -2, must be >= 0"),
+    (lambda m: m["text"].update(max_length=0), "text.max_length: 0, must be > 0"),
+    (lambda m: m.update(format_version="2"), "format_version: expected an integer, got '2'"),
+    (lambda m: m.pop("format_version"), "format_version: missing"),
+])
+def test_a_bad_value_in_the_manifest_names_the_file_and_key(bundle, change, message):
+    _edit(bundle, change)
+    with pytest.raises(BundleError, match=re.escape(f"{bundle / MANIFEST}: {message}")):
+        Bundle.load(bundle)
+
+
+def test_a_bundle_path_that_is_no_bundle_folder_gets_one_line(bundle, tmp_path):
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "empty").mkdir()
+    for path, message in ((tmp_path / "file", "a file, not a bundle folder"),
+                          (bundle / MANIFEST, f"a file, not a bundle folder; give its folder, "
+                                              f"{bundle}"),
+                          (tmp_path / "empty", "an empty folder; a bundle folder holds a "
+                                               "manifest.json")):
+        with pytest.raises(BundleError, match=re.escape(f"{path}: {message}")):
+            Bundle.load(path)
+
+
+def test_an_unreadable_bundle_folder_is_refused_naming_it(bundle, monkeypatch):
+    # os.access stands in for a folder without permission (root reads any folder)
+    monkeypatch.setattr("mogo.bundle.os.access", lambda path, mode: False)
+    with pytest.raises(BundleError, match=re.escape(f"{bundle}: no permission to read")):
+        Bundle.load(bundle)
+
+
+@pytest.fixture
+def shipped_copy(tmp_path):
+    root = tmp_path / "shipped"
+    shutil.copytree(DEFAULT_BUNDLE, root)
+    return root
+
+
+def test_a_damaged_graph_with_a_matching_sha256_is_one_line_naming_it(shipped_copy, capsys):
+    """The manifest re-written after the damage: the checksums pass, onnxruntime does not."""
+    graph = shipped_copy / "level_0.onnx"
+    graph.write_bytes(graph.read_bytes()[:100_000])
+    write_manifest(shipped_copy, read_manifest(shipped_copy))
+    message = f"{graph}: not a valid ONNX graph: Protobuf parsing failed."
+    with pytest.raises(BundleError, match=re.escape(message)):
+        MotionGenerator.load(shipped_copy)
+    assert main(["info", str(shipped_copy)]) == 2  # info opens the graphs it calls verified
+    assert capsys.readouterr().err == f"mogo: error: {message}\n"
+
+
+def test_graph_names_off_the_manifest_are_refused_naming_the_file(shipped_copy):
+    _edit(shipped_copy, lambda m: m["text"]["encoder"]["inputs"].__setitem__(0, "tokens"))
+    with pytest.raises(BundleError, match=re.escape(
+            f"{shipped_copy / 'text_encoder.onnx'}: the graph's inputs are not the manifest's "
+            "(number 0 is 'token_ids', the manifest says 'tokens')")):
+        MotionGenerator.load(shipped_copy)
+    shutil.copy(shipped_copy / "level_1.onnx", shipped_copy / "level_0.onnx")
+    _edit(shipped_copy, lambda m: m["text"]["encoder"]["inputs"].__setitem__(0, "token_ids"))
+    write_manifest(shipped_copy, read_manifest(shipped_copy))
+    with pytest.raises(BundleError, match=re.escape(
+            f"{shipped_copy / 'level_0.onnx'}: the graph's inputs are not the manifest's")):
+        Bundle.load(shipped_copy).open_graphs()
+
+
+def test_a_damaged_tokenizer_is_one_line_naming_it(shipped_copy):
+    (shipped_copy / "tokenizer.json").write_text("{not a tokenizer")
+    write_manifest(shipped_copy, read_manifest(shipped_copy))
+    with pytest.raises(BundleError, match=re.escape(
+            f"{shipped_copy / 'tokenizer.json'}: not a tokenizer file: ")):
+        MotionGenerator.load(shipped_copy)
+
+
+def test_info_says_what_it_checked(capsys):
+    assert main(["info"]) == 0
+    assert "sha256 verified; 9 graphs open with the manifest's names" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("write,message", [
+    (lambda p: p.write_text("hello"), "mean.npy: not a .npy array file"),
+    (lambda p: p.write_bytes(p.read_bytes()[:200]), "mean.npy: not a plain .npy array (Failed"),
+    (lambda p: np.save(p, np.full(263, "a")), "mean.npy: holds <U1 values, expected real numbers"),
+    (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: contains NaN or infinite values"),
+])
+def test_a_bad_normalisation_array_is_one_line_naming_it(bundle, write, message):
+    write(bundle / "mean.npy")
+    write_manifest(bundle, read_manifest(bundle))
+    with pytest.raises(BundleError, match=re.escape(message)):
+        Bundle.load(bundle)
+
+
+def test_a_manifest_nested_too_deeply_is_one_line(bundle):
+    (bundle / MANIFEST).write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(BundleError, match="manifest.json: not a manifest \\(nested too deeply"):
         Bundle.load(bundle)

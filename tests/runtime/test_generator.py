@@ -78,9 +78,14 @@ def test_streamed_frames_equal_the_offline_decode(generator):
     assert 100 - lookahead - STREAM_DECODE_EVERY < len(streamed) <= 100 - lookahead
     recorded = generator.stream("a person jogs in a circle.", seed=2)
     recorded.advance(100)
-    motion = recorded.finish()  # the last frames too, decoded with the end padding
-    offline = generator.decode(motion.tokens, [])
+    motion = recorded.finish()  # the last frames too, their right context drawn past the cut
+    longer = generator.stream("a person jogs in a circle.", seed=2)
+    longer.advance(100 + lookahead)
+    context = longer.finish().tokens
+    assert np.array_equal(context[:100], motion.tokens)
+    offline = generator.decode(context, [], frames=100)
     assert motion.joints.shape == offline.joints.shape == (100, 22, 3)
+    assert np.array_equal(offline.tokens, motion.tokens)
     np.testing.assert_allclose(motion.joints, offline.joints, atol=1e-5)
     np.testing.assert_allclose(motion.features, offline.features, atol=1e-4)
     np.testing.assert_allclose(streamed, offline.joints[:len(streamed)], atol=1e-5)

@@ -66,10 +66,7 @@ def outputs(generator) -> dict[str, dict]:
         motion = generator.generate(prompt, seconds=seconds, seed=seed, **options)
         cases[f"generate/{name}"] = pinned(motion.joints, motion.tokens)
     batch_prompts = ["a person walks forward.", "a person sits down."]
-    if hasattr(generator, "generate_batch"):  # issue 17 splits batches off generate
-        batch = generator.generate_batch(batch_prompts, seconds=2.0, seed=9)
-    else:
-        batch = generator.generate(batch_prompts, seconds=2.0, seed=9)
+    batch = generator.generate_batch(batch_prompts, seconds=2.0, seed=9)
     for k, motion in enumerate(batch):
         cases[f"generate/batch_{k}"] = pinned(motion.joints, motion.tokens)
     played = generator.play([("a person walks forward.", 2.0), ("a person waves.", 1.5)],

@@ -1,9 +1,11 @@
+import weakref
+
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, ImageFont
 
 from mogo.cli import main
-from mogo.motion.render import render_frames, save_gif
+from mogo.motion.render import _wrap, iter_frames, render_frames, save_gif, write_gif
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
 from helpers import travelling_clip
@@ -40,3 +42,35 @@ def test_data_show_writes_gif(tiny_humanml3d, tmp_path, capsys):
     assert "no such clip '999'" in capsys.readouterr().err
     assert main(["data", "show", "000004", "--data", str(tmp_path), "--gif", str(gif)]) == 2
     assert "new_joint_vecs: folder missing" in capsys.readouterr().err
+
+
+def test_the_streamed_gif_holds_every_frame_and_only_a_few_at_a_time(tmp_path):
+    joints = travelling_clip(np.random.default_rng(1), SMPL_22, frames=300, turn_degrees=90)
+    drawn = render_frames(joints, "a person walks")
+    alive = []
+
+    def images():  # each image yielded is dropped by the writer before long
+        for image in iter_frames(joints, "a person walks"):
+            alive[:] = [ref for ref in alive if ref() is not None]
+            assert len(alive) <= 3
+            alive.append(weakref.ref(image))
+            yield image
+
+    with open(tmp_path / "clip.gif", "wb") as file:
+        write_gif(file, images(), duration_ms=50.0)
+    with Image.open(tmp_path / "clip.gif") as gif:
+        assert gif.n_frames == 300 and gif.info["loop"] == 0 and gif.info["duration"] == 50
+        for t in (0, 1, 150, 299):
+            gif.seek(t)
+            assert np.array_equal(np.asarray(gif.convert("RGB")),
+                                  np.asarray(drawn[t].convert("RGB")))
+
+
+@pytest.mark.parametrize("caption, cut", [("walk " * 4000, True), ("w" * 20000, True),
+                                          (" \n" * 10000 + "jump", False)])
+def test_a_caption_of_any_length_wraps_into_three_lines_that_fit(caption, cut):
+    font = ImageFont.load_default(size=13)
+    lines = _wrap(caption, font, 304, max_lines=3)
+    assert 1 <= len(lines) <= 3 and all(font.getlength(line) <= 304 for line in lines)
+    assert lines[-1].endswith("...") == cut  # 20,000 characters: once quadratic, now instant
+    assert _wrap("a person walks forward", font, 304, 3) == ["a person walks forward"]

@@ -15,8 +15,7 @@ GREEDY = Sampling(temperature=0)
 
 
 def guided(scale: float, temperature=1.0, top_k=0, top_p=1.0) -> Sampling:
-    """Sampling with guidance `scale` (the field is the fourth, whatever its name)."""
-    return Sampling(temperature, top_k, top_p, scale)
+    return Sampling(temperature=temperature, top_k=top_k, top_p=top_p, guidance=scale)
 
 
 # -- ties and the inverse CDF -----------------------------------------------------------------
@@ -285,7 +284,7 @@ def test_a_batch_of_prompts_draws_each_with_its_own_seed(generator):
     """A batch [a, b] with seed s is generate(a, seed=s) and generate(b, seed=s + 1), as
     Motion.seed says."""
     prompts = ["a person walks forward.", "someone waves."]
-    batch = generate_batch(generator, prompts, seconds=1.5, seed=5)
+    batch = generator.generate_batch(prompts, seconds=1.5, seed=5)
     alone = [generator.generate(p, seconds=1.5, seed=5 + k) for k, p in enumerate(prompts)]
     assert [m.seed for m in batch] == [5, 6]
     for together, single in zip(batch, alone):
@@ -294,10 +293,3 @@ def test_a_batch_of_prompts_draws_each_with_its_own_seed(generator):
     same_seed = generator.generate(prompts[1], seconds=1.5, seed=5)
     assert not np.array_equal(same_seed.tokens, batch[1].tokens)
 
-
-def generate_batch(generator, prompts, **options):
-    """generate_batch where the API has it (issue 17 splits it off generate), else generate on a
-    list, as before."""
-    if hasattr(generator, "generate_batch"):
-        return generator.generate_batch(prompts, **options)
-    return generator.generate(prompts, **options)

@@ -61,6 +61,24 @@ def test_streamed_frames_are_the_offline_decode(generator, shipped, every, chunk
     np.testing.assert_allclose(frames, offline, atol=1e-5, rtol=0)
 
 
+@pytest.mark.parametrize("every,chunk", [(1, 1), (8, 5)])
+@pytest.mark.parametrize("length,context", [(LOOKAHEAD + 2, LOOKAHEAD), (70, LOOKAHEAD),
+                                            (70, 4), (5, LOOKAHEAD + 9)])
+def test_a_flush_with_context_gives_the_offline_decode_of_stream_and_context_cut(
+        shipped, every, chunk, length, context):
+    """A cut stream: its last frames see the tokens after the cut, not the end padding."""
+    ids = random_ids(shipped, length + context, seed=length)
+    d = decoder(shipped, every)
+    head = ids[:length]
+    pushed = [d.push(head[i:i + chunk]) for i in range(0, length, chunk)]
+    frames = np.concatenate(pushed + [d.flush(ids[length:])])
+    offline = d.decode_offline(ids)
+    offline = offline[:length * len(offline) // len(ids)]  # the frames of the first `length`
+    assert frames.shape == offline.shape
+    np.testing.assert_allclose(frames, offline, atol=1e-5, rtol=0)
+    assert d.pushed == d.emitted == d.buffered_tokens == 0
+
+
 @pytest.mark.parametrize("every", [1, 8])
 def test_the_first_frame_comes_once_its_lookahead_is_pushed_then_bursts_of_every(shipped, every):
     d = decoder(shipped, every)
@@ -122,6 +140,8 @@ def test_empty_input_and_bad_ids(shipped):
     levels, codes = shipped.levels, shipped.codebook_size
     assert d.decode_offline(np.zeros((0, levels), np.int64)).shape == (0, shipped.feature_dim)
     assert d.flush().shape == (0, shipped.feature_dim)
+    with pytest.raises(ValueError, match="must lie in"):
+        d.flush(np.full((2, levels), codes))
     for ids, message in [(np.full((2, levels), codes), "must lie in"),
                          (np.full((2, levels), -1), "must lie in"),
                          (np.zeros((2, levels), np.float32), "must be integers"),

@@ -21,7 +21,7 @@ from mogo.token_generator import balanced_groups
 
 PROMPTS = ["a person walks forward.", "a person jumps on the spot.", "someone waves."]
 TOP_P = Sampling(top_p=0.9)
-GUIDED = Sampling(1.0, 0, 0.9, 2.0)  # guidance 2 (the fourth field)
+GUIDED = Sampling(top_p=0.9, guidance=2.0)
 SAME_CACHE = 2e-4  # logits of two prefills of the same slots (slot order may differ)
 
 
