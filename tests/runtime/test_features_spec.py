@@ -182,3 +182,14 @@ def test_facing_is_smoothed_like_scipy_gaussian_filter1d(frames):
     step = joints[1:, 0] - joints[:-1, 0]
     local = np.einsum("tij,tj->ti", np.stack([_yaw(-a) for a in facing[:-1]]), step)
     np.testing.assert_allclose(features[:, 193:196], local, atol=1e-6)
+
+
+def test_a_displacement_of_exactly_the_threshold_is_not_a_contact():
+    # The original compares with a strict '<'. 0.0625 m is exact in binary and so is its
+    # square; the clip is already canonical, so no rotation blurs the displacement.
+    joints = _contact_clip(0.0, 0.0)
+    joints[:, L_ANKLE, 0] = 0.25 + 0.0625 * np.arange(4)
+    features, _ = joints_to_features(joints, contact_threshold=0.0625 ** 2)
+    np.testing.assert_array_equal(features[:, 259], 0.0)
+    features, _ = joints_to_features(joints, contact_threshold=np.nextafter(0.0625 ** 2, 1.0))
+    np.testing.assert_array_equal(features[:, 259], 1.0)
