@@ -166,6 +166,19 @@ def test_a_spinning_clip_has_unwrapped_angles(tmp_path):
     assert spin > 600.0  # the root's yaw runs on through 720 degrees instead of wrapping
 
 
+def test_a_somersault_has_continuous_angles(tmp_path):
+    """The root pitching through a full circle crosses X = +-90 degrees, where the principal
+    ZXY angles flip Z and Y by 180 in one frame; the file keeps the equivalent continuous ones
+    (X running on past 90), which tools interpolate without a spurious half turn."""
+    frames = 73
+    local = np.tile(np.array([1.0, 0, 0, 0]), (frames, 22, 1))
+    local[:, 0] = qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(np.linspace(0, 360, frames)))
+    joints = _pose(local, np.tile([0.0, 1.0, 0.0], (frames, 1)))
+    parsed = _write(tmp_path, joints)
+    assert np.abs(np.diff(parsed[1][:, 3:], axis=0)).max() < 10.0  # 5 degrees a frame
+    np.testing.assert_allclose(_positions(parsed), joints, atol=1e-5)
+
+
 @pytest.mark.parametrize("degrees", [90.0, -90.0])
 def test_gimbal_locked_poses_come_back(tmp_path, degrees):
     """A body lying on its front or back (the root's X channel at +-90 degrees, where Z and Y
