@@ -14,7 +14,8 @@ positions back up to the clip's own bone-length jitter. Generated motion has suc
 (bones that stretch by a few cm): `bone_translations=True` also writes every joint's
 per-frame offset as position channels, which gives the positions back exactly, for tools
 that read position channels on every joint (Blender does; retargeting to a rig keeps only
-the rotations).
+the rotations). Euler angles stay continuous from frame to frame (whole turns, and the
+equivalent triple past X = 90 degrees), so a spin or a somersault interpolates cleanly.
 """
 from __future__ import annotations
 
@@ -64,7 +65,7 @@ def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fp
     local = rotations.copy()
     for joint in range(1, skeleton.num_joints):
         local[:, joint] = np.swapaxes(rotations[:, parents[joint]], -1, -2) @ rotations[:, joint]
-    angles = np.degrees(np.unwrap(_matrix_to_zxy(local), axis=0))  # (T, J, 3)
+    angles = np.degrees(_continuous(_matrix_to_zxy(local)))  # (T, J, 3)
 
     lines = ["HIERARCHY"]
     _write_joint(lines, skeleton, 0, offsets * scale, depth=0, translations=bone_translations)
@@ -235,6 +236,20 @@ def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
     a, b = [(1, 2), (2, 0), (0, 1)][axis]
     m[:, a, a], m[:, a, b], m[:, b, a], m[:, b, b] = c, -s, s, c
     return m
+
+
+def _continuous(angles: np.ndarray) -> np.ndarray:
+    """Euler angles (T, J, 3) made continuous over frames, so tools can interpolate them: of
+    the two triples that give each rotation, (z, x, y) and (z + pi, pi - x, y + pi), the one
+    nearest the previous frame, then unwrapped (whole turns added) frame to frame."""
+    alternate = angles + np.array([np.pi, 0.0, np.pi])
+    alternate[..., 1] = np.pi - angles[..., 1]
+    chosen = angles.copy()
+    for t in range(1, len(angles)):
+        steps = [np.abs((c[t] - chosen[t - 1] + np.pi) % (2 * np.pi) - np.pi).sum(-1)
+                 for c in (angles, alternate)]
+        chosen[t] = np.where((steps[1] < steps[0])[:, None], alternate[t], angles[t])
+    return np.unwrap(chosen, axis=0)
 
 
 def _matrix_to_zxy(m: np.ndarray) -> np.ndarray:
