@@ -97,8 +97,12 @@ def verify_files(root: Path, manifest: Manifest) -> None:
             raise BundleError(f"{root / MANIFEST}: file name {name!r} leaves the bundle folder")
         if name not in files:
             raise BundleError(f"{root / MANIFEST}: refers to {name} but lists no checksum for it")
+    inside = Path(os.path.realpath(root))  # realpath, unlike resolve, takes a link loop too
     for name, entry in sorted(files.items()):
-        path = root / name
+        path, target = root / name, Path(os.path.realpath(root / name))
+        if not target.is_relative_to(inside):  # a symbolic link on the way out
+            raise BundleError(f"{root / MANIFEST}: file name {name!r} leaves the bundle folder "
+                              f"(a symbolic link to {target})")
         if not path.is_file():
             raise BundleError(f"{path}: missing from the bundle")
         size = path.stat().st_size

@@ -14,7 +14,7 @@ from mogo.cli import main
 from mogo.export.models.generate_torch import generate
 from mogo.export.models.runs import load_checkpoint, load_t2m, load_vq
 from mogo.export.models.text_encoder import encode_captions
-from mogo.export.onnx.bundle import _quantize_levels
+from mogo.export.onnx import bundle as onnx_bundle
 from mogo.export.onnx.vq_graphs import vq_from_bundle
 from mogo.generator import MotionGenerator
 from mogo.manifest import SkeletonSpec
@@ -73,19 +73,49 @@ def test_runtime_tokens_are_the_torch_references(runs, sampling):
     assert np.array_equal(motion.tokens, reference)
 
 
-def test_int8_levels_are_checked_and_kept_only_if_they_agree(runs, tmp_path):
-    bundle = tmp_path / "bundle"
+def _int8_check(runs, folder, **patches):
+    """Quantise a copy of the runs' bundle with mogo.export.onnx.bundle's names patched;
+    returns the check and the sha256 of each level graph before and after."""
+    bundle = folder / "bundle"
     shutil.copytree(runs / "bundle", bundle)
-    manifest = read_manifest(bundle)
-    levels = manifest.t2m.levels
+    levels = read_manifest(bundle).t2m.levels
     _, text_encoder, tokenizer = load_t2m(runs / "t2m")
-    fp32_size = sum((bundle / level.file).stat().st_size for level in levels)
-    check = _quantize_levels(bundle, levels, manifest.end_token, text_encoder,
-                             tokenizer, [PROMPT, "someone jumps."])
-    assert 0 <= check.greedy_token_agreement <= 1 and check.prompts == 2
-    size = sum((bundle / level.file).stat().st_size for level in levels)
-    assert (size < fp32_size) == check.used
-    assert not (bundle / "int8").exists()
+    before = [file_sha256(bundle / level.file) for level in levels]
+    with pytest.MonkeyPatch.context() as patch:
+        for name, value in patches.items():
+            patch.setattr(onnx_bundle, name, value)
+        check = onnx_bundle._quantize_levels(bundle, levels, read_manifest(bundle).end_token,
+                                             text_encoder, tokenizer, [PROMPT, "someone jumps."])
+    assert check.prompts == 2 and not (bundle / "int8").exists()
+    return check, before, [file_sha256(bundle / level.file) for level in levels]
+
+
+def _negated(source, target):
+    """A 'quantiser' that ruins the graph: every float weight negated."""
+    model = onnx.load(str(source))
+    for tensor in model.graph.initializer:
+        array = numpy_helper.to_array(tensor)
+        if np.issubdtype(array.dtype, np.floating):
+            tensor.CopyFrom(numpy_helper.from_array(-array, tensor.name))
+    onnx.save(model, str(target))
+
+
+def test_int8_levels_are_checked_and_kept_only_if_they_agree(runs, tmp_path):
+    """The gate, not the number: int8 replaces fp32 exactly when its measured agreement
+    reaches the threshold, and the measurement sees a perfect and a ruined quantiser."""
+    low, fp32, int8 = _int8_check(runs, tmp_path / "low", INT8_MIN_AGREEMENT=0.0)
+    assert low.used and low.threshold == 0.0 and int8 != fp32
+    above = low.greedy_token_agreement + 1e-4  # above the unrounded agreement too
+    high, fp32_again, kept = _int8_check(runs, tmp_path / "high", INT8_MIN_AGREEMENT=above)
+    assert not high.used and kept == fp32 == fp32_again
+    assert high.greedy_token_agreement == low.greedy_token_agreement
+    below = low.greedy_token_agreement - 1e-4
+    just, _, int8_again = _int8_check(runs, tmp_path / "just", INT8_MIN_AGREEMENT=below)
+    assert just.used and int8_again == int8
+    same, _, copied = _int8_check(runs, tmp_path / "same", quantize_level_graph=shutil.copy)
+    assert same.greedy_token_agreement == 1.0 and same.used and copied == fp32
+    ruined, _, kept = _int8_check(runs, tmp_path / "ruined", quantize_level_graph=_negated)
+    assert ruined.greedy_token_agreement < 0.5 and not ruined.used and kept == fp32
 
 
 def test_export_refuses_a_used_folder_and_mismatched_runs(runs, capsys):

@@ -2,7 +2,6 @@
 local fake server (good, slow, malformed, failing answers), and aligned generation."""
 import json
 import threading
-import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
@@ -168,11 +167,14 @@ GOOD_ANSWER = ('The person strolls, then waves. Two steps: {"not": "this one"} i
 
 
 class FakeServer:
-    """A chat-completions endpoint answering what the test sets; records the requests."""
+    """A chat-completions endpoint answering what the test sets; records the requests. With
+    `hold` set it answers once the test is over (or after 30 s, so that a client ignoring its
+    timeout fails instead of hanging): far later than the timeout the test gives."""
 
     def __init__(self):
-        self.status, self.content, self.delay, self.raw = 200, GOOD_ANSWER, 0.0, None
+        self.status, self.content, self.hold, self.raw = 200, GOOD_ANSWER, False, None
         self.requests = []
+        self.released = threading.Event()
         server = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -180,7 +182,8 @@ class FakeServer:
                 length = int(self.headers["Content-Length"])
                 server.requests.append((self.path, dict(self.headers),
                                         json.loads(self.rfile.read(length))))
-                time.sleep(server.delay)
+                if server.hold:
+                    server.released.wait(30)
                 reply = server.raw or json.dumps(
                     {"choices": [{"message": {"role": "assistant", "content": server.content}}]})
                 self.send_response(server.status)
@@ -200,6 +203,7 @@ class FakeServer:
 def server():
     fake = FakeServer()
     yield fake
+    fake.released.set()
     fake.httpd.shutdown()
     fake.httpd.server_close()
 
@@ -239,7 +243,7 @@ def test_llm_without_url_or_key(server, monkeypatch):
 
 
 @pytest.mark.parametrize("setup,note", [
-    (dict(delay=1.0), "the LLM did not answer within 0.3 s; used the rules"),
+    (dict(hold=True), "the LLM did not answer within 0.5 s; used the rules"),
     (dict(status=500), "the LLM server answered HTTP 500; used the rules"),
     (dict(content="Sure! The person walks, then waves."), "the LLM answer was not valid JSON"),
     (dict(content='{"prompt": "a person walks.", "steps": [{"prompt": "a person walks.", '
@@ -255,15 +259,17 @@ def test_llm_without_url_or_key(server, monkeypatch):
 ], ids=["timeout", "http-500", "no-json", "broken-json", "not-json-reply", "no-choices",
         "no-steps", "seconds-out-of-range", "empty-step", "wrong-schema"])
 def test_llm_failures_fall_back_to_the_rules(server, rules, setup, note):
+    """Only the held server may time out: the others get a timeout no busy machine reaches."""
     for name, value in setup.items():
         setattr(server, name, value)
-    alignment = LLMAligner(server.url, timeout=0.3, fallback=rules).align(PROMPT)
+    timeout = 0.5 if server.hold else 60
+    alignment = LLMAligner(server.url, timeout=timeout, fallback=rules).align(PROMPT)
     assert alignment.source == "rules" and note in alignment.note
     assert alignment.steps == rules.align(PROMPT).steps
 
 
 def test_llm_unreachable_server_falls_back(rules):
-    alignment = LLMAligner("http://127.0.0.1:9/v1", timeout=0.5, fallback=rules).align(PROMPT)
+    alignment = LLMAligner("http://127.0.0.1:9/v1", timeout=30, fallback=rules).align(PROMPT)
     assert alignment.source == "rules"
     assert alignment.note.startswith("cannot reach the LLM server at http://127.0.0.1:9/v1")
 
