@@ -117,7 +117,7 @@ class MotionGenerator:
         mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment."""
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
-        seed = _fresh_seed() if seed is None else checked_int(seed, "seed", 0)
+        seed = _seed(seed)
         aligner = self.aligner(align)
         text = checked_prompt(text) if aligner else self._prompt(text)
         return self._generate(text, seconds, seed, sampling, aligner)
@@ -148,7 +148,7 @@ class MotionGenerator:
             raise ValueError("no prompt given")
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
-        seed = _fresh_seed() if seed is None else checked_int(seed, "seed", 0)
+        seed = _seed(seed)
         aligner = self.aligner(align)
         texts = [checked_prompt(text, f"texts[{k}]") if aligner
                  else self._prompt(text, f"texts[{k}]") for k, text in enumerate(texts)]
@@ -168,7 +168,7 @@ class MotionGenerator:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
         fly: the same stream, so every switch is a smooth continuation."""
         sampling = self.sampling(sampling, **options)
-        seed = _fresh_seed() if seed is None else checked_int(seed, "seed", 0)
+        seed = _seed(seed)
         entries = []
         for k, entry in enumerate(checked_schedule(schedule)):
             try:
@@ -224,7 +224,7 @@ class MotionGenerator:
                window: int | None = None, **options) -> MotionStream:
         """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`."""
         sampling = self.sampling(sampling, **options)
-        seed = _fresh_seed() if seed is None else checked_int(seed, "seed", 0)
+        seed = _seed(seed)
         window = self.defaults.window if window is None else checked_int(window, "window", 1)
         return MotionStream(self, self._prompt(text), seed, sampling, window)
 
@@ -379,5 +379,8 @@ def _tokenizer(path: Path) -> Tokenizer:
         raise BundleError(f"{path}: not a tokenizer file: {cause}") from None
 
 
-def _fresh_seed() -> int:
-    return int(np.random.SeedSequence().generate_state(1)[0])
+def _seed(seed: object) -> int:
+    """The caller's seed, checked; None draws a fresh one (kept in Motion.seed)."""
+    if seed is None:
+        return int(np.random.SeedSequence().generate_state(1)[0])
+    return checked_int(seed, "seed", 0)
