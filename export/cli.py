@@ -70,14 +70,9 @@ def _cmd_export(args: argparse.Namespace) -> None:
         manifest = replace_vq_decoder(Path(args.vq), Path(args.bundle), Path(args.out))
     else:
         manifest = export_bundle(Path(args.vq), Path(args.t2m), Path(args.out), int8=args.int8)
-    size = sum(entry.bytes for entry in manifest.files.values())
-    note = ""
-    if manifest.int8 is not None:
-        check = manifest.int8
-        note = (f"; int8 level graphs {'used' if check.used else 'NOT used'} (greedy token "
-                f"agreement {check.greedy_token_agreement:.1%}, threshold "
-                f"{check.threshold:.0%})")
-    print(f"wrote {args.out}: {len(manifest.files)} files, {size / 1e6:.1f} MB{note}")
+    note = "" if manifest.int8 is None else f"; int8 level graphs {manifest.int8.describe()}"
+    print(f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB"
+          f"{note}")
 
 
 def add_commands(commands) -> None:

@@ -178,9 +178,7 @@ def _cmd_info(args: argparse.Namespace) -> None:
         "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),
     ]
     if m.int8 is not None:
-        lines.append(f"int8        {'used' if m.int8.used else 'not used'}: greedy token "
-                     f"agreement {m.int8.greedy_token_agreement:.1%} (threshold "
-                     f"{m.int8.threshold:.0%}), {m.int8.scheme}")
+        lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
     for part, run in m.training.items():
         recipe = run.recipe or {}  # the trainer's own record: read as it is, where present
         tuned = (f", {'the decoder' if recipe.get('tune') == 'decoder' else 'all weights'} "
@@ -189,8 +187,7 @@ def _cmd_info(args: argparse.Namespace) -> None:
         lines.append(f"trained     {part}: {run.step} steps, batch "
                      f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
                      f"seed {recipe.get('seed')}{tuned}")
-    total = sum(entry.bytes for entry in m.files.values())
-    lines.append(f"files       {len(m.files)}, {total / 1e6:.1f} MB, sha256 verified; "
+    lines.append(f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
                  f"{bundle.open_graphs()} graphs open with the manifest's names")
     lines += [f"  {name:20s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
     print("\n".join(lines))

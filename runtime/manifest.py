@@ -193,6 +193,10 @@ class Int8Check:
     steps_per_prompt: int
     scheme: str
 
+    def describe(self) -> str:
+        return (f"{'used' if self.used else 'not used'}: greedy token agreement "
+                f"{self.greedy_token_agreement:.1%} (threshold {self.threshold:.0%})")
+
 
 @dataclass(frozen=True)
 class Fp16Storage:
@@ -224,6 +228,10 @@ class Manifest:
     @property
     def feature_dim(self) -> int:
         return self.motion.feature_dim
+
+    @property
+    def total_bytes(self) -> int:
+        return sum(entry.bytes for entry in self.files.values())
 
     @property
     def end_token(self) -> int:

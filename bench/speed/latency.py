@@ -75,8 +75,8 @@ def product(bundle_dir: Path, settings: Settings) -> dict:
         rows[t].update(stream_step_ms=means,
                        stream_flatness=old_over_fresh(streams[t], g.stream(PROMPT, seed=2)))
     bundle = Bundle.load(bundle_dir)
-    return dict(threads=rows, disk_mb=sum(f.bytes for f in bundle.manifest.files.values())
-                / 1e6, peak_rss_mib=runtime_peak_rss(bundle_dir), clip_seconds=seconds,
+    return dict(threads=rows, disk_mb=bundle.manifest.total_bytes / 1e6,
+                peak_rss_mib=runtime_peak_rss(bundle_dir), clip_seconds=seconds,
                 window=bundle.manifest.defaults.window,
                 binned_step_ms={t: binned(step_times[t]) for t in generators})
 
