@@ -103,6 +103,14 @@ def checked_int(value: object, name: str, minimum: int, maximum: int | None = No
     return int(value)
 
 
+def checked_bool(value: object, name: str) -> bool:
+    """A True/False argument (numpy's bool too); 0, 1 or "no" are not taken for one."""
+    if isinstance(value, bool) or (getattr(value, "shape", None) == ()
+                                   and getattr(value, "dtype", None) == bool):
+        return bool(value)
+    raise TypeError(f"{name} must be True or False, got {type(value).__name__}")
+
+
 def checked_schedule(schedule: object) -> list:
     """A schedule's shape: a non-empty list of (prompt, seconds) pairs (their values are the
     generator's to check)."""

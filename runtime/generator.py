@@ -25,12 +25,13 @@ from tokenizers import Tokenizer
 
 from mogo._session import graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
-from mogo.arguments import (checked_int, checked_prompt, checked_schedule, checked_seconds,
-                            plural, read_prompt)
+from mogo.arguments import (checked_bool, checked_int, checked_prompt, checked_schedule,
+                            checked_seconds, plural, read_prompt)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import Graph
 from mogo.motion.features import JointStream
+from mogo.motion.feet import FootPlanter, planted
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StreamingDecoder
 from mogo.token_generator import TokenGenerator, TokenStream
@@ -109,23 +110,26 @@ class MotionGenerator:
     # -- whole clips ---------------------------------------------------------------------------
     def generate(self, text: str, seconds: float | None = None, seed: int | None = None,
                  sampling: Sampling | None = None, align: bool | PromptAligner = False,
-                 **options) -> Motion:
+                 plant_feet: bool = True, **options) -> Motion:
         """One prompt -> one Motion. seconds=None lets the model end the motion (at most the
         bundle's max_seconds); seed=None draws a fresh seed, kept in Motion.seed so the result
         can be reproduced. `sampling` and the keyword `options`: see `sampling()`.
         align=True (or a PromptAligner) rewrites the prompt into caption-style steps (see
-        mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment."""
+        mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment.
+        plant_feet=False keeps the joints as decoded (see mogo.motion.feet); the same for
+        every method that makes motion."""
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
         seed = _seed(seed)
         aligner = self.aligner(align)
+        plant_feet = checked_bool(plant_feet, "plant_feet")
         text = checked_prompt(text) if aligner else self._prompt(text)
-        return self._generate(text, seconds, seed, sampling, aligner)
+        return self._generate(text, seconds, seed, sampling, aligner, plant_feet)
 
     def _generate(self, text: str, seconds: float | None, seed: int, sampling: Sampling,
-                  aligner: PromptAligner | None) -> Motion:
+                  aligner: PromptAligner | None, plant_feet: bool) -> Motion:
         if aligner is not None:
-            return self._play_aligned(aligner.align(text), seconds, seed, sampling)
+            return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet)
         steps = None if seconds is None else self._steps(seconds)
         max_steps = self._steps(self.defaults.max_seconds)
         if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
@@ -133,11 +137,12 @@ class MotionGenerator:
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
                                       self.defaults.window)
         frames = None if seconds is None else round(seconds * self.fps)
-        return self.decode(tokens, [(0, text)], frames, seed)
+        return self.decode(tokens, [(0, text)], frames, seed, plant_feet)
 
     def generate_batch(self, texts: Sequence[str], seconds: float | None = None,
                        seed: int | None = None, sampling: Sampling | None = None,
-                       align: bool | PromptAligner = False, **options) -> list[Motion]:
+                       align: bool | PromptAligner = False, plant_feet: bool = True,
+                       **options) -> list[Motion]:
         """`generate` for each prompt, in order: prompt k with seed + k (seed=None: one fresh
         seed for the batch), so any of them can be reproduced alone."""
         if isinstance(texts, str):
@@ -150,25 +155,27 @@ class MotionGenerator:
         seconds = None if seconds is None else self._seconds(seconds)
         seed = _seed(seed)
         aligner = self.aligner(align)
+        plant_feet = checked_bool(plant_feet, "plant_feet")
         texts = [checked_prompt(text, f"texts[{k}]") if aligner
                  else self._prompt(text, f"texts[{k}]") for k, text in enumerate(texts)]
-        return [self._generate(text, seconds, seed + k, sampling, aligner)
+        return [self._generate(text, seconds, seed + k, sampling, aligner, plant_feet)
                 for k, text in enumerate(texts)]
 
     def _play_aligned(self, alignment: Alignment, seconds: float | None, seed: int,
-                      sampling: Sampling) -> Motion:
+                      sampling: Sampling, plant_feet: bool) -> Motion:
         if seconds is not None:
             alignment = alignment.scaled(seconds)
-        motion = self._play(alignment.schedule(), seed, sampling)
+        motion = self._play(alignment.schedule(), seed, sampling, plant_feet)
         motion.alignment = alignment
         return motion
 
     def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
-             sampling: Sampling | None = None, **options) -> Motion:
+             sampling: Sampling | None = None, plant_feet: bool = True, **options) -> Motion:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
         fly: the same stream, so every switch is a smooth continuation."""
         sampling = self.sampling(sampling, **options)
         seed = _seed(seed)
+        plant_feet = checked_bool(plant_feet, "plant_feet")
         entries = []
         for k, entry in enumerate(checked_schedule(schedule)):
             try:
@@ -176,11 +183,12 @@ class MotionGenerator:
                 entries.append((self._prompt(entry[0], "prompt"), seconds))
             except (TypeError, ValueError) as error:  # which entry, for a long schedule
                 raise type(error)(f"schedule[{k}]: {error}") from None
-        return self._play(entries, seed, sampling)
+        return self._play(entries, seed, sampling, plant_feet)
 
-    def _play(self, schedule: list[tuple[str, float]], seed: int,
-              sampling: Sampling) -> Motion:
-        stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window)
+    def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
+              plant_feet: bool) -> Motion:
+        stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window,
+                              plant_feet)
         for k, (prompt, seconds) in enumerate(schedule):
             if k:
                 stream._switch_prompt(prompt)
@@ -188,15 +196,19 @@ class MotionGenerator:
         return stream.finish()
 
     def decode(self, tokens: np.ndarray, prompts: list[tuple[int, str]],
-               frames: int | None = None, seed: int | None = None) -> Motion:
+               frames: int | None = None, seed: int | None = None, plant_feet: bool = True
+               ) -> Motion:
         """Token steps (n, L) -> Motion (features and joints), cut to `frames` when given.
         Steps past the cut are only the right context of the last kept frames (decoded
         without it, against the zero padding of an end, they collapse): Motion.tokens keeps
-        the steps the kept frames come from."""
+        the steps the kept frames come from. The feet are planted in the kept frames alone,
+        the cut being the clip's end (as a stream's finish() does)."""
         decoder = self.streaming_decoder()
         normalised = decoder.decode_offline(tokens)[:frames]
         features = normalised * self.bundle.std + self.bundle.mean
         joints = JointStream(self.skeleton).push(features)
+        if checked_bool(plant_feet, "plant_feet"):  # foot cleanup (issue 25)
+            joints = planted(features, joints, self.skeleton)
         if frames is not None:
             tokens = tokens[:math.ceil(frames / self.down_factor)]
         return Motion(features, joints, self.fps, tokens, self.skeleton, prompts, seed)
@@ -221,12 +233,13 @@ class MotionGenerator:
 
     # -- streams -------------------------------------------------------------------------------
     def stream(self, text: str, seed: int | None = None, sampling: Sampling | None = None,
-               window: int | None = None, **options) -> MotionStream:
+               window: int | None = None, plant_feet: bool = True, **options) -> MotionStream:
         """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`."""
         sampling = self.sampling(sampling, **options)
         seed = _seed(seed)
         window = self.defaults.window if window is None else checked_int(window, "window", 1)
-        return MotionStream(self, self._prompt(text), seed, sampling, window)
+        return MotionStream(self, self._prompt(text), seed, sampling, window,
+                            checked_bool(plant_feet, "plant_feet"))
 
     def streaming_decoder(self) -> StreamingDecoder:
         d = self._decoder
@@ -261,10 +274,11 @@ class MotionStream:
     """One endless motion: `step()` draws one token step and returns the frames that became
     final (joints (n, J, 3); none while the decoder waits for its right context, then bursts of
     STREAM_DECODE_EVERY). Memory and step time stay constant: the KV cache slides over the
-    last `window` steps."""
+    last `window` steps. Planting the feet holds each frame back until the frames of its
+    lookahead (mogo.motion.feet.LOOKAHEAD) are decoded."""
 
     def __init__(self, generator: MotionGenerator, text: str, seed: int, sampling: Sampling,
-                 window: int | None):
+                 window: int | None, plant_feet: bool = True):
         self.generator = generator
         self.seed = seed
         self.prompts: list[tuple[int, str]] = [(0, text)]  # checked by the generator
@@ -273,6 +287,7 @@ class MotionStream:
                                                            allow_end=False)
         self._decoder = generator.streaming_decoder()
         self._joints = JointStream(generator.skeleton)
+        self._feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
         self.frames_emitted = 0
         self._skip = 0
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
@@ -315,7 +330,7 @@ class MotionStream:
             raise ValueError("continue_from must come before the first step of a stream")
         tokens = self.generator.encode_motion(motion)
         self._tokens.continue_from(tokens)
-        self._joints.push(self._denormalise(self._decoder.push(tokens)))
+        self._final(self._denormalise(self._decoder.push(tokens)))
         self._skip = self._pending_frames()  # the clip's own last frames: not emitted again
 
     def advance(self, steps: int) -> None:
@@ -334,7 +349,7 @@ class MotionStream:
         g = self.generator
         context = [self._tokens.step() for _ in range(self._decoder.lookahead)]
         features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
-        self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features)
+        self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
                  np.zeros((0, g.manifest.feature_dim), np.float32),
                  np.zeros((0, g.skeleton.num_joints, 3), np.float32))
@@ -342,9 +357,9 @@ class MotionStream:
                                     for column in zip(empty, *(self._record or [])))
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
 
-    def _emit(self, tokens: np.ndarray, normalised: np.ndarray) -> np.ndarray:
-        features = self._denormalise(normalised)
-        joints = self._joints.push(features)
+    def _emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False
+              ) -> np.ndarray:
+        features, joints = self._final(self._denormalise(normalised), end)
         skip = min(self._skip, len(joints))
         features, joints, self._skip = features[skip:], joints[skip:], self._skip - skip
         self.frames_emitted += len(joints)
@@ -352,12 +367,25 @@ class MotionStream:
             self._record.append((tokens, features.astype(np.float32), joints))
         return joints
 
+    def _final(self, features: np.ndarray, end: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Decoded rows in, the rows now final out with their joints: the feet planted when
+        asked, LOOKAHEAD frames later (all of them at the `end`)."""
+        joints = self._joints.push(features)
+        if self._feet is None:
+            return features, joints
+        final = self._feet.push(features, joints)
+        if end:
+            final = tuple(np.concatenate(pair) for pair in zip(final, self._feet.flush()))
+        return final
+
     def _denormalise(self, normalised: np.ndarray) -> np.ndarray:
         return normalised * self.generator.bundle.std + self.generator.bundle.mean
 
     def _pending_frames(self) -> int:
-        """Frames drawn as tokens but not yet emitted (the decoder's lookahead)."""
-        return (self._decoder.pushed - self._decoder.emitted) * self.generator.down_factor
+        """Frames drawn as tokens but not yet emitted (the decoder's lookahead, and the
+        frames the foot planter holds back)."""
+        held = 0 if self._feet is None else self._feet.pending
+        return (self._decoder.pushed - self._decoder.emitted) * self.generator.down_factor + held
 
 
 class _Graph:

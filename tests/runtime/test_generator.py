@@ -13,6 +13,7 @@ import pytest
 
 from mogo.bundle import BundleError
 from mogo.generator import DEFAULT_BUNDLE, STREAM_DECODE_EVERY, MotionGenerator
+from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.motion.skeleton import MAX_FRAMES
 from mogo.sampling import Sampling
 
@@ -71,18 +72,19 @@ def test_sessions_in_parallel_threads_do_not_affect_each_other(generator):
 
 
 def test_streamed_frames_equal_the_offline_decode(generator):
+    """The decoder's part (feet as decoded; planted feet: test_feet.py)."""
     lookahead = generator.manifest.vq.decoder.lookahead
-    stream = generator.stream("a person jogs in a circle.", seed=2)
+    stream = generator.stream("a person jogs in a circle.", seed=2, plant_feet=False)
     streamed = np.concatenate([stream.step() for _ in range(100)])
     assert 100 - lookahead - STREAM_DECODE_EVERY < len(streamed) <= 100 - lookahead
-    recorded = generator.stream("a person jogs in a circle.", seed=2)
+    recorded = generator.stream("a person jogs in a circle.", seed=2, plant_feet=False)
     recorded.advance(100)
     motion = recorded.finish()  # the last frames too, their right context drawn past the cut
-    longer = generator.stream("a person jogs in a circle.", seed=2)
+    longer = generator.stream("a person jogs in a circle.", seed=2, plant_feet=False)
     longer.advance(100 + lookahead)
     context = longer.finish().tokens
     assert np.array_equal(context[:100], motion.tokens)
-    offline = generator.decode(context, [], frames=100)
+    offline = generator.decode(context, [], frames=100, plant_feet=False)
     assert motion.joints.shape == offline.joints.shape == (100, 22, 3)
     assert np.array_equal(offline.tokens, motion.tokens)
     np.testing.assert_allclose(motion.joints, offline.joints, atol=1e-5)
@@ -91,7 +93,8 @@ def test_streamed_frames_equal_the_offline_decode(generator):
 
 
 def test_frames_iterator_and_lookahead(generator):
-    stream = generator.stream("a person walks forward.", seed=0)
+    """The decoder's lookahead and bursts (planted feet add theirs: test_feet.py)."""
+    stream = generator.stream("a person walks forward.", seed=0, plant_feet=False)
     lookahead = generator.manifest.vq.decoder.lookahead
     assert all(len(stream.step()) == 0 for _ in range(lookahead))  # waiting for right context
     assert len(stream.step()) == 1  # the first frame as soon as it can be, then bursts
@@ -173,7 +176,9 @@ def test_a_long_stream_holds_a_constant_state(generator, window):
             full = _held_state(stream)
     assert all(shape[2] == 1 + window for shape in full[0])
     ready = steps - decoder.lookahead
-    assert ready - STREAM_DECODE_EVERY < stream.frames_emitted <= ready
+    decoded = stream.frames_emitted + stream._feet.pending  # the feet hold some frames back
+    assert ready - STREAM_DECODE_EVERY < decoded <= ready
+    assert stream._feet.pending == min(decoded, FEET_LOOKAHEAD)
 
 
 @pytest.mark.parametrize("call,message", [

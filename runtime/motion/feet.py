@@ -1,0 +1,233 @@
+"""Feet that stay planted: contact-aware foot cleanup of decoded motion, offline and on streams.
+
+Decoded feet skate: they drift while the motion's own contact channels (the last four feature
+dims: left ankle, left toe, right ankle, right toe; "moved less than ~4.5 cm in this frame")
+say they are planted. `FootPlanter` fixes the legs and nothing else:
+- each contact joint is held while its channel is above CONTACT (the frame after too, since a
+  contact is "still from t to t+1"), at its mean decoded position over the first PIN_FRAMES
+  frames of the contact; its height is never below that pin (a heel may rise, a foot never
+  sinks into its stance);
+- it eases onto the pin over BLEND_IN frames before the contact and back onto its decoded path
+  over BLEND_OUT frames after it, by blending offsets: positions stay continuous;
+- the foot stays rigid (ankle to toe at the foot's length, the more planted end held) and on or
+  above the floor (y >= 0);
+- each leg is solved by analytic two-bone IK: hip as decoded, knee in the plane of the decoded
+  knee, ankle on its target; thigh, shin and foot at the clip's running mean lengths, so they
+  stop stretching. A target out of the leg's reach is pulled towards the hip (the foot slides
+  rather than the pelvis moving): root motion is never changed.
+
+It reads LOOKAHEAD frames ahead, so a stream emits a frame LOOKAHEAD frames after it is decoded.
+Any chunking of `push` (then `flush`) gives the output of one push of the whole clip.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .features import FOOT_CONTACT_THRESHOLD, feature_layout
+from .skeleton import Skeleton
+
+CONTACT = 0.5  # a contact channel above this holds its joint
+BLEND_IN = 3  # frames to ease onto a pin before its contact starts
+BLEND_OUT = 8  # frames to ease back onto the decoded path after a contact (no lookahead)
+PIN_FRAMES = 6  # the pin: mean position over the first frames of a contact
+LOOKAHEAD = BLEND_IN + PIN_FRAMES - 1  # frames read ahead: 8, one decoder burst
+MAX_REACH = 0.9995  # share of thigh + shin the IK may stretch a leg to
+KNEE_FORWARD = 0.1  # metres the knee's bend plane leans forward: a straight leg bends forward
+
+
+def leg_joints(skeleton: Skeleton) -> np.ndarray:
+    """(2, 4) hip, knee, ankle, toe of the left and right leg, from the contact joints; a
+    ValueError for a skeleton whose feet are not root -> hip -> knee -> ankle -> toe."""
+    parents = skeleton.parents
+    legs = []
+    for ankle, toe in (skeleton.left_foot, skeleton.right_foot):
+        knee = parents[ankle]
+        hip = parents[knee] if knee >= 0 else -1
+        if parents[toe] != ankle or hip <= 0 or parents[hip] != 0:
+            raise ValueError(f"foot planting needs legs hip -> knee -> ankle -> toe with contacts "
+                             f"on ankle and toe; the {skeleton.name} skeleton has other feet")
+        legs.append((hip, knee, ankle, toe))
+    return np.array(legs)
+
+
+def two_bone_ik(hip: np.ndarray, target: np.ndarray, pole: np.ndarray, upper: np.ndarray,
+                lower: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Knee and ankle (..., 3) of a leg from the hip to `target`, bones of lengths upper and
+    lower (...), the knee on the side of `pole` (a point, e.g. the decoded knee). A target out
+    of reach is moved along the hip->target line to the nearest reachable distance."""
+    reach = target - hip
+    distance = np.linalg.norm(reach, axis=-1, keepdims=True)
+    axis = reach / np.maximum(distance, 1e-9)
+    distance = np.clip(distance, np.abs(upper - lower)[..., None] + 1e-6,
+                       MAX_REACH * (upper + lower)[..., None])
+    side = pole - hip
+    side = side - np.sum(side * axis, -1, keepdims=True) * axis
+    side_norm = np.linalg.norm(side, axis=-1, keepdims=True)
+    fallback = np.cross(axis, [1.0, 0.0, 0.0])  # a straight decoded leg: any bend plane
+    side = np.where(side_norm > 1e-6, side / np.maximum(side_norm, 1e-9), fallback /
+                    np.maximum(np.linalg.norm(fallback, axis=-1, keepdims=True), 1e-9))
+    upper, lower = upper[..., None], lower[..., None]
+    cos = (upper ** 2 + distance ** 2 - lower ** 2) / (2 * upper * distance)
+    sin = np.sqrt(np.clip(1 - cos ** 2, 0.0, 1.0))
+    knee = hip + upper * (cos * axis + sin * side)
+    return knee, hip + distance * axis
+
+
+@dataclass
+class _Hold:
+    """One contact joint between frames: was the last frame held, its contact flag, the pin
+    of the current contact, the offset at the last held frame and the frames since."""
+    held: bool = False
+    flag: bool = False
+    pin: np.ndarray | None = None
+    released: np.ndarray = None  # type: ignore[assignment]
+    since: int = 1 << 30
+
+    def __post_init__(self):
+        self.released = np.zeros(3)
+
+
+class FootPlanter:
+    """Cleans feet frame by frame: `push` decoded rows (features (n, D), joints (n, J, 3)),
+    get back the rows whose frames are final, with planted feet; `flush` at the end."""
+
+    def __init__(self, skeleton: Skeleton):
+        self.legs = leg_joints(skeleton)  # (2, 4)
+        self.contacts = self.legs[:, 2:].reshape(-1)  # left ankle, left toe, right ...
+        start = dict((name, start) for name, start, _ in feature_layout(skeleton))
+        self._velocity = start["joint_velocities"] + 3 * self.contacts[:, None] + np.arange(3)
+        self._hips = skeleton.face_joints[:2]  # right hip, left hip: the facing
+        self._holds = [_Hold() for _ in self.contacts]
+        self._features = np.zeros((0, skeleton.feature_dim), np.float32)
+        self._joints = np.zeros((0, skeleton.num_joints, 3))
+        self._length_sum, self._length_count = np.zeros(3), 0
+        self._length_cumsum = np.zeros((0, 3))  # per buffered frame: sums through it
+
+    @property
+    def pending(self) -> int:
+        """Frames pushed but not yet returned."""
+        return len(self._joints)
+
+    def push(self, features: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows in, the rows now final out: (features, joints float32) with the feet planted."""
+        self._buffer(features, joints)
+        return self._clean(max(0, len(self._joints) - LOOKAHEAD))
+
+    def flush(self) -> tuple[np.ndarray, np.ndarray]:
+        """The remaining rows (the clip ends: no lookahead past them)."""
+        return self._clean(len(self._joints))
+
+    def _buffer(self, features: np.ndarray, joints: np.ndarray) -> None:
+        joints = np.asarray(joints, np.float64)
+        self._features = np.concatenate([self._features, features])
+        self._joints = np.concatenate([self._joints, joints])
+        hip, knee, ankle, toe = self.legs.T
+        bones = np.stack([np.linalg.norm(joints[:, b] - joints[:, a], axis=-1).mean(-1)
+                          for a, b in ((hip, knee), (knee, ankle), (ankle, toe))], -1)
+        sums = self._length_sum + np.cumsum(bones, 0)
+        self._length_cumsum = np.concatenate([self._length_cumsum, sums])
+        if len(bones):
+            self._length_sum = sums[-1]
+
+    def _clean(self, ready: int) -> tuple[np.ndarray, np.ndarray]:
+        """Plant the first `ready` buffered frames and drop them from the buffer."""
+        joints, flags = self._joints, self._flags()
+        targets = np.empty((ready, len(self.contacts), 3))
+        weights = np.empty((ready, len(self.contacts)))
+        for i in range(ready):
+            for k, (hold, joint) in enumerate(zip(self._holds, self.contacts)):
+                targets[i, k], weights[i, k] = self._step(hold, flags[:, k], joints[:, joint], i)
+        last = np.minimum(np.arange(ready) + LOOKAHEAD, len(joints) - 1)
+        counts = self._length_count + last + 1
+        lengths = self._length_cumsum[last] / counts[:, None]  # (ready, 3) thigh, shin, foot
+        out = self._solve(joints[:ready], targets, weights, lengths)
+        features = self._features[:ready]
+        self._features, self._joints = self._features[ready:], joints[ready:]
+        self._length_cumsum = self._length_cumsum[ready:]
+        self._length_count += ready
+        return features, out.astype(np.float32)
+
+    def _flags(self) -> np.ndarray:
+        """(n, 4) contacts of the buffered frames: the channel says so and the decoded
+        velocity agrees (a foot moving faster than HumanML3D's contact threshold is not held)."""
+        speed = np.sum(self._features[:, self._velocity].astype(np.float64) ** 2, -1)
+        return (self._features[:, -4:] > CONTACT) & (speed < FOOT_CONTACT_THRESHOLD)
+
+    def _step(self, hold: _Hold, flags: np.ndarray, path: np.ndarray, i: int
+              ) -> tuple[np.ndarray, float]:
+        """Target and planted weight of one contact joint at buffered frame i (path: its
+        decoded positions, flags: its contact flags, both from frame i on)."""
+        held = bool(flags[i]) or hold.flag
+        if held:
+            if not hold.held:
+                hold.pin = self._pin(flags, path, i)
+            offset, weight = _offset(hold.pin, path[i]), 1.0
+            hold.released, hold.since = offset, 0
+        else:
+            hold.since += 1
+            out = _ease(1.0 - hold.since / (BLEND_OUT + 1))
+            offset, into = out * hold.released, 0.0
+            ahead = np.flatnonzero(flags[i + 1:i + 1 + BLEND_IN])
+            if len(ahead):
+                start = i + 1 + ahead[0]
+                into = _ease(1.0 - (start - i) / (BLEND_IN + 1))
+                offset = offset + into * _offset(self._pin(flags, path, start), path[start])
+            weight = out + into
+            if weight > 1.0:  # two contacts close together: share the frames between them
+                offset, weight = offset / weight, 1.0
+        hold.held, hold.flag = held, bool(flags[i])
+        return path[i] + offset, weight
+
+    @staticmethod
+    def _pin(flags: np.ndarray, path: np.ndarray, start: int) -> np.ndarray:
+        """Mean position over the first PIN_FRAMES held frames of the contact from `start`."""
+        window = flags[start:start + PIN_FRAMES].copy()
+        window[1:] |= flags[start:start + len(window) - 1]  # held: this frame's or the last's
+        frames = np.cumprod(window).sum()  # held frames in a row from start
+        return path[start:start + frames].mean(0)
+
+    def _solve(self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray,
+               lengths: np.ndarray) -> np.ndarray:
+        """Rigid feet on or above the floor, then two-bone IK per leg."""
+        out = joints.copy()
+        right, left = self._hips
+        forward = np.cross([0.0, 1.0, 0.0], joints[:, right] - joints[:, left])
+        forward *= KNEE_FORWARD / np.maximum(np.linalg.norm(forward, axis=-1, keepdims=True),
+                                             1e-9)
+        for side, (hip, knee, ankle, toe) in enumerate(self.legs):
+            a, t = targets[:, 2 * side], targets[:, 2 * side + 1]
+            wa, wt = weights[:, 2 * side], weights[:, 2 * side + 1]
+            foot = lengths[:, 2:3]
+            along = t - a
+            span = np.linalg.norm(along, axis=-1, keepdims=True)
+            along = along / np.maximum(span, 1e-9)
+            toe_share = np.where(wa + wt > 0, wt / np.maximum(wa + wt, 1e-9), 0.5)[:, None]
+            a = a + toe_share * (span - foot) * along  # the more planted end stays
+            lift = np.maximum(0.0, -np.minimum(a[:, 1], (a + foot * along)[:, 1]))
+            a[:, 1] += lift
+            out[:, knee], out[:, ankle] = two_bone_ik(joints[:, hip], a, joints[:, knee] + forward,
+                                                      lengths[:, 0], lengths[:, 1])
+            out[:, toe] = out[:, ankle] + foot * along
+        return out
+
+
+def _ease(x: float) -> float:
+    """0 below 0, 1 above 1, smoothstep between: blends with no jump in speed either."""
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _offset(pin: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """Pin minus position, its height part never pulling down (a foot may rise off its pin)."""
+    offset = pin - position
+    offset[1] = max(offset[1], 0.0)
+    return offset
+
+
+def planted(features: np.ndarray, joints: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """The joints (T, J, 3) float32 of a whole clip with planted feet (one push and a flush)."""
+    planter = FootPlanter(skeleton)
+    first = planter.push(features, joints)[1]
+    return np.concatenate([first, planter.flush()[1]])
