@@ -7,7 +7,8 @@ continue_from, each pinned by the sha256 of the exact bytes of its tokens (int64
 golden.json was first recorded from the code before issue 17's restructure (commit c41cff4,
 then `mogo.runtime.generator`), so this test is that restructure's "same bundle, prompt and
 seed give byte-identical tokens and motion". After a deliberate change of the model or of what
-a seed draws, re-record it and say why in the commit:
+a seed draws, re-record it and say why in the commit (issue 25 did, for the joints alone: feet
+are planted by default; the *_feet_as_decoded cases keep the bytes from before it):
 
     python tests/runtime/test_golden.py --record
 
@@ -84,6 +85,15 @@ def outputs(generator) -> dict[str, dict]:
     wrapped = stream.finish()
     cases["stream/switch_after_the_window_wrapped"] = pinned(wrapped.joints, wrapped.tokens,
                                                              wrapped.prompts)
+    # plant_feet=False: the joints as decoded, the bytes recorded before feet were planted
+    raw = generator.generate("a person walks forward.", seconds=2.0, seed=0, plant_feet=False)
+    cases["generate/walk_2s_seed0_feet_as_decoded"] = pinned(raw.joints, raw.tokens)
+    stream = generator.stream("a person jogs in a circle.", seed=2, plant_feet=False)
+    frames = list(stream.frames(30))
+    stream.set_prompt("a person jumps on the spot.")
+    frames += list(stream.frames(30))
+    cases["stream/60_frames_switch_at_30_feet_as_decoded"] = pinned(np.array(frames),
+                                                                    prompts=stream.prompts)
     clip = generator.generate("a person walks forward.", seconds=3.0, seed=4)
     cases["continue_from/encoded_clip"] = {"tokens": digest(generator.encode_motion(clip))}
     stream = generator.stream("a person turns left.", seed=9)
