@@ -119,10 +119,12 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     generator = _load_generator(args)
     sampling = _sampling(args, generator)
     if args.prompts_file:
-        motion = generator.play(schedule, seed=args.seed, sampling=sampling)
+        motion = generator.play(schedule, seed=args.seed, sampling=sampling,
+                                plant_feet=args.plant_feet)
     else:
         motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
-                                    sampling=sampling, align=_aligner(args, generator))
+                                    sampling=sampling, align=_aligner(args, generator),
+                                    plant_feet=args.plant_feet)
     if motion.alignment is not None:
         print(motion.alignment.describe())
         if motion.alignment.note:
@@ -145,7 +147,8 @@ def _cmd_stream(args: argparse.Namespace) -> None:
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be at least 1, got {args.frames}")
     generator = _load_generator(args)
-    stream = generator.stream(args.text, seed=args.seed, sampling=_sampling(args, generator))
+    stream = generator.stream(args.text, seed=args.seed, sampling=_sampling(args, generator),
+                              plant_feet=args.plant_feet)
     try:
         for index, frame in enumerate(stream.frames(args.frames)):
             record = dict(frame=index, seconds=round(index / generator.fps, 4),
@@ -224,7 +227,8 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
 
 
 def _generation_arguments(command: argparse.ArgumentParser) -> None:
-    """--bundle, --seed, a flag per field of Sampling (--top-k for top_k) and --threads."""
+    """--bundle, --seed, a flag per field of Sampling (--top-k for top_k), --threads and
+    --no-plant-feet."""
     command.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
     command.add_argument("--seed", type=int, help="same seed, same motion (default: random, "
                                                   "printed)")
@@ -234,6 +238,10 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
     command.add_argument("--threads", type=int,
                          help="cores to use; the same motion for any count (default: 2 where "
                               "there are 2 or more, the fastest measured)")
+    command.add_argument("--plant-feet", action=argparse.BooleanOptionalAction, default=True,
+                         help="hold each foot still while the motion's contacts say it is "
+                              "planted, the legs re-solved by IK (default: on; --no-plant-feet "
+                              "keeps the joints as decoded)")
 
 
 def _add_runtime_commands(commands) -> None:

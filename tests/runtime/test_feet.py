@@ -177,3 +177,14 @@ def test_bad_plant_feet_and_skeletons_without_such_legs_are_refused(generator):
         generator.stream("a person walks forward.", plant_feet=1)
     with pytest.raises(ValueError, match="kit skeleton"):
         FootPlanter(KIT_21)
+
+
+def test_the_cli_plants_feet_unless_told_not_to(generator, tmp_path):
+    from mogo.cli import main
+
+    for flag, plant in (("--plant-feet", True), ("--no-plant-feet", False)):
+        assert main(["generate", "a person jogs forward.", "--seconds", "2", "--seed", "5",
+                     "--out", str(tmp_path), "--name", flag[2:], flag]) == 0
+        motion = generator.generate("a person jogs forward.", seconds=2, seed=5,
+                                    plant_feet=plant)
+        assert np.array_equal(np.load(tmp_path / f"{flag[2:]}.npy"), motion.joints)
