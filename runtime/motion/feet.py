@@ -58,21 +58,26 @@ def two_bone_ik(hip: np.ndarray, target: np.ndarray, pole: np.ndarray, upper: np
     lower (...), the knee on the side of `pole` (a point, e.g. the decoded knee). A target out
     of reach is moved along the hip->target line to the nearest reachable distance."""
     reach = target - hip
-    distance = np.linalg.norm(reach, axis=-1, keepdims=True)
+    distance = _norm(reach)
     axis = reach / np.maximum(distance, 1e-9)
-    distance = np.clip(distance, np.abs(upper - lower)[..., None] + 1e-6,
-                       MAX_REACH * (upper + lower)[..., None])
+    upper, lower = upper[..., None], lower[..., None]
+    distance = np.clip(distance, np.abs(upper - lower) + 1e-6, MAX_REACH * (upper + lower))
     side = pole - hip
     side = side - np.sum(side * axis, -1, keepdims=True) * axis
-    side_norm = np.linalg.norm(side, axis=-1, keepdims=True)
-    fallback = np.cross(axis, [1.0, 0.0, 0.0])  # a straight decoded leg: any bend plane
-    side = np.where(side_norm > 1e-6, side / np.maximum(side_norm, 1e-9), fallback /
-                    np.maximum(np.linalg.norm(fallback, axis=-1, keepdims=True), 1e-9))
-    upper, lower = upper[..., None], lower[..., None]
+    side_norm = _norm(side)
+    # a straight decoded leg along the pole: bend in any plane, here the one across x
+    fallback = np.stack([np.zeros_like(axis[..., 0]), axis[..., 2], -axis[..., 1]], -1)
+    side = np.where(side_norm > 1e-6, side / np.maximum(side_norm, 1e-9),
+                    fallback / np.maximum(_norm(fallback), 1e-9))
     cos = (upper ** 2 + distance ** 2 - lower ** 2) / (2 * upper * distance)
     sin = np.sqrt(np.clip(1 - cos ** 2, 0.0, 1.0))
     knee = hip + upper * (cos * axis + sin * side)
     return knee, hip + distance * axis
+
+
+def _norm(v: np.ndarray) -> np.ndarray:
+    """Lengths (..., 1) of vectors (..., 3) (np.linalg.norm costs more on small arrays)."""
+    return np.sqrt(np.sum(v * v, -1, keepdims=True))
 
 
 @dataclass
@@ -190,26 +195,27 @@ class FootPlanter:
 
     def _solve(self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray,
                lengths: np.ndarray) -> np.ndarray:
-        """Rigid feet on or above the floor, then two-bone IK per leg."""
+        """Rigid feet on or above the floor, then two-bone IK, both legs at once."""
         out = joints.copy()
+        hip, knee, ankle, toe = self.legs.T  # each (2,): left, right
         right, left = self._hips
-        forward = np.cross([0.0, 1.0, 0.0], joints[:, right] - joints[:, left])
-        forward *= KNEE_FORWARD / np.maximum(np.linalg.norm(forward, axis=-1, keepdims=True),
-                                             1e-9)
-        for side, (hip, knee, ankle, toe) in enumerate(self.legs):
-            a, t = targets[:, 2 * side], targets[:, 2 * side + 1]
-            wa, wt = weights[:, 2 * side], weights[:, 2 * side + 1]
-            foot = lengths[:, 2:3]
-            along = t - a
-            span = np.linalg.norm(along, axis=-1, keepdims=True)
-            along = along / np.maximum(span, 1e-9)
-            toe_share = np.where(wa + wt > 0, wt / np.maximum(wa + wt, 1e-9), 0.5)[:, None]
-            a = a + toe_share * (span - foot) * along  # the more planted end stays
-            lift = np.maximum(0.0, -np.minimum(a[:, 1], (a + foot * along)[:, 1]))
-            a[:, 1] += lift
-            out[:, knee], out[:, ankle] = two_bone_ik(joints[:, hip], a, joints[:, knee] + forward,
-                                                      lengths[:, 0], lengths[:, 1])
-            out[:, toe] = out[:, ankle] + foot * along
+        across = joints[:, right] - joints[:, left]
+        forward = np.stack([across[:, 2], np.zeros(len(across)), -across[:, 0]], -1)  # up x across
+        forward *= KNEE_FORWARD / np.maximum(_norm(forward), 1e-9)
+        targets, weights = targets.reshape(-1, 2, 2, 3), weights.reshape(-1, 2, 2)
+        a, t = targets[:, :, 0], targets[:, :, 1]  # (n, 2, 3) ankle and toe targets
+        foot = lengths[:, None, 2:3]
+        along = t - a
+        span = _norm(along)
+        along = along / np.maximum(span, 1e-9)
+        total = weights.sum(-1)
+        toe_share = np.where(total > 0, weights[..., 1] / np.maximum(total, 1e-9), 0.5)
+        a = a + toe_share[..., None] * (span - foot) * along  # the more planted end stays
+        a[..., 1] += np.maximum(0.0, -np.minimum(a[..., 1], (a + foot * along)[..., 1]))
+        thigh, shin = (np.repeat(lengths[:, k:k + 1], 2, 1) for k in (0, 1))
+        out[:, knee], out[:, ankle] = two_bone_ik(joints[:, hip], a,
+                                                  joints[:, knee] + forward[:, None], thigh, shin)
+        out[:, toe] = out[:, ankle] + foot * along
         return out
 
 

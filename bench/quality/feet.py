@@ -1,0 +1,218 @@
+"""Do the feet stay planted? Foot measures of generated locomotion as decoded and with the
+runtime's foot planting (mogo.motion.feet), beside the corpus's real clips, the semantic checks
+both ways (with --data), and what planting costs a stream per frame against one token step:
+
+    python -m mogo.bench.quality.feet [--data DIR] [--per-primitive 20]
+
+A contact frame of a foot joint (ankle or toe, t -> t+1) is one where the clip's contact
+channel is above 0.5 and its decoded velocity is under HumanML3D's contact threshold (what a
+contact means in the format; the planter holds exactly these); the "channel alone" rows count
+every frame the channel flags. Measures, on joints in metres:
+- slide: horizontal speed of foot joints in contact (cm/s), and the share over 10 cm/s;
+- floor: the deepest foot joint below y = 0 (cm), and the share of frames below -1 cm;
+- bones: thigh, shin and foot lengths against the clip's mean decoded lengths (left and right
+  averaged: one skeleton), mean error (%) and share of bone-frames off by more than 1%;
+- change: mean distance of every joint, and of the leg joints, from the decoded ones (cm).
+Torch-free.
+"""
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+import warnings
+
+import numpy as np
+
+from mogo.arguments import PromptWarning
+from mogo.generator import STREAM_DECODE_EVERY, MotionGenerator
+from mogo.motion.features import FOOT_CONTACT_THRESHOLD, feature_layout
+from mogo.motion.feet import LOOKAHEAD, FootPlanter, leg_joints, planted
+
+LOCOMOTION = ("a person walks forward.", "a person jogs forward.", "a person runs forward.",
+              "a person walks backward.", "a person turns around.",
+              "a person walks in a circle.")
+SEEDS, SECONDS = 4, 5.0  # 24 clips of 5 s
+SLIDING = 0.10  # m/s: a contact frame faster than this slides
+FLOOR = 0.01  # m below the floor that counts as penetration
+
+
+def contacts(features: np.ndarray, skeleton, confirmed: bool = True) -> np.ndarray:
+    """(n, 4) contact flags of the ankle and toe joints of feature rows (n, D) (see the
+    module doc)."""
+    flags = features[:, -4:] > 0.5
+    if confirmed:
+        start = dict((name, s) for name, s, _ in feature_layout(skeleton))["joint_velocities"]
+        feet = leg_joints(skeleton)[:, 2:].reshape(-1)
+        velocity = features[:, start:start + 3 * skeleton.num_joints].reshape(
+            len(flags), -1, 3)[:, feet].astype(np.float64)
+        flags &= np.sum(velocity ** 2, -1) < FOOT_CONTACT_THRESHOLD
+    return flags
+
+
+def foot_measures(clips: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]], skeleton,
+                  confirmed: bool = True) -> dict[str, float]:
+    """The measures over clips (joints, features, decoded joints or None), frames pooled."""
+    legs = leg_joints(skeleton)
+    feet = legs[:, 2:].reshape(-1)
+    speeds, depths, below, errors, moved, moved_legs = [], [], [], [], [], []
+    for joints, features, decoded in clips:
+        step = np.diff(joints[:, feet], axis=0)[..., [0, 2]]
+        flags = contacts(features[:len(step)], skeleton, confirmed)  # real clips: T-1 rows
+        speeds.append(np.linalg.norm(step, axis=-1)[flags] * skeleton.fps)
+        lowest = joints[:, feet, 1].min(-1)
+        depths.append(max(0.0, -float(lowest.min())))
+        below.append(lowest < -FLOOR)
+        reference = decoded if decoded is not None else joints
+        for bone in range(3):
+            a, b = legs[:, bone], legs[:, bone + 1]
+            length = np.linalg.norm(joints[:, b] - joints[:, a], axis=-1)
+            mean = np.linalg.norm(reference[:, b] - reference[:, a], axis=-1).mean()
+            errors.append(np.abs(length / mean - 1).ravel())
+        if decoded is not None:
+            distance = np.linalg.norm(joints - decoded, axis=-1)
+            moved.append(distance.ravel())
+            moved_legs.append(distance[:, legs[:, 1:].ravel()].ravel())
+    speed, error = np.concatenate(speeds), np.concatenate(errors)
+    result = dict(speed=100 * speed.mean(), sliding=100 * np.mean(speed > SLIDING),
+                  depth=100 * max(depths), below=100 * np.concatenate(below).mean(),
+                  bone_error=100 * error.mean(), bone_off=100 * np.mean(error > 0.01))
+    if moved:
+        result.update(change=100 * np.concatenate(moved).mean(),
+                      change_legs=100 * np.concatenate(moved_legs).mean())
+    return result
+
+
+def locomotion(generator: MotionGenerator) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The 24 clips as decoded: (joints, features, joints) each."""
+    clips = []
+    for prompt in LOCOMOTION:
+        for seed in range(SEEDS):
+            motion = generator.generate(prompt, seconds=SECONDS, seed=seed, plant_feet=False)
+            clips.append((motion.joints, motion.features, motion.joints))
+    return clips
+
+
+def real_clips(data, limit: int = 500) -> list[tuple[np.ndarray, np.ndarray, None]]:
+    from mogo.export.data.humanml3d import HumanML3DFolder
+
+    folder = HumanML3DFolder(data, splits=("test",))
+    return [(folder.joints(i), folder.features(i), None) for i in folder.ids("test")[:limit]]
+
+
+def format_feet(rows: dict[str, dict[str, float]]) -> str:
+    def cell(row, key, digits=1):
+        return f"{row[key]:.{digits}f}" if key in row else "-"
+
+    lines = ["| clips | slide in contact (cm/s) | sliding > 10 cm/s | deepest below floor (cm) "
+             "| frames > 1 cm below | leg bone error | bone-frames > 1% off | joint change "
+             "(cm) | leg joint change (cm) |", "|---|---|---|---|---|---|---|---|---|"]
+    for name, row in rows.items():
+        lines.append(f"| {name} | {cell(row, 'speed')} | {cell(row, 'sliding')}% | "
+                     f"{cell(row, 'depth')} | {cell(row, 'below')}% | "
+                     f"{cell(row, 'bone_error', 2)}% | {cell(row, 'bone_off')}% | "
+                     f"{cell(row, 'change', 2)} | {cell(row, 'change_legs', 2)} |")
+    return "\n".join(lines)
+
+
+def feet_rows(generator: MotionGenerator, data=None) -> dict[str, dict[str, float]]:
+    """The table's rows: the locomotion clips as decoded and planted (contact confirmed by the
+    decoded velocity, and the channel alone), and the corpus's real test clips."""
+    decoded = locomotion(generator)
+    planted_clips = [(planted(f, j, generator.skeleton), f, j) for j, f, _ in decoded]
+    rows = {}
+    for confirmed, label in ((True, ""), (False, ", channel alone")):
+        rows[f"generated, as decoded{label}"] = foot_measures(decoded, generator.skeleton,
+                                                             confirmed)
+        rows[f"generated, feet planted{label}"] = foot_measures(planted_clips,
+                                                               generator.skeleton, confirmed)
+    if data is not None:
+        rows["real (corpus test split)"] = foot_measures(real_clips(data), generator.skeleton)
+    return rows
+
+
+def semantic_both_ways(generator: MotionGenerator, data, per_primitive: int = 20, seed: int = 0
+                       ) -> dict[str, tuple[tuple[int, int], tuple[int, int]]]:
+    """Semantic pass rates per primitive (mogo.bench.quality.semantic's sample and checks) of
+    the same generated clips as decoded and with planted feet -> {primitive: (decoded,
+    planted)}, each (passed, total), "all" last."""
+    from mogo.bench.quality.semantic import check, pass_rates, program_items, stratified
+    from mogo.export.data.humanml3d import HumanML3DFolder
+
+    folder = HumanML3DFolder(data, splits=("test",))
+    items = stratified(program_items(data, folder.ids("test")), per_primitive, seed)
+    verdicts: tuple[list, list] = ([], [])
+    for k, item in enumerate(items):
+        with warnings.catch_warnings():  # held-out caption words: the sample is what it is
+            warnings.simplefilter("ignore", PromptWarning)
+            motion = generator.generate(item.caption, seconds=item.frames / generator.fps,
+                                        seed=seed + k, plant_feet=False)
+        real = folder.joints(item.clip_id)[item.start:item.end]
+        for joints, kept in zip((motion.joints, planted(motion.features, motion.joints,
+                                                        generator.skeleton)), verdicts):
+            kept.append(check(item, joints, real))
+    decoded, planted_rates = (pass_rates(items, kept) for kept in verdicts)
+    rows = {name: (decoded[name], planted_rates[name]) for name in decoded}
+    rows["all"] = tuple(tuple(map(sum, zip(*column))) for column in zip(*rows.values()))
+    return rows
+
+
+def format_semantic_both_ways(rows) -> str:
+    lines = ["| primitive | as decoded | feet planted |", "|---|---|---|"]
+    lines += [f"| {name} | {a[0]}/{a[1]} | {b[0]}/{b[1]} |" for name, (a, b) in rows.items()]
+    return "\n".join(lines)
+
+
+def cost(generator: MotionGenerator, threads: tuple[int, ...] = (1, 2), steps: int = 200
+         ) -> str:
+    """Per-frame cost of planting (pushed in the stream's bursts) against one token step."""
+    clips = locomotion(generator)
+    start = time.perf_counter()
+    frames = 0
+    for joints, features, _ in clips:
+        planter = FootPlanter(generator.skeleton)
+        for at in range(0, len(joints), STREAM_DECODE_EVERY):
+            burst = slice(at, at + STREAM_DECODE_EVERY)
+            planter.push(features[burst], joints[burst])
+        planter.flush()
+        frames += len(joints)
+    per_frame = (time.perf_counter() - start) / frames
+    lines = ["| threads | token step (ms) | planting per frame (ms) | share of a step |",
+             "|---|---|---|---|"]
+    for count in threads:
+        stream = MotionGenerator(generator.bundle, count).stream(LOCOMOTION[0], seed=0,
+                                                                 plant_feet=False)
+        for _ in range(50):  # past the decoder's first frame, the cache warm
+            stream.step()
+        start = time.perf_counter()
+        for _ in range(steps):
+            stream.step()
+        step = (time.perf_counter() - start) / steps / generator.down_factor
+        lines.append(f"| {count} | {1e3 * step:.2f} | {1e3 * per_frame:.3f} | "
+                     f"{per_frame / step:.1%} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", help="the procedural corpus: adds its real clips' row")
+    parser.add_argument("--bundle", help="bundle folder (default: the shipped one)")
+    parser.add_argument("--per-primitive", type=int, default=20,
+                        help="generated captions per primitive for the semantic checks")
+    args = parser.parse_args()
+    generator = MotionGenerator.load(args.bundle)
+    print(f"{len(LOCOMOTION) * SEEDS} generated clips of {SECONDS:g} s ({', '.join(LOCOMOTION)}; "
+          f"seeds 0-{SEEDS - 1}); planting reads {LOOKAHEAD} frames ahead\n")
+    print(format_feet(feet_rows(generator, args.data)))
+    if args.data:
+        print(f"\nSemantic checks (mogo.bench.quality.semantic, {args.per_primitive} test captions "
+              f"per primitive, the same clips both ways):\n")
+        print(format_semantic_both_ways(semantic_both_ways(generator, args.data,
+                                                           args.per_primitive)))
+    print(f"\nPlanting's cost ({platform.processor() or platform.machine()}, "
+          f"{STREAM_DECODE_EVERY}-frame pushes as a stream makes them):\n")
+    print(cost(generator))
+
+
+if __name__ == "__main__":
+    main()
