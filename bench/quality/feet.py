@@ -165,7 +165,8 @@ def format_semantic_both_ways(rows) -> str:
 
 def cost(generator: MotionGenerator, threads: tuple[int, ...] = (1, 2), steps: int = 200
          ) -> str:
-    """Per-frame cost of planting (pushed in the stream's bursts) against one token step."""
+    """Per-frame cost of planting (pushed in the stream's bursts) against one token step, and a
+    stream's first frame with and without planting (median of 5 streams)."""
     clips = locomotion(generator)
     start = time.perf_counter()
     frames = 0
@@ -177,20 +178,28 @@ def cost(generator: MotionGenerator, threads: tuple[int, ...] = (1, 2), steps: i
         planter.flush()
         frames += len(joints)
     per_frame = (time.perf_counter() - start) / frames
-    lines = ["| threads | token step (ms) | planting per frame (ms) | share of a step |",
-             "|---|---|---|---|"]
+    lines = ["| threads | token step (ms) | planting per frame (ms) | share of a step | first "
+             "frame as decoded (ms) | first frame, feet planted (ms) |", "|---" * 6 + "|"]
     for count in threads:
-        stream = MotionGenerator(generator.bundle, count).stream(LOCOMOTION[0], seed=0,
-                                                                 plant_feet=False)
+        sized = MotionGenerator(generator.bundle, count)
+        stream = sized.stream(LOCOMOTION[0], seed=0, plant_feet=False)
         for _ in range(50):  # past the decoder's first frame, the cache warm
             stream.step()
         start = time.perf_counter()
         for _ in range(steps):
             stream.step()
         step = (time.perf_counter() - start) / steps / generator.down_factor
+        first = [np.median([_first_frame(sized, plant) for _ in range(5)]) for plant in (0, 1)]
         lines.append(f"| {count} | {1e3 * step:.2f} | {1e3 * per_frame:.3f} | "
-                     f"{per_frame / step:.1%} |")
+                     f"{per_frame / step:.1%} | {1e3 * first[0]:.0f} | {1e3 * first[1]:.0f} |")
     return "\n".join(lines)
+
+
+def _first_frame(generator: MotionGenerator, plant_feet: bool) -> float:
+    """Seconds from asking for a stream to holding its first frame."""
+    start = time.perf_counter()
+    next(generator.stream(LOCOMOTION[0], seed=0, plant_feet=bool(plant_feet)).frames())
+    return time.perf_counter() - start
 
 
 def main() -> None:

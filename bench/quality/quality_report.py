@@ -4,7 +4,8 @@
         --out docs/quality.md
 
 the metric table of `mogo eval`, the per-primitive semantic pass rates (mogo.bench.quality.semantic)
-for the real and the generated clips, and the MoSA-VQ ablation table that
+for the real and the generated clips, the foot measures (mogo.bench.quality.feet), and the
+MoSA-VQ ablation table that
 `python -m mogo.bench.training.vq_ablation --runs RUNS` writes to RUNS/ablation.md
 (`--ablation RUNS`; the report says when there is none). Torch-free.
 """
@@ -18,6 +19,7 @@ import time
 from pathlib import Path
 
 from mogo.bench.quality.evaluate import EvalOptions, evaluate, format_table
+from mogo.bench.quality.feet import LOCOMOTION, SECONDS, SEEDS, feet_rows, format_feet
 from mogo.bench.quality.semantic import format_semantic, semantic_report
 from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
 
@@ -40,6 +42,7 @@ def report(args: argparse.Namespace) -> str:
     metrics_seconds = time.perf_counter() - start
     generator = MotionGenerator.load(args.bundle)
     semantic = semantic_report(generator, args.data, args.per_primitive, args.seed, args.threads)
+    feet = format_feet(feet_rows(generator, args.data))
     seconds = time.perf_counter() - start
     manifest = json.loads((Path(args.evaluator) / "evaluator.json").read_text())
     trained = manifest.get("training", {})
@@ -71,6 +74,11 @@ def report(args: argparse.Namespace) -> str:
         f"last column runs the same checks on the real clip of another primitive: how often a "
         f"check passes what it should not.", "",
         format_semantic(semantic), "",
+        "## Feet", "",
+        f"Foot sliding, floor and leg bones of {len(LOCOMOTION) * SEEDS} generated locomotion "
+        f"clips of {SECONDS:g} s, as decoded and with the runtime's foot planting (the default), "
+        f"and of the real test clips (mogo.bench.quality.feet; docs/feet.md).", "",
+        feet, "",
         "## MoSA-VQ ablation", "",
         ablation_section(args.ablation), ""])
 

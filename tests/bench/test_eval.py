@@ -185,7 +185,8 @@ def test_quality_report(corpus, evaluator_folder, tmp_path, monkeypatch, capsys)
     quality_report.main()
     text = out.read_text()
     for heading in ("## Text-motion metrics", "| Bundle |", "## Does the motion do what",
-                    "| all |", "## MoSA-VQ ablation", "| 6 levels | 20 |"):
+                    "| all |", "## Feet", "| generated, feet planted |", "## MoSA-VQ ablation",
+                    "| 6 levels | 20 |"):
         assert heading in text
     assert "Missing" in quality_report.ablation_section(tmp_path / "nothing")
 
