@@ -19,8 +19,8 @@ from mogo.motion.skeleton import Skeleton
 
 @dataclass
 class Motion:
-    features: np.ndarray  # (T, D) float32, un-normalised HumanML3D-layout features
-    joints: np.ndarray  # (T, J, 3) float32, metres, Y up
+    features: np.ndarray  # (T, D) float32, un-normalised HumanML3D-layout features, as decoded
+    joints: np.ndarray  # (T, J, 3) float32, metres, Y up; feet planted unless plant_feet=False
     fps: float
     tokens: np.ndarray  # (n, L) int64, the token steps the features were decoded from
     skeleton: Skeleton

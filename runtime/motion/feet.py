@@ -3,12 +3,14 @@
 Decoded feet skate: they drift while the motion's own contact channels (the last four feature
 dims: left ankle, left toe, right ankle, right toe; "moved less than ~4.5 cm in this frame")
 say they are planted. `FootPlanter` fixes the legs and nothing else:
-- each contact joint is held while its channel is above CONTACT (the frame after too, since a
-  contact is "still from t to t+1"), at its mean decoded position over the first PIN_FRAMES
-  frames of the contact; its height is never below that pin (a heel may rise, a foot never
-  sinks into its stance);
+- each contact joint is held while its channel is above CONTACT and its decoded velocity is
+  under HumanML3D's contact threshold (a channel that says "still" of a swinging foot is not
+  believed), the frame after too (a contact is "still from t to t+1"), at its mean decoded
+  position over the first PIN_FRAMES frames of the contact; its height is never below that
+  pin (a heel may rise, a foot never sinks into its stance);
 - it eases onto the pin over BLEND_IN frames before the contact and back onto its decoded path
-  over BLEND_OUT frames after it, by blending offsets: positions stay continuous;
+  over BLEND_OUT frames after it, by blending offsets with a smoothstep: neither position nor
+  speed jumps;
 - the foot stays rigid (ankle to toe at the foot's length, the more planted end held) and on or
   above the floor (y >= 0);
 - each leg is solved by analytic two-bone IK: hip as decoded, knee in the plane of the decoded
@@ -20,8 +22,6 @@ It reads LOOKAHEAD frames ahead, so a stream emits a frame LOOKAHEAD frames afte
 Any chunking of `push` (then `flush`) gives the output of one push of the whole clip.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -80,20 +80,6 @@ def _norm(v: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(v * v, -1, keepdims=True))
 
 
-@dataclass
-class _Hold:
-    """One contact joint between frames: was the last frame held, its contact flag, the pin
-    of the current contact, the offset at the last held frame and the frames since."""
-    held: bool = False
-    flag: bool = False
-    pin: np.ndarray | None = None
-    released: np.ndarray = None  # type: ignore[assignment]
-    since: int = 1 << 30
-
-    def __post_init__(self):
-        self.released = np.zeros(3)
-
-
 class FootPlanter:
     """Cleans feet frame by frame: `push` decoded rows (features (n, D), joints (n, J, 3)),
     get back the rows whose frames are final, with planted feet; `flush` at the end."""
@@ -104,7 +90,12 @@ class FootPlanter:
         start = dict((name, start) for name, start, _ in feature_layout(skeleton))
         self._velocity = start["joint_velocities"] + 3 * self.contacts[:, None] + np.arange(3)
         self._hips = skeleton.face_joints[:2]  # right hip, left hip: the facing
-        self._holds = [_Hold() for _ in self.contacts]
+        joints = len(self.contacts)  # the state of each contact joint after the last frame out:
+        self._flag = np.zeros(joints, bool)  # its contact flag
+        self._held = np.zeros(joints, bool)  # held
+        self._pin = np.zeros((joints, 3))  # the pin of its contact, while held
+        self._released = np.zeros((joints, 3))  # its offset at the last held frame
+        self._since = np.full(joints, 1 << 30)  # frames since then
         self._features = np.zeros((0, skeleton.feature_dim), np.float32)
         self._joints = np.zeros((0, skeleton.num_joints, 3))
         self._length_sum, self._length_count = np.zeros(3), 0
@@ -138,12 +129,8 @@ class FootPlanter:
 
     def _clean(self, ready: int) -> tuple[np.ndarray, np.ndarray]:
         """Plant the first `ready` buffered frames and drop them from the buffer."""
-        joints, flags = self._joints, self._flags()
-        targets = np.empty((ready, len(self.contacts), 3))
-        weights = np.empty((ready, len(self.contacts)))
-        for i in range(ready):
-            for k, (hold, joint) in enumerate(zip(self._holds, self.contacts)):
-                targets[i, k], weights[i, k] = self._step(hold, flags[:, k], joints[:, joint], i)
+        joints = self._joints
+        targets, weights = self._targets(self._flags(), joints[:, self.contacts], ready)
         last = np.minimum(np.arange(ready) + LOOKAHEAD, len(joints) - 1)
         counts = self._length_count + last + 1
         lengths = self._length_cumsum[last] / counts[:, None]  # (ready, 3) thigh, shin, foot
@@ -160,38 +147,42 @@ class FootPlanter:
         speed = np.sum(self._features[:, self._velocity].astype(np.float64) ** 2, -1)
         return (self._features[:, -4:] > CONTACT) & (speed < FOOT_CONTACT_THRESHOLD)
 
-    def _step(self, hold: _Hold, flags: np.ndarray, path: np.ndarray, i: int
-              ) -> tuple[np.ndarray, float]:
-        """Target and planted weight of one contact joint at buffered frame i (path: its
-        decoded positions, flags: its contact flags, both from frame i on)."""
-        held = bool(flags[i]) or hold.flag
-        if held:
-            if not hold.held:
-                hold.pin = self._pin(flags, path, i)
-            offset, weight = _offset(hold.pin, path[i]), 1.0
-            hold.released, hold.since = offset, 0
-        else:
-            hold.since += 1
-            out = _ease(1.0 - hold.since / (BLEND_OUT + 1))
-            offset, into = out * hold.released, 0.0
-            ahead = np.flatnonzero(flags[i + 1:i + 1 + BLEND_IN])
-            if len(ahead):
-                start = i + 1 + ahead[0]
-                into = _ease(1.0 - (start - i) / (BLEND_IN + 1))
-                offset = offset + into * _offset(self._pin(flags, path, start), path[start])
-            weight = out + into
-            if weight > 1.0:  # two contacts close together: share the frames between them
-                offset, weight = offset / weight, 1.0
-        hold.held, hold.flag = held, bool(flags[i])
-        return path[i] + offset, weight
-
-    @staticmethod
-    def _pin(flags: np.ndarray, path: np.ndarray, start: int) -> np.ndarray:
-        """Mean position over the first PIN_FRAMES held frames of the contact from `start`."""
-        window = flags[start:start + PIN_FRAMES].copy()
-        window[1:] |= flags[start:start + len(window) - 1]  # held: this frame's or the last's
-        frames = np.cumprod(window).sum()  # held frames in a row from start
-        return path[start:start + frames].mean(0)
+    def _targets(self, flags: np.ndarray, paths: np.ndarray, ready: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Targets (ready, 4, 3) and planted weights (ready, 4) of the contact joints in the
+        first `ready` buffered frames, from their flags (n, 4) and decoded paths (n, 4, 3)."""
+        if not ready:
+            return np.zeros((0, 4, 3)), np.zeros((0, 4))
+        n, frames = len(flags), np.arange(len(flags))[:, None]
+        held = flags | np.concatenate([self._flag[None], flags[:-1]])
+        starts = held & ~np.concatenate([self._held[None], held[:-1]])
+        pins = np.repeat(self._pin[None], n, 0)  # a contact going on from earlier frames
+        for i, k in zip(*np.nonzero(starts[:ready + BLEND_IN])):  # each contact: its pin
+            length = np.cumprod(held[i:i + PIN_FRAMES, k]).sum()
+            pins[i, k] = paths[i:i + length, k].mean(0)
+        run = np.maximum.accumulate(np.where(starts, frames, -1), axis=0)  # its start
+        pins = np.where((run >= 0)[..., None], pins[np.maximum(run, 0), np.arange(4)], pins)
+        held_offset = _offset(pins, paths)  # meaningful where held
+        last = np.maximum.accumulate(np.where(held, frames, -1), axis=0)  # last held frame
+        last = np.concatenate([np.full((1, 4), -1), last[:-1]])  # ... before this one
+        since = np.where(last >= 0, frames - last, self._since + frames + 1)
+        released = np.where((last >= 0)[..., None], held_offset[np.maximum(last, 0),
+                                                                np.arange(4)], self._released)
+        out = _ease(1.0 - since / (BLEND_OUT + 1))
+        upcoming = np.minimum.accumulate(np.where(flags, frames, n)[::-1], axis=0)[::-1]
+        following = np.concatenate([upcoming[1:], np.full((1, 4), n)])  # first flag after
+        into = np.where(following < n, _ease(1.0 - (following - frames) / (BLEND_IN + 1)), 0.0)
+        start_offset = held_offset[np.minimum(following, n - 1), np.arange(4)]
+        offset = out[..., None] * released + into[..., None] * start_offset
+        weight = out + into
+        offset /= np.maximum(weight, 1.0)[..., None]  # contacts close together share frames
+        offset = np.where(held[..., None], held_offset, offset)
+        weight = np.where(held, 1.0, np.minimum(weight, 1.0))
+        end = ready - 1  # the state after the last frame out
+        self._flag, self._held, self._pin = flags[end], held[end], pins[end]
+        self._released = np.where(held[end, :, None], held_offset[end], released[end])
+        self._since = np.where(held[end], 0, since[end])
+        return (paths + offset)[:ready], weight[:ready]
 
     def _solve(self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray,
                lengths: np.ndarray) -> np.ndarray:
@@ -219,16 +210,16 @@ class FootPlanter:
         return out
 
 
-def _ease(x: float) -> float:
+def _ease(x: np.ndarray) -> np.ndarray:
     """0 below 0, 1 above 1, smoothstep between: blends with no jump in speed either."""
-    x = min(max(x, 0.0), 1.0)
+    x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
 
 
 def _offset(pin: np.ndarray, position: np.ndarray) -> np.ndarray:
     """Pin minus position, its height part never pulling down (a foot may rise off its pin)."""
     offset = pin - position
-    offset[1] = max(offset[1], 0.0)
+    offset[..., 1] = np.maximum(offset[..., 1], 0.0)
     return offset
 
 
