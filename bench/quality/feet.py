@@ -163,21 +163,13 @@ def format_semantic_both_ways(rows) -> str:
     return "\n".join(lines)
 
 
-def cost(generator: MotionGenerator, threads: tuple[int, ...] = (1, 2), steps: int = 200
+def cost(generator: MotionGenerator, threads: tuple[int, ...] = (1, 2), rounds: int = 7
          ) -> str:
-    """Per-frame cost of planting (pushed in the stream's bursts) against one token step, and a
-    stream's first frame with and without planting (median of 5 streams)."""
+    """Per-frame cost of planting (pushed in the stream's bursts) against one token step, timed
+    in turn (median of `rounds`), and a stream's first frame with and without planting (median
+    of `rounds` streams)."""
     clips = locomotion(generator)
-    start = time.perf_counter()
-    frames = 0
-    for joints, features, _ in clips:
-        planter = FootPlanter(generator.skeleton)
-        for at in range(0, len(joints), STREAM_DECODE_EVERY):
-            burst = slice(at, at + STREAM_DECODE_EVERY)
-            planter.push(features[burst], joints[burst])
-        planter.flush()
-        frames += len(joints)
-    per_frame = (time.perf_counter() - start) / frames
+    frames = sum(len(joints) for joints, _, _ in clips)
     lines = ["| threads | token step (ms) | planting per frame (ms) | share of a step | first "
              "frame as decoded (ms) | first frame, feet planted (ms) |", "|---" * 6 + "|"]
     for count in threads:
@@ -185,20 +177,33 @@ def cost(generator: MotionGenerator, threads: tuple[int, ...] = (1, 2), steps: i
         stream = sized.stream(LOCOMOTION[0], seed=0, plant_feet=False)
         for _ in range(50):  # past the decoder's first frame, the cache warm
             stream.step()
-        start = time.perf_counter()
-        for _ in range(steps):
-            stream.step()
-        step = (time.perf_counter() - start) / steps / generator.down_factor
-        first = [np.median([_first_frame(sized, plant) for _ in range(5)]) for plant in (0, 1)]
+        steps, planting = [], []
+        for _ in range(rounds):
+            steps.append(_seconds(lambda: [stream.step() for _ in range(frames // 24)])
+                         / (frames // 24) / generator.down_factor)
+            planting.append(_seconds(lambda: [_plant_in_bursts(generator.skeleton, clip)
+                                              for clip in clips]) / frames)
+        step, per_frame = float(np.median(steps)), float(np.median(planting))
+        first = [np.median([_seconds(lambda: next(sized.stream(
+            LOCOMOTION[0], seed=0, plant_feet=plant).frames())) for _ in range(rounds)])
+                 for plant in (False, True)]
         lines.append(f"| {count} | {1e3 * step:.2f} | {1e3 * per_frame:.3f} | "
                      f"{per_frame / step:.1%} | {1e3 * first[0]:.0f} | {1e3 * first[1]:.0f} |")
     return "\n".join(lines)
 
 
-def _first_frame(generator: MotionGenerator, plant_feet: bool) -> float:
-    """Seconds from asking for a stream to holding its first frame."""
+def _plant_in_bursts(skeleton, clip) -> None:
+    joints, features, _ = clip
+    planter = FootPlanter(skeleton)
+    for at in range(0, len(joints), STREAM_DECODE_EVERY):
+        burst = slice(at, at + STREAM_DECODE_EVERY)
+        planter.push(features[burst], joints[burst])
+    planter.flush()
+
+
+def _seconds(call) -> float:
     start = time.perf_counter()
-    next(generator.stream(LOCOMOTION[0], seed=0, plant_feet=bool(plant_feet)).frames())
+    call()
     return time.perf_counter() - start
 
 
