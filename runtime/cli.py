@@ -106,6 +106,7 @@ def _aligner(args: argparse.Namespace, generator):
 
 def _cmd_generate(args: argparse.Namespace) -> None:
     from mogo.clip import check_take
+    from mogo.motion import bvh
 
     if args.prompts_file:
         if args.text is not None or args.seconds is not None:
@@ -129,7 +130,8 @@ def _cmd_generate(args: argparse.Namespace) -> None:
             print(f"note: {motion.alignment.note}")
     name = args.name or _file_stem(motion.caption)
     written = motion.save_take(folder, name, overwrite=args.overwrite,
-                               bone_translations=args.bvh_bone_translations)
+                               bone_translations=args.bvh_bone_translations,
+                               scale=bvh.UNITS[args.bvh_units], naming=args.bvh_names)
     frames = plural(len(motion.joints), "frame")
     print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
           f"for: {motion.caption}")
@@ -237,6 +239,7 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
 
 
 def _add_runtime_commands(commands) -> None:
+    from mogo.motion import bvh  # its option lists
     generate = commands.add_parser(
         "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)")
     generate.add_argument("text", nargs="?", help="what the person does")
@@ -253,6 +256,12 @@ def _add_runtime_commands(commands) -> None:
     generate.add_argument("--bvh-bone-translations", action="store_true",
                           help="position channels on every BVH joint: the joints back exactly, "
                                "bone stretch included (default: a rigid skeleton, rotations only)")
+    generate.add_argument("--bvh-names", choices=list(bvh.NAMINGS), default="mixamo",
+                          help="BVH joint names: each named for the bone it moves, Mixamo/Unity "
+                               "style (Hips, LeftUpLeg, LeftArm, ...), or the SMPL joint names "
+                               "(default mixamo)")
+    generate.add_argument("--bvh-units", choices=list(bvh.UNITS), default="m",
+                          help="BVH length unit (default m)")
     generate.add_argument("--align", choices=["rules", "llm"],
                           help="rewrite the prompt into caption-style steps played as one "
                                "motion: built-in rules, or an LLM server (falls back to the "

@@ -47,12 +47,13 @@ class Motion:
         return _save(_npy_path(path), partial(_write_array, self.features))
 
     def save_bvh(self, path: str | os.PathLike, scale: float = 1.0,
-                 bone_translations: bool = False) -> Path:
-        """A BVH with per-joint rotations, in metres (scale=100 for centimetres);
+                 bone_translations: bool = False, naming: str = "mixamo") -> Path:
+        """A BVH of the bundle's rigid T-pose character with per-joint rotations, in metres
+        (scale=100 for centimetres), joints named as in mogo.motion.bvh.NAMINGS;
         bone_translations=True adds per-joint position channels, so the file gives these
         joints back exactly despite the bone-length jitter of generated motion."""
         return _save(Path(path), partial(self._write_bvh, scale=scale,
-                                         bone_translations=bone_translations))
+                                         bone_translations=bone_translations, naming=naming))
 
     def save_gif(self, path: str | os.PathLike) -> Path:
         """A stick-figure animation with the caption and a floor grid."""
@@ -64,20 +65,24 @@ class Motion:
         return _save(Path(path), self._write_json)
 
     def save_take(self, folder: str | os.PathLike, name: str, overwrite: bool = False,
-                  bone_translations: bool = False) -> list[Path]:
+                  bone_translations: bool = False, scale: float = 1.0,
+                  naming: str = "mixamo") -> list[Path]:
         """The .bvh, .gif, .npy and .json of this motion as one take, written all or none.
         An earlier take named `name` is kept (this one is named name-2, name-3, ...: the
-        first free), unless overwrite=True replaces it. Returns the four paths written."""
+        first free), unless overwrite=True replaces it. Returns the four paths written.
+        The BVH options are save_bvh's."""
         folder = check_take(folder, name, overwrite)
-        writers = [partial(self._write_bvh, bone_translations=bone_translations),
+        writers = [partial(self._write_bvh, scale=scale, bone_translations=bone_translations,
+                           naming=naming),
                    self._write_gif, partial(_write_array, self.joints), self._write_json]
         names = ([[folder / (name + suffix) for suffix in TAKE]] if overwrite
                  else files.numbered(folder, name, TAKE))
         return files.write_all(writers, names, replace=overwrite)
 
-    def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False
-                   ) -> None:
-        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations)
+    def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False,
+                   naming: str = "mixamo") -> None:
+        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations,
+                     naming)
 
     def _write_gif(self, path: Path) -> None:
         render.save_gif(self.joints, path, self.caption, self.fps, self.skeleton)
