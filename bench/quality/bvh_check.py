@@ -5,7 +5,7 @@
 Generates clips with the shipped bundle, writes each as the default BVH (the bundle's rigid
 T-pose rig, Mixamo names, metres), and prints a markdown table: forward kinematics of the file
 (our reader) against the generated joints, then, where Blender is installed, Blender's own
-importer run headless (bench/blender/check_bvh.py) against the rig and against the joints.
+importer run headless (bench/blender/check_import.py) against the rig and against the joints.
 --png renders one frame and the rest pose side by side with Blender (Cycles, CPU).
 """
 from __future__ import annotations
@@ -23,9 +23,8 @@ from PIL import Image
 
 from mogo import MotionGenerator
 from mogo.motion.bvh import NAMINGS, read_bvh, save_bvh
-from mogo.motion.skeleton import Skeleton
 
-BLENDER_SCRIPT = Path(__file__).resolve().parents[1] / "blender" / "check_bvh.py"
+BLENDER_SCRIPT = Path(__file__).resolve().parents[1] / "blender" / "check_import.py"
 PROMPTS = ("a person walks forward.", "a person jumps up and down.",
            "a person spins around in a circle.", "a person waves with the right hand.",
            "a person kicks with the left leg.", "a person squats down and stands up.")
@@ -36,30 +35,35 @@ class Check:
     prompt: str
     frames: int
     rig: np.ndarray  # (T, J) metres: the file's forward kinematics against the joints
-    blender: dict | None = None  # check_bvh.py's answer
+    blender: dict | None = None  # check_import.py's answer
+
+
+def rig_positions(bvh: Path, naming: str, scale: float) -> np.ndarray:
+    """(T, J, 3) metres: our reader's forward kinematics of the file, in skeleton order."""
+    clip = read_bvh(bvh)
+    positions = np.empty_like(clip.positions)
+    positions[:, [NAMINGS[naming].index(name) for name in clip.names]] = clip.positions
+    return positions / scale
 
 
 def rig_error(joints: np.ndarray, bvh: Path, naming: str, scale: float) -> np.ndarray:
     """(T, J) distance between our reader's forward kinematics of the file and the joints."""
-    clip = read_bvh(bvh)
-    positions = np.empty_like(clip.positions)
-    positions[:, [NAMINGS[naming].index(name) for name in clip.names]] = clip.positions
-    return np.linalg.norm(positions / scale - joints, axis=-1)
+    return np.linalg.norm(rig_positions(bvh, naming, scale) - joints, axis=-1)
 
 
-def blender_check(bvh: Path, joints: np.ndarray, skeleton: Skeleton, naming: str = "mixamo",
-                  scale: float = 1.0, blender: str = "blender", png: Path | None = None,
-                  frame: int = 0, size: tuple[int, int] = (480, 480), samples: int = 16,
+def blender_check(file: Path, names: tuple[str, ...], fps: float,
+                  references: dict[str, np.ndarray], scale: float = 1.0,
+                  blender: str = "blender", png: Path | None = None, frame: int = 0,
+                  size: tuple[int, int] = (480, 480), samples: int = 16,
                   timeout: float = 300.0) -> dict:
-    """Blender's import of `bvh` against the joints and against our reader's rig positions."""
-    clip = read_bvh(bvh)
-    names = NAMINGS[naming]
-    rig = {name: (clip.positions[:, clip.names.index(name)] / scale).tolist() for name in names}
-    joint_lists = {name: joints[:, i].tolist() for i, name in enumerate(names)}
+    """Blender's import of a .bvh or .glb against reference joints (label -> (T, J, 3) metres,
+    in the order of `names`, the file's joint names)."""
     with tempfile.TemporaryDirectory() as folder:
-        request = dict(bvh=str(bvh), scale=scale, result=f"{folder}/result.json",
-                       references=dict(joints=joint_lists, rig=rig), frame=frame,
-                       size=list(size), samples=samples)
+        request = dict(file=str(file), scale=scale, fps=fps, result=f"{folder}/result.json",
+                       references={label: {name: positions[:, i].tolist()
+                                           for i, name in enumerate(names)}
+                                   for label, positions in references.items()},
+                       frame=frame, size=list(size), samples=samples)
         if png is not None:
             request.update(png=f"{folder}/frame.png", rest_png=f"{folder}/rest.png")
         Path(folder, "request.json").write_text(json.dumps(request))
@@ -95,9 +99,10 @@ def run(prompts: tuple[str, ...], seconds: float, seed: int, png: Path | None,
             save_bvh(path, joints, motion.skeleton, motion.fps)
             check = Check(prompt, len(joints), rig_error(joints, path, "mixamo", 1.0))
             if blender:
-                check.blender = blender_check(path, joints, motion.skeleton, blender=blender,
-                                              png=png if index == 0 else None,
-                                              frame=len(joints) // 2)
+                check.blender = blender_check(
+                    path, NAMINGS["mixamo"], motion.fps,
+                    dict(joints=joints, rig=rig_positions(path, "mixamo", 1.0)),
+                    blender=blender, png=png if index == 0 else None, frame=len(joints) // 2)
             checks.append(check)
     return checks
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from mogo import MotionGenerator
-from mogo.bench.quality.bvh_check import blender_check, rig_error, table, Check
-from mogo.motion.bvh import save_bvh
+from mogo.bench.quality.bvh_check import Check, blender_check, rig_error, rig_positions, table
+from mogo.motion.bvh import NAMINGS, save_bvh
 
 BLENDER = shutil.which("blender")
 
@@ -18,8 +18,10 @@ def test_blender_reads_our_bvh_as_our_rig_says(tmp_path):
     path = tmp_path / "walk.bvh"
     save_bvh(path, joints, motion.skeleton, motion.fps, scale=100.0, naming="smpl")
     png = tmp_path / "walk.png"
-    result = blender_check(path, joints, motion.skeleton, naming="smpl", scale=100.0,
-                           blender=BLENDER, png=png, size=(48, 48), samples=1, timeout=120)
+    result = blender_check(path, NAMINGS["smpl"], motion.fps,
+                           dict(joints=joints, rig=rig_positions(path, "smpl", 100.0)),
+                           scale=100.0, blender=BLENDER, png=png, size=(48, 48), samples=1,
+                           timeout=120)
     assert result["fps"] == 20.0 and result["frames"] == len(joints)  # "Update Scene FPS"
     assert result["errors"]["rig"]["max"] < 1e-4  # Blender's importer = our rig
     rigid = rig_error(joints, path, "smpl", 100.0)

@@ -1,10 +1,11 @@
-"""Blender's side of `python -m mogo.bench.quality.bvh_blender`: import one of our BVH files
-headless with Blender's own importer, read every bone's world head position per frame, compare
-with reference joint positions, and optionally render one frame to PNG.
+"""Blender's side of `python -m mogo.bench.quality.bvh_check`: import one of our BVH or GLB
+files headless with Blender's own importer, read every bone's world head position per frame,
+compare with reference joint positions, and optionally render one frame to PNG.
 
 Run by Blender, not by mogo's Python (Blender's Python has neither mogo nor numpy):
-    blender -b --factory-startup --python bench/blender/check_bvh.py -- REQUEST.json
-REQUEST.json: {"bvh": path, "scale": file units per metre, "references": {label: {joint
+    blender -b --factory-startup --python bench/blender/check_import.py -- REQUEST.json
+REQUEST.json: {"file": a .bvh or .glb, "scale": file units per metre (BVH), "fps": the file's
+frame rate, "references": {label: {joint
 name: [[x, y, z] per frame] in metres, Y up}}, "result": path for the JSON answer,
 optionally "png": path, "frame": 0-based frame to render, "size": [width, height], "samples",
 "rest_png": path for the same view of the rest pose}.
@@ -34,9 +35,13 @@ def main() -> None:
     request = json.loads(open(sys.argv[sys.argv.index("--") + 1]).read())
     import_bvh.open = _open_without_u  # the 'rU' fix, for this process only
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.import_anim.bvh(filepath=request["bvh"], global_scale=1.0 / request["scale"],
-                            update_scene_fps=True, update_scene_duration=True,
-                            axis_forward="-Z", axis_up="Y")
+    if request["file"].endswith(".glb"):  # glTF keys are seconds: frames at the scene's fps
+        bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = request["fps"], 1.0
+        bpy.ops.import_scene.gltf(filepath=request["file"])
+    else:
+        bpy.ops.import_anim.bvh(filepath=request["file"], global_scale=1.0 / request["scale"],
+                                update_scene_fps=True, update_scene_duration=True,
+                                axis_forward="-Z", axis_up="Y")
     armature = next(o for o in bpy.context.scene.objects if o.type == "ARMATURE")
     scene = bpy.context.scene
     first, last = armature.animation_data.action.frame_range
@@ -73,10 +78,12 @@ def _errors(heads: dict, reference: dict) -> dict:
 
 
 def _render(scene, armature, request: dict) -> None:
-    """A mannequin skinned to the imported bones (a rod per bone, a ball for the head), red
-    dots at the reference joints, a floor, a camera and a sun; Cycles on the CPU."""
+    """A mannequin skinned to the imported bones (a rod per bone, a ball for the head; a GLB
+    brings its own), red dots at the reference joints, a floor, a camera and a sun; Cycles on
+    the CPU."""
     frame = request.get("frame", 0)
-    _mannequin(armature)
+    if not any(o.type == "MESH" for o in scene.objects):
+        _mannequin(armature)
     scene.frame_set(request["first"] + frame)
     dots = next(iter(request["references"].values()))
     for positions in dots.values():
