@@ -13,7 +13,7 @@ import numpy as np
 
 from mogo import files
 from mogo.align import Alignment
-from mogo.motion import bvh, render
+from mogo.motion import bvh, glb, render
 from mogo.motion.skeleton import Skeleton
 
 
@@ -55,6 +55,11 @@ class Motion:
         return _save(Path(path), partial(self._write_bvh, scale=scale,
                                          bone_translations=bone_translations, naming=naming))
 
+    def save_glb(self, path: str | os.PathLike, naming: str = "mixamo") -> Path:
+        """A GLB (binary glTF): a mannequin skinned to the BVH's rigid character, animated by
+        its joint rotations; three.js, Blender and engines play it as it is."""
+        return _save(Path(path), partial(self._write_glb, naming=naming))
+
     def save_gif(self, path: str | os.PathLike) -> Path:
         """A stick-figure animation with the caption and a floor grid."""
         return _save(Path(path), self._write_gif)
@@ -66,23 +71,28 @@ class Motion:
 
     def save_take(self, folder: str | os.PathLike, name: str, overwrite: bool = False,
                   bone_translations: bool = False, scale: float = 1.0,
-                  naming: str = "mixamo") -> list[Path]:
-        """The .bvh, .gif, .npy and .json of this motion as one take, written all or none.
-        An earlier take named `name` is kept (this one is named name-2, name-3, ...: the
-        first free), unless overwrite=True replaces it. Returns the four paths written.
-        The BVH options are save_bvh's."""
-        folder = check_take(folder, name, overwrite)
-        writers = [partial(self._write_bvh, scale=scale, bone_translations=bone_translations,
-                           naming=naming),
-                   self._write_gif, partial(_write_array, self.joints), self._write_json]
-        names = ([[folder / (name + suffix) for suffix in TAKE]] if overwrite
-                 else files.numbered(folder, name, TAKE))
+                  naming: str = "mixamo", animation: str = "bvh") -> list[Path]:
+        """The .bvh (or .glb: `animation`), .gif, .npy and .json of this motion as one take,
+        written all or none. An earlier take named `name` is kept (this one is named name-2,
+        name-3, ...: the first free), unless overwrite=True replaces it. Returns the four
+        paths written. The other options are save_bvh's (naming: save_glb's too)."""
+        suffixes = take_suffixes(animation)
+        folder = check_take(folder, name, overwrite, animation=animation)
+        first = (partial(self._write_glb, naming=naming) if animation == "glb" else
+                 partial(self._write_bvh, scale=scale, bone_translations=bone_translations,
+                         naming=naming))
+        writers = [first, self._write_gif, partial(_write_array, self.joints), self._write_json]
+        names = ([[folder / (name + suffix) for suffix in suffixes]] if overwrite
+                 else files.numbered(folder, name, suffixes))
         return files.write_all(writers, names, replace=overwrite)
 
     def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False,
                    naming: str = "mixamo") -> None:
         bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations,
                      naming)
+
+    def _write_glb(self, path: Path, naming: str = "mixamo") -> None:
+        glb.save_glb(path, self.joints, self.skeleton, self.fps, bvh.joint_names(naming))
 
     def _write_gif(self, path: Path) -> None:
         render.save_gif(self.joints, path, self.caption, self.fps, self.skeleton)
@@ -106,18 +116,27 @@ class Motion:
 
 
 TAKE = (".bvh", ".gif", ".npy", ".json")  # the files of one take, in the order written
+ANIMATIONS = ("bvh", "glb")  # the take's animation file: a skeleton, or a skinned mannequin
+
+
+def take_suffixes(animation: str = "bvh") -> tuple[str, ...]:
+    """The files of a take whose animation file is a .bvh or a .glb."""
+    if animation not in ANIMATIONS:
+        raise ValueError(f"animation must be one of {', '.join(ANIMATIONS)}, got {animation!r}")
+    return (f".{animation}",) + TAKE[1:]
 
 
 def check_take(folder: str | os.PathLike, name: str | None, overwrite: bool = False,
-               what: str = "name") -> Path:
+               what: str = "name", animation: str = "bvh") -> Path:
     """The checks save_take makes, for a caller to make before the work of generating: the
     folder takes files, the name is a plain file name, nothing but files is to be replaced.
     `what` names the name in messages (e.g. "--name")."""
+    suffixes = take_suffixes(animation)
     folder = files.check_folder(folder)
     if name is not None:
-        files.check_name(name, folder, TAKE, what)
+        files.check_name(name, folder, suffixes, what)
         if overwrite:
-            files.check_replaceable(folder / (name + suffix) for suffix in TAKE)
+            files.check_replaceable(folder / (name + suffix) for suffix in suffixes)
     return folder
 
 

@@ -53,16 +53,10 @@ def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fp
     length (1 = metres, which Blender imports at its default scale; 100 = centimetres; see
     UNITS); `bone_translations`: position channels on every joint too (see the module doc);
     `naming`: a key of NAMINGS."""
-    joints = np.asarray(joints, dtype=np.float64)
-    if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3) or len(joints) < 1:
-        raise ValueError(f"joints must be (T, {skeleton.num_joints}, 3) for the "
-                         f"{skeleton.name} skeleton, got shape {joints.shape}")
-    if not np.all(np.isfinite(joints)):
-        raise ValueError("joints contain NaN or infinite values")
-    if fps <= 0 or scale <= 0:
-        raise ValueError(f"fps and scale must be positive, got {fps} and {scale}")
-    if naming not in NAMINGS:
-        raise ValueError(f"naming must be one of {', '.join(NAMINGS)}, got {naming!r}")
+    joints = rig.checked_joints(joints, skeleton, fps)
+    if scale <= 0:
+        raise ValueError(f"scale must be positive, got {scale}")
+    names = joint_names(naming)
     offsets = rig.rest_offsets(skeleton)
     world = rig.world_rotations(joints, skeleton, offsets)
     angles = np.degrees(_continuous(_matrix_to_zxy(rig.local_rotations(world, skeleton))))
@@ -75,7 +69,7 @@ def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fp
     bones[:, 0] = joints[:, 0]  # the root's position channels: where it is
 
     lines = ["HIERARCHY"]
-    _write_joint(lines, skeleton, NAMINGS[naming], 0, offsets * scale,
+    _write_joint(lines, skeleton, names, 0, offsets * scale,
                  rig.end_sites(skeleton, offsets * scale), depth=0,
                  translations=bone_translations)
     lines += ["MOTION", f"Frames: {len(joints)}", f"Frame Time: {1.0 / fps:.8f}"]
@@ -84,6 +78,13 @@ def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fp
                for j in rig.depth_first(skeleton)]
     lines += [" ".join(f"{v:.6f}" for v in row) for row in np.concatenate(columns, axis=1)]
     Path(path).write_text("\n".join(lines) + "\n")
+
+
+def joint_names(naming: str) -> tuple[str, ...]:
+    """The joint names of a naming (a key of NAMINGS), or a ValueError naming the choices."""
+    if naming not in NAMINGS:
+        raise ValueError(f"naming must be one of {', '.join(NAMINGS)}, got {naming!r}")
+    return NAMINGS[naming]
 
 
 def read_bvh(path: str | os.PathLike) -> BvhClip:

@@ -4,9 +4,9 @@ Exporters (BVH) write a rest skeleton and per-frame local rotations; DCC tools a
 (Blender, Unity, Mixamo) expect one skeleton per character, a clean T-pose at zero rotation, and
 rotations with a sensible twist. This module gives both, from joint positions alone:
 
-- the rest skeleton: the bundle's canonical bone lengths (the manifest's rest offsets), left and
-  right averaged; at zero rotation the spine, neck and head bones point straight up, arms straight out
-  along +-X, legs straight down, feet flat along +Z (the facing), feet on the floor (y = 0);
+- the rest skeleton: the bundle's canonical bone lengths (the manifest's rest offsets), left
+  and right averaged; at zero rotation the spine, neck and head bones point straight up, arms
+  straight out along +-X, legs straight down, feet flat along +Z (the facing), on the floor;
 - world rotations per frame: the pelvis and the upper spine get full frames fitted to their
   child joints (Kabsch: hips + spine, neck + collars), so nothing flips when the character
   faces away; every other bone points at its observed child, twisted by a body reference
@@ -51,6 +51,19 @@ def check(skeleton: Skeleton) -> None:
     if skeleton.joint_names != SMPL_22.joint_names or skeleton.rest_offsets is None:
         raise ValueError(f"the rig needs the {SMPL_22.name} skeleton with rest offsets, got "
                          f"{skeleton.name}")
+
+
+def checked_joints(joints: np.ndarray, skeleton: Skeleton, fps: float) -> np.ndarray:
+    """Joints (T, J, 3) as float64, or a ValueError saying what is wrong (exporters' checks)."""
+    joints = np.asarray(joints, dtype=np.float64)
+    if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3) or len(joints) < 1:
+        raise ValueError(f"joints must be (T, {skeleton.num_joints}, 3) for the "
+                         f"{skeleton.name} skeleton, got shape {joints.shape}")
+    if not np.all(np.isfinite(joints)):
+        raise ValueError("joints contain NaN or infinite values")
+    if not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    return joints
 
 
 def rest_offsets(skeleton: Skeleton) -> np.ndarray:
@@ -111,8 +124,8 @@ def world_rotations(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray)
             if np.any(np.linalg.norm(joints[:, child] - joints[:, joint], axis=-1) < 1e-9):
                 raise ValueError(f"joint {name} coincides with its child")
             rest_ref, candidates = _references(part, joints, child, lateral, chest, skeleton)
-            rotations[:, joint] = _aim(offsets[child], rest_ref, joints[:, child] - posed[:, joint],
-                                       candidates, parent)
+            aim = joints[:, child] - posed[:, joint]
+            rotations[:, joint] = _aim(offsets[child], rest_ref, aim, candidates, parent)
         for child in children[joint]:
             posed[:, child] = posed[:, joint] + rotations[:, joint] @ offsets[child]
     return rotations
@@ -140,6 +153,13 @@ def forward(offsets: np.ndarray, skeleton: Skeleton, root: np.ndarray, local: np
             world[:, joint] = world[:, parent] @ local[:, joint]
             joints[:, joint] = joints[:, parent] + world[:, parent] @ offsets[joint]
     return joints
+
+
+def posed_joints(joints: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """The rig's joints (T, J, 3) posed like `joints`: what an exported file gives back."""
+    offsets = rest_offsets(skeleton)
+    local = local_rotations(world_rotations(joints, skeleton, offsets), skeleton)
+    return forward(offsets, skeleton, np.asarray(joints, dtype=np.float64)[:, 0], local)
 
 
 def depth_first(skeleton: Skeleton) -> list[int]:

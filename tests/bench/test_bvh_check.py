@@ -6,6 +6,7 @@ import pytest
 
 from mogo import MotionGenerator
 from mogo.bench.quality.bvh_check import Check, blender_check, rig_error, rig_positions, table
+from mogo.motion import rig
 from mogo.motion.bvh import NAMINGS, save_bvh
 
 BLENDER = shutil.which("blender")
@@ -28,3 +29,15 @@ def test_blender_reads_our_bvh_as_our_rig_says(tmp_path):
     assert result["errors"]["joints"]["mean"] == pytest.approx(rigid.mean(), abs=1e-4)
     assert png.is_file()
     assert "| **all** | 40 |" in table([Check("walk", len(joints), rigid, result)])
+
+
+@pytest.mark.skipif(BLENDER is None, reason="Blender is not installed")
+def test_blender_reads_our_glb_as_our_rig_says(tmp_path):
+    """Blender's glTF importer: the skinned mannequin's bones follow our rig, frame by frame."""
+    motion = MotionGenerator.load().generate("a person jumps.", seconds=2.0, seed=0)
+    path = motion.save_glb(tmp_path / "jump.glb")
+    joints = motion.joints.astype(np.float64)
+    result = blender_check(path, NAMINGS["mixamo"], motion.fps,
+                           dict(rig=rig.posed_joints(joints, motion.skeleton)),
+                           blender=BLENDER, timeout=120)
+    assert result["frames"] == len(joints) and result["errors"]["rig"]["max"] < 1e-4

@@ -67,6 +67,18 @@ def test_a_take_never_replaces_an_earlier_one_unless_asked(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+def test_a_take_with_a_glb_animation(tmp_path):
+    """animation="glb" (`mogo generate --format glb`): a .glb in the .bvh's place, numbered
+    with the rest of the take; an unknown format is refused before anything is written."""
+    motion(0).save_take(tmp_path, "walk")
+    written = motion(1).save_take(tmp_path, "walk", animation="glb")
+    assert [p.name for p in written] == ["walk-2.glb", "walk-2.gif", "walk-2.npy", "walk-2.json"]
+    assert written[0].read_bytes()[:4] == b"glTF"
+    with pytest.raises(ValueError, match="animation must be one of bvh, glb"):
+        motion(1).save_take(tmp_path, "other", animation="fbx")
+    assert not list(tmp_path.glob("other*"))
+
+
 def test_a_folder_in_the_way_is_skipped_or_an_error_never_a_half_take(tmp_path):
     motion(0).save_take(tmp_path, "x")
     (tmp_path / "x.gif").unlink()
