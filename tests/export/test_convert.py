@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from mogo.cli import main
-from mogo.export.data.convert import read_clip, resample
+from mogo.export.data.convert import read_clip
+from mogo.motion.mocap import resample
 from mogo.motion.features import features_to_joints
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
