@@ -8,7 +8,8 @@ the body facing +X (its left is -Z). Forward kinematics on the DeepMimic humanoi
 pelvis, hips, knees, ankles, chest, neck, shoulders, elbows and wrists (a fixed point at the
 end of the forearm). What that humanoid lacks is a fixed point of the body part it belongs to:
 - spine1 halfway from the pelvis to the chest joint (pelvis frame); spine2 the chest joint;
-  spine3 a fifth of the way from the chest joint to the neck (chest frame): SMPL's spacing;
+  spine3 a quarter of the way from the chest joint to the neck (chest frame), as the CMU map
+  of mogo.motion.rigs places it: close to SMPL's spacing;
 - head 10 cm above the neck joint and 2 cm forward (neck frame);
 - collars 21.5 cm above the chest joint, 7.5 cm to the side, 1 cm back (chest frame): between
   the neck's base and the shoulder, a little below the shoulder as in SMPL;
@@ -50,13 +51,14 @@ _LAYOUT = (("chest", 4), ("neck", 4), ("right_hip", 4), ("right_knee", 1), ("rig
 # each of our joints: the humanoid's part it moves with and its place in that part's frame
 _POINTS = {
     "pelvis": ("root", (0, 0, 0)), "spine1": ("root", (0, 0.118, 0)),
-    "spine2": ("chest", (0, 0, 0)), "spine3": ("chest", (0, 0.045, 0)),
+    "spine2": ("chest", (0, 0, 0)), "spine3": ("chest", (0, 0.25 * 0.223894, 0)),
     "neck": ("neck", (0, 0, 0)), "head": ("neck", (0.02, 0.10, 0)),
     "left_collar": ("chest", (-0.01, 0.215, -0.075)),
     "right_collar": ("chest", (-0.01, 0.215, 0.075)),
     "left_wrist": ("left_elbow", (0, -0.258947, 0)),
     "right_wrist": ("right_elbow", (0, -0.258947, 0)),
-    "left_foot": ("left_ankle", (0.12, -0.035, 0)), "right_foot": ("right_ankle", (0.12, -0.035, 0)),
+    "left_foot": ("left_ankle", (0.12, -0.035, 0)),
+    "right_foot": ("right_ankle", (0.12, -0.035, 0)),
 }
 
 

@@ -174,7 +174,7 @@ def _parse_bvh(text: str, path: Path) -> BvhClip:
             raise ValueError("no MOTION section with Frames: and Frame Time:")
         frames, frame_time = int(tokens[i + 2]), float(tokens[i + 5])
         values = np.array(tokens[i + 6:], dtype=np.float64)
-    except (IndexError, ValueError) as error:
+    except (IndexError, ValueError) as error:  # list.index's ValueError: a missing brace
         reason = str(error) if isinstance(error, ValueError) else "the file ends too early"
         raise ValueError(f"{path}: not a readable BVH ({reason})") from None
     width = sum(len(c) for c in channels)
@@ -195,12 +195,13 @@ def _hierarchy(tokens: list[str]):
     i, end_site = 1, False
     while tokens[i] != "MOTION":
         word = tokens[i]
-        if word in ("ROOT", "JOINT"):
-            names.append(tokens[i + 1])
+        if word in ("ROOT", "JOINT"):  # a name may hold spaces ("Bip01 L Thigh"): up to {
+            brace = tokens.index("{", i + 1)
+            names.append(" ".join(tokens[i + 1:brace]))
             parents.append(stack[-1] if stack else -1)
             offsets.append([0.0, 0.0, 0.0])
             channels.append([])
-            i += 2
+            i = brace
         elif word == "End":
             end_site, i = True, i + 2
         elif word == "{":

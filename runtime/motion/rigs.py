@@ -43,6 +43,7 @@ def _swap(source: Source) -> Source:
 
 
 _SMPL = {name: name for name in SMPL_22.joint_names}
+_SMPL_SHORT = {name: name.replace("left_", "L_").replace("right_", "R_") for name in _SMPL}
 _MIXAMO = _sided({
     "pelvis": "Hips", "spine1": "Spine", "spine2": "Spine1", "spine3": "Spine2", "neck": "Neck",
     "head": "Head", "left_collar": "LeftShoulder", "left_shoulder": "LeftArm",
@@ -56,7 +57,8 @@ _CMU = _sided({
     "left_shoulder": "LeftArm", "left_elbow": "LeftForeArm", "left_wrist": "LeftHand",
     "left_hip": "LeftUpLeg", "left_knee": "LeftLeg", "left_ankle": "LeftFoot",
     "left_foot": "LeftToeBase"})
-RIGS: dict[str, dict[str, Source]] = {"SMPL": _SMPL, "Mixamo": _MIXAMO, "CMU": _CMU}
+RIGS: dict[str, dict[str, Source]] = {"SMPL": _SMPL, "SMPL (L_/R_)": _SMPL_SHORT,
+                                      "Mixamo": _MIXAMO, "CMU": _CMU}
 
 
 def resolve(names: tuple[str, ...], mapping: dict[str, Source] | None = None,
@@ -86,12 +88,13 @@ def _lookup(table: dict[str, Source], index: dict[str, int]
             ) -> tuple[list[tuple[int, int, float]], list[str]]:
     found, missing = [], []
     for ours in SMPL_22.joint_names:
-        source = table.get(ours)
-        a, b, f = (source, source, 0.0) if isinstance(source, str) else source or (ours, ours, 0)
+        source = table.get(ours) or ours  # a mapping file may leave out joints named as ours
+        a, b, f = (source, source, 0.0) if isinstance(source, str) else source
         if key(a) in index and key(b) in index:
             found.append((index[key(a)], index[key(b)], float(f)))
         else:
-            missing.append(f"{ours} ({a if key(a) not in index else b})" if source else ours)
+            theirs = a if key(a) not in index else b
+            missing.append(ours if key(theirs) == key(ours) else f"{ours} ({theirs})")
     return found, missing
 
 
