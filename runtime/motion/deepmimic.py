@@ -5,9 +5,12 @@ quaternion, then per joint its rotation in its parent's frame: chest, neck, righ
 knee, right ankle, right shoulder, right elbow, left hip, left knee, left ankle, left shoulder,
 left elbow; quaternions w x y z, knees and elbows one angle about their Z axis. Y up, metres,
 the body facing +X (its left is -Z). Forward kinematics on the DeepMimic humanoid's bones gives
-pelvis, hips, knees, ankles, chest, neck, shoulders, elbows and wrists (a fixed point at the
+hips, knees, ankles, chest, neck, shoulders, elbows and wrists (a fixed point at the
 end of the forearm). What that humanoid lacks is a fixed point of the body part it belongs to:
-- spine1 halfway from the pelvis to the chest joint (pelvis frame); spine2 the chest joint;
+- pelvis 7 cm above the root (root frame): DeepMimic's root is the centre of its hip joints,
+  SMPL's pelvis joint sits 7 cm above the hips, and the shipped model has only seen SMPL's
+  geometry (docs/real_motion.md: what the root itself as the pelvis costs);
+- spine1 halfway from the pelvis to the chest joint (root frame); spine2 the chest joint;
   spine3 a quarter of the way from the chest joint to the neck (chest frame), as the CMU map
   of mogo.motion.rigs places it: close to SMPL's spacing;
 - head 10 cm above the neck joint and 2 cm forward (neck frame);
@@ -50,7 +53,7 @@ _LAYOUT = (("chest", 4), ("neck", 4), ("right_hip", 4), ("right_knee", 1), ("rig
            ("left_ankle", 4), ("left_shoulder", 4), ("left_elbow", 1))
 # each of our joints: the humanoid's part it moves with and its place in that part's frame
 _POINTS = {
-    "pelvis": ("root", (0, 0, 0)), "spine1": ("root", (0, 0.118, 0)),
+    "pelvis": ("root", (0, 0.07, 0)), "spine1": ("root", (0, (0.07 + 0.236151) / 2, 0)),
     "spine2": ("chest", (0, 0, 0)), "spine3": ("chest", (0, 0.25 * 0.223894, 0)),
     "neck": ("neck", (0, 0, 0)), "head": ("neck", (0.02, 0.10, 0)),
     "left_collar": ("chest", (-0.01, 0.215, -0.075)),

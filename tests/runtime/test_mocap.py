@@ -189,7 +189,9 @@ def test_a_deepmimic_motion_gives_its_joints(tmp_path):
         parent, offset = DEEPMIMIC_BONES[name]
         world[name] = world[parent] @ rotations[name]
         place[name] = place[parent] + world[parent] @ np.array(offset)
-    ours = {"pelvis": "root", "spine2": "chest"} | {n: n for n in ORDER if n != "chest"}
+    pelvis = place["root"] + rotations["root"] @ [0, 0.07, 0]  # 7 cm above the hips: SMPL's
+    np.testing.assert_allclose(clip.joints[:, SMPL_22.index("pelvis")], pelvis, atol=1e-5)
+    ours = {"spine2": "chest"} | {n: n for n in ORDER if n != "chest"}
     for joint, part in ours.items():
         np.testing.assert_allclose(clip.joints[:, SMPL_22.index(joint)], place[part], atol=1e-5)
     wrist = place["left_elbow"] + world["left_elbow"] @ [0, -0.258947, 0]
@@ -205,11 +207,12 @@ def test_a_cmu_style_zxy_file_of_deepmimic_motion(tmp_path):
     rest = {name: np.array(offset, dtype=np.float64)
             for name, (_, offset) in DEEPMIMIC_BONES.items()}
     joints, moves = [("Hips", None, (0, 0, 0))], {"Hips": rotations["root"]}
+    pelvis = np.array([0, 0.07, 0])  # the DeepMimic fill: the pelvis 7 cm above its root
     for side, z in (("Left", -1), ("Right", 1)):
         low = side.lower()
         collar = np.array([-0.01, 0.215, 0.075 * z])  # the DeepMimic fill, CMU's midpoint rule
         inner = 2 * collar - rest[f"{low}_shoulder"]
-        joints += [(f"{side[0]}HipJoint", "Hips", (0, 0, 0)),
+        joints += [(f"{side[0]}HipJoint", "Hips", -pelvis),
                    (f"{side}UpLeg", f"{side[0]}HipJoint", rest[f"{low}_hip"]),
                    (f"{side}Leg", f"{side}UpLeg", rest[f"{low}_knee"]),
                    (f"{side}Foot", f"{side}Leg", rest[f"{low}_ankle"]),
@@ -223,15 +226,16 @@ def test_a_cmu_style_zxy_file_of_deepmimic_motion(tmp_path):
                   f"{side}Foot": rotations[f"{low}_ankle"],
                   f"{side}Arm": rotations[f"{low}_shoulder"],
                   f"{side}ForeArm": rotations[f"{low}_elbow"]}
-    joints += [("LowerBack", "Hips", (0, 0, 0)), ("Spine", "LowerBack", (0, 0.118, 0)),
-               ("Spine1", "Spine", (0, 0.236151 - 0.118, 0)), ("Neck", "Spine1", rest["neck"]),
+    spine = (0.236151 - 0.07) / 2  # the DeepMimic fill: spine1 halfway to the chest joint
+    joints += [("LowerBack", "Hips", (0, 0, 0)), ("Spine", "LowerBack", (0, spine, 0)),
+               ("Spine1", "Spine", (0, spine, 0)), ("Neck", "Spine1", rest["neck"]),
                ("Neck1", "Neck", (0.01, 0.05, 0)), ("Head", "Neck1", (0.01, 0.05, 0))]
     moves |= {"Spine1": rotations["chest"], "Neck": rotations["neck"]}
     joints = sorted(joints, key=lambda j: _depth(j, joints))  # parents first
     frames = len(root)
     local = np.stack([moves.get(name, np.tile(np.eye(3), (frames, 1, 1)))
                       for name, _, _ in joints], axis=1)
-    rig = Rig(joints, local, root, 30.0)
+    rig = Rig(joints, local, root + rotations["root"] @ pelvis, 30.0)
     rig.write(tmp_path / "cmu.bvh", order="ZXY", scale=1 / 0.0254)
     clip = read_mocap(tmp_path / "cmu.bvh")
     assert clip.description == "BVH, CMU naming, inches, Y up, 30 fps"
