@@ -204,6 +204,15 @@ def test_a_cmu_style_zxy_file_of_deepmimic_motion(tmp_path):
     converter would write it, read back to the DeepMimic file's own joints."""
     rotations, root = _deepmimic_sample(tmp_path / "dance.txt", frames=16)
     source = read_mocap(tmp_path / "dance.txt")
+    cmu_rig(rotations, root, 30.0).write(tmp_path / "cmu.bvh", order="ZXY", scale=1 / 0.0254)
+    clip = read_mocap(tmp_path / "cmu.bvh")
+    assert clip.description == "BVH, CMU naming, inches, Y up, 30 fps"
+    assert _error(clip, source.joints) < TOLERANCE
+
+
+def cmu_rig(rotations: dict[str, np.ndarray], root: np.ndarray, fps: float) -> Rig:
+    """DeepMimic motion (local rotation matrices by joint, root positions) on a CMU-named
+    skeleton whose joints sit where the DeepMimic import puts ours."""
     rest = {name: np.array(offset, dtype=np.float64)
             for name, (_, offset) in DEEPMIMIC_BONES.items()}
     joints, moves = [("Hips", None, (0, 0, 0))], {"Hips": rotations["root"]}
@@ -235,11 +244,7 @@ def test_a_cmu_style_zxy_file_of_deepmimic_motion(tmp_path):
     frames = len(root)
     local = np.stack([moves.get(name, np.tile(np.eye(3), (frames, 1, 1)))
                       for name, _, _ in joints], axis=1)
-    rig = Rig(joints, local, root + rotations["root"] @ pelvis, 30.0)
-    rig.write(tmp_path / "cmu.bvh", order="ZXY", scale=1 / 0.0254)
-    clip = read_mocap(tmp_path / "cmu.bvh")
-    assert clip.description == "BVH, CMU naming, inches, Y up, 30 fps"
-    assert _error(clip, source.joints) < TOLERANCE
+    return Rig(joints, local, root + rotations["root"] @ pelvis, fps)
 
 
 def _depth(joint, joints):
