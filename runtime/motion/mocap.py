@@ -24,7 +24,8 @@ from mogo.motion.skeleton import SMPL_22, Skeleton
 BODY_LENGTH_RANGE = (0.5, 2.5)
 ADULT_BODY_LENGTH = 1.5
 UNITS = (("metres", 1.0), ("centimetres", 100.0), ("millimetres", 1000.0),
-         ("inches", 1 / 0.0254), ("feet", 1 / 0.3048))
+         ("inches", 1 / 0.0254), ("feet", 1 / 0.3048),
+         ("CMU units (1/0.45 inch)", 0.45 / 0.0254))  # the CMU database's BVH conversions
 _AXES = ("X", "Y", "Z")
 
 

@@ -49,11 +49,12 @@ _MIXAMO = _sided({
     "head": "Head", "left_collar": "LeftShoulder", "left_shoulder": "LeftArm",
     "left_elbow": "LeftForeArm", "left_wrist": "LeftHand", "left_hip": "LeftUpLeg",
     "left_knee": "LeftLeg", "left_ankle": "LeftFoot", "left_foot": "LeftToeBase"})
-# CMU's BVH conversions: LowerBack and the collars' LeftShoulder may sit where their parent
-# is, so the spine's third joint and the collars are points between joints
+# CMU's BVH conversions: LowerBack, Neck and the collars' LeftShoulder sit where their parent
+# is (Neck1 is the neck's base, level with the shoulders' top), so the spine's third joint and
+# the collars are points between joints
 _CMU = _sided({
-    "pelvis": "Hips", "spine1": "Spine", "spine2": "Spine1", "spine3": ("Spine1", "Neck", 0.25),
-    "neck": "Neck", "head": "Head", "left_collar": ("LeftShoulder", "LeftArm", 0.5),
+    "pelvis": "Hips", "spine1": "Spine", "spine2": "Spine1", "spine3": ("Spine1", "Neck1", 0.25),
+    "neck": "Neck1", "head": "Head", "left_collar": ("LeftShoulder", "LeftArm", 0.5),
     "left_shoulder": "LeftArm", "left_elbow": "LeftForeArm", "left_wrist": "LeftHand",
     "left_hip": "LeftUpLeg", "left_knee": "LeftLeg", "left_ankle": "LeftFoot",
     "left_foot": "LeftToeBase"})

@@ -198,15 +198,17 @@ def test_a_deepmimic_motion_gives_its_joints(tmp_path):
     np.testing.assert_allclose(clip.joints[:, SMPL_22.index("left_wrist")], wrist, atol=1e-5)
 
 
-def test_a_cmu_style_zxy_file_of_deepmimic_motion(tmp_path):
-    """CMU names and extra joints (zero-offset LHipJoint and LowerBack, Neck1, fingers),
-    Zrotation Xrotation Yrotation channels, inches, 30 fps: the DeepMimic motion as CMU's
-    converter would write it, read back to the DeepMimic file's own joints."""
+@pytest.mark.parametrize("scale, unit", [(1 / 0.0254, "inches"),
+                                         (0.45 / 0.0254, "CMU units (1/0.45 inch)")])
+def test_a_cmu_style_zxy_file_of_deepmimic_motion(tmp_path, scale, unit):
+    """CMU names and extra joints (zero-offset LowerBack and Neck, LHipJoint, fingers),
+    Zrotation Xrotation Yrotation channels, inches or CMU's own unit, 30 fps: the DeepMimic
+    motion as CMU's converter would write it, read back to the DeepMimic file's own joints."""
     rotations, root = _deepmimic_sample(tmp_path / "dance.txt", frames=16)
     source = read_mocap(tmp_path / "dance.txt")
-    cmu_rig(rotations, root, 30.0).write(tmp_path / "cmu.bvh", order="ZXY", scale=1 / 0.0254)
+    cmu_rig(rotations, root, 30.0).write(tmp_path / "cmu.bvh", order="ZXY", scale=scale)
     clip = read_mocap(tmp_path / "cmu.bvh")
-    assert clip.description == "BVH, CMU naming, inches, Y up, 30 fps"
+    assert clip.description == f"BVH, CMU naming, {unit}, Y up, 30 fps"
     assert _error(clip, source.joints) < TOLERANCE
 
 
@@ -237,9 +239,9 @@ def cmu_rig(rotations: dict[str, np.ndarray], root: np.ndarray, fps: float) -> R
                   f"{side}ForeArm": rotations[f"{low}_elbow"]}
     spine = (0.236151 - 0.07) / 2  # the DeepMimic fill: spine1 halfway to the chest joint
     joints += [("LowerBack", "Hips", (0, 0, 0)), ("Spine", "LowerBack", (0, spine, 0)),
-               ("Spine1", "Spine", (0, spine, 0)), ("Neck", "Spine1", rest["neck"]),
-               ("Neck1", "Neck", (0.01, 0.05, 0)), ("Head", "Neck1", (0.01, 0.05, 0))]
-    moves |= {"Spine1": rotations["chest"], "Neck": rotations["neck"]}
+               ("Spine1", "Spine", (0, spine, 0)), ("Neck", "Spine1", (0, 0, 0)),
+               ("Neck1", "Neck", rest["neck"]), ("Head", "Neck1", (0.02, 0.10, 0))]
+    moves |= {"Spine1": rotations["chest"], "Neck1": rotations["neck"]}
     joints = sorted(joints, key=lambda j: _depth(j, joints))  # parents first
     frames = len(root)
     local = np.stack([moves.get(name, np.tile(np.eye(3), (frames, 1, 1)))
