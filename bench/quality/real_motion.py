@@ -13,7 +13,6 @@ OUT/real_motion.md, the table printed.
 """
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
 import zipfile
