@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from mogo.motion.bvh import read_bvh, save_bvh
+from mogo.motion.bvh import save_bvh
+from mogo.motion.mocap import read_bvh
 from mogo.motion.quaternion import qfrom_axis_angle, qmul, qrot, qyaw
 from mogo.motion.skeleton import SMPL_22
 
