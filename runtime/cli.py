@@ -106,7 +106,7 @@ def _aligner(args: argparse.Namespace, generator):
 
 def _cmd_generate(args: argparse.Namespace) -> None:
     from mogo.clip import check_take
-    from mogo.motion import bvh
+    from mogo.motion import bvh, rig
 
     if args.prompts_file:
         if args.text is not None or args.seconds is not None:
@@ -119,6 +119,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     folder = check_take(args.out, args.name, args.overwrite, what="--name",
                         animation=args.format)  # before the work
     generator = _load_generator(args)
+    rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
     sampling = _sampling(args, generator)
     if args.prompts_file:
         motion = generator.play(schedule, seed=args.seed, sampling=sampling)
