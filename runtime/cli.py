@@ -106,6 +106,7 @@ def _aligner(args: argparse.Namespace, generator):
 
 def _cmd_generate(args: argparse.Namespace) -> None:
     from mogo.clip import check_take
+    from mogo.motion import bvh, rig
 
     if args.prompts_file:
         if args.text is not None or args.seconds is not None:
@@ -115,8 +116,10 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         schedule = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
-    folder = check_take(args.out, args.name, args.overwrite, what="--name")  # before the work
+    folder = check_take(args.out, args.name, args.overwrite, what="--name",
+                        animation=args.format)  # before the work
     generator = _load_generator(args)
+    rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
     sampling = _sampling(args, generator)
     if args.prompts_file:
         motion = generator.play(schedule, seed=args.seed, sampling=sampling,
@@ -131,7 +134,9 @@ def _cmd_generate(args: argparse.Namespace) -> None:
             print(f"note: {motion.alignment.note}")
     name = args.name or _file_stem(motion.caption)
     written = motion.save_take(folder, name, overwrite=args.overwrite,
-                               bone_translations=args.bvh_bone_translations)
+                               bone_translations=args.bvh_bone_translations,
+                               scale=bvh.UNITS[args.bvh_units], naming=args.bvh_names,
+                               animation=args.format)
     frames = plural(len(motion.joints), "frame")
     print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
           f"for: {motion.caption}")
@@ -245,6 +250,8 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
 
 
 def _add_runtime_commands(commands) -> None:
+    from mogo.clip import ANIMATIONS
+    from mogo.motion import bvh  # their option lists
     generate = commands.add_parser(
         "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)")
     generate.add_argument("text", nargs="?", help="what the person does")
@@ -261,6 +268,15 @@ def _add_runtime_commands(commands) -> None:
     generate.add_argument("--bvh-bone-translations", action="store_true",
                           help="position channels on every BVH joint: the joints back exactly, "
                                "bone stretch included (default: a rigid skeleton, rotations only)")
+    generate.add_argument("--format", choices=list(ANIMATIONS), default="bvh",
+                          help="the animation file: a .bvh skeleton, or a .glb skinned mannequin "
+                               "(three.js, Blender, engines play it as it is) (default bvh)")
+    generate.add_argument("--bvh-names", choices=list(bvh.NAMINGS), default="mixamo",
+                          help="BVH (and GLB) joint names: each named for the bone it moves, "
+                               "Mixamo/Unity style (Hips, LeftUpLeg, LeftArm, ...), or the SMPL "
+                               "joint names (default mixamo)")
+    generate.add_argument("--bvh-units", choices=list(bvh.UNITS), default="m",
+                          help="BVH length unit (default m)")
     generate.add_argument("--align", choices=["rules", "llm"],
                           help="rewrite the prompt into caption-style steps played as one "
                                "motion: built-in rules, or an LLM server (falls back to the "

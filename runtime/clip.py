@@ -13,8 +13,9 @@ import numpy as np
 
 from mogo import files
 from mogo.align import Alignment
-from mogo.motion import bvh, render
-from mogo.motion.skeleton import Skeleton
+from mogo.motion import bvh, glb, mocap, render, rigs
+from mogo.motion.features import joints_to_features
+from mogo.motion.skeleton import SMPL_22, Skeleton
 
 
 @dataclass
@@ -27,6 +28,24 @@ class Motion:
     prompts: list[tuple[int, str]] = field(default_factory=list)  # (first frame, text)
     seed: int | None = None
     alignment: Alignment | None = None  # the steps prompt alignment made of the user's text
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike, mapping: str | os.PathLike | None = None
+                  ) -> Motion:
+        """A motion-capture file as a Motion at 20 fps on the 22-joint skeleton, e.g. to go on
+        from with MotionStream.continue_from: a BVH (any rig with SMPL, Mixamo or CMU joint
+        names; unit and up axis detected) or a DeepMimic motion (see mogo.motion.mocap).
+        `mapping`: a JSON file naming the rig's joint for each of ours (mogo.motion.rigs).
+        The clip is put on the floor at the origin, facing +Z, as HumanML3D clips are."""
+        rig = None if mapping is None else rigs.read_mapping(mapping)
+        clip = mocap.read_mocap(path, rig)
+        joints = mocap.resample(clip.joints, clip.fps, SMPL_22.fps)
+        try:
+            features, canonical = joints_to_features(joints, SMPL_22)
+        except ValueError as error:
+            raise ValueError(f"{path}: {error}") from None
+        return cls(features, canonical[:len(features)], SMPL_22.fps,
+                   np.zeros((0, 0), np.int64), SMPL_22, [(0, Path(path).name)])
 
     @property
     def seconds(self) -> float:
@@ -47,12 +66,18 @@ class Motion:
         return _save(_npy_path(path), partial(_write_array, self.features))
 
     def save_bvh(self, path: str | os.PathLike, scale: float = 1.0,
-                 bone_translations: bool = False) -> Path:
-        """A BVH with per-joint rotations, in metres (scale=100 for centimetres);
+                 bone_translations: bool = False, naming: str = "mixamo") -> Path:
+        """A BVH of the bundle's rigid T-pose character with per-joint rotations, in metres
+        (scale=100 for centimetres), joints named as in mogo.motion.bvh.NAMINGS;
         bone_translations=True adds per-joint position channels, so the file gives these
         joints back exactly despite the bone-length jitter of generated motion."""
         return _save(Path(path), partial(self._write_bvh, scale=scale,
-                                         bone_translations=bone_translations))
+                                         bone_translations=bone_translations, naming=naming))
+
+    def save_glb(self, path: str | os.PathLike, naming: str = "mixamo") -> Path:
+        """A GLB (binary glTF): a mannequin skinned to the BVH's rigid character, animated by
+        its joint rotations; three.js, Blender and engines play it as it is."""
+        return _save(Path(path), partial(self._write_glb, naming=naming))
 
     def save_gif(self, path: str | os.PathLike) -> Path:
         """A stick-figure animation with the caption and a floor grid."""
@@ -64,20 +89,29 @@ class Motion:
         return _save(Path(path), self._write_json)
 
     def save_take(self, folder: str | os.PathLike, name: str, overwrite: bool = False,
-                  bone_translations: bool = False) -> list[Path]:
-        """The .bvh, .gif, .npy and .json of this motion as one take, written all or none.
-        An earlier take named `name` is kept (this one is named name-2, name-3, ...: the
-        first free), unless overwrite=True replaces it. Returns the four paths written."""
-        folder = check_take(folder, name, overwrite)
-        writers = [partial(self._write_bvh, bone_translations=bone_translations),
-                   self._write_gif, partial(_write_array, self.joints), self._write_json]
-        names = ([[folder / (name + suffix) for suffix in TAKE]] if overwrite
-                 else files.numbered(folder, name, TAKE))
+                  bone_translations: bool = False, scale: float = 1.0,
+                  naming: str = "mixamo", animation: str = "bvh") -> list[Path]:
+        """The .bvh (or .glb: `animation`), .gif, .npy and .json of this motion as one take,
+        written all or none. An earlier take named `name` is kept (this one is named name-2,
+        name-3, ...: the first free), unless overwrite=True replaces it. Returns the four
+        paths written. The other options are save_bvh's (naming: save_glb's too)."""
+        suffixes = take_suffixes(animation)
+        folder = check_take(folder, name, overwrite, animation=animation)
+        first = (partial(self._write_glb, naming=naming) if animation == "glb" else
+                 partial(self._write_bvh, scale=scale, bone_translations=bone_translations,
+                         naming=naming))
+        writers = [first, self._write_gif, partial(_write_array, self.joints), self._write_json]
+        names = ([[folder / (name + suffix) for suffix in suffixes]] if overwrite
+                 else files.numbered(folder, name, suffixes))
         return files.write_all(writers, names, replace=overwrite)
 
-    def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False
-                   ) -> None:
-        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations)
+    def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False,
+                   naming: str = "mixamo") -> None:
+        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations,
+                     naming)
+
+    def _write_glb(self, path: Path, naming: str = "mixamo") -> None:
+        glb.save_glb(path, self.joints, self.skeleton, self.fps, bvh.joint_names(naming))
 
     def _write_gif(self, path: Path) -> None:
         render.save_gif(self.joints, path, self.caption, self.fps, self.skeleton)
@@ -101,18 +135,27 @@ class Motion:
 
 
 TAKE = (".bvh", ".gif", ".npy", ".json")  # the files of one take, in the order written
+ANIMATIONS = ("bvh", "glb")  # the take's animation file: a skeleton, or a skinned mannequin
+
+
+def take_suffixes(animation: str = "bvh") -> tuple[str, ...]:
+    """The files of a take whose animation file is a .bvh or a .glb."""
+    if animation not in ANIMATIONS:
+        raise ValueError(f"animation must be one of {', '.join(ANIMATIONS)}, got {animation!r}")
+    return (f".{animation}",) + TAKE[1:]
 
 
 def check_take(folder: str | os.PathLike, name: str | None, overwrite: bool = False,
-               what: str = "name") -> Path:
+               what: str = "name", animation: str = "bvh") -> Path:
     """The checks save_take makes, for a caller to make before the work of generating: the
     folder takes files, the name is a plain file name, nothing but files is to be replaced.
     `what` names the name in messages (e.g. "--name")."""
+    suffixes = take_suffixes(animation)
     folder = files.check_folder(folder)
     if name is not None:
-        files.check_name(name, folder, TAKE, what)
+        files.check_name(name, folder, suffixes, what)
         if overwrite:
-            files.check_replaceable(folder / (name + suffix) for suffix in TAKE)
+            files.check_replaceable(folder / (name + suffix) for suffix in suffixes)
     return folder
 
 

@@ -1,191 +1,86 @@
-"""BVH export and import of joint-position clips.
+"""BVH export of joint-position clips (mogo.motion.mocap reads BVH files).
 
 A BVH stores a rest skeleton (offsets) and per-frame local joint rotations, which is what
-Blender, Unity and Unreal retarget from. Rotations are solved per frame from positions:
-- a joint with several children (pelvis, upper spine) gets the rotation that best maps its
-  rest child offsets onto the observed ones (Kabsch): a full 3D frame from the hips or the
-  shoulders, so nothing flips when the character faces backwards;
-- a joint with one child gets its parent's rotation followed by the shortest swing that turns
-  the rest bone onto the observed bone, so twist follows the parent smoothly.
-The rest pose is a T-pose (arms out to the sides), which keeps every common pose far from
-the 180-degree swing where a shortest arc is undefined. Rest offsets are the bone vectors
-averaged over the clip in their parent's frame, so forward kinematics of the file gives the
-positions back up to the clip's own bone-length jitter. Generated motion has such jitter
-(bones that stretch by a few cm): `bone_translations=True` also writes every joint's
-per-frame offset as position channels, which gives the positions back exactly, for tools
-that read position channels on every joint (Blender does; retargeting to a rig keeps only
-the rotations). Euler angles stay continuous from frame to frame (whole turns, and the
-equivalent triple past X = 90 degrees), so a spin or a somersault interpolates cleanly.
+Blender, Unity and Unreal retarget from. The file's skeleton is mogo.motion.rig's: one rigid
+character for every clip of a bundle, a clean T-pose at zero rotation, feet on the floor, with
+rotations solved from the clip's joints (twist included; head, hands and toes derived). Each
+joint is named for the bone it moves: Mixamo/Unity names by default (Hips, LeftUpLeg, LeftArm,
+...: a name-matching retargeter lines the chains up bone for bone), or the SMPL joint names.
+Generated bones stretch by centimetres while a rigid bone cannot, so forward kinematics of the
+file is off the clip's joints by that much (docs/bvh.md); `bone_translations=True` also writes
+every joint's per-frame offset as position channels, which gives the joints back exactly, for
+tools that read position channels on every joint (Blender does; retargeting keeps only the
+rotations). Euler angles stay continuous from frame to frame (whole turns, and the equivalent
+triple past X = 90 degrees), so a spin or a somersault interpolates cleanly.
 """
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from mogo.motion.quaternion import qbetween, qto_matrix
-from mogo.motion.skeleton import Skeleton
+from mogo.motion import rig, rigs
+from mogo.motion.skeleton import SMPL_22, Skeleton
 
 EULER_ORDER = "ZXY"  # channel order in the file: R = Rz @ Rx @ Ry
 _GIMBAL = 1e-6
-_END_SITE_FRACTION = 0.25  # a leaf's end site: this fraction of its bone, continued
-
-
-@dataclass(frozen=True)
-class BvhClip:
-    """A BVH read back: joint names in file order, positions (T, J, 3) in file units, fps."""
-    names: tuple[str, ...]
-    positions: np.ndarray
-    fps: float
+UNITS = {"m": 1.0, "cm": 100.0}  # the file's length unit -> its scale from metres
+# Joint names in the file: each SMPL_22 joint named for the bone it moves (Mixamo/Unity), or
+# its SMPL name. The first is the default.
+NAMINGS = {
+    "mixamo": tuple(rigs.RIGS["Mixamo"][name] for name in SMPL_22.joint_names),
+    "smpl": SMPL_22.joint_names,
+}
 
 
 def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fps: float,
-             scale: float = 1.0, bone_translations: bool = False) -> None:
-    """Write joints (T, J, 3) in metres (Y up) as a BVH; `scale` multiplies every length
-    (1 = metres, which Blender imports at its default scale; 100 = centimetres);
-    `bone_translations`: position channels on every joint too (see the module doc)."""
-    joints = np.asarray(joints, dtype=np.float64)
-    if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3) or len(joints) < 1:
-        raise ValueError(f"joints must be (T, {skeleton.num_joints}, 3) for the "
-                         f"{skeleton.name} skeleton, got shape {joints.shape}")
-    if not np.all(np.isfinite(joints)):
-        raise ValueError("joints contain NaN or infinite values")
-    if fps <= 0 or scale <= 0:
-        raise ValueError(f"fps and scale must be positive, got {fps} and {scale}")
-    rotations = global_rotations(joints, skeleton)  # (T, J, 3, 3)
+             scale: float = 1.0, bone_translations: bool = False,
+             naming: str = "mixamo") -> None:
+    """Write joints (T, J, 3) in metres (Y up) as a BVH of the rig; `scale` multiplies every
+    length (1 = metres, which Blender imports at its default scale; 100 = centimetres; see
+    UNITS); `bone_translations`: position channels on every joint too (see the module doc);
+    `naming`: a key of NAMINGS."""
+    joints = rig.checked_joints(joints, skeleton, fps)
+    if scale <= 0:
+        raise ValueError(f"scale must be positive, got {scale}")
+    names = joint_names(naming)
+    offsets = rig.rest_offsets(skeleton)
+    world = rig.world_rotations(joints, skeleton, offsets)
+    angles = np.degrees(_continuous(_matrix_to_zxy(rig.local_rotations(world, skeleton))))
     parents = skeleton.parents
     bones = np.zeros_like(joints)  # (T, J, 3) each bone in its parent's frame, per frame
     for child in range(1, skeleton.num_joints):
         parent = parents[child]
-        bones[:, child] = np.einsum("tji,tj->ti", rotations[:, parent],
+        bones[:, child] = np.einsum("tji,tj->ti", world[:, parent],
                                     joints[:, child] - joints[:, parent])
-    offsets = bones.mean(0)
-    local = rotations.copy()
-    for joint in range(1, skeleton.num_joints):
-        local[:, joint] = np.swapaxes(rotations[:, parents[joint]], -1, -2) @ rotations[:, joint]
-    angles = np.degrees(_continuous(_matrix_to_zxy(local)))  # (T, J, 3)
+    bones[:, 0] = joints[:, 0]  # the root's position channels: where it is
 
     lines = ["HIERARCHY"]
-    _write_joint(lines, skeleton, 0, offsets * scale, depth=0, translations=bone_translations)
+    _write_joint(lines, skeleton, names, 0, offsets * scale,
+                 rig.end_sites(skeleton, offsets * scale), depth=0,
+                 translations=bone_translations)
     lines += ["MOTION", f"Frames: {len(joints)}", f"Frame Time: {1.0 / fps:.8f}"]
-    order = _depth_first(skeleton)
-    bones[:, 0] = joints[:, 0]  # the root's position channels: where it is
     columns = [np.concatenate([bones[:, j] * scale, angles[:, j]], axis=1)
-               if j == 0 or bone_translations else angles[:, j] for j in order]
+               if j == 0 or bone_translations else angles[:, j]
+               for j in rig.depth_first(skeleton)]
     lines += [" ".join(f"{v:.6f}" for v in row) for row in np.concatenate(columns, axis=1)]
     Path(path).write_text("\n".join(lines) + "\n")
 
 
-def global_rotations(joints: np.ndarray, skeleton: Skeleton) -> np.ndarray:
-    """World rotation matrices (T, J, 3, 3) of every joint's frame (see the module doc)."""
-    frames, num_joints = joints.shape[:2]
-    rest = rest_directions(skeleton)
-    children = _children(skeleton)
-    rotations = np.zeros((frames, num_joints, 3, 3))
-    for joint in _depth_first(skeleton):
-        parent = skeleton.parents[joint]
-        parent_rotation = np.eye(3) if parent < 0 else rotations[:, parent]
-        kids = children[joint]
-        if len(kids) > 1:
-            observed = joints[:, kids] - joints[:, joint, None]  # (T, C, 3)
-            rotations[:, joint] = _kabsch(rest[kids], observed)
-        elif len(kids) == 1:
-            bone = joints[:, kids[0]] - joints[:, joint]
-            if np.any(np.linalg.norm(bone, axis=-1) < 1e-9):
-                raise ValueError(f"joint {skeleton.joint_names[joint]} coincides with its child")
-            current = parent_rotation @ rest[kids[0]]
-            rotations[:, joint] = qto_matrix(qbetween(current, bone)) @ parent_rotation
-        else:
-            rotations[:, joint] = parent_rotation
-    return rotations
+def joint_names(naming: str) -> tuple[str, ...]:
+    """The joint names of a naming (a key of NAMINGS), or a ValueError naming the choices."""
+    if naming not in NAMINGS:
+        raise ValueError(f"naming must be one of {', '.join(NAMINGS)}, got {naming!r}")
+    return NAMINGS[naming]
 
 
-def rest_directions(skeleton: Skeleton) -> np.ndarray:
-    """(J, 3) unit direction of each bone (parent -> joint) in the T-pose: the skeleton's
-    own rest or raw offsets, with the bones past the shoulders turned out sideways."""
-    offsets = skeleton.rest_offsets if skeleton.rest_offsets is not None else skeleton.raw_offsets
-    directions = np.array(offsets, dtype=np.float64)
-    for joint, name in enumerate(skeleton.joint_names):
-        if name.endswith(("_elbow", "_wrist")):
-            shoulder = skeleton.index(name.rsplit("_", 1)[0] + "_shoulder")
-            side = np.sign(directions[shoulder, 0]) or (1.0 if name.startswith("left") else -1.0)
-            directions[joint] = (side, 0.0, 0.0)
-    norms = np.linalg.norm(directions, axis=-1, keepdims=True)
-    return np.divide(directions, norms, out=np.zeros_like(directions), where=norms > 0)
-
-
-def read_bvh(path: str | os.PathLike) -> BvhClip:
-    """Read a BVH (any channel order) and run forward kinematics: joint positions per frame."""
-    path = Path(path)
-    tokens = path.read_text().split()
-    if not tokens or tokens[0] != "HIERARCHY":
-        raise ValueError(f"{path}: not a BVH file (no HIERARCHY)")
-    names, parents, offsets, channels = [], [], [], []
-    stack: list[int] = []
-    i, end_site = 1, False
-    while tokens[i] != "MOTION":
-        word = tokens[i]
-        if word in ("ROOT", "JOINT"):
-            names.append(tokens[i + 1])
-            parents.append(stack[-1] if stack else -1)
-            i += 2
-        elif word == "End":
-            end_site, i = True, i + 2
-        elif word == "{":
-            stack.append(-2 if end_site else len(names) - 1)
-            i += 1
-        elif word == "}":
-            end_site = False
-            stack.pop()
-            i += 1
-        elif word == "OFFSET":
-            if stack[-1] != -2:
-                offsets.append([float(v) for v in tokens[i + 1:i + 4]])
-            i += 4
-        elif word == "CHANNELS":
-            count = int(tokens[i + 1])
-            channels.append(tokens[i + 2:i + 2 + count])
-            i += 2 + count
-        else:
-            raise ValueError(f"{path}: unexpected word {word!r} in the hierarchy")
-    frames = int(tokens[i + 2])
-    frame_time = float(tokens[i + 5])
-    values = np.array(tokens[i + 6:], dtype=np.float64)
-    width = sum(len(c) for c in channels)
-    if values.size != frames * width:
-        raise ValueError(f"{path}: {values.size} motion values, expected {frames} x {width}")
-    values = values.reshape(frames, width)
-
-    positions = np.zeros((frames, len(names), 3))
-    rotations = np.zeros((frames, len(names), 3, 3))
-    column = 0
-    for joint, (parent, joint_channels) in enumerate(zip(parents, channels)):
-        translation = np.tile(np.array(offsets[joint]), (frames, 1))
-        local = np.tile(np.eye(3), (frames, 1, 1))
-        for channel in joint_channels:
-            value = values[:, column]
-            column += 1
-            axis = "XYZ".index(channel[0])
-            if channel.endswith("position"):
-                translation[:, axis] = value
-            else:
-                local = local @ _axis_rotation(axis, np.radians(value))
-        if parent < 0:
-            positions[:, joint], rotations[:, joint] = translation, local
-        else:
-            positions[:, joint] = positions[:, parent] + np.einsum(
-                "tij,tj->ti", rotations[:, parent], translation)
-            rotations[:, joint] = rotations[:, parent] @ local
-    return BvhClip(tuple(names), positions, 1.0 / frame_time)
-
-
-def _write_joint(lines: list[str], skeleton: Skeleton, joint: int, offsets: np.ndarray,
-                 depth: int, translations: bool) -> None:
+def _write_joint(lines: list[str], skeleton: Skeleton, names: tuple[str, ...], joint: int,
+                 offsets: np.ndarray, tips: dict[int, np.ndarray], depth: int,
+                 translations: bool) -> None:
     pad = "  " * depth
     kind = "ROOT" if depth == 0 else "JOINT"
-    lines += [f"{pad}{kind} {skeleton.joint_names[joint]}", f"{pad}{{",
+    lines += [f"{pad}{kind} {names[joint]}", f"{pad}{{",
               f"{pad}  OFFSET {offsets[joint, 0]:.6f} {offsets[joint, 1]:.6f} "
               f"{offsets[joint, 2]:.6f}"]
     rotation_channels = " ".join(f"{axis}rotation" for axis in EULER_ORDER)
@@ -193,49 +88,14 @@ def _write_joint(lines: list[str], skeleton: Skeleton, joint: int, offsets: np.n
         lines.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition {rotation_channels}")
     else:
         lines.append(f"{pad}  CHANNELS 3 {rotation_channels}")
-    kids = _children(skeleton)[joint]
+    kids = [c for c in range(skeleton.num_joints) if skeleton.parents[c] == joint]
     for child in kids:
-        _write_joint(lines, skeleton, child, offsets, depth + 1, translations)
+        _write_joint(lines, skeleton, names, child, offsets, tips, depth + 1, translations)
     if not kids:
-        tip = _END_SITE_FRACTION * offsets[joint]
+        tip = tips[joint]
         lines += [f"{pad}  End Site", f"{pad}  {{",
                   f"{pad}    OFFSET {tip[0]:.6f} {tip[1]:.6f} {tip[2]:.6f}", f"{pad}  }}"]
     lines.append(f"{pad}}}")
-
-
-def _children(skeleton: Skeleton) -> list[list[int]]:
-    parents = skeleton.parents
-    return [[c for c in range(skeleton.num_joints) if parents[c] == j]
-            for j in range(skeleton.num_joints)]
-
-
-def _depth_first(skeleton: Skeleton) -> list[int]:
-    """Joints in the order the hierarchy (and so each motion line) lists them."""
-    children = _children(skeleton)
-    order, stack = [], [0]
-    while stack:
-        joint = stack.pop()
-        order.append(joint)
-        stack.extend(reversed(children[joint]))
-    return order
-
-
-def _kabsch(rest: np.ndarray, observed: np.ndarray) -> np.ndarray:
-    """Rotations (T, 3, 3) best taking rest vectors (C, 3) onto observed ones (T, C, 3)."""
-    covariance = np.einsum("tci,cj->tij", observed, rest)  # (T, 3, 3)
-    u, _, vt = np.linalg.svd(covariance)
-    sign = np.sign(np.linalg.det(u @ vt))
-    u[..., :, 2] *= sign[:, None]
-    return u @ vt
-
-
-def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
-    """Rotation matrices (T, 3, 3) about coordinate axis 0/1/2 by angles (T,) radians."""
-    c, s = np.cos(angle), np.sin(angle)
-    m = np.tile(np.eye(3), (len(angle), 1, 1))
-    a, b = [(1, 2), (2, 0), (0, 1)][axis]
-    m[:, a, a], m[:, a, b], m[:, b, a], m[:, b, b] = c, -s, s, c
-    return m
 
 
 def _continuous(angles: np.ndarray) -> np.ndarray:

@@ -83,3 +83,25 @@ def qto_cont6d(q: np.ndarray) -> np.ndarray:
     """Continuous 6D representation: the first two columns of the rotation matrix."""
     m = qto_matrix(q)
     return np.concatenate([m[..., :, 0], m[..., :, 1]], axis=-1)
+
+
+def qfrom_matrix(m: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4), w >= 0, of rotation matrices (..., 3, 3): from the largest of
+    w, x, y, z (Shepperd's method), so no division by a small number."""
+    m = np.asarray(m, dtype=np.float64)
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    candidates = np.stack([  # 4 * (w, x, y, z) times each component, for each choice
+        np.stack([1 + trace, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0],
+                  m[..., 1, 0] - m[..., 0, 1]], -1),
+        np.stack([m[..., 2, 1] - m[..., 1, 2], 1 + 2 * m[..., 0, 0] - trace,
+                  m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
+        np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0],
+                  1 + 2 * m[..., 1, 1] - trace, m[..., 1, 2] + m[..., 2, 1]], -1),
+        np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0],
+                  m[..., 1, 2] + m[..., 2, 1], 1 + 2 * m[..., 2, 2] - trace], -1),
+    ], axis=-2)
+    diagonal = np.stack([1 + trace, 1 + 2 * m[..., 0, 0] - trace, 1 + 2 * m[..., 1, 1] - trace,
+                         1 + 2 * m[..., 2, 2] - trace], -1)
+    best = np.argmax(diagonal, axis=-1)[..., None, None]
+    q = qnormalize(np.take_along_axis(candidates, best, axis=-2)[..., 0, :])
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)

@@ -1,80 +1,16 @@
-"""Our BVH files checked against what the format means, not against our own reader.
-
-The only PyPI parser found (`bvh` 0.3) is unmaintained and has no stated licence, so this
-file holds its own small reader: tokens -> hierarchy, then forward kinematics done the BVH
-way (each joint's rotation is the product of its rotation channels in the order they are
-listed, applied to the OFFSET or the position channels), frame by frame, with Rodrigues
-matrices. Nothing here imports mogo.motion.bvh's reader or its rotation helpers.
-"""
+"""Our BVH files read by a third-party reader (bvhio, a dev dependency): its forward
+kinematics gives what our rig says, the rest pose is a clean T-pose, angles are continuous.
+Nothing here uses mogo.motion.bvh's reader."""
 import numpy as np
 import pytest
 
 from mogo import MotionGenerator
-from mogo.motion.bvh import save_bvh
+from mogo.motion import rig
+from mogo.motion.bvh import NAMINGS, save_bvh
 from mogo.motion.quaternion import qfrom_axis_angle, qmul, qrot, qyaw
 from mogo.motion.skeleton import SMPL_22
 
-AXES = {"X": np.array([1.0, 0, 0]), "Y": np.array([0, 1.0, 0]), "Z": np.array([0, 0, 1.0])}
-
-
-def _parse(text: str) -> tuple[list[dict], np.ndarray, float]:
-    """Joints (name, parent, offset, channels) in file order, motion (T, C), frame time."""
-    head, motion = text.split("MOTION")
-    joints, stack, pending = [], [], None
-    for line in head.splitlines():
-        words = line.split()
-        if not words:
-            continue
-        if words[0] in ("ROOT", "JOINT"):
-            pending = {"name": words[1], "parent": stack[-1] if stack else None}
-        elif words[0] == "End":
-            pending = "end"
-        elif words[0] == "{":
-            if isinstance(pending, dict):
-                joints.append(pending)
-                stack.append(len(joints) - 1)
-            else:
-                stack.append("end")
-            pending = None
-        elif words[0] == "}":
-            stack.pop()
-        elif words[0] == "OFFSET" and stack[-1] != "end":
-            joints[stack[-1]]["offset"] = np.array(words[1:4], dtype=float)
-        elif words[0] == "CHANNELS":
-            joints[stack[-1]]["channels"] = words[2:2 + int(words[1])]
-    lines = motion.strip().splitlines()
-    frames, frame_time = int(lines[0].split(":")[1]), float(lines[1].split(":")[1])
-    values = np.array([line.split() for line in lines[2:]], dtype=float)
-    assert values.shape == (frames, sum(len(j["channels"]) for j in joints))
-    return joints, values, frame_time
-
-
-def _rotation(axis: str, degrees: float) -> np.ndarray:
-    """Rodrigues: rotation by `degrees` about a coordinate axis (right-handed)."""
-    k = AXES[axis]
-    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    angle = np.radians(degrees)
-    return np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross
-
-
-def _forward_kinematics(joints: list[dict], row: np.ndarray) -> dict[str, np.ndarray]:
-    """World position of every joint for one motion line."""
-    world, column = {}, 0
-    for index, joint in enumerate(joints):
-        rotation, translation = np.eye(3), joint["offset"].copy()
-        for channel in joint["channels"]:
-            if channel.endswith("position"):
-                translation["XYZ".index(channel[0])] = row[column]
-            else:
-                rotation = rotation @ _rotation(channel[0], row[column])
-            column += 1
-        parent = joint["parent"]
-        if parent is None:
-            world[index] = (translation, rotation)
-        else:
-            position, frame = world[parent]
-            world[index] = (position + frame @ translation, frame @ rotation)
-    return {joints[i]["name"]: world[i][0] for i in world}
+bvhio = pytest.importorskip("bvhio")
 
 
 def _clip(seed: int, swing_degrees: float, frames: int = 60, turns: float = 2.0) -> np.ndarray:
@@ -103,64 +39,76 @@ def _pose(local: np.ndarray, root: np.ndarray) -> np.ndarray:
     return joints
 
 
-def _write(tmp_path, joints: np.ndarray, **options) -> tuple[list[dict], np.ndarray, float]:
+def _write(tmp_path, joints: np.ndarray, **options):
+    """The file written, read by bvhio: (its joint hierarchy, the motion lines (T, C))."""
     path = tmp_path / "clip.bvh"
     save_bvh(path, joints, SMPL_22, fps=20.0, **options)
-    return _parse(path.read_text())
+    motion = path.read_text().split("Frame Time:")[1].splitlines()[1:]
+    return bvhio.readAsHierarchy(str(path)), np.array([line.split() for line in motion], float)
 
 
-def _positions(parsed, scale: float = 1.0) -> np.ndarray:
-    """FK of every frame, back in SMPL_22 joint order and metres."""
-    joints, values, _ = parsed
+def _positions(parsed, naming: str = "mixamo", scale: float = 1.0) -> np.ndarray:
+    """bvhio's world positions of every frame, in SMPL_22 joint order and metres."""
+    root, values = parsed
+    layout = [joint for joint, _, _ in root.layout()]
+    order = [NAMINGS[naming].index(joint.Name) for joint in layout]
     out = np.zeros((len(values), 22, 3))
-    for t, row in enumerate(values):
-        for name, position in _forward_kinematics(joints, row).items():
-            out[t, SMPL_22.index(name)] = position / scale
-    return out
+    for frame in range(len(values)):
+        root.loadPose(frame, recursive=True)
+        out[frame, order] = [list(joint.PositionWorld) for joint in layout]
+    return out / scale
 
 
 def _rest(parsed) -> dict[str, np.ndarray]:
-    """Rest-pose world positions: forward kinematics of the offsets alone."""
-    joints = parsed[0]
-    zero = [dict(j, channels=[]) for j in joints]
-    return _forward_kinematics(zero, np.zeros(0))
+    """Rest-pose world positions by bvhio (offsets alone), by joint name."""
+    root = parsed[0]
+    root.loadRestPose(recursive=True)
+    return {joint.Name: np.array(list(joint.PositionWorld)) for joint, _, _ in root.layout()}
 
 
-def test_rest_pose_is_an_upright_t_pose_of_the_skeleton(tmp_path):
-    parsed = _write(tmp_path, _clip(seed=0, swing_degrees=40.0))
-    joints = parsed[0]
-    assert [j["name"] for j in joints][0] == "pelvis" and len(joints) == 22
-    offsets = {j["name"]: j["offset"] for j in joints}
-    for name, offset in offsets.items():  # bone lengths: the skeleton's, within a millimetre
-        expected = np.linalg.norm(SMPL_22.rest_offsets[SMPL_22.index(name)])
-        assert abs(np.linalg.norm(offset) - expected) < 1e-3, name
-    rest = _rest(parsed)
-    assert rest["head"][1] > rest["neck"][1] > rest["spine3"][1] > rest["pelvis"][1]
-    for side, sign in (("left", 1.0), ("right", -1.0)):  # skeleton.py: left_hip is +x
-        for part in ("hip", "collar", "shoulder", "elbow", "wrist"):
-            assert sign * (rest[f"{side}_{part}"][0] - rest["pelvis"][0]) > 0.05, (side, part)
-        for part in ("elbow", "wrist"):  # arms straight out sideways, not inward or down
-            direction = offsets[f"{side}_{part}"] / np.linalg.norm(offsets[f"{side}_{part}"])
-            assert direction @ (sign * AXES["X"]) > 0.99, (side, part)
-        assert rest[f"{side}_wrist"][0] * sign > rest[f"{side}_elbow"][0] * sign
-        assert rest[f"{side}_ankle"][1] < rest[f"{side}_knee"][1] < rest["pelvis"][1]
-        assert offsets[f"{side}_foot"][2] > 0.1  # toes forward (+z, the facing)
+def test_rest_pose_is_a_clean_t_pose_on_the_floor(tmp_path):
+    rest = _rest(_write(tmp_path, _clip(seed=0, swing_degrees=40.0)))
+    assert list(rest)[0] == "Hips" and len(rest) == 22
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        chain = [rest[f"{side}{part}"] for part in ("Arm", "ForeArm", "Hand")]
+        for a, b in zip(chain, chain[1:]):  # arms straight out along +-X
+            np.testing.assert_allclose(b - a, [sign * np.linalg.norm(b - a), 0, 0], atol=1e-6)
+        leg = [rest[f"{side}{part}"] for part in ("UpLeg", "Leg", "Foot")]
+        for a, b in zip(leg, leg[1:]):  # legs straight down
+            np.testing.assert_allclose(b - a, [0, -np.linalg.norm(b - a), 0], atol=1e-6)
+        foot, toe = rest[f"{side}Foot"], rest[f"{side}ToeBase"]
+        assert foot[1] == pytest.approx(0.0, abs=1e-6) and toe[1] == pytest.approx(0.0, abs=1e-6)
+        assert toe[2] - foot[2] > 0.1  # flat, pointing forward (+Z, the facing)
+        twin = rest[f"{side}Hand"] * (sign, 1, 1)
+        np.testing.assert_allclose(twin, rest["LeftHand"], atol=1e-6)  # symmetric
+    spine = [rest[name] for name in ("Spine", "Spine1", "Spine2")] + [rest["Neck"], rest["Head"]]
+    for a, b in ((spine[0], spine[1]), (spine[1], spine[2]), (spine[3], spine[4])):
+        np.testing.assert_allclose((b - a)[[0, 2]], 0.0, atol=1e-6)  # bones straight up
+        assert (b - a)[1] > 0.05
 
 
-def test_forward_kinematics_of_the_file_gives_the_joints(tmp_path):
+@pytest.mark.parametrize("naming,scale", [("mixamo", 1.0), ("smpl", 100.0)])
+def test_bvhio_reads_what_our_rig_says(tmp_path, naming, scale):
+    """bvhio's forward kinematics equals our rig's; for motion of the corpus's proportions
+    that is the joints themselves, in either naming and unit."""
     joints = _clip(seed=1, swing_degrees=90.0)
-    np.testing.assert_allclose(_positions(_write(tmp_path, joints)), joints, atol=1e-5)
+    np.testing.assert_allclose(
+        _positions(_write(tmp_path, joints, naming=naming, scale=scale), naming, scale),
+        joints, atol=1e-5)
     stretched = joints + 0.003 * np.random.default_rng(2).normal(size=joints.shape)
-    rigid = np.linalg.norm(_positions(_write(tmp_path, stretched)) - stretched, axis=-1)
-    assert rigid.mean() < 0.01  # README: within about a centimetre on average
-    exact = _positions(_write(tmp_path, stretched, scale=100.0, bone_translations=True), 100.0)
+    ours = rig.posed_joints(stretched, SMPL_22)
+    theirs = _positions(_write(tmp_path, stretched))
+    np.testing.assert_allclose(theirs, ours, atol=1e-5)
+    assert np.linalg.norm(theirs - stretched, axis=-1).mean() < 0.01
+    exact = _positions(_write(tmp_path, stretched, scale=100.0, bone_translations=True),
+                       scale=100.0)
     np.testing.assert_allclose(exact, stretched, atol=1e-5)
 
 
 def test_a_spinning_clip_has_unwrapped_angles(tmp_path):
     """Two full turns of the root and of the head: no channel jumps by 360 between frames."""
     joints = _clip(seed=3, swing_degrees=20.0, frames=80, turns=2.0)
-    _, values, _ = _write(tmp_path, joints)
+    _, values = _write(tmp_path, joints)
     steps = np.abs(np.diff(values[:, 3:], axis=0))  # every rotation channel
     assert steps.max() < 180.0
     spin = np.ptp(values[:, 3:6], axis=0).max()
@@ -174,13 +122,16 @@ def test_a_generated_spin_reads_back_and_turns_on_past_a_circle(tmp_path):
     motion = MotionGenerator.load().generate("a person spins around in a circle.",
                                              seconds=4.0, seed=0)
     motion.save_bvh(tmp_path / "spin.bvh")
-    parsed = _parse((tmp_path / "spin.bvh").read_text())
+    parsed = bvhio.readAsHierarchy(str(tmp_path / "spin.bvh")), np.array(
+        [line.split() for line in (tmp_path / "spin.bvh").read_text().split(
+            "Frame Time:")[1].splitlines()[1:]], float)
     error = np.linalg.norm(_positions(parsed) - motion.joints, axis=-1)
     assert error.mean() < 0.01
     values = parsed[1]
     assert np.ptp(values[:, 5]) > 300.0 and np.abs(np.diff(values[:, 3:], axis=0)).max() < 180
     motion.save_bvh(tmp_path / "exact.bvh", scale=100.0, bone_translations=True)
-    exact = _positions(_parse((tmp_path / "exact.bvh").read_text()), scale=100.0)
+    exact = _positions((bvhio.readAsHierarchy(str(tmp_path / "exact.bvh")), parsed[1]),
+                       scale=100.0)
     np.testing.assert_allclose(exact, motion.joints, atol=1e-5)
 
 
@@ -193,7 +144,7 @@ def test_a_somersault_has_continuous_angles(tmp_path):
     local[:, 0] = qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(np.linspace(0, 360, frames)))
     joints = _pose(local, np.tile([0.0, 1.0, 0.0], (frames, 1)))
     parsed = _write(tmp_path, joints)
-    assert np.abs(np.diff(parsed[1][:, 3:], axis=0)).max() < 10.0  # 5 degrees a frame
+    assert np.abs(np.diff(parsed[1][:, 3:6], axis=0)).max() < 10.0  # the root: 5 degrees a frame
     np.testing.assert_allclose(_positions(parsed), joints, atol=1e-5)
 
 

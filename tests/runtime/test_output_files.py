@@ -17,7 +17,8 @@ from PIL import Image
 
 from mogo import Motion, files
 from mogo.cli import main
-from mogo.motion.bvh import read_bvh
+from mogo.motion.bvh import NAMINGS
+from mogo.motion.mocap import read_bvh
 from mogo.motion.skeleton import SMPL_22
 
 from helpers import travelling_clip
@@ -47,7 +48,7 @@ def assert_one_take(folder, stem, seed=None):
         assert gif.n_frames == len(joints)
     clip = read_bvh(folder / f"{stem}.bvh")
     recovered = np.empty_like(clip.positions)
-    recovered[:, [SMPL_22.joint_names.index(name) for name in clip.names]] = clip.positions
+    recovered[:, [NAMINGS["mixamo"].index(name) for name in clip.names]] = clip.positions
     assert np.linalg.norm(recovered - joints, axis=-1).mean() < 0.1  # rigid bones: near
 
 
@@ -65,6 +66,18 @@ def test_a_take_never_replaces_an_earlier_one_unless_asked(tmp_path):
     assert_one_take(tmp_path, "walk-2", seed=1)
     assert motion(0).save_take(tmp_path, "v1.2")[0].name == "v1.2.bvh"  # a dot stays
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_a_take_with_a_glb_animation(tmp_path):
+    """animation="glb" (`mogo generate --format glb`): a .glb in the .bvh's place, numbered
+    with the rest of the take; an unknown format is refused before anything is written."""
+    motion(0).save_take(tmp_path, "walk")
+    written = motion(1).save_take(tmp_path, "walk", animation="glb")
+    assert [p.name for p in written] == ["walk-2.glb", "walk-2.gif", "walk-2.npy", "walk-2.json"]
+    assert written[0].read_bytes()[:4] == b"glTF"
+    with pytest.raises(ValueError, match="animation must be one of bvh, glb"):
+        motion(1).save_take(tmp_path, "other", animation="fbx")
+    assert not list(tmp_path.glob("other*"))
 
 
 def test_a_folder_in_the_way_is_skipped_or_an_error_never_a_half_take(tmp_path):
