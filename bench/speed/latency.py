@@ -5,7 +5,7 @@ PNG plots in --out.
 Two parts:
 1. The product: a bundle (default: the shipped one) through the runtime's public API at each
    thread count: time to first frame (text encoding, prefill, the steps of the decoder's
-   lookahead, one decode), a 196-frame clip end to end and its real-time factor, the step time
+   lookahead and of foot planting's (mogo.motion.feet), two decodes), a 196-frame clip end to end and its real-time factor, the step time
    along a 10,000-step stream (sliding window), the peak memory of a process that only runs
    the runtime, and the size on disk.
 2. The step (bench/speed/step.py), per model size (the bundle's config and the paper's, random
