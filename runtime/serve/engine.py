@@ -1,0 +1,121 @@
+"""The server's streams on one clock: who steps when, and the frames that come out.
+
+Every stream is paced to real time on a shared tick (one token step per frame, `fps` ticks a
+second), LEAD steps ahead so that its frames leave before they are due. A new stream catches
+up at once (its first frame comes after the decoder's lookahead), then steps on the shared
+ticks with all the others, so past warm-up one call of each level graph serves them all
+(mogo.serve.stepper); a stream whose cache phase differs from the others' takes a few extra
+steps, once, to join them. Not thread-safe: the server calls it from one thread.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from collections import Counter, OrderedDict
+
+import numpy as np
+
+from mogo.generator import MotionGenerator
+from mogo.motion.features import JointStream
+from mogo.serve.rowwise import rowwise_graph
+from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
+from mogo.token_generator import TokenGenerator
+
+EMBEDDINGS_KEPT = 256  # prompt embeddings cached (switching back costs no text encoding)
+
+
+class ServedStream:
+    """One client's stream: tokens (a BatchedStream), its decoder and joints, its clock."""
+
+    def __init__(self, engine: Engine, prompt: str, seed: int, sampling, start_tick: int):
+        g = engine.generator
+        self.id = next(engine._ids)
+        self.prompt, self.seed = prompt, seed
+        self.tokens: BatchedStream = engine.stepper.start(engine.embedding(prompt), seed,
+                                                          sampling)
+        self.decoder = g.streaming_decoder()
+        self.joints = JointStream(g.skeleton)
+        self.start_tick, self.extra = start_tick, 0
+        self.frames_sent = 0
+
+    def push(self, row: np.ndarray, bundle) -> np.ndarray:
+        """The frames (n, J, 3) that the new token step made final."""
+        features = self.decoder.push(row[None]) * bundle.std + bundle.mean
+        joints = self.joints.push(features)
+        self.frames_sent += len(joints)
+        return joints
+
+
+class Engine:
+    """All live streams of a server over one MotionGenerator."""
+
+    def __init__(self, generator: MotionGenerator, threads: int = 1):
+        self.generator = generator
+        manifest = generator.manifest
+        levels = manifest.t2m.levels
+        tokens = TokenGenerator([rowwise_graph(generator.bundle.path(g.file)) for g in levels],
+                                levels, manifest.end_token, intra_op_threads=1,
+                                level_workers=threads)
+        window = manifest.defaults.window
+        if window is None:  # an unbounded cache: every stream would grow without end
+            raise ValueError("mogo serve needs a bundle with a KV window (defaults.window)")
+        self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"])
+        self.fps = generator.fps
+        decoder = manifest.vq.decoder
+        self.lead = decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
+        self.streams: dict[int, ServedStream] = {}
+        self._ids = itertools.count(1)
+        self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
+
+    def tick(self, now: float) -> int:
+        return math.floor(now * self.fps)
+
+    def embedding(self, prompt: str) -> np.ndarray:
+        if prompt not in self._embeddings:
+            self._embeddings[prompt] = self.generator.embed([prompt])[0]
+            if len(self._embeddings) > EMBEDDINGS_KEPT:
+                self._embeddings.popitem(last=False)
+        self._embeddings.move_to_end(prompt)
+        return self._embeddings[prompt]
+
+    def open(self, prompt: str, seed: int, sampling, now: float) -> ServedStream:
+        """A new stream (prompt and sampling already checked by the caller)."""
+        stream = ServedStream(self, prompt, seed, sampling, self.tick(now))
+        self.streams[stream.id] = stream
+        return stream
+
+    def switch(self, stream: ServedStream, prompt: str) -> None:
+        stream.tokens.set_prompt(self.embedding(prompt))
+        stream.prompt = prompt
+
+    def close(self, stream: ServedStream) -> None:
+        self.streams.pop(stream.id, None)
+
+    def due(self, now: float) -> list[ServedStream]:
+        """The streams behind their target at `now` (extra steps for phase alignment)."""
+        tick, steady = self.tick(now), self.stepper.steady_from
+        phases = Counter(s.tokens.dead for s in self.streams.values()
+                         if s.tokens.steps >= steady)
+        phase = phases.most_common(1)[0][0] if phases else None
+        due = []
+        for stream in self.streams.values():
+            target = self.lead + stream.extra + tick - stream.start_tick
+            if (stream.tokens.steps >= target and stream.tokens.steps >= steady
+                    and stream.tokens.dead != phase and stream.extra < 4 * COMPACT_EVERY):
+                stream.extra += 1  # one step beyond the clock: closer to the others' phase
+                target += 1
+            if stream.tokens.steps < target:
+                due.append(stream)
+        return due
+
+    def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
+        """One step of each stream in `due`: (stream, index of its first new frame, joints
+        (n, J, 3)) for each that made frames."""
+        rows = self.stepper.step([s.tokens for s in due])
+        out = []
+        for stream, row in zip(due, rows):
+            first = stream.frames_sent
+            joints = stream.push(row, self.generator.bundle)
+            if len(joints):
+                out.append((stream, first, joints))
+        return out
