@@ -49,13 +49,17 @@ class ServedStream:
 class Engine:
     """All live streams of a server over one MotionGenerator."""
 
-    def __init__(self, generator: MotionGenerator, threads: int = 1):
+    def __init__(self, generator: MotionGenerator, threads: int = 1,
+                 tokens: TokenGenerator | None = None):
+        """`tokens`: the bundle's level graphs made row-wise (mogo.serve.rowwise); None makes
+        them."""
         self.generator = generator
         manifest = generator.manifest
         levels = manifest.t2m.levels
-        tokens = TokenGenerator([rowwise_graph(generator.bundle.path(g.file)) for g in levels],
-                                levels, manifest.end_token, intra_op_threads=1,
-                                level_workers=threads)
+        if tokens is None:
+            tokens = TokenGenerator([rowwise_graph(generator.bundle.path(g.file))
+                                     for g in levels], levels, manifest.end_token,
+                                    intra_op_threads=1, level_workers=threads)
         window = manifest.defaults.window
         if window is None:  # an unbounded cache: every stream would grow without end
             raise ValueError("mogo serve needs a bundle with a KV window (defaults.window)")

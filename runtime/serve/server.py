@@ -32,9 +32,10 @@ GENERATE_FIELDS = {"prompt", "seconds", "seed", "format"}
 class Server:
     """The app's state: the engine, its thread, the clients."""
 
-    def __init__(self, generator: MotionGenerator, threads: int, max_streams: int):
+    def __init__(self, generator: MotionGenerator, threads: int, max_streams: int,
+                 tokens=None):
         self.generator, self.max_streams = generator, max_streams
-        self.engine = Engine(generator, threads)
+        self.engine = Engine(generator, threads, tokens)
         self.thread = ThreadPoolExecutor(1, "mogo-engine")
         self.clips = ThreadPoolExecutor(1, "mogo-generate")
         self.wake = asyncio.Event()
@@ -56,11 +57,15 @@ class Server:
                     pass
                 continue
             for stream, first, joints in out:
-                queue = self.queues.get(stream.id)
-                if queue is not None:
-                    if queue.full():
-                        queue.get_nowait()  # the slow client loses its oldest burst
-                    queue.put_nowait((first, joints))
+                self.deliver(stream.id, first, joints)
+
+    def deliver(self, stream_id: int, first: int, joints) -> None:
+        """Queue a burst for its client; a full queue (a slow client) loses its oldest."""
+        queue = self.queues.get(stream_id)
+        if queue is not None:
+            if queue.full():
+                queue.get_nowait()
+            queue.put_nowait((first, joints))
 
     def _round(self):
         due = self.engine.due(self.clock())
@@ -100,7 +105,7 @@ class Server:
 
 
 async def stream_socket(request: web.Request) -> web.WebSocketResponse:
-    server: Server = request.app["server"]
+    server: Server = request.app[SERVER]
     ws = web.WebSocketResponse(max_msg_size=MAX_WIRE_MESSAGE, heartbeat=20)
     await ws.prepare(request)
     stream, sender = None, None
@@ -150,7 +155,7 @@ async def _send(ws: web.WebSocketResponse, queue: asyncio.Queue, binary: bool) -
 
 
 async def health(request: web.Request) -> web.Response:
-    server: Server = request.app["server"]
+    server: Server = request.app[SERVER]
     return web.json_response({"status": "ok", "streams": len(server.engine.streams),
                               "max_streams": server.max_streams,
                               "bundle": server.generator.bundle.root.name})
@@ -163,7 +168,7 @@ async def viewer(request: web.Request) -> web.Response:
 
 async def generate(request: web.Request) -> web.Response:
     """POST {prompt, seconds, seed, format} -> the file."""
-    server: Server = request.app["server"]
+    server: Server = request.app[SERVER]
     try:
         body = protocol.read(await request.text())
         protocol._known(body, GENERATE_FIELDS)
@@ -189,9 +194,14 @@ def _clip_file(generator: MotionGenerator, prompt: str, seconds, seed, fmt: str)
         return Path(save(Path(folder) / f"motion.{fmt}")).read_bytes()
 
 
-def make_app(generator: MotionGenerator, threads: int = 1, max_streams: int = 100) -> web.Application:
+SERVER = web.AppKey("server", Server)
+
+
+def make_app(generator: MotionGenerator, threads: int = 1, max_streams: int = 200,
+             tokens=None) -> web.Application:
+    """The server's app; `tokens`: level graphs already made row-wise (tests share them)."""
     app = web.Application(client_max_size=64 * 1024)
-    app["server"] = server = Server(generator, threads, max_streams)
+    app[SERVER] = server = Server(generator, threads, max_streams, tokens)
     app.router.add_get("/", viewer)
     app.router.add_get("/v1/health", health)
     app.router.add_post("/v1/generate", generate)

@@ -15,8 +15,8 @@ Every COMPACT_EVERY steps the dead slots are dropped in one copy. A stream at st
 d = f(n) dead slots, so two streams can share a call when they are at the same step (warm-up:
 n < max(W + 1, R)) or, past warm-up, at the same n mod COMPACT_EVERY: the prefix is then
 beyond R from the query for both, and the call uses one set of virtual positions with the same
-distances. The server keeps streams on one phase (see `Stepper.phase_lag`), so past warm-up
-they all share one call. Rows never mix inside a graph (int8 graphs are made row-wise first,
+distances. The server keeps streams on one phase (mogo.serve.engine), so past warm-up they
+all share one call. Rows never mix inside a graph (int8 graphs are made row-wise first,
 mogo.serve.rowwise), and a stream's layout depends only on its own steps, so its tokens do
 not depend on what else runs. Sampling is the runtime's, row for row (mogo.sampling).
 """
@@ -99,11 +99,6 @@ class Stepper:
 
     def start(self, embedding: np.ndarray, seed: int, sampling: Sampling) -> BatchedStream:
         return BatchedStream(self, embedding, seed, sampling)
-
-    def phase_lag(self, stream: BatchedStream, phase: int) -> int:
-        """Extra steps that bring a stream past warm-up to `phase` (a steady key's dead count),
-        so that it then shares the others' calls."""
-        return (phase - stream.dead) % COMPACT_EVERY
 
     def step(self, streams: Sequence[BatchedStream]) -> list[np.ndarray]:
         """One token step of each stream (tokens (L,) each, in order): one call per level for
