@@ -27,9 +27,14 @@ def add_commands(commands) -> None:
     serve.set_defaults(run=_cmd_serve)
 
 
-def _cmd_serve(args: argparse.Namespace) -> None:
+def require_serve_extra() -> None:
+    """A clear line instead of an ImportError where the serve extra is missing."""
     if any(importlib.util.find_spec(name) is None for name in ("aiohttp", "onnx")):
-        raise CliError("mogo serve needs the serve extra: pip install 'mogo[serve]'")
+        raise CliError("this command needs the serve extra: pip install 'mogo[serve]'")
+
+
+def _cmd_serve(args: argparse.Namespace) -> None:
+    require_serve_extra()
     if not 1 <= args.port <= 65535:
         raise CliError(f"--port must be between 1 and 65535, got {args.port}")
     if args.max_streams < 1:

@@ -3,9 +3,10 @@
 Every stream is paced to real time on a shared tick (one token step per frame, `fps` ticks a
 second), LEAD steps ahead so that its frames leave before they are due. A new stream catches
 up at once (its first frame comes after the decoder's lookahead), then steps on the shared
-ticks with all the others, so past warm-up one call of each level graph serves them all
-(mogo.serve.stepper); a stream whose cache phase differs from the others' takes a few extra
-steps, once, to join them. Not thread-safe: the server calls it from one thread.
+ticks with all the others. Streams share a call when their caches have one layout
+(mogo.serve.stepper): at the same step during warm-up, at the same phase after it. A stream
+takes a few extra steps (more lead, once) to join a larger group: a warm-up cohort a little
+ahead, or the common phase, so that past warm-up one call of each level graph serves them all. Not thread-safe: the server calls it from one thread.
 """
 from __future__ import annotations
 
@@ -18,9 +19,10 @@ import numpy as np
 from mogo.generator import MotionGenerator
 from mogo.motion.features import JointStream
 from mogo.serve.rowwise import rowwise_graph
-from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
+from mogo.serve.stepper import BatchedStream, Stepper
 from mogo.token_generator import TokenGenerator
 
+ALIGN_STEPS = 24  # extra steps a stream may take to join a larger group (1.2 s more lead)
 EMBEDDINGS_KEPT = 256  # prompt embeddings cached (switching back costs no text encoding)
 
 
@@ -96,21 +98,33 @@ class Engine:
         self.streams.pop(stream.id, None)
 
     def due(self, now: float) -> list[ServedStream]:
-        """The streams behind their target at `now` (extra steps for phase alignment)."""
-        tick, steady = self.tick(now), self.stepper.steady_from
-        phases = Counter(s.tokens.dead for s in self.streams.values()
-                         if s.tokens.steps >= steady)
-        phase = phases.most_common(1)[0][0] if phases else None
+        """The streams behind their target at `now`, and those that take an extra step to
+        share the calls of more streams (`_joins`)."""
+        tick = self.tick(now)
+        keys = Counter(s.tokens.key for s in self.streams.values())
         due = []
         for stream in self.streams.values():
             target = self.lead + stream.extra + tick - stream.start_tick
-            if (stream.tokens.steps >= target and stream.tokens.steps >= steady
-                    and stream.tokens.dead != phase and stream.extra < 4 * COMPACT_EVERY):
-                stream.extra += 1  # one step beyond the clock: closer to the others' phase
+            if stream.tokens.steps >= target and self._joins(stream, keys):
+                stream.extra += 1  # one step beyond the clock: nearer to a larger group
                 target += 1
             if stream.tokens.steps < target:
                 due.append(stream)
         return due
+
+    def _joins(self, stream: ServedStream, keys: Counter) -> bool:
+        """Whether a step takes `stream` towards a larger group of streams: in warm-up, one at
+        most ALIGN_STEPS ahead; past it, the most common phase. Bounded: each stream takes at
+        most ALIGN_STEPS extra steps in all (so at most that much more lead)."""
+        if stream.extra >= ALIGN_STEPS:
+            return False
+        kind, value = key = stream.tokens.key
+        if kind == "steady":
+            phases = Counter({k[1]: n for k, n in keys.items() if k[0] == "steady"})
+            return phases.most_common(1)[0][0] != value
+        ahead = [(n, k[1]) for k, n in keys.items()
+                 if k[0] == "warm" and value < k[1] <= value + ALIGN_STEPS]
+        return bool(ahead) and max(ahead)[0] >= keys[key]
 
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         """One step of each stream in `due`: (stream, index of its first new frame, joints

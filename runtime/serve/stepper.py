@@ -131,14 +131,29 @@ class Stepper:
         logits = np.full((len(uncond), g.num_levels, g.num_classes), -np.inf, np.float32)
         for level, (level_logits, _) in enumerate(outputs):
             logits[:, level, :level_logits.shape[1]] = level_logits
-        forbid = [g.end_token] + [None] * (g.num_levels - 1)  # streams are endless
-        tokens, row = [], 0
-        for stream, draws in zip(members, uniforms):
-            guided = stream.sampling.guided
-            tokens.append(choose_tokens(logits[row], logits[row + 1] if guided else None,
-                                        draws, stream.sampling, forbid))
-            row += len(stream.uncond)
+        tokens = self._sample(members, logits, uniforms)
         self._advance(members, [present for _, present in outputs], tokens)
+        return tokens
+
+    def _sample(self, members: list[BatchedStream], logits: np.ndarray,
+                uniforms: list[np.ndarray]) -> list[np.ndarray]:
+        """Each member's tokens (L,) from its rows of logits (B, L, C): one choose_tokens call
+        for all members with the same sampling (its arithmetic is row by row)."""
+        g = self.tokens
+        first_rows = np.cumsum([0] + [len(s.uncond) for s in members])
+        groups: dict[Sampling, list[int]] = {}
+        for k, stream in enumerate(members):
+            groups.setdefault(stream.sampling, []).append(k)
+        tokens: list[np.ndarray] = [np.zeros(0)] * len(members)
+        for sampling, ks in groups.items():
+            rows = first_rows[ks]
+            cond = logits[rows].reshape(-1, logits.shape[2])
+            uncond = logits[rows + 1].reshape(cond.shape) if sampling.guided else None
+            forbid = ([g.end_token] + [None] * (g.num_levels - 1)) * len(ks)  # endless streams
+            drawn = choose_tokens(cond, uncond, np.concatenate([uniforms[k] for k in ks]),
+                                  sampling, forbid).reshape(len(ks), g.num_levels)
+            for k, row in zip(ks, drawn):
+                tokens[k] = row
         return tokens
 
     def _caches(self, members: list[BatchedStream]) -> list[list[np.ndarray]]:
