@@ -9,6 +9,11 @@ second per client (mean), p50 / p99 lateness over all frames, and the server's C
 process's user + system time over the wall time, in cores). N holds real time when every
 client got >= 97% of the frame rate and p99 lateness stayed within one frame (50 ms).
 The clients run on the same machine as the server: their own CPU use is part of the load.
+
+`engine_cost` measures the compute alone, in this process, with no sockets: N streams past
+warm-up stepped on the engine's clock, CPU time (all threads) per stream step and wall time
+per tick. CPU time shows what N costs even on a busy machine; 1000 / (fps * CPU ms) streams
+per core is the ceiling it sets.
 """
 from __future__ import annotations
 
@@ -104,6 +109,47 @@ def measure(url: str, pid: int, clients: int, seconds: float) -> dict:
     return row
 
 
+def engine_cost(clients: int, threads: int, ticks: int = 40) -> dict:
+    """CPU ms per stream step and wall ms per tick of the Engine alone, streams past warm-up."""
+    from mogo.generator import MotionGenerator
+    from mogo.serve.engine import Engine
+    from mogo.serve.stepper import COMPACT_EVERY
+
+    generator = MotionGenerator.load(threads=threads)
+    engine = Engine(generator, threads)
+    for k in range(clients):
+        engine.open(PROMPTS[k % len(PROMPTS)], k, generator.sampling(None), 0.0)
+    now, ready = 0.0, engine.stepper.steady_from + 2 * COMPACT_EVERY
+
+    def run_until(end: float) -> int:
+        nonlocal now
+        steps = 0
+        while now < end:
+            due = engine.due(now)
+            if due:
+                engine.round(due)
+                steps += len(due)
+            else:
+                now += 1 / engine.fps
+        return steps
+
+    while min(s.tokens.steps for s in engine.streams.values()) < ready:
+        run_until(now + 1 / engine.fps)
+    cpu, wall = time.process_time(), time.perf_counter()
+    steps = run_until(now + ticks / engine.fps)
+    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    return dict(clients=clients, cpu_ms_per_step=cpu * 1e3 / steps,
+                wall_ms_per_tick=wall * 1e3 / ticks)
+
+
+def engine_table(rows: list[dict]) -> str:
+    lines = ["| streams | CPU per stream step | wall per tick (real time: <= 50 ms) |",
+             "|---:|---:|---:|"]
+    lines += [f"| {r['clients']} | {r['cpu_ms_per_step']:.2f} ms | {r['wall_ms_per_tick']:.1f} ms |"
+              for r in rows]
+    return "\n".join(lines)
+
+
 def table(rows: list[dict]) -> str:
     lines = ["| clients | frames/s per client (mean / min) | lateness p50 | lateness p99 | "
              "server CPU (cores) | real time |", "|---:|---:|---:|---:|---:|:---:|"]
@@ -136,7 +182,8 @@ def run(clients: list[int], seconds: float, threads: int | None, bundle: str | N
         server.terminate()
         server.wait(timeout=30)
     held = [r["clients"] for r in rows if r["real_time"]]
-    result = dict(first_frame_ms=first[len(first) // 2], rows=rows,
+    engine = [engine_cost(n, threads or 2) for n in clients]
+    result = dict(first_frame_ms=first[len(first) // 2], rows=rows, engine=engine,
                   largest_real_time=max(held) if held else 0, seconds=seconds)
     out.mkdir(parents=True, exist_ok=True)
     (out / "serve_bench.json").write_text(json.dumps(result, indent=1))
@@ -153,6 +200,8 @@ def run(clients: list[int], seconds: float, threads: int | None, bundle: str | N
 def main_from_args(args) -> None:
     result = run(args.clients, args.seconds, args.threads, args.bundle, Path(args.out))
     print(table(result["rows"]))
+    print("\nThe engine alone (no sockets), streams past warm-up:\n")
+    print(engine_table(result["engine"]))
     print(f"\nfirst frame, one client, server warm: {result['first_frame_ms']:.0f} ms (median "
           f"of 7); largest N in real time: {result['largest_real_time']}")
     print(f"wrote {Path(args.out) / 'serve_bench.json'} and serve_bench.png")
