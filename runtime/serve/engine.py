@@ -19,7 +19,7 @@ import numpy as np
 from mogo.generator import MotionGenerator
 from mogo.motion.features import JointStream
 from mogo.serve.rowwise import rowwise_graph
-from mogo.serve.stepper import BatchedStream, Stepper
+from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
 from mogo.token_generator import TokenGenerator
 
 ALIGN_STEPS = 24  # extra steps a stream may take to join a larger group (1.2 s more lead)
@@ -114,11 +114,11 @@ class Engine:
 
     def _joins(self, stream: ServedStream, keys: Counter) -> bool:
         """Whether a step takes `stream` towards a larger group of streams: in warm-up, one at
-        most ALIGN_STEPS ahead; past it, the most common phase. Bounded: each stream takes at
-        most ALIGN_STEPS extra steps in all (so at most that much more lead)."""
-        if stream.extra >= ALIGN_STEPS:
-            return False
+        most ALIGN_STEPS ahead; past it, the most common phase. Bounded: ALIGN_STEPS extra
+        steps in warm-up, COMPACT_EVERY more past it (so at most that much more lead)."""
         kind, value = key = stream.tokens.key
+        if stream.extra >= ALIGN_STEPS + (COMPACT_EVERY if kind == "steady" else 0):
+            return False
         if kind == "steady":
             phases = Counter({k[1]: n for k, n in keys.items() if k[0] == "steady"})
             return phases.most_common(1)[0][0] != value
