@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from concurrent.futures import ThreadPoolExecutor
 from collections import Counter, OrderedDict
 
 import numpy as np
@@ -70,6 +71,7 @@ class Engine:
         decoder = manifest.vq.decoder
         self.lead = decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
         self.streams: dict[int, ServedStream] = {}
+        self._pool = ThreadPoolExecutor(1, "mogo-decode") if threads > 1 else None
         self._ids = itertools.count(1)
         self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
 
@@ -129,9 +131,16 @@ class Engine:
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         """One step of each stream in `due`: (stream, index of its first new frame, joints
         (n, J, 3)) for each that made frames."""
-        rows = self.stepper.step([s.tokens for s in due])
+        pairs = list(zip(due, self.stepper.step([s.tokens for s in due])))
+        if self._pool is None or len(pairs) < 2:
+            return self._push(pairs)
+        half = len(pairs) // 2  # decoders on two threads: each stream's own, so any split
+        other = self._pool.submit(self._push, pairs[half:])
+        return self._push(pairs[:half]) + other.result()
+
+    def _push(self, pairs: list[tuple[ServedStream, np.ndarray]]) -> list[tuple]:
         out = []
-        for stream, row in zip(due, rows):
+        for stream, row in pairs:
             first = stream.frames_sent
             joints = stream.push(row, self.generator.bundle)
             if len(joints):

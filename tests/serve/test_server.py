@@ -179,7 +179,7 @@ def test_a_stream_gives_the_same_frames_alone_and_among_others(generator, engine
     switch lands on a fixed step of the stream (where it lands is the one thing a client's
     timing decides)."""
     def play(others: list[float], seconds: float = 12.0) -> np.ndarray:
-        engine = Engine(generator, tokens=engine_parts)
+        engine = Engine(generator, 2, tokens=engine_parts)
         sampling = generator.sampling(None)
         stream = engine.open("a person walks forward", 5, sampling, 1.0)
         pending = sorted(others)
