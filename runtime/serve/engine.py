@@ -75,6 +75,10 @@ class Engine:
         self._ids = itertools.count(1)
         self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
 
+    def shutdown(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+
     def tick(self, now: float) -> int:
         return math.floor(now * self.fps)
 

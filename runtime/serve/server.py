@@ -212,6 +212,7 @@ def make_app(generator: MotionGenerator, threads: int = 1, max_streams: int = 20
         yield
         task.cancel()
         server.thread.shutdown(wait=False, cancel_futures=True)
+        server.engine.shutdown()
         server.clips.shutdown(wait=False, cancel_futures=True)
 
     app.cleanup_ctx.append(engine_task)
