@@ -32,6 +32,10 @@ class ProtocolError(ValueError):
     """A client message the server refuses: its text goes back as an error message."""
 
 
+class ServerFull(ProtocolError):
+    """A stream past the server's cap: refused, and the socket closed."""
+
+
 @dataclass
 class Start:
     prompt: str
@@ -57,7 +61,7 @@ def read(text: object) -> dict:
 
 def start(message: dict) -> Start:
     """The first message of a stream."""
-    _known(message, START_FIELDS)
+    known(message, START_FIELDS)
     if "prompt" not in message:
         raise ProtocolError('the first message needs "prompt"')
     prompt, seed, binary = message["prompt"], message.get("seed"), message.get("binary", False)
@@ -71,7 +75,7 @@ def start(message: dict) -> Start:
 
 def later(message: dict) -> str | None:
     """A message after the first: the new prompt, or None for stop."""
-    _known(message, LATER_FIELDS)
+    known(message, LATER_FIELDS)
     if message.get("stop") is True and "prompt" not in message:
         return None
     if "prompt" not in message or "stop" in message:
@@ -97,7 +101,15 @@ def error(text: str) -> str:
     return json.dumps({"type": "error", "error": text})
 
 
-def _known(message: dict, fields: set[str]) -> None:
+def switched(prompt: str) -> str:
+    return json.dumps({"type": "switched", "prompt": prompt})
+
+
+def note(text: str) -> str:
+    return json.dumps({"type": "note", "note": text})
+
+
+def known(message: dict, fields: set[str]) -> None:
     unknown = sorted(set(message) - fields)
     if unknown:
         raise ProtocolError(f"unknown field {unknown[0]!r}; the fields are "

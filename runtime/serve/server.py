@@ -7,7 +7,6 @@ too slowly loses its oldest bursts (the frame indices then jump), the others are
 from __future__ import annotations
 
 import asyncio
-import json
 import tempfile
 import time
 import warnings
@@ -88,7 +87,7 @@ class Server:
 
     def open(self, start: protocol.Start) -> tuple[ServedStream, list[str]]:
         if len(self.engine.streams) >= self.max_streams:
-            raise protocol.ProtocolError(f"the server is full: {self.max_streams} streams "
+            raise protocol.ServerFull(f"the server is full: {self.max_streams} streams "
                                          "(mogo serve --max-streams); try again later")
         text, notes = self.checked_prompt(start.prompt)
         try:
@@ -111,9 +110,8 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
     stream, sender = None, None
     try:
         async for message in ws:
-            if message.type != WSMsgType.TEXT:
-                if message.type in (WSMsgType.ERROR, WSMsgType.CLOSE):
-                    break
+            if message.type in (WSMsgType.ERROR, WSMsgType.CLOSE):
+                break
             try:
                 body = protocol.read(message.data if message.type == WSMsgType.TEXT else b"")
                 if stream is None:
@@ -130,12 +128,12 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                     if prompt is None:
                         break
                     notes = await server.call(server.switch, stream, prompt)
-                    await ws.send_str(json.dumps({"type": "switched", "prompt": prompt}))
+                    await ws.send_str(protocol.switched(prompt))
                 for note in notes:
-                    await ws.send_str(json.dumps({"type": "note", "note": note}))
+                    await ws.send_str(protocol.note(note))
             except protocol.ProtocolError as error:
                 await ws.send_str(protocol.error(str(error)))
-                if "server is full" in str(error):
+                if isinstance(error, protocol.ServerFull):
                     break
     finally:
         if stream is not None:
@@ -171,7 +169,7 @@ async def generate(request: web.Request) -> web.Response:
     server: Server = request.app[SERVER]
     try:
         body = protocol.read(await request.text())
-        protocol._known(body, GENERATE_FIELDS)
+        protocol.known(body, GENERATE_FIELDS)
         fmt = body.get("format", "bvh")
         if fmt not in FORMATS:
             raise protocol.ProtocolError(f'"format" must be one of {", ".join(FORMATS)}, '

@@ -6,7 +6,6 @@ import io
 import json
 
 import numpy as np
-import pytest
 from aiohttp import ClientSession, WSMsgType, web
 
 from mogo.serve import protocol
