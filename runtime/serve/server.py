@@ -17,6 +17,7 @@ from pathlib import Path
 from aiohttp import WSMsgType, web
 
 from mogo.arguments import PromptWarning, UnknownPromptWarning
+from mogo.clip import Motion
 from mogo.generator import MotionGenerator, _seed
 from mogo.serve import protocol
 from mogo.serve.engine import Engine, ServedStream
@@ -174,6 +175,9 @@ async def generate(request: web.Request) -> web.Response:
         if fmt not in FORMATS:
             raise protocol.ProtocolError(f'"format" must be one of {", ".join(FORMATS)}, '
                                          f"got {fmt!r}")
+        if not hasattr(Motion, f"save_{fmt}"):  # glb: once Motion.save_glb exists
+            raise protocol.ProtocolError(f"format {fmt!r} is not available in this version of "
+                                         "mogo")
         prompt, _ = await server.call(server.checked_prompt, body.get("prompt"))
         data = await asyncio.get_running_loop().run_in_executor(
             server.clips, _clip_file, server.generator, prompt, body.get("seconds"),
@@ -184,10 +188,7 @@ async def generate(request: web.Request) -> web.Response:
 
 
 def _clip_file(generator: MotionGenerator, prompt: str, seconds, seed, fmt: str) -> bytes:
-    motion = generator.generate(prompt, seconds=seconds, seed=seed)
-    save = getattr(motion, f"save_{fmt}", None)
-    if save is None:
-        raise protocol.ProtocolError(f"format {fmt!r} is not available in this version of mogo")
+    save = getattr(generator.generate(prompt, seconds=seconds, seed=seed), f"save_{fmt}")
     with tempfile.TemporaryDirectory() as folder:
         return Path(save(Path(folder) / f"motion.{fmt}")).read_bytes()
 

@@ -8,6 +8,7 @@ import json
 import numpy as np
 from aiohttp import ClientSession, WSMsgType, web
 
+from mogo.clip import Motion
 from mogo.serve import protocol
 from mogo.serve.engine import Engine
 from mogo.serve.server import QUEUED_BURSTS, SERVER, Server, make_app
@@ -166,6 +167,10 @@ def test_generate_returns_the_file(generator, engine_parts):
             assert np.allclose(joints, expected)
             async with post(prompt="a person jumps", seconds=2, format="json") as answer:
                 assert answer.status == 200 and "fps" in json.dumps(await answer.json())
+            if not hasattr(Motion, "save_glb"):
+                async with post(prompt="a person jumps", format="glb") as answer:
+                    assert answer.status == 400
+                    assert "not available" in (await answer.json())["error"]
             for body in (dict(prompt="a person jumps", format="gif"), dict(prompt=""),
                          dict(prompt="a person jumps", seconds=-1), dict(prompt="a", size=3)):
                 async with post(**body) as answer:
