@@ -16,6 +16,15 @@ def _cmd_bench(args: argparse.Namespace) -> None:
     main_from_args(args)
 
 
+def _cmd_bench_serve(args: argparse.Namespace) -> None:
+    from mogo.serve.cli import require_serve_extra
+
+    require_serve_extra()
+    from mogo.bench.speed.serve import main_from_args
+
+    main_from_args(args)
+
+
 def _cmd_eval(args: argparse.Namespace) -> None:
     import json
 
@@ -56,6 +65,19 @@ def add_commands(commands) -> None:
     bench.add_argument("--quick", action="store_true",
                        help="a smoke run: tiny model, few lengths and rounds (for tests)")
     bench.set_defaults(run=_cmd_bench)
+
+    serve = commands.add_parser(
+        "bench-serve", help="how many characters `mogo serve` streams in real time: N "
+                            "WebSocket clients at once, frame rate, lateness, CPU")
+    serve.add_argument("--clients", type=int, nargs="+", default=[1, 10, 25, 50, 75, 100],
+                       help="client counts to try (default 1 10 25 50 75 100)")
+    serve.add_argument("--seconds", type=float, default=15.0,
+                       help="how long each count streams (default 15)")
+    serve.add_argument("--threads", type=int, help="the server's --threads (default its own)")
+    serve.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
+    serve.add_argument("--out", default="bench_out",
+                       help="folder for serve_bench.json and serve_bench.png (default bench_out/)")
+    serve.set_defaults(run=_cmd_bench_serve)
 
     evaluation = commands.add_parser(
         "eval", help="a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "

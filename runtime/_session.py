@@ -14,22 +14,25 @@ _ORT_ERRORS = tuple(value for value in vars(_state).values()
                     if isinstance(value, type) and issubclass(value, Exception))
 
 
-def cpu_session(path: str | os.PathLike, intra_op_threads: int = 1) -> ort.InferenceSession:
+def cpu_session(path: str | os.PathLike | bytes,
+                intra_op_threads: int = 1) -> ort.InferenceSession:
     """A CPU session whose thread pool does not spin between calls: spinning burns the core
     the token sampler needs and makes latency erratic when it is busy. A file onnxruntime
     cannot load is a BundleError naming it (a sha256 that matches only says the bytes are the
-    ones the manifest was written for, not that they are a graph)."""
+    ones the manifest was written for, not that they are a graph). `path` may also be a
+    serialised graph (bytes), one rewritten in memory."""
     options = ort.SessionOptions()
     options.intra_op_num_threads = intra_op_threads
     options.inter_op_num_threads = 1
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
-        return ort.InferenceSession(os.fspath(path), options, providers=["CPUExecutionProvider"])
+        source = path if isinstance(path, bytes) else os.fspath(path)
+        return ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
     except _ORT_ERRORS as error:
         raise BundleError(f"{path}: not a valid ONNX graph: {_cause(error)}") from None
 
 
-def graph_session(path: str | os.PathLike, graph: Graph,
+def graph_session(path: str | os.PathLike | bytes, graph: Graph,
                   intra_op_threads: int = 1) -> ort.InferenceSession:
     """`cpu_session`, refused unless the graph's input and output names are the manifest's in
     its order: the runtime feeds and reads the graphs by these names."""

@@ -11,6 +11,7 @@ import mogo
 RUNTIME_DIR = Path(mogo.__file__).parent
 ROOT = RUNTIME_DIR.parent
 ALLOWED_THIRD_PARTY = {"numpy", "onnxruntime", "tokenizers", "PIL"}
+SERVE_EXTRA = {"aiohttp", "onnx"}  # runtime/serve/ only: `pip install 'mogo[serve]'`
 
 # Each room (a package, with the packages under it) -> the mogo modules its files may import,
 # lazily or not, and the exceptions to that. No room imports one above it: runtime < export <
@@ -18,7 +19,8 @@ ALLOWED_THIRD_PARTY = {"numpy", "onnxruntime", "tokenizers", "PIL"}
 LATER = ("mogo.export", "mogo.bench")
 MAY_IMPORT = {
     "mogo.motion": (("mogo.motion",), ()),
-    "mogo": (("mogo",), LATER),
+    "mogo": (("mogo",), LATER + ("mogo.serve",)),  # nothing of the runtime needs the server
+    "mogo.serve": (("mogo",), LATER),
     "mogo.export": (("mogo",), ("mogo.bench",)),
     # within export: data (numpy) < models (torch, and runs read back) < onnx < train < cli
     "mogo.export.data": (("mogo",), ("mogo.bench", "mogo.export.models", "mogo.export.onnx",
@@ -82,9 +84,10 @@ def test_no_room_imports_one_above_it(folder):
 def test_runtime_imports_only_allowed_packages():
     stdlib = set(sys.stdlib_module_names)
     for path in sources(RUNTIME_DIR):
+        extra = SERVE_EXTRA if package_of(path) == "mogo.serve" else set()
         for name in imported_modules(path):
             top = name.split(".")[0]
-            assert top in stdlib or top in ALLOWED_THIRD_PARTY or top == "mogo", (
+            assert top in stdlib or top in ALLOWED_THIRD_PARTY | extra or top == "mogo", (
                 f"{path.name} imports {name}")
 
 

@@ -1,0 +1,207 @@
+"""`mogo bench-serve`: how many characters `mogo serve` streams in real time on this machine.
+
+Starts `mogo serve` in its own process, warms it, times one client's first frame (start message
+sent -> first frame received, the server otherwise idle), then for each N opens N WebSocket
+clients at once, each with its own prompt and seed and one prompt switch, and for `seconds`
+records when every frame arrives. Frame i of a client is due at t0 + i / fps, t0 the arrival of
+its frame 0; a frame's lateness is how far past that it came (0 if in time). Per N: frames per
+second per client (mean), p50 / p99 lateness over all frames, and the server's CPU use (its
+process's user + system time over the wall time, in cores). N holds real time when every
+client got >= 97% of the frame rate and p99 lateness stayed within one frame (50 ms).
+The clients run on the same machine as the server: their own CPU use is part of the load.
+
+`engine_cost` measures the compute alone, in this process, with no sockets: N streams past
+warm-up stepped on the engine's clock, CPU time (all threads) per stream step and wall time
+per tick. CPU time shows what N costs even on a busy machine; 1000 / (fps * CPU ms) streams
+per core is the ceiling it sets.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mogo.bench.speed.plot import log_line_chart
+
+PROMPTS = ["a person walks forward", "a person jogs in a circle", "a person jumps on the spot",
+           "a person waves with the right hand", "a person squats", "a person kicks",
+           "a person turns left", "a person claps", "a person runs forward", "a person bows"]
+FPS = 20.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+async def client(url: str, k: int, seconds: float, switch_at: float | None) -> list[float]:
+    """One client's frame arrival times (seconds, monotonic), frame by frame."""
+    import aiohttp
+
+    arrivals: list[float] = []
+    async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
+        await ws.send_json({"prompt": PROMPTS[k % len(PROMPTS)], "seed": k})
+        end = time.monotonic() + seconds
+        switched = switch_at is None
+        while (left := end - time.monotonic()) > 0:
+            try:
+                message = await asyncio.wait_for(ws.receive(), left)
+            except asyncio.TimeoutError:
+                break
+            body = json.loads(message.data)
+            if body["type"] == "frames":
+                arrivals += [time.monotonic()] * len(body["joints"])
+            elif body["type"] == "error":
+                raise RuntimeError(f"client {k}: {body['error']}")
+            if not switched and arrivals and time.monotonic() > end - seconds + switch_at:
+                await ws.send_json({"prompt": PROMPTS[(k + 3) % len(PROMPTS)]})
+                switched = True
+    return arrivals
+
+
+async def first_frame_ms(url: str) -> float:
+    import aiohttp
+
+    async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
+        start = time.monotonic()
+        await ws.send_json({"prompt": PROMPTS[0], "seed": 0})
+        while json.loads((await ws.receive()).data)["type"] != "frames":
+            pass
+        return (time.monotonic() - start) * 1e3
+
+
+def measure(url: str, pid: int, clients: int, seconds: float) -> dict:
+    """N clients at once; their frame rate and lateness, the server's CPU use."""
+    async def run():
+        return await asyncio.gather(*(client(url, k, seconds, seconds * (0.3 + 0.4 * k / clients))
+                                      for k in range(clients)))
+
+    cpu, wall = cpu_seconds(pid), time.monotonic()
+    arrivals = asyncio.run(run())
+    cpu, wall = cpu_seconds(pid) - cpu, time.monotonic() - wall
+    rates, late = [], []
+    for times in arrivals:
+        times = np.asarray(times)
+        if len(times) < 2:
+            rates.append(0.0)
+            continue
+        rates.append((len(times) - 1) / (times[-1] - times[0]) if times[-1] > times[0] else FPS)
+        late.append(np.maximum(0.0, times - (times[0] + np.arange(len(times)) / FPS)))
+    late = np.concatenate(late) if late else np.array([np.inf])
+    row = dict(clients=clients, fps=float(np.mean(rates)), fps_min=float(np.min(rates)),
+               p50_ms=float(np.percentile(late, 50) * 1e3),
+               p99_ms=float(np.percentile(late, 99) * 1e3), cpu_cores=cpu / wall)
+    row["real_time"] = row["fps_min"] >= 0.97 * FPS and row["p99_ms"] <= 1e3 / FPS
+    return row
+
+
+def engine_cost(clients: int, threads: int, ticks: int = 40) -> dict:
+    """CPU ms per stream step and wall ms per tick of the Engine alone, streams past warm-up."""
+    from mogo.generator import MotionGenerator
+    from mogo.serve.engine import Engine
+    from mogo.serve.stepper import COMPACT_EVERY
+
+    generator = MotionGenerator.load(threads=threads)
+    engine = Engine(generator, threads)
+    for k in range(clients):
+        engine.open(PROMPTS[k % len(PROMPTS)], k, generator.sampling(None), 0.0)
+    now, ready = 0.0, engine.stepper.steady_from + 2 * COMPACT_EVERY
+
+    def run_until(end: float) -> int:
+        nonlocal now
+        steps = 0
+        while now < end:
+            due = engine.due(now)
+            if due:
+                engine.round(due)
+                steps += len(due)
+            else:
+                now += 1 / engine.fps
+        return steps
+
+    while min(s.tokens.steps for s in engine.streams.values()) < ready:
+        run_until(now + 1 / engine.fps)
+    cpu, wall = time.process_time(), time.perf_counter()
+    steps = run_until(now + ticks / engine.fps)
+    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    return dict(clients=clients, cpu_ms_per_step=cpu * 1e3 / steps,
+                wall_ms_per_tick=wall * 1e3 / ticks)
+
+
+def engine_table(rows: list[dict]) -> str:
+    lines = ["| streams | CPU per stream step | wall per tick (real time: <= 50 ms) |",
+             "|---:|---:|---:|"]
+    lines += [f"| {r['clients']} | {r['cpu_ms_per_step']:.2f} ms | {r['wall_ms_per_tick']:.1f} ms |"
+              for r in rows]
+    return "\n".join(lines)
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| clients | frames/s per client (mean / min) | lateness p50 | lateness p99 | "
+             "server CPU (cores) | real time |", "|---:|---:|---:|---:|---:|:---:|"]
+    for r in rows:
+        lines.append(f"| {r['clients']} | {r['fps']:.1f} / {r['fps_min']:.1f} | "
+                     f"{r['p50_ms']:.0f} ms | {r['p99_ms']:.0f} ms | {r['cpu_cores']:.2f} | "
+                     f"{'yes' if r['real_time'] else 'no'} |")
+    return "\n".join(lines)
+
+
+def run(clients: list[int], seconds: float, threads: int | None, bundle: str | None,
+        out: Path) -> dict:
+    port = free_port()
+    command = [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--max-streams",
+               str(max(clients) + 1)]
+    command += ["--threads", str(threads)] if threads else []
+    command += ["--bundle", bundle] if bundle else []
+    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    try:
+        if "mogo serve:" not in server.stderr.readline():
+            raise RuntimeError("mogo serve did not start")
+        url = f"http://127.0.0.1:{port}/v1/stream"
+        measure(url, server.pid, 4, 4.0)  # warm: graphs run once, caches allocated
+        first = sorted(asyncio.run(first_frame_ms(url)) for _ in range(7))
+        rows = []
+        for n in clients:
+            rows.append(measure(url, server.pid, n, seconds))
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+    held = [r["clients"] for r in rows if r["real_time"]]
+    engine = [engine_cost(n, threads or 2) for n in clients]
+    result = dict(first_frame_ms=first[len(first) // 2], rows=rows, engine=engine,
+                  largest_real_time=max(held) if held else 0, seconds=seconds)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "serve_bench.json").write_text(json.dumps(result, indent=1))
+    log_line_chart(out / "serve_bench.png", "mogo serve: N clients at once", "clients",
+                   "see legend", {
+                       "frames/s per client": [(r["clients"], max(r["fps"], 0.1)) for r in rows],
+                       "p99 lateness, ms (min 1)": [(r["clients"], max(r["p99_ms"], 1.0))
+                                                    for r in rows],
+                       "server CPU, % of a core": [(r["clients"], max(100 * r["cpu_cores"], 1))
+                                                   for r in rows]})
+    return result
+
+
+def main_from_args(args) -> None:
+    result = run(args.clients, args.seconds, args.threads, args.bundle, Path(args.out))
+    print(table(result["rows"]))
+    print("\nThe engine alone (no sockets), streams past warm-up:\n")
+    print(engine_table(result["engine"]))
+    print(f"\nfirst frame, one client, server warm: {result['first_frame_ms']:.0f} ms (median "
+          f"of 7); largest N in real time: {result['largest_real_time']}")
+    print(f"wrote {Path(args.out) / 'serve_bench.json'} and serve_bench.png")

@@ -1,0 +1,152 @@
+"""The server's streams on one clock: who steps when, and the frames that come out.
+
+Every stream is paced to real time on a shared tick (one token step per frame, `fps` ticks a
+second), LEAD steps ahead so that its frames leave before they are due. A new stream catches
+up at once (its first frame comes after the decoder's lookahead), then steps on the shared
+ticks with all the others. Streams share a call when their caches have one layout
+(mogo.serve.stepper): at the same step during warm-up, at the same phase after it. A stream
+takes a few extra steps (more lead, once) to join a larger group: a warm-up cohort a little
+ahead, or the common phase, so that past warm-up one call of each level graph serves them all. Not thread-safe: the server calls it from one thread.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from concurrent.futures import ThreadPoolExecutor
+from collections import Counter, OrderedDict
+
+import numpy as np
+
+from mogo.generator import MotionGenerator
+from mogo.motion.features import JointStream
+from mogo.serve.rowwise import rowwise_graph
+from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
+from mogo.token_generator import TokenGenerator
+
+ALIGN_STEPS = 24  # extra steps a stream may take to join a larger group (1.2 s more lead)
+EMBEDDINGS_KEPT = 256  # prompt embeddings cached (switching back costs no text encoding)
+
+
+class ServedStream:
+    """One client's stream: tokens (a BatchedStream), its decoder and joints, its clock."""
+
+    def __init__(self, engine: Engine, prompt: str, seed: int, sampling, start_tick: int):
+        g = engine.generator
+        self.id = next(engine._ids)
+        self.prompt, self.seed = prompt, seed
+        self.tokens: BatchedStream = engine.stepper.start(engine.embedding(prompt), seed,
+                                                          sampling)
+        self.decoder = g.streaming_decoder()
+        self.joints = JointStream(g.skeleton)
+        self.start_tick, self.extra = start_tick, 0
+        self.frames_sent = 0
+
+    def push(self, row: np.ndarray, bundle) -> np.ndarray:
+        """The frames (n, J, 3) that the new token step made final."""
+        features = self.decoder.push(row[None]) * bundle.std + bundle.mean
+        joints = self.joints.push(features)
+        self.frames_sent += len(joints)
+        return joints
+
+
+class Engine:
+    """All live streams of a server over one MotionGenerator."""
+
+    def __init__(self, generator: MotionGenerator, threads: int = 1,
+                 tokens: TokenGenerator | None = None):
+        """`tokens`: the bundle's level graphs made row-wise (mogo.serve.rowwise); None makes
+        them."""
+        self.generator = generator
+        manifest = generator.manifest
+        levels = manifest.t2m.levels
+        if tokens is None:
+            tokens = TokenGenerator([rowwise_graph(generator.bundle.path(g.file))
+                                     for g in levels], levels, manifest.end_token,
+                                    intra_op_threads=1, level_workers=threads)
+        window = manifest.defaults.window
+        if window is None:  # an unbounded cache: every stream would grow without end
+            raise ValueError("mogo serve needs a bundle with a KV window (defaults.window)")
+        self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"])
+        self.fps = generator.fps
+        decoder = manifest.vq.decoder
+        self.lead = decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
+        self.streams: dict[int, ServedStream] = {}
+        self._pool = ThreadPoolExecutor(1, "mogo-decode") if threads > 1 else None
+        self._ids = itertools.count(1)
+        self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
+
+    def shutdown(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def tick(self, now: float) -> int:
+        return math.floor(now * self.fps)
+
+    def embedding(self, prompt: str) -> np.ndarray:
+        if prompt not in self._embeddings:
+            self._embeddings[prompt] = self.generator.embed([prompt])[0]
+            if len(self._embeddings) > EMBEDDINGS_KEPT:
+                self._embeddings.popitem(last=False)
+        self._embeddings.move_to_end(prompt)
+        return self._embeddings[prompt]
+
+    def open(self, prompt: str, seed: int, sampling, now: float) -> ServedStream:
+        """A new stream (prompt and sampling already checked by the caller)."""
+        stream = ServedStream(self, prompt, seed, sampling, self.tick(now))
+        self.streams[stream.id] = stream
+        return stream
+
+    def switch(self, stream: ServedStream, prompt: str) -> None:
+        stream.tokens.set_prompt(self.embedding(prompt))
+        stream.prompt = prompt
+
+    def close(self, stream: ServedStream) -> None:
+        self.streams.pop(stream.id, None)
+
+    def due(self, now: float) -> list[ServedStream]:
+        """The streams behind their target at `now`, and those that take an extra step to
+        share the calls of more streams (`_joins`)."""
+        tick = self.tick(now)
+        keys = Counter(s.tokens.key for s in self.streams.values())
+        due = []
+        for stream in self.streams.values():
+            target = self.lead + stream.extra + tick - stream.start_tick
+            if stream.tokens.steps >= target and self._joins(stream, keys):
+                stream.extra += 1  # one step beyond the clock: nearer to a larger group
+                target += 1
+            if stream.tokens.steps < target:
+                due.append(stream)
+        return due
+
+    def _joins(self, stream: ServedStream, keys: Counter) -> bool:
+        """Whether a step takes `stream` towards a larger group of streams: in warm-up, one at
+        most ALIGN_STEPS ahead; past it, the most common phase. Bounded: ALIGN_STEPS extra
+        steps in warm-up, COMPACT_EVERY more past it (so at most that much more lead)."""
+        kind, value = key = stream.tokens.key
+        if stream.extra >= ALIGN_STEPS + (COMPACT_EVERY if kind == "steady" else 0):
+            return False
+        if kind == "steady":
+            phases = Counter({k[1]: n for k, n in keys.items() if k[0] == "steady"})
+            return phases.most_common(1)[0][0] != value
+        ahead = [(n, k[1]) for k, n in keys.items()
+                 if k[0] == "warm" and value < k[1] <= value + ALIGN_STEPS]
+        return bool(ahead) and max(ahead)[0] >= keys[key]
+
+    def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
+        """One step of each stream in `due`: (stream, index of its first new frame, joints
+        (n, J, 3)) for each that made frames."""
+        pairs = list(zip(due, self.stepper.step([s.tokens for s in due])))
+        if self._pool is None or len(pairs) < 2:
+            return self._push(pairs)
+        half = len(pairs) // 2  # decoders on two threads: each stream's own, so any split
+        other = self._pool.submit(self._push, pairs[half:])
+        return self._push(pairs[:half]) + other.result()
+
+    def _push(self, pairs: list[tuple[ServedStream, np.ndarray]]) -> list[tuple]:
+        out = []
+        for stream, row in pairs:
+            first = stream.frames_sent
+            joints = stream.push(row, self.generator.bundle)
+            if len(joints):
+                out.append((stream, first, joints))
+        return out

@@ -1,0 +1,122 @@
+"""The /v1/stream protocol: what a client may send, what the server sends (docs/serve.md).
+
+Client -> server, JSON text messages:
+    {"prompt": "...", "seed": 1, "temperature": .., "top_k": .., "top_p": .., "guidance": ..,
+     "binary": false}                        first message: starts the stream (seed optional)
+    {"prompt": "..."}                        later: switch the prompt from the next step on
+    {"stop": true}                           later: end the stream (the server closes)
+Server -> client:
+    {"type": "started", "stream": id, "seed": s, "fps": 20, "joints": [names], "parents": [..]}
+    {"type": "frames", "index": i, "joints": [[[x, y, z] x 22] x n]}   frames i .. i+n-1, metres
+    {"type": "switched", "prompt": "..."} | {"type": "error", "error": "..."}
+    binary (if asked): one message per burst, little-endian uint32 index, uint32 n, then
+    float32 joints (n, 22, 3).
+"""
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mogo.sampling import Sampling
+
+MAX_MESSAGE_CHARS = 4096  # longer client messages get an error (a prompt is 64 tokens at most)
+START_FIELDS = {"prompt", "seed", "binary", *Sampling.__dataclass_fields__}
+LATER_FIELDS = {"prompt", "stop"}
+
+
+class ProtocolError(ValueError):
+    """A client message the server refuses: its text goes back as an error message."""
+
+
+class ServerFull(ProtocolError):
+    """A stream past the server's cap: refused, and the socket closed."""
+
+
+@dataclass
+class Start:
+    prompt: str
+    seed: int | None
+    options: dict[str, Any]
+    binary: bool
+
+
+def read(text: object) -> dict:
+    """A client message (text) -> its JSON object, or ProtocolError."""
+    if not isinstance(text, str):
+        raise ProtocolError("messages must be JSON text, not binary")
+    if len(text) > MAX_MESSAGE_CHARS:
+        raise ProtocolError(f"message of {len(text)} characters; at most {MAX_MESSAGE_CHARS}")
+    try:
+        message = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ProtocolError(f"not JSON: {error.msg} at character {error.pos}") from None
+    if not isinstance(message, dict):
+        raise ProtocolError(f"a message must be a JSON object, got {type(message).__name__}")
+    return message
+
+
+def start(message: dict) -> Start:
+    """The first message of a stream."""
+    known(message, START_FIELDS)
+    if "prompt" not in message:
+        raise ProtocolError('the first message needs "prompt"')
+    prompt, seed, binary = message["prompt"], message.get("seed"), message.get("binary", False)
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
+        raise ProtocolError(f'"seed" must be an integer >= 0, got {seed!r}')
+    if not isinstance(binary, bool):
+        raise ProtocolError(f'"binary" must be true or false, got {binary!r}')
+    options = {k: v for k, v in message.items() if k in Sampling.__dataclass_fields__}
+    return Start(_text(prompt), seed, options, binary)
+
+
+def later(message: dict) -> str | None:
+    """A message after the first: the new prompt, or None for stop."""
+    known(message, LATER_FIELDS)
+    if message.get("stop") is True and "prompt" not in message:
+        return None
+    if "prompt" not in message or "stop" in message:
+        raise ProtocolError('send {"prompt": "..."} to switch or {"stop": true} to end')
+    return _text(message["prompt"])
+
+
+def started(stream_id: int, seed: int, fps: float, joint_names, parents) -> str:
+    return json.dumps({"type": "started", "stream": stream_id, "seed": seed, "fps": fps,
+                       "joints": [str(name) for name in joint_names],
+                       "parents": [int(parent) for parent in parents]})
+
+
+def frames(index: int, joints: np.ndarray, binary: bool) -> str | bytes:
+    """One burst: frames index .. index + n - 1, (n, J, 3) metres."""
+    if binary:
+        return struct.pack("<II", index, len(joints)) + joints.astype("<f4").tobytes()
+    return json.dumps({"type": "frames", "index": index,
+                       "joints": np.round(joints.astype(np.float64), 4).tolist()})
+
+
+def error(text: str) -> str:
+    return json.dumps({"type": "error", "error": text})
+
+
+def switched(prompt: str) -> str:
+    return json.dumps({"type": "switched", "prompt": prompt})
+
+
+def note(text: str) -> str:
+    return json.dumps({"type": "note", "note": text})
+
+
+def known(message: dict, fields: set[str]) -> None:
+    unknown = sorted(set(message) - fields)
+    if unknown:
+        raise ProtocolError(f"unknown field {unknown[0]!r}; the fields are "
+                            f"{', '.join(sorted(fields))}")
+
+
+def _text(prompt: object) -> str:
+    if not isinstance(prompt, str):
+        raise ProtocolError(f'"prompt" must be text, got {type(prompt).__name__}')
+    return prompt

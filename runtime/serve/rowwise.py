@@ -1,0 +1,108 @@
+"""Level graphs whose rows never influence each other, so streams can share one call.
+
+An int8 bundle's level graphs quantise each MatMul input with DynamicQuantizeLinear: one scale
+and zero point for the whole tensor, every batch row included. Batched as exported, a stream's
+numbers would depend on whatever other streams share the call. `rowwise_graph` rewrites each
+such input to be quantised batch row by batch row (DynamicQuantizeLinear's formula over every
+axis but the batch) and keeps the int8 weights:
+
+    q = saturate(round(x / s_r) + z_r)           s_r, z_r from batch row r's min and max (and 0)
+    y = (MatMulInteger(q, W, 0, w_z) - z_r * colsum(W - w_z)) * s_r * w_s
+
+The integer part is exact, so a row's result is the same in any batch. For a batch of one row
+this is the exported graph's arithmetic (the same logits, to a float rounding where onnxruntime
+fuses differently). Graphs without DynamicQuantizeLinear come back unchanged.
+Needs the `onnx` package (the serve extra), which the base runtime does not.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import onnx
+from onnx import helper, numpy_helper
+
+
+def rowwise_graph(path: str | os.PathLike) -> bytes:
+    """The level graph at `path`, dynamic quantisation made per row, serialised for
+    onnxruntime."""
+    model = onnx.load(os.fspath(path))
+    graph = model.graph
+    ranks = _ranks(model)
+    weights = {init.name: numpy_helper.to_array(init) for init in graph.initializer}
+    consumers: dict[str, list[onnx.NodeProto]] = {}
+    for node in graph.node:
+        for name in node.input:
+            consumers.setdefault(name, []).append(node)
+    after: dict[int, list[onnx.NodeProto]] = {}  # nodes to insert after a node (by id)
+    nodes = []
+    for node in graph.node:
+        if node.op_type != "DynamicQuantizeLinear":
+            nodes.append(node)
+            nodes += after.pop(id(node), [])
+            continue
+        quantized, scale, zero_point = node.output
+        prefix = (node.name or quantized) + "/"
+        nodes += _rowwise_quantize(node.input[0], ranks[node.input[0]], prefix)
+        for user in consumers.get(quantized, []):  # MatMulInteger(q, W, z, w_z)
+            after[id(user)] = _zero_point_correction(user, prefix, weights)
+        for user in consumers.get(scale, []):  # Mul(s, w_s): each row's own scale instead
+            user.input[:] = [prefix + "scale" if name == scale else name for name in user.input]
+    graph.ClearField("node")
+    graph.node.extend(nodes)
+    return model.SerializeToString()
+
+
+def _ranks(model: onnx.ModelProto) -> dict[str, int]:
+    """The rank of every tensor shape inference can tell."""
+    inferred = onnx.shape_inference.infer_shapes(model).graph
+    return {value.name: len(value.type.tensor_type.shape.dim)
+            for value in [*inferred.input, *inferred.value_info]
+            if value.type.tensor_type.HasField("shape")}
+
+
+def _rowwise_quantize(x: str, rank: int, p: str) -> list[onnx.NodeProto]:
+    """DynamicQuantizeLinear's formula over every axis but the batch: p+q (uint8), p+scale
+    (float) and p+zero (int32), one per batch row, shaped to broadcast (B, 1, ...)."""
+    def constant(name, value, dtype):
+        return helper.make_node("Constant", [], [p + name], value=numpy_helper.from_array(
+            np.array(value, dtype), p + name))
+
+    node = helper.make_node
+    return [
+        constant("c0", 0.0, np.float32), constant("c255", 255.0, np.float32),
+        constant("tiny", 1e-30, np.float32), constant("axes", list(range(1, rank)), np.int64),
+        node("ReduceMax", [x, p + "axes"], [p + "max0"], keepdims=1),
+        node("ReduceMin", [x, p + "axes"], [p + "min0"], keepdims=1),
+        node("Max", [p + "max0", p + "c0"], [p + "max"]),
+        node("Min", [p + "min0", p + "c0"], [p + "min"]),
+        node("Sub", [p + "max", p + "min"], [p + "range"]),
+        node("Div", [p + "range", p + "c255"], [p + "scale0"]),
+        node("Max", [p + "scale0", p + "tiny"], [p + "scale"]),  # an all-zero row: any scale
+        node("Neg", [p + "min"], [p + "neg_min"]),
+        node("Div", [p + "neg_min", p + "scale"], [p + "zero_ratio"]),
+        node("Round", [p + "zero_ratio"], [p + "zero_round"]),
+        node("Clip", [p + "zero_round", p + "c0", p + "c255"], [p + "zero_f"]),
+        node("Cast", [p + "zero_f"], [p + "zero"], to=onnx.TensorProto.INT32),
+        node("Div", [x, p + "scale"], [p + "ratio"]),
+        node("Round", [p + "ratio"], [p + "round"]),
+        node("Add", [p + "round", p + "zero_f"], [p + "shifted"]),
+        node("Clip", [p + "shifted", p + "c0", p + "c255"], [p + "clipped"]),
+        node("Cast", [p + "clipped"], [p + "q"], to=onnx.TensorProto.UINT8),
+    ]
+
+
+def _zero_point_correction(matmul: onnx.NodeProto, p: str,
+                           weights: dict[str, np.ndarray]) -> list[onnx.NodeProto]:
+    """Turn MatMulInteger(q, W, z, w_z) into MatMulInteger(q, W, 0, w_z) - z_r * colsum, under
+    its own output name: onnxruntime takes only one zero point for the whole of input A."""
+    _, w_name, _, w_zero_name = matmul.input
+    w = weights[w_name].astype(np.int32) - weights[w_zero_name].astype(np.int32)
+    colsum = w.sum(axis=-2, keepdims=True).astype(np.int32)  # (..., 1, N): per head too
+    out, raw, name = matmul.output[0], matmul.output[0] + "/raw", p + matmul.output[0]
+    matmul.input[:] = [p + "q", w_name, "", w_zero_name]
+    matmul.output[:] = [raw]
+    return [helper.make_node("Constant", [], [name + "/colsum"],
+                             value=numpy_helper.from_array(colsum, name + "/colsum")),
+            helper.make_node("Mul", [p + "zero", name + "/colsum"], [name + "/shift"]),
+            helper.make_node("Sub", [raw, name + "/shift"], [out])]

@@ -1,0 +1,56 @@
+"""Streams stepped together give each stream exactly what it gives alone, and what the
+runtime's own TokenStream gives before its window fills."""
+import numpy as np
+import pytest
+
+from mogo.serve.stepper import COMPACT_EVERY, Stepper
+
+WINDOW = 12  # small, so that steps fall out of the window and dead slots are compacted
+
+
+@pytest.fixture(scope="module")
+def stepper(engine_parts, generator):
+    return Stepper(engine_parts, WINDOW, generator.manifest.t2m.config["max_relative_distance"])
+
+
+@pytest.fixture(scope="module")
+def prompts(generator):
+    return generator.embed(["a person walks forward", "a person jumps", "a person waves"])
+
+
+def test_alone_it_gives_the_runtime_tokens_until_the_window_fills(stepper, generator, prompts):
+    sampling = generator.sampling(None)
+    reference = generator.tokens.start(prompts[0], 7, sampling, WINDOW, allow_end=False)
+    stream = stepper.start(prompts[0], 7, sampling)
+    for _ in range(WINDOW + 1):
+        assert np.array_equal(stepper.step([stream])[0], reference.step())
+
+
+def run(stepper, generator, prompts, others: int, ahead: int, steps: int = 100) -> np.ndarray:
+    """One stream's tokens (a switch included) while `others` streams run, `ahead` steps ahead;
+    every other one guided (two rows)."""
+    stream = stepper.start(prompts[0], 3, generator.sampling(None))
+    crowd = [stepper.start(prompts[1 + k % 2], 10 + k, generator.sampling(None, guidance=1.0 + k % 2))
+             for k in range(others)]
+    for _ in range(ahead):
+        stepper.step(crowd)
+    drawn = []
+    for n in range(steps):
+        if n == 40:
+            stream.set_prompt(prompts[2])
+        if n == 70 and crowd:
+            crowd[0].set_prompt(prompts[0])
+        drawn.append(stepper.step([stream, *crowd])[0])
+    return np.array(drawn)
+
+
+@pytest.mark.parametrize("others, ahead", [(3, 0), (4, 5), (3, 4 * COMPACT_EVERY),
+                                           (3, 2 * WINDOW + 3)])
+def test_a_stream_draws_the_same_tokens_whatever_else_runs(stepper, generator, prompts,
+                                                           others, ahead):
+    """(3, 0): one shared call; (4, 5): warm-up at other steps; 4 * COMPACT_EVERY ahead: past
+    warm-up, one shared call at other steps (virtual positions); 2 * WINDOW + 3: other phases,
+    separate calls; dead slots and compaction on both sides."""
+    assert 100 > WINDOW + 2 * COMPACT_EVERY
+    alone = run(stepper, generator, prompts, 0, 0)
+    assert np.array_equal(alone, run(stepper, generator, prompts, others, ahead))
