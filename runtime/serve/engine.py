@@ -19,6 +19,8 @@ import numpy as np
 
 from mogo.generator import MotionGenerator
 from mogo.motion.features import JointStream
+from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
+from mogo.motion.feet import FootPlanter
 from mogo.serve.rowwise import rowwise_graph
 from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
 from mogo.token_generator import TokenGenerator
@@ -28,9 +30,11 @@ EMBEDDINGS_KEPT = 256  # prompt embeddings cached (switching back costs no text 
 
 
 class ServedStream:
-    """One client's stream: tokens (a BatchedStream), its decoder and joints, its clock."""
+    """One client's stream: tokens (a BatchedStream), its decoder, joints and feet, its
+    clock."""
 
-    def __init__(self, engine: Engine, prompt: str, seed: int, sampling, start_tick: int):
+    def __init__(self, engine: Engine, prompt: str, seed: int, sampling, start_tick: int,
+                 plant_feet: bool):
         g = engine.generator
         self.id = next(engine._ids)
         self.prompt, self.seed = prompt, seed
@@ -38,6 +42,7 @@ class ServedStream:
                                                           sampling)
         self.decoder = g.streaming_decoder()
         self.joints = JointStream(g.skeleton)
+        self.feet = FootPlanter(g.skeleton) if plant_feet else None
         self.start_tick, self.extra = start_tick, 0
         self.frames_sent = 0
 
@@ -45,6 +50,8 @@ class ServedStream:
         """The frames (n, J, 3) that the new token step made final."""
         features = self.decoder.push(row[None]) * bundle.std + bundle.mean
         joints = self.joints.push(features)
+        if self.feet is not None:
+            features, joints = self.feet.push(features, joints)
         self.frames_sent += len(joints)
         return joints
 
@@ -69,7 +76,8 @@ class Engine:
         self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"])
         self.fps = generator.fps
         decoder = manifest.vq.decoder
-        self.lead = decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
+        self.lead = (decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
+                     + math.ceil(FEET_LOOKAHEAD / generator.down_factor))
         self.streams: dict[int, ServedStream] = {}
         self._pool = ThreadPoolExecutor(1, "mogo-decode") if threads > 1 else None
         self._ids = itertools.count(1)
@@ -90,9 +98,10 @@ class Engine:
         self._embeddings.move_to_end(prompt)
         return self._embeddings[prompt]
 
-    def open(self, prompt: str, seed: int, sampling, now: float) -> ServedStream:
+    def open(self, prompt: str, seed: int, sampling, now: float, plant_feet: bool = True
+             ) -> ServedStream:
         """A new stream (prompt and sampling already checked by the caller)."""
-        stream = ServedStream(self, prompt, seed, sampling, self.tick(now))
+        stream = ServedStream(self, prompt, seed, sampling, self.tick(now), plant_feet)
         self.streams[stream.id] = stream
         return stream
 

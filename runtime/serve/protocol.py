@@ -24,7 +24,7 @@ import numpy as np
 from mogo.sampling import Sampling
 
 MAX_MESSAGE_CHARS = 4096  # longer client messages get an error (a prompt is 64 tokens at most)
-START_FIELDS = {"prompt", "seed", "binary", *Sampling.__dataclass_fields__}
+START_FIELDS = {"prompt", "seed", "binary", "plant_feet", *Sampling.__dataclass_fields__}
 LATER_FIELDS = {"prompt", "stop"}
 
 
@@ -42,6 +42,7 @@ class Start:
     seed: int | None
     options: dict[str, Any]
     binary: bool
+    plant_feet: bool  # as the API's plant_feet (mogo.motion.feet): on unless turned off
 
 
 def read(text: object) -> dict:
@@ -67,10 +68,12 @@ def start(message: dict) -> Start:
     prompt, seed, binary = message["prompt"], message.get("seed"), message.get("binary", False)
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
         raise ProtocolError(f'"seed" must be an integer >= 0, got {seed!r}')
-    if not isinstance(binary, bool):
-        raise ProtocolError(f'"binary" must be true or false, got {binary!r}')
+    plant_feet = message.get("plant_feet", True)
+    for name, value in (("binary", binary), ("plant_feet", plant_feet)):
+        if not isinstance(value, bool):
+            raise ProtocolError(f'"{name}" must be true or false, got {value!r}')
     options = {k: v for k, v in message.items() if k in Sampling.__dataclass_fields__}
-    return Start(_text(prompt), seed, options, binary)
+    return Start(_text(prompt), seed, options, binary, plant_feet)
 
 
 def later(message: dict) -> str | None:

@@ -95,7 +95,7 @@ class Server:
         except (TypeError, ValueError) as error:
             raise protocol.ProtocolError(str(error)) from None
         seed = _seed(start.seed)
-        return self.engine.open(text, seed, sampling, self.clock()), notes
+        return self.engine.open(text, seed, sampling, self.clock(), start.plant_feet), notes
 
     def switch(self, stream: ServedStream, prompt: str) -> list[str]:
         text, notes = self.checked_prompt(prompt)

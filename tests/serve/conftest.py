@@ -1,11 +1,8 @@
-"""Fixtures of the server tests: skipped where the serve extra is not installed."""
+"""Fixtures of the server tests. The tests that need the serve extra skip themselves where it
+is not installed (test_cli.py checks what `mogo serve` says then)."""
 import pytest
 
-pytest.importorskip("aiohttp")
-pytest.importorskip("onnx")
-
-from mogo import MotionGenerator  # noqa: E402
-from mogo.serve.engine import Engine  # noqa: E402
+from mogo import MotionGenerator
 
 
 @pytest.fixture(scope="session")
@@ -16,4 +13,7 @@ def generator():
 @pytest.fixture(scope="session")
 def engine_parts(generator):
     """One Engine's level graphs (rewritten row-wise once), reused by every test's Engine."""
+    pytest.importorskip("onnx")
+    from mogo.serve.engine import Engine
+
     return Engine(generator).stepper.tokens

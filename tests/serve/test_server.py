@@ -6,11 +6,16 @@ import io
 import json
 
 import numpy as np
-from aiohttp import ClientSession, WSMsgType, web
+import pytest
 
-from mogo.serve import protocol
-from mogo.serve.engine import Engine
-from mogo.serve.server import QUEUED_BURSTS, SERVER, Server, make_app
+pytest.importorskip("aiohttp")
+pytest.importorskip("onnx")
+
+from aiohttp import ClientSession, WSMsgType, web  # noqa: E402
+
+from mogo.serve import protocol  # noqa: E402
+from mogo.serve.engine import Engine  # noqa: E402
+from mogo.serve.server import QUEUED_BURSTS, SERVER, Server, make_app  # noqa: E402
 
 TIMEOUT = 60  # seconds for a whole test: far above what each needs, so a hang fails
 
@@ -199,3 +204,20 @@ def test_a_stream_gives_the_same_frames_alone_and_among_others(generator, engine
     alone = play([])
     among = play([0.95, 1.0, 1.3, 4.0, 9.0])
     assert len(alone) > 150 and np.array_equal(alone, among[:len(alone)])
+
+
+def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator,
+                                                                       engine_parts):
+    """Before the window fills a lone served stream draws the runtime's tokens, so its frames
+    are MotionStream's: the same decoding, joints and foot planting (mogo.motion.feet)."""
+    for plant_feet in (True, False):
+        engine = Engine(generator, 1, tokens=engine_parts)
+        stream = engine.open("a person walks forward", 3, generator.sampling(None), 0.0,
+                             plant_feet)
+        got = []
+        while sum(map(len, got)) < 80:
+            got += [joints for _, _, joints in engine.round([stream])]
+        served = np.concatenate(got)
+        local = generator.stream("a person walks forward", seed=3, plant_feet=plant_feet)
+        expected = np.array(list(local.frames(limit=len(served))))
+        np.testing.assert_allclose(served, expected, atol=1e-5)
