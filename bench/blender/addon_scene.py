@@ -61,10 +61,34 @@ def main() -> None:
     result["ours"], result["target"] = _heads(scene, ours), _heads(scene, target)
     result["target_rest"] = {b.name: list(target.matrix_world @ b.head_local)
                              for b in target.data.bones}
+    result["live"] = _live(scene, request.get("live_frames", 20))
     with open(request["result"], "w") as file:
         json.dump(result, file)
     if request.get("png"):
         _render(scene, [ours, target], request)
+
+
+def _live(scene, frames: int) -> dict:
+    """Live mode as the timeline would drive it: the playhead follows the keys (headless
+    Blender runs no timers, so the add-on's timer function is called here), the prompt
+    switched after `frames` and stopped after twice as many again."""
+    from mogo_blender import ui  # the installed add-on's own module
+    scene.mogo.prompt, scene.mogo.live_prompt = "a person walks forward.", "a person jogs."
+    bpy.ops.mogo.live(mode="START")
+    session, started, switched = ui._CACHE["live"], time.monotonic(), False
+    while session.written < 3 * frames and time.monotonic() - started < 120:
+        time.sleep(0.05)
+        scene.frame_current = int(session.start + session.written * session.step)
+        session.tick()
+        if not switched and session.written >= frames:
+            bpy.ops.mogo.live(mode="SWITCH")
+            switched = True
+    bpy.ops.mogo.live(mode="STOP")
+    action = bpy.data.objects["MOGO"].animation_data.action
+    points = action.fcurves.find('pose.bones["Hips"].rotation_quaternion', index=0)
+    return dict(action=action.name, written=session.written, prompts=session.stream.prompts,
+                keys=[point.co[0] for point in points.keyframe_points],
+                error=str(session.error or ""), running="live" in ui._CACHE)
 
 
 def _raise(error):
@@ -88,31 +112,36 @@ def _empty_prompt_error(settings) -> str:
 
 def _target(ours, scale: dict, a_pose: float):
     """A Mixamo-named copy of our rest skeleton ('mixamorig:' prefix, a HeadTop_End leaf the
-    mapping leaves out), legs, arms and torso scaled apart, arms lowered by `a_pose`."""
+    mapping leaves out), legs, arms and torso scaled apart, arms lowered by `a_pose`, with the
+    object transform of a Mixamo FBX import (bones in centimetres, Y up: scale 0.01, turned
+    90 degrees about X), beside ours."""
+    heads, tails = {}, {}
+    for bone in ours.data.bones:  # parents first
+        name, parent = bone.name, bone.parent
+        heads[name] = bone.head_local if parent is None else heads[parent.name] + _shape(
+            parent.name, scale, a_pose) @ (bone.head_local - parent.head_local)
+        tails[name] = heads[name] + _shape(name, scale, a_pose) @ (bone.tail_local
+                                                                   - bone.head_local)
+    lift = Vector((0, 0, ours.data.bones["LeftFoot"].head_local.z - heads["LeftFoot"].z))
+    heads["HeadTop_End"], tails["HeadTop_End"] = tails["Head"], tails["Head"] + Vector((0, 0,
+                                                                                        0.05))
     data = bpy.data.armatures.new("Mannequin")
     target = bpy.data.objects.new("Mannequin", data)
     bpy.context.scene.collection.objects.link(target)
-    target.location = TARGET_OFFSET
+    target.matrix_world = (Matrix.Translation(TARGET_OFFSET) @ Matrix.Rotation(
+        math.radians(90), 4, "X") @ Matrix.Scale(0.01, 4))
+    local = target.matrix_world.inverted()
     bpy.context.view_layer.objects.active = target
     bpy.ops.object.mode_set(mode="EDIT")
-    made = {}
-    for bone in ours.data.bones:  # parents first
-        name, parent = bone.name, bone.parent
+    for name in heads:  # feet on the floor, as ours
         edit = data.edit_bones.new("mixamorig:" + name)
-        if parent is None:
-            edit.head = bone.head_local
-        else:  # the offset from the parent's head is the parent's segment: its scale and turn
-            edit.head = made[parent.name].head + _shape(parent.name, scale, a_pose) @ (
-                bone.head_local - parent.head_local)
-            edit.parent = made[parent.name]
-        edit.tail = edit.head + _shape(name, scale, a_pose) @ (bone.tail_local - bone.head_local)
-        made[name] = edit
-    lift = Vector((0, 0, ours.data.bones["LeftFoot"].head_local.z - made["LeftFoot"].head.z))
-    for edit in made.values():  # feet on the floor, as ours
-        edit.head, edit.tail = edit.head + lift, edit.tail + lift
-    top = data.edit_bones.new("mixamorig:HeadTop_End")
-    top.head, top.tail = made["Head"].tail, made["Head"].tail + Vector((0, 0, 0.05))
-    top.parent = made["Head"]
+        edit.head = local @ (heads[name] + lift + TARGET_OFFSET)
+        edit.tail = local @ (tails[name] + lift + TARGET_OFFSET)
+    for bone in ours.data.bones:
+        if bone.parent is not None:
+            data.edit_bones["mixamorig:" + bone.name].parent = data.edit_bones[
+                "mixamorig:" + bone.parent.name]
+    data.edit_bones["mixamorig:HeadTop_End"].parent = data.edit_bones["mixamorig:Head"]
     bpy.ops.object.mode_set(mode="OBJECT")
     return target
 

@@ -14,7 +14,7 @@ from . import scene as our_scene
 from .jobs import one_line
 from .motion_keys import C
 
-AHEAD_SECONDS = 2.0  # the stream runs at most this far ahead of the playhead
+AHEAD_SECONDS = 1.0  # the stream runs at most this far ahead of the playhead
 TICK = 0.05  # seconds between timer calls
 
 
