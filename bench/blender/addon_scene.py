@@ -44,7 +44,8 @@ def main() -> None:
     result["generate_seconds"] = time.perf_counter() - started
     ours = bpy.data.objects["MOGO"]
     first = ours.animation_data.action
-    bpy.ops.mogo.generate()  # a second take: a new action
+    settings.custom_sampling, settings.top_k = True, 5
+    bpy.ops.mogo.generate()  # a second take, with the panel's own sampling: a new action
     result["actions"] = [first.name, ours.animation_data.action.name]
     ours.animation_data.action = first
     result.update(fps=scene.render.fps / scene.render.fps_base, frame_start=scene.frame_start,

@@ -12,9 +12,9 @@ from .jobs import Background, UserError, reported
 _CACHE: dict = {}  # the loaded MotionGenerator and our rig, per Blender session
 
 
-def generator(context):
-    """The runtime's MotionGenerator for the shipped bundle (loaded once) and our rig."""
-    mogo = environment.runtime(context)
+def generator(mogo):
+    """The runtime's MotionGenerator for the shipped bundle (loaded once, on first use: a
+    worker thread may call this) and our rig."""
     if "generator" not in _CACHE:
         from .motion_keys import OurRig
         loaded = mogo.MotionGenerator.load(threads=2)
@@ -22,12 +22,15 @@ def generator(context):
     return _CACHE["generator"], _CACHE["ours"]
 
 
-def sampling(settings, loaded):
-    """The panel's sampling options over the bundle's defaults (its own when not custom)."""
-    if not settings.custom_sampling:
-        return loaded.sampling()
-    return loaded.sampling(temperature=settings.temperature, top_k=settings.top_k,
-                           top_p=settings.top_p, guidance=settings.guidance)
+SAMPLING = ("temperature", "top_k", "top_p", "guidance")
+
+
+def request(settings) -> dict:
+    """The panel's generation settings, read on the UI thread for a worker."""
+    return dict(text=settings.prompt, seed=None if settings.seed < 0 else settings.seed,
+                seconds=settings.seconds or None,
+                sampling={name: getattr(settings, name) for name in SAMPLING}
+                if settings.custom_sampling else {})  # {}: the bundle's defaults
 
 
 class MOGO_PG_bone(bpy.types.PropertyGroup):
@@ -65,30 +68,27 @@ class MOGO_OT_generate(Background, bpy.types.Operator):
     label = "generating motion"
 
     def prepare(self, context):
-        settings = context.scene.mogo
-        if not settings.prompt.strip():
+        if not context.scene.mogo.prompt.strip():
             raise UserError("type a prompt, e.g. 'a person walks forward'")
-        self.loaded, self.ours = generator(context)
-        self.request = dict(text=settings.prompt, seed=None if settings.seed < 0 else settings.seed,
-                            seconds=settings.seconds or None,
-                            sampling=sampling(settings, self.loaded))
+        self.mogo, self.request = environment.runtime(context), request(context.scene.mogo)
 
     def work(self):
+        loaded, ours = generator(self.mogo)
+        options = dict(self.request, sampling=loaded.sampling(**self.request["sampling"]))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            motion = self.loaded.generate(**self.request)
-        return motion, self.ours.world(motion.joints), [str(w.message) for w in caught]
+            motion = loaded.generate(**options)
+        return motion, ours, ours.world(motion.joints), [str(w.message) for w in caught]
 
     def finish(self, context, result):
         from . import scene as our_scene
         from .motion_keys import C
-        motion, world, notes = result
-        armature = our_scene.our_armature(context, self.ours)
+        motion, ours, world, notes = result
+        armature = our_scene.our_armature(context, ours)
         action = our_scene.new_action(armature, motion.caption)
         frames = our_scene.match_scene(context.scene, motion.fps, len(motion.joints),
                                        context.scene.mogo.match_scene)
-        our_scene.write_pose(action, armature, self.ours, world, motion.joints[:, 0] @ C.T,
-                             frames)
+        our_scene.write_pose(action, armature, ours, world, motion.joints[:, 0] @ C.T, frames)
         action["mogo_seed"], action["mogo_fps"] = motion.seed, motion.fps
         for note in notes:
             self.report({"WARNING"}, f"MOGO: {note}")
@@ -133,7 +133,7 @@ class MOGO_OT_retarget(bpy.types.Operator):
         from . import scene as our_scene
         from .motion_keys import retarget
         settings = context.scene.mogo
-        _, ours = generator(context)
+        _, ours = generator(environment.runtime(context))
         source = bpy.data.objects.get(our_scene.ARMATURE)
         action = source and source.animation_data and source.animation_data.action
         if not action:
@@ -187,9 +187,10 @@ def start_live(context):
     from . import scene as our_scene
     from .live import LiveSession
     settings = context.scene.mogo
-    loaded, ours = generator(context)
-    stream = loaded.stream(settings.prompt, seed=None if settings.seed < 0 else settings.seed,
-                           sampling=sampling(settings, loaded))
+    loaded, ours = generator(environment.runtime(context))
+    options = request(settings)
+    stream = loaded.stream(options["text"], seed=options["seed"],
+                           sampling=loaded.sampling(**options["sampling"]))
     armature = our_scene.our_armature(context, ours)
     action = our_scene.new_action(armature, f"{settings.prompt} (live)")
     frames = our_scene.match_scene(context.scene, loaded.fps, 2, settings.match_scene)
