@@ -62,11 +62,11 @@ def main() -> None:
     result["ours"], result["target"] = _heads(scene, ours), _heads(scene, target)
     result["target_rest"] = {b.name: list(target.matrix_world @ b.head_local)
                              for b in target.data.bones}
+    if request.get("png"):
+        _render(scene, [ours, target], request)
     result["live"] = _live(scene, request.get("live_frames", 20))
     with open(request["result"], "w") as file:
         json.dump(result, file)
-    if request.get("png"):
-        _render(scene, [ours, target], request)
 
 
 def _live(scene, frames: int) -> dict:
@@ -174,7 +174,7 @@ def _render(scene, armatures, request: dict) -> None:
     scene.frame_set(scene.frame_start + request.get("frame", 0))
     bpy.ops.mesh.primitive_plane_add(size=12.0)
     _paint(bpy.context.object, "floor", (0.35, 0.37, 0.4))
-    middle = sum((a.pose.bones[0].head + a.location for a in armatures), Vector()) / 2
+    middle = sum((a.matrix_world @ a.pose.bones[0].head for a in armatures), Vector()) / 2
     target = Vector((middle.x, middle.y, 0.9))
     camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     camera.location = target + Vector((3.4, -5.2, 0.5))
@@ -229,4 +229,5 @@ def _paint(thing, name: str, colour) -> None:
     thing.data.materials.append(material)
 
 
-main()
+if __name__ == "__main__":  # Blender runs --python scripts as __main__
+    main()

@@ -1,12 +1,14 @@
 """The Blender add-on in a real Blender, headless: what it writes against what the runtime says.
 
     python -m mogo.bench.quality.blender_addon [--png docs/blender_retarget.png]
+                                               [--screenshot docs/blender_panel.png]
 
 Builds the add-on zip (`mogo blender-addon`), and has Blender (bench/blender/addon_scene.py)
 install it, Generate a walk and Retarget it onto a Mixamo-named armature of other proportions
 (legs x1.2, arms x0.85 in a 40 degree A-pose, torso x1.1). Prints a markdown table: our
 armature's joints against the runtime's rig (mogo.motion.rig) and against the generated
 joints, and the target's feet, hands and hips against ours scaled by its proportions.
+--screenshot: Blender's window with the panel (bench/blender/addon_screenshot.py, on xvfb-run).
 Blender's Python must be the version of this one: the add-on is pointed at this
 environment's site-packages (a user installs with the add-on's Install button instead).
 """
@@ -31,6 +33,7 @@ from mogo.motion import rig
 from mogo.motion.bvh import NAMINGS
 
 SCRIPT = Path(__file__).resolve().parents[1] / "blender" / "addon_scene.py"
+SCREENSHOT_SCRIPT = SCRIPT.with_name("addon_screenshot.py")
 SCALE = dict(leg=1.2, arm=0.85, torso=1.1)
 A_POSE = 40.0  # degrees the target's arms hang below the T-pose
 # Our joint (Mixamo bone name) -> the chain root its position is measured from, and its scale.
@@ -59,20 +62,11 @@ def run(blender: str, prompt: str = "a person walks forward.", seconds: float = 
         ) -> Figures:
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
-        (folder / "mogo_blender.zip").write_bytes(addon_bytes())
-        (folder / "empty").mkdir()
-        request = dict(zip=str(folder / "mogo_blender.zip"), empty=str(folder / "empty"),
-                       site_packages=sysconfig.get_paths()["purelib"], prompt=prompt,
-                       seconds=seconds, seed=seed, scale=SCALE, a_pose=A_POSE,
-                       result=str(folder / "result.json"), frame=frame, size=list(size),
-                       samples=samples)
+        request = _request(folder, prompt, seconds, seed, frame)
+        request.update(size=list(size), samples=samples)
         if png is not None:
             request["png"] = str(folder / "frame.png")
-        (folder / "request.json").write_text(json.dumps(request))
-        environment = _clean_environment(folder / "scripts")
-        done = subprocess.run([blender, "-b", "--factory-startup", "--python", str(SCRIPT),
-                               "--", str(folder / "request.json")], capture_output=True,
-                              text=True, timeout=timeout, env=environment)
+        done = _blender([blender, "-b"], SCRIPT, folder, request, timeout)
         result_path = folder / "result.json"
         if not result_path.is_file():
             _explain(done)
@@ -81,6 +75,41 @@ def run(blender: str, prompt: str = "a person walks forward.", seconds: float = 
             _small_png(Path(request["png"]), png)
     motion = MotionGenerator.load().generate(prompt, seconds=seconds, seed=seed)
     return _figures(scene, motion)
+
+
+def screenshot(blender: str, png: Path, timeout: float = 300.0) -> None:
+    """Blender's window with the add-on's panel after Generate and Retarget, on a virtual
+    display (xvfb-run)."""
+    xvfb = shutil.which("xvfb-run")
+    if xvfb is None:
+        raise RuntimeError("the screenshot needs a virtual display: apt-get install xvfb")
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        request = dict(_request(folder, "a person walks forward.", 3.0, 0, 30),
+                       png=str(folder / "screen.png"))
+        done = _blender([xvfb, "-a", "-s", "-screen 0 1280x800x24", blender,
+                         "--enable-event-simulate"], SCREENSHOT_SCRIPT, folder, request, timeout)
+        if not Path(request["png"]).is_file():
+            _explain(done)
+        _small_png(Path(request["png"]), png)
+
+
+def _request(folder: Path, prompt: str, seconds: float, seed: int, frame: int) -> dict:
+    """The add-on zip and an empty folder in `folder`, and the request both scripts read."""
+    (folder / "mogo_blender.zip").write_bytes(addon_bytes())
+    (folder / "empty").mkdir()
+    return dict(zip=str(folder / "mogo_blender.zip"), empty=str(folder / "empty"),
+                site_packages=sysconfig.get_paths()["purelib"], prompt=prompt,
+                seconds=seconds, seed=seed, scale=SCALE, a_pose=A_POSE, frame=frame,
+                result=str(folder / "result.json"))
+
+
+def _blender(command: list[str], script: Path, folder: Path, request: dict, timeout: float
+             ) -> subprocess.CompletedProcess:
+    (folder / "request.json").write_text(json.dumps(request))
+    return subprocess.run(command + ["--factory-startup", "--python", str(script), "--",
+                                     str(folder / "request.json")], capture_output=True,
+                          text=True, timeout=timeout, env=_clean_environment(folder / "scripts"))
 
 
 def _clean_environment(scripts: Path) -> dict:
@@ -159,6 +188,8 @@ def table(figures: Figures) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--png", type=Path, help="render a frame of the retargeted walk here")
+    parser.add_argument("--screenshot", type=Path,
+                        help="Blender's window with the panel, on a virtual display, here")
     parser.add_argument("--blender", default=shutil.which("blender"))
     args = parser.parse_args()
     if not args.blender:
@@ -167,6 +198,9 @@ def main() -> None:
     print(table(figures))
     if args.png:
         print(f"wrote {args.png}")
+    if args.screenshot:
+        screenshot(args.blender, args.screenshot)
+        print(f"wrote {args.screenshot}")
 
 
 if __name__ == "__main__":

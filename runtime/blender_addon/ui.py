@@ -230,7 +230,7 @@ class MOGO_PT_panel(bpy.types.Panel):
         running = "live" in _CACHE
         row.operator(MOGO_OT_live.bl_idname, text="Stop" if running else "Start",
                      icon="PAUSE" if running else "PLAY").mode = "STOP" if running else "START"
-        box.prop(settings, "live_prompt")
+        box.prop(settings, "live_prompt", text="")
         box.operator(MOGO_OT_live.bl_idname, text="Switch prompt").mode = "SWITCH"
         box = layout.box()
         box.label(text="Retarget")
