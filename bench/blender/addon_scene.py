@@ -72,18 +72,21 @@ def main() -> None:
 def _live(scene, frames: int) -> dict:
     """Live mode as the timeline would drive it: the playhead follows the keys (headless
     Blender runs no timers, so the add-on's timer function is called here), the prompt
-    switched after `frames` and stopped after twice as many again."""
+    switched after `frames` and stopped `frames` after the switch took effect."""
     from mogo_blender import ui  # the installed add-on's own module
     scene.mogo.prompt, scene.mogo.live_prompt = "a person walks forward.", "a person jogs."
     bpy.ops.mogo.live(mode="START")
     session, started, switched = ui._CACHE["live"], time.monotonic(), False
-    while session.written < 3 * frames and time.monotonic() - started < 120:
+    prompts = session.stream.prompts  # (frame, prompt): the worker appends the switch
+    while time.monotonic() - started < 120:
         time.sleep(0.05)
         scene.frame_current = int(session.start + session.written * session.step)
         session.tick()
         if not switched and session.written >= frames:
             bpy.ops.mogo.live(mode="SWITCH")
             switched = True
+        if len(prompts) == 2 and session.written >= prompts[1][0] + frames:
+            break
     bpy.ops.mogo.live(mode="STOP")
     action = bpy.data.objects["MOGO"].animation_data.action
     points = action.fcurves.find('pose.bones["Hips"].rotation_quaternion', index=0)
