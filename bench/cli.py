@@ -1,5 +1,6 @@
-"""The `mogo` verbs of the measuring side: bench (latency; torch for the step tables) and eval
-(quality; runtime only). mogo.cli adds them through the "mogo.commands" entry point."""
+"""The `mogo` verbs of the measuring side: bench (latency; torch for the step tables), eval
+(quality; runtime only) and real-motion (the VQ on real motion capture; runtime only).
+mogo.cli adds them through the "mogo.commands" entry point."""
 from __future__ import annotations
 
 import argparse
@@ -28,6 +29,12 @@ def _cmd_eval(args: argparse.Namespace) -> None:
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
         print(f"wrote {args.json}")
+
+
+def _cmd_real_motion(args: argparse.Namespace) -> None:
+    from mogo.bench.quality.real_motion import run
+
+    run(args.bundle, Path(args.out), Path(args.cache))
 
 
 def add_commands(commands) -> None:
@@ -73,3 +80,14 @@ def add_commands(commands) -> None:
                             help="clips generated in parallel")
     evaluation.add_argument("--json", help="also write the numbers to this file")
     evaluation.set_defaults(run=_cmd_eval)
+
+    real = commands.add_parser(
+        "real-motion", help="the bundle's VQ on real human motion: pybullet's 20 DeepMimic clips "
+                            "(its wheel fetched by pip into a cache, never installed), MPJPE per "
+                            "clip split into pose and trajectory, GIFs and a contact sheet")
+    real.add_argument("bundle", nargs="?", help="bundle folder (default: the shipped one)")
+    real.add_argument("--out", default="real_motion",
+                      help="folder for the GIFs, contact sheet and table (default real_motion/)")
+    real.add_argument("--cache", default=str(Path.home() / ".cache" / "mogo" / "pybullet"),
+                      help="where the pybullet wheel is kept between runs")
+    real.set_defaults(run=_cmd_real_motion)

@@ -33,9 +33,11 @@ def _cmd_data_show(args: argparse.Namespace) -> None:
 
 def _cmd_data_convert(args: argparse.Namespace) -> None:
     from mogo.export.data.convert import convert_joint_folder
+    from mogo.motion.rigs import read_mapping
 
+    mapping = None if args.map is None else read_mapping(args.map)
     convert_joint_folder(Path(args.joints), Path(args.out), skeleton_name=args.skeleton,
-                         source_fps=args.fps, progress=True)
+                         source_fps=args.fps, progress=True, mapping=mapping)
 
 
 def _cmd_train_vq(args: argparse.Namespace) -> None:
@@ -95,16 +97,23 @@ def add_commands(commands) -> None:
     show.set_defaults(run=_cmd_data_show)
 
     convert = data_commands.add_parser(
-        "convert", help="turn a folder of joint-position .npy files (T x J x 3, metres, Y up) "
-                        "into HumanML3D features")
-    convert.add_argument("--joints", required=True, help="folder of .npy joint positions")
+        "convert", help="turn a folder of clips into HumanML3D features: joint-position .npy "
+                        "files (T x J x 3, metres, Y up), BVH files (any rig with SMPL, Mixamo "
+                        "or CMU joint names, or --map; unit and up axis detected) and DeepMimic "
+                        "motion files")
+    convert.add_argument("--joints", required=True,
+                         help="folder of .npy joint positions, .bvh files and DeepMimic motions")
     convert.add_argument("--out", required=True,
                          help="output folder (HumanML3D layout): new or empty; written whole or "
                               "not at all")
     convert.add_argument("--skeleton", default="humanml3d", choices=["humanml3d", "kit"])
     convert.add_argument("--fps", type=float, default=None,
-                         help="frame rate of the source clips; resampled to the skeleton's "
-                              "(20 for humanml3d, 12.5 for kit) when given")
+                         help="frame rate of the .npy clips; resampled to the skeleton's "
+                              "(20 for humanml3d, 12.5 for kit) when given (BVH and DeepMimic "
+                              "files state theirs and are always resampled)")
+    convert.add_argument("--map", help="JSON file mapping each of our 22 joint names to a BVH "
+                                       "joint name (or [a, b, fraction] for a point between "
+                                       "two), for rigs no built-in naming fits")
     convert.set_defaults(run=_cmd_data_convert)
 
     train = commands.add_parser("train", help="train the models (torch; torchrun for several "

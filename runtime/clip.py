@@ -13,8 +13,9 @@ import numpy as np
 
 from mogo import files
 from mogo.align import Alignment
-from mogo.motion import bvh, glb, render
-from mogo.motion.skeleton import Skeleton
+from mogo.motion import bvh, glb, mocap, render, rigs
+from mogo.motion.features import joints_to_features
+from mogo.motion.skeleton import SMPL_22, Skeleton
 
 
 @dataclass
@@ -27,6 +28,24 @@ class Motion:
     prompts: list[tuple[int, str]] = field(default_factory=list)  # (first frame, text)
     seed: int | None = None
     alignment: Alignment | None = None  # the steps prompt alignment made of the user's text
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike, mapping: str | os.PathLike | None = None
+                  ) -> Motion:
+        """A motion-capture file as a Motion at 20 fps on the 22-joint skeleton, e.g. to go on
+        from with MotionStream.continue_from: a BVH (any rig with SMPL, Mixamo or CMU joint
+        names; unit and up axis detected) or a DeepMimic motion (see mogo.motion.mocap).
+        `mapping`: a JSON file naming the rig's joint for each of ours (mogo.motion.rigs).
+        The clip is put on the floor at the origin, facing +Z, as HumanML3D clips are."""
+        rig = None if mapping is None else rigs.read_mapping(mapping)
+        clip = mocap.read_mocap(path, rig)
+        joints = mocap.resample(clip.joints, clip.fps, SMPL_22.fps)
+        try:
+            features, canonical = joints_to_features(joints, SMPL_22)
+        except ValueError as error:
+            raise ValueError(f"{path}: {error}") from None
+        return cls(features, canonical[:len(features)], SMPL_22.fps,
+                   np.zeros((0, 0), np.int64), SMPL_22, [(0, Path(path).name)])
 
     @property
     def seconds(self) -> float:

@@ -22,7 +22,8 @@ import numpy as np
 from PIL import Image
 
 from mogo import MotionGenerator
-from mogo.motion.bvh import NAMINGS, read_bvh, save_bvh
+from mogo.motion.bvh import NAMINGS, save_bvh
+from mogo.motion.mocap import read_bvh
 
 BLENDER_SCRIPT = Path(__file__).resolve().parents[1] / "blender" / "check_import.py"
 PROMPTS = ("a person walks forward.", "a person jumps up and down.",

@@ -46,6 +46,33 @@ def side_by_side(left: list[Image.Image], right: list[Image.Image]) -> list[Imag
     return frames
 
 
+def write_pair(original: np.ndarray, rebuilt: np.ndarray, left_title: str, right_title: str,
+               fps: float, gif: Path, every: float = SHEET_SECONDS
+               ) -> list[tuple[Image.Image, Image.Image]]:
+    """`gif`: the original (left) beside its reconstruction (right); returns the contact
+    sheet's row for them: a pair of frames every `every` seconds."""
+    left = render_frames(original, left_title, fps)
+    right = render_frames(rebuilt, right_title, fps)
+    frames = side_by_side(left, right)
+    frames[0].save(gif, save_all=True, append_images=frames[1:], duration=1000.0 / fps, loop=0)
+    step = max(1, int(round(every * fps)))
+    return [(left[t], right[t]) for t in range(0, len(frames), step)]
+
+
+def contact_sheet(rows: list[list[tuple[Image.Image, Image.Image]]], path: Path,
+                  size: int = THUMBNAIL) -> None:
+    """A PNG: per clip, its row of originals above its row of reconstructions, frames of
+    `size` pixels."""
+    columns = max(len(row) for row in rows)
+    sheet = Image.new("RGB", (columns * size, 2 * size * len(rows)), "white")
+    for r, row in enumerate(rows):
+        for c, (a, b) in enumerate(row):
+            for k, image in enumerate((a, b)):
+                sheet.paste(image.convert("RGB").resize((size, size)),
+                            (c * size, (2 * r + k) * size))
+    sheet.quantize(64).save(path, optimize=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="HumanML3D-layout folder")
@@ -69,25 +96,13 @@ def main() -> None:
         error = 1000 * np.linalg.norm(rebuilt - original, axis=-1).mean()
         errors.append(error)
         caption = folder.first_caption(clip_id)
-        left = render_frames(original, f"{clip_id} original: {caption}", generator.fps)
-        right = render_frames(rebuilt, f"VQ reconstruction, MPJPE {error:.1f} mm",
-                              generator.fps)
-        frames = side_by_side(left, right)
-        frames[0].save(args.out / f"{clip_id}.gif", save_all=True, append_images=frames[1:],
-                       duration=1000.0 / generator.fps, loop=0)
-        step = int(round(SHEET_SECONDS * generator.fps))
-        rows.append([(left[t], right[t]) for t in range(0, len(frames), step)])
+        rows.append(write_pair(original, rebuilt, f"{clip_id} original: {caption}",
+                               f"VQ reconstruction, MPJPE {error:.1f} mm", generator.fps,
+                               args.out / f"{clip_id}.gif"))
         print(f"{clip_id}: {len(rebuilt)} frames, MPJPE {error:.1f} mm  ({caption})", flush=True)
     if not rows:
         raise SystemExit(f"no test clip of at least {MIN_FRAMES} frames in {args.data}")
-    columns = max(len(row) for row in rows)
-    sheet = Image.new("RGB", (columns * THUMBNAIL, 2 * THUMBNAIL * len(rows)), "white")
-    for r, row in enumerate(rows):
-        for c, (a, b) in enumerate(row):
-            for k, image in enumerate((a, b)):
-                sheet.paste(image.convert("RGB").resize((THUMBNAIL, THUMBNAIL)),
-                            (c * THUMBNAIL, (2 * r + k) * THUMBNAIL))
-    sheet.quantize(64).save(args.out / "contact_sheet.png", optimize=True)
+    contact_sheet(rows, args.out / "contact_sheet.png")
     print(f"mean MPJPE {np.mean(errors):.1f} mm over {len(errors)} clips; wrote {args.out}")
 
 

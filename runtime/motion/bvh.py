@@ -1,4 +1,4 @@
-"""BVH export and import of joint-position clips.
+"""BVH export of joint-position clips (mogo.motion.mocap reads BVH files).
 
 A BVH stores a rest skeleton (offsets) and per-frame local joint rotations, which is what
 Blender, Unity and Unreal retarget from. The file's skeleton is mogo.motion.rig's: one rigid
@@ -16,12 +16,11 @@ triple past X = 90 degrees), so a spin or a somersault interpolates cleanly.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from mogo.motion import rig
+from mogo.motion import rig, rigs
 from mogo.motion.skeleton import SMPL_22, Skeleton
 
 EULER_ORDER = "ZXY"  # channel order in the file: R = Rz @ Rx @ Ry
@@ -30,20 +29,9 @@ UNITS = {"m": 1.0, "cm": 100.0}  # the file's length unit -> its scale from metr
 # Joint names in the file: each SMPL_22 joint named for the bone it moves (Mixamo/Unity), or
 # its SMPL name. The first is the default.
 NAMINGS = {
-    "mixamo": ("Hips", "LeftUpLeg", "RightUpLeg", "Spine", "LeftLeg", "RightLeg", "Spine1",
-               "LeftFoot", "RightFoot", "Spine2", "LeftToeBase", "RightToeBase", "Neck",
-               "LeftShoulder", "RightShoulder", "Head", "LeftArm", "RightArm", "LeftForeArm",
-               "RightForeArm", "LeftHand", "RightHand"),
+    "mixamo": tuple(rigs.RIGS["Mixamo"][name] for name in SMPL_22.joint_names),
     "smpl": SMPL_22.joint_names,
 }
-
-
-@dataclass(frozen=True)
-class BvhClip:
-    """A BVH read back: joint names in file order, positions (T, J, 3) in file units, fps."""
-    names: tuple[str, ...]
-    positions: np.ndarray
-    fps: float
 
 
 def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fps: float,
@@ -87,71 +75,6 @@ def joint_names(naming: str) -> tuple[str, ...]:
     return NAMINGS[naming]
 
 
-def read_bvh(path: str | os.PathLike) -> BvhClip:
-    """Read a BVH (any channel order) and run forward kinematics: joint positions per frame."""
-    path = Path(path)
-    tokens = path.read_text().split()
-    if not tokens or tokens[0] != "HIERARCHY":
-        raise ValueError(f"{path}: not a BVH file (no HIERARCHY)")
-    names, parents, offsets, channels = [], [], [], []
-    stack: list[int] = []
-    i, end_site = 1, False
-    while tokens[i] != "MOTION":
-        word = tokens[i]
-        if word in ("ROOT", "JOINT"):
-            names.append(tokens[i + 1])
-            parents.append(stack[-1] if stack else -1)
-            i += 2
-        elif word == "End":
-            end_site, i = True, i + 2
-        elif word == "{":
-            stack.append(-2 if end_site else len(names) - 1)
-            i += 1
-        elif word == "}":
-            end_site = False
-            stack.pop()
-            i += 1
-        elif word == "OFFSET":
-            if stack[-1] != -2:
-                offsets.append([float(v) for v in tokens[i + 1:i + 4]])
-            i += 4
-        elif word == "CHANNELS":
-            count = int(tokens[i + 1])
-            channels.append(tokens[i + 2:i + 2 + count])
-            i += 2 + count
-        else:
-            raise ValueError(f"{path}: unexpected word {word!r} in the hierarchy")
-    frames = int(tokens[i + 2])
-    frame_time = float(tokens[i + 5])
-    values = np.array(tokens[i + 6:], dtype=np.float64)
-    width = sum(len(c) for c in channels)
-    if values.size != frames * width:
-        raise ValueError(f"{path}: {values.size} motion values, expected {frames} x {width}")
-    values = values.reshape(frames, width)
-
-    positions = np.zeros((frames, len(names), 3))
-    rotations = np.zeros((frames, len(names), 3, 3))
-    column = 0
-    for joint, (parent, joint_channels) in enumerate(zip(parents, channels)):
-        translation = np.tile(np.array(offsets[joint]), (frames, 1))
-        local = np.tile(np.eye(3), (frames, 1, 1))
-        for channel in joint_channels:
-            value = values[:, column]
-            column += 1
-            axis = "XYZ".index(channel[0])
-            if channel.endswith("position"):
-                translation[:, axis] = value
-            else:
-                local = local @ _axis_rotation(axis, np.radians(value))
-        if parent < 0:
-            positions[:, joint], rotations[:, joint] = translation, local
-        else:
-            positions[:, joint] = positions[:, parent] + np.einsum(
-                "tij,tj->ti", rotations[:, parent], translation)
-            rotations[:, joint] = rotations[:, parent] @ local
-    return BvhClip(tuple(names), positions, 1.0 / frame_time)
-
-
 def _write_joint(lines: list[str], skeleton: Skeleton, names: tuple[str, ...], joint: int,
                  offsets: np.ndarray, tips: dict[int, np.ndarray], depth: int,
                  translations: bool) -> None:
@@ -173,15 +96,6 @@ def _write_joint(lines: list[str], skeleton: Skeleton, names: tuple[str, ...], j
         lines += [f"{pad}  End Site", f"{pad}  {{",
                   f"{pad}    OFFSET {tip[0]:.6f} {tip[1]:.6f} {tip[2]:.6f}", f"{pad}  }}"]
     lines.append(f"{pad}}}")
-
-
-def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
-    """Rotation matrices (T, 3, 3) about coordinate axis 0/1/2 by angles (T,) radians."""
-    c, s = np.cos(angle), np.sin(angle)
-    m = np.tile(np.eye(3), (len(angle), 1, 1))
-    a, b = [(1, 2), (2, 0), (0, 1)][axis]
-    m[:, a, a], m[:, a, b], m[:, b, a], m[:, b, b] = c, -s, s, c
-    return m
 
 
 def _continuous(angles: np.ndarray) -> np.ndarray:

@@ -1,10 +1,13 @@
+import json
 import re
 
 import numpy as np
 import pytest
 
 from mogo.cli import main
-from mogo.export.data.convert import read_clip, resample
+from mogo.export.data.convert import read_clip
+from mogo.motion.mocap import resample
+from mogo.motion.bvh import save_bvh
 from mogo.motion.features import features_to_joints
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
@@ -160,3 +163,46 @@ def test_an_out_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
                  str(tmp_path / "file" / "out")]) == 2
     assert capsys.readouterr().err.startswith(f"mogo: error: {tmp_path / 'file' / 'out'}: "
                                               "cannot create it")
+
+
+# -- motion capture: BVH and DeepMimic files (issue 21) ----------------------------------------
+DEEPMIMIC_STANDING = [1 / 30, 0, 0.85, 0] + [1, 0, 0, 0] * 3 + ([1, 0, 0, 0, -0.2] +
+                                                               [1, 0, 0, 0] * 2 + [0.3]) * 2
+
+
+def test_convert_reads_bvh_and_deepmimic_files_and_says_what_it_found(tmp_path, capsys):
+    clips = tmp_path / "mocap"
+    clips.mkdir()
+    joints = travelling_clip(np.random.default_rng(4), frames=121)
+    save_bvh(clips / "walk.bvh", resample(joints, 20.0, 60.0), SMPL_22, 60.0,
+             scale=100, bone_translations=True)
+    (clips / "walk.txt").write_text("a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0\n")
+    frames = [list(DEEPMIMIC_STANDING) for _ in range(31)]
+    for t, frame in enumerate(frames):
+        frame[1] = 0.04 * t  # drifts forward along +X
+    (clips / "stand.txt").write_text(json.dumps({"Loop": "none", "Frames": frames}))
+    out = tmp_path / "out"
+    assert main(["data", "convert", "--joints", str(clips), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"walk.bvh: BVH, (SMPL|Mixamo) naming, centimetres, Y up, 60 fps", printed)
+    assert "stand.txt: DeepMimic humanoid, metres, Y up, 30 fps" in printed
+    assert np.load(out / "new_joints" / "walk.npy").shape == (121, 22, 3)  # back at 20 fps
+    assert np.load(out / "new_joints" / "stand.npy").shape == (21, 22, 3)
+    assert sorted(p.name for p in (out / "texts").iterdir()) == ["walk.txt"]
+
+
+def test_convert_refuses_an_unmappable_bvh_in_one_line(tmp_path, capsys):
+    clips = tmp_path / "mocap"
+    clips.mkdir()
+    (clips / "odd.bvh").write_text("HIERARCHY\nROOT Body\n{\n OFFSET 0 0 0\n CHANNELS 3 Zrotation "
+                                   "Xrotation Yrotation\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n"
+                                   "0 0 0\n")
+    assert main(["data", "convert", "--joints", str(clips), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "odd.bvh: cannot map its skeleton onto the 22 joints" in err
+    (tmp_path / "map.json").write_text('{"pelvis": 1}')
+    assert main(["data", "convert", "--joints", str(clips), "--out", str(tmp_path / "o"),
+                 "--map", str(tmp_path / "map.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mogo: error: ") and "map.json: pelvis: expected a joint name" in err
+    assert not (tmp_path / "o").exists()

@@ -215,3 +215,33 @@ def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, c
                  "--out", str(tmp_path / "new")]) == 2
     assert "with --bundle they are copied" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+def test_a_bundle_of_two_frames_per_token_runs_through_the_generator(tmp_path):
+    """down_factor 2: every token decodes to two frames, in generate, in a stream and in the
+    offline decode of the same tokens alike."""
+    data = make_tiny_humanml3d(tmp_path / "data")
+    common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "2",
+              "--warmup", "0"]
+    assert main(["train", "vq", "--out", str(tmp_path / "vq"), "--down-factor", "2",
+                 "--crop-frames", "40", "--val-clips", "2", *common]) == 0
+    assert main(["train", "t2m", "--vq", str(tmp_path / "vq"), "--out", str(tmp_path / "t2m"),
+                 *common]) == 0
+    assert main(["export", "--vq", str(tmp_path / "vq"), "--t2m", str(tmp_path / "t2m"),
+                 "--out", str(tmp_path / "bundle")]) == 0
+    generator = MotionGenerator.load(tmp_path / "bundle")
+    assert generator.down_factor == 2
+    motion = generator.generate(PROMPT, seconds=1.5, seed=2)
+    assert motion.joints.shape == (30, 22, 3) and len(motion.tokens) == 15
+    stream = generator.stream(PROMPT, seed=2)
+    stream.advance(15)
+    streamed = stream.finish()  # its last frames see right context drawn past the cut
+    assert np.array_equal(streamed.tokens, motion.tokens)
+    np.testing.assert_allclose(streamed.joints, motion.joints, atol=1e-5)
+    lookahead = generator.manifest.vq.decoder.lookahead
+    longer = generator.stream(PROMPT, seed=2)
+    longer.advance(15 + lookahead)
+    context = longer.finish().tokens
+    offline = generator.decode(context, [], frames=30)
+    assert offline.joints.shape == (30, 22, 3)
+    np.testing.assert_allclose(streamed.joints, offline.joints, atol=1e-5)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from mogo.cli import build_parser, main
-from mogo.motion.bvh import NAMINGS, read_bvh
+from mogo.motion.bvh import NAMINGS
+from mogo.motion.mocap import read_bvh
 from mogo.motion.skeleton import SMPL_22
 from mogo.sampling import Sampling
 

@@ -17,7 +17,8 @@ from PIL import Image
 
 from mogo import Motion, files
 from mogo.cli import main
-from mogo.motion.bvh import NAMINGS, read_bvh
+from mogo.motion.bvh import NAMINGS
+from mogo.motion.mocap import read_bvh
 from mogo.motion.skeleton import SMPL_22
 
 from helpers import travelling_clip
