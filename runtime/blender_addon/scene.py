@@ -8,28 +8,38 @@ import numpy as np
 
 from . import motion_keys
 from .motion_keys import BONE_NAMES, OurRig
+from .ui import RIG_KEY
 
 ARMATURE = "MOGO"  # our armature object's name
-RIG_KEY = "mogo_rig"  # custom property on it: the rest skeleton it was built for
 
 
 def our_armature(context, ours: OurRig):
-    """Our armature object, reused when one with our bones at our rest is in the scene, else
-    built: bones named for the segment they move (Mixamo/Unity style), rest = the bundle's
-    T-pose, feet on the floor, facing -Y as Blender's front view expects."""
-    signature = ",".join(f"{v:.4f}" for v in ours.heads.ravel())
-    existing = bpy.data.objects.get(ARMATURE)
-    if existing is not None and existing.type == "ARMATURE" and existing.get(RIG_KEY) == signature:
+    """Our armature object, reused when one built for this rest skeleton exists, else built:
+    bones named for the segment they move (Mixamo/Unity style), rest = the bundle's T-pose,
+    feet on the floor, facing -Y as Blender's front view expects."""
+    existing = find_ours(ours)
+    if existing is not None:
         if existing.name not in context.scene.objects:
             context.scene.collection.objects.link(existing)
         return existing
     data = bpy.data.armatures.new(ARMATURE)
-    armature = bpy.data.objects.new(ARMATURE, data)  # "MOGO.001" beside a different one
+    armature = bpy.data.objects.new(ARMATURE, data)  # "MOGO.001" beside another one
     context.scene.collection.objects.link(armature)
-    armature[RIG_KEY] = signature
+    armature[RIG_KEY] = _signature(ours)
     data.display_type = "STICK"
     _build_bones(context, armature, ours)
     return armature
+
+
+def find_ours(ours: OurRig):
+    """The armature built for this rest skeleton (another bundle's has other bones), if any."""
+    signature = _signature(ours)
+    return next((thing for thing in bpy.data.objects
+                 if thing.type == "ARMATURE" and thing.get(RIG_KEY) == signature), None)
+
+
+def _signature(ours: OurRig) -> str:
+    return ",".join(f"{v:.4f}" for v in ours.heads.ravel())
 
 
 def _build_bones(context, armature, ours: OurRig) -> None:

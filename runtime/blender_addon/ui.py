@@ -10,6 +10,7 @@ from . import environment
 from .jobs import Background, UserError, reported
 
 _CACHE: dict = {}  # the loaded MotionGenerator and our rig, per Blender session
+RIG_KEY = "mogo_rig"  # our armature's custom property: the rest skeleton it was built for
 
 
 def generator(mogo):
@@ -55,7 +56,7 @@ class MOGO_PG_settings(bpy.types.PropertyGroup):
                     "frame); off: keys spread over the scene's own rate")
     target: bpy.props.PointerProperty(
         name="Target", type=bpy.types.Object,
-        poll=lambda self, thing: thing.type == "ARMATURE" and not thing.get("mogo_rig"))
+        poll=lambda self, thing: thing.type == "ARMATURE" and RIG_KEY not in thing)
     mapping: bpy.props.CollectionProperty(type=MOGO_PG_bone)
     mapping_index: bpy.props.IntProperty()
     live_prompt: bpy.props.StringProperty(name="Switch to", default="a person jogs forward")
@@ -134,7 +135,7 @@ class MOGO_OT_retarget(bpy.types.Operator):
         from .motion_keys import retarget
         settings = context.scene.mogo
         _, ours = generator(environment.runtime(context))
-        source = bpy.data.objects.get(our_scene.ARMATURE)
+        source = our_scene.find_ours(ours)
         action = source and source.animation_data and source.animation_data.action
         if not action:
             raise UserError("generate a motion first: the MOGO armature has no action")
