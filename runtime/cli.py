@@ -164,6 +164,13 @@ def _cmd_stream(args: argparse.Namespace) -> None:
         _silence_stdout()
 
 
+def _cmd_blender_addon(args: argparse.Namespace) -> None:
+    from mogo.addon_zip import write_addon
+
+    print(f"wrote {write_addon(args.out, overwrite=args.overwrite)} (Blender: Edit > "
+          "Preferences > Add-ons > Install, then enable 'MOGO motion'; docs/blender.md)")
+
+
 def _cmd_info(args: argparse.Namespace) -> None:
     from mogo.bundle import Bundle
     from mogo.generator import DEFAULT_BUNDLE
@@ -296,6 +303,13 @@ def _add_runtime_commands(commands) -> None:
     stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
     _generation_arguments(stream)
     stream.set_defaults(run=_noting_prompts(_cmd_stream))
+
+    addon = commands.add_parser("blender-addon", help="write the Blender add-on as the zip "
+                                                      "Blender installs")
+    addon.add_argument("--out", default="mogo_blender.zip",
+                       help="the zip to write (default mogo_blender.zip)")
+    addon.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    addon.set_defaults(run=_cmd_blender_addon)
 
     info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
     info.add_argument("bundle", nargs="?", help="bundle folder")

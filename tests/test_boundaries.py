@@ -36,8 +36,16 @@ MAY_IMPORT = {
 }
 
 
+ADDON_DIR = RUNTIME_DIR / "blender_addon"  # package data run by Blender, not a room of mogo
+# The add-on's imports: Blender's modules, numpy, and of mogo its public API and the motion
+# maths (the rig solves the rotations), no second implementation of either.
+ADDON_MAY_IMPORT = {"bpy", "mathutils", "addon_utils", "numpy", "mogo", "mogo.motion.rig",
+                    "mogo.motion.bvh", "mogo.motion.quaternion"}
+
+
 def sources(folder: Path):
-    return sorted(p for p in folder.rglob("*.py") if ".venv" not in p.parts)
+    return sorted(p for p in folder.rglob("*.py")
+                  if ".venv" not in p.parts and not p.is_relative_to(ADDON_DIR))
 
 
 def package_of(path: Path) -> str:
@@ -89,6 +97,25 @@ def test_runtime_imports_only_allowed_packages():
             top = name.split(".")[0]
             assert top in stdlib or top in ALLOWED_THIRD_PARTY | extra or top == "mogo", (
                 f"{path.name} imports {name}")
+
+
+def test_the_blender_addon_uses_the_public_api_and_is_not_imported_by_the_runtime():
+    stdlib = set(sys.stdlib_module_names)
+    for path in sorted(ADDON_DIR.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                continue  # the add-on's own modules
+            if isinstance(node, ast.Import):
+                names = [[a.name] for a in node.names]
+            elif isinstance(node, ast.ImportFrom):  # from mogo.motion import rig: either name
+                names = [[node.module] + [f"{node.module}.{a.name}" for a in node.names]]
+            else:
+                continue
+            for forms in names:
+                assert forms[0].split(".")[0] in stdlib or ADDON_MAY_IMPORT & set(forms), (
+                    f"{path.name} imports {forms[-1]}")
+    for path in sources(ROOT):
+        assert not any(within(n, "mogo.blender_addon") for n in imported_modules(path)), path
 
 
 def test_runtime_loads_no_pickle():

@@ -1,0 +1,43 @@
+"""The Blender add-on in a real Blender, headless (one Blender run); skipped without Blender."""
+import shutil
+
+import pytest
+
+from mogo.bench.quality.blender_addon import PythonMismatch, run, table
+
+BLENDER = shutil.which("blender")
+
+
+@pytest.mark.skipif(BLENDER is None, reason="Blender is not installed")
+def test_the_addon_generates_retargets_and_streams_in_blender(tmp_path):
+    png = tmp_path / "frame.png"
+    try:
+        figures = run(BLENDER, seconds=2.0, png=png, frame=10, size=(64, 40), samples=1,
+                      timeout=300)
+    except PythonMismatch as error:
+        pytest.skip(str(error))
+    scene = figures.scene
+    missing = scene["without_runtime"].strip()  # an operator's ERROR report, one line
+    assert missing.startswith("Error: MOGO: MOGO runtime not found") and "\n" not in missing
+    assert "Preferences > Add-ons > MOGO" in missing
+    assert scene["empty_prompt"].strip() == "Error: MOGO: type a prompt, e.g. 'a person walks " \
+                                            "forward'"
+    # one key per frame, the 24 fps scene set to the motion's 20 and its range
+    assert figures.frames == scene["keys"] == 40 and scene["fps"] == 20.0
+    assert (scene["frame_start"], scene["frame_end"]) == (1, 40)
+    first, second = scene["actions"]  # a second take is a new action, named after the prompt
+    assert first == "a person walks forward." and second.startswith(first) and second != first
+    assert figures.rig_max < 1e-4  # our armature = the runtime's rig
+    assert figures.joints_mean < 0.015  # the rigid-skeleton error (docs/bvh.md)
+    assert scene["mapped"] == 22  # the Mixamo preset through the "mixamorig:" prefix
+    for label, error in figures.follow.items():  # feet, hands, hips: ours x its proportions
+        assert error < 1e-3, label
+    live = scene["live"]
+    assert live["error"] == "" and not live["running"]
+    assert live["action"] == "a person walks forward. (live)"
+    assert live["keys"] == [1.0 + i for i in range(live["written"])]  # kept after Stop
+    (_, walk), (switched, jog) = live["prompts"]
+    assert (walk, jog) == ("a person walks forward.", "a person jogs.")
+    assert 20 <= switched < live["written"]
+    assert png.stat().st_size > 0
+    assert "| frames / keys / scene fps | 40 / 40 / 20 |" in table(figures)
