@@ -19,6 +19,7 @@ import unicodedata
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
+from mogo.align_wordnet import WORDNET_VERBS
 from mogo.align_words import (CAUSATIVES, FILLERS, HEDGES, LEFT_ALONE, NOUNS, NUMBERS, PHRASES,
                               SECONDS, SUBJECTS, VERBS, WORD_SYNONYMS)
 from mogo.motion.skeleton import MAX_SECONDS
@@ -100,7 +101,8 @@ def conjugate(verb: str, form: str) -> str:
 
 _SUBJECT_WORDS = {w for phrase in SUBJECTS + FILLERS for w in phrase.split()}
 _JACKS = (["jumping", "jack"], ["jumping", "jacks"])
-_PRIMITIVE_OF = {verb: primitive for primitive, verbs in VERBS.items() for verb in verbs}
+_PRIMITIVE_OF = {verb: primitive for table in (WORDNET_VERBS, VERBS)  # the hand-written win
+                 for primitive, verbs in table.items() for verb in verbs}
 _BASE_OF = {conjugate(verb, form): verb for verb in _PRIMITIVE_OF for form in ("s", "ing")}
 _BASE_OF.update({verb: verb for verb in _PRIMITIVE_OF})
 
