@@ -10,7 +10,7 @@ the steps it was trained on, played one after another by prompt switching:
                         AlignedStep("a person waves three times.", 3.0)], source="rules")
 
 The rules need nothing but the standard library; `vocabulary` (the words of the bundle's
-tokenizer) lets them replace and report words the model never saw.
+training captions) lets them replace and report words the model never saw.
 """
 from __future__ import annotations
 
@@ -135,7 +135,7 @@ class RuleAligner(PromptAligner):
     """Built-in rules, no network: style, splitting into steps, synonyms and typos onto
     the bundle's vocabulary, numbers, and durations from the corpus's segment lengths.
 
-    vocabulary: the words the bundle's tokenizer knows (MotionGenerator.vocabulary()):
+    vocabulary: the words the model knows (MotionGenerator.vocabulary()):
     synonyms replace only words outside it, and words still outside it are reported. None:
     no word is replaced or reported (typos are still fixed onto the rules' own words)."""
 
