@@ -150,7 +150,8 @@ def add_commands(commands) -> None:
     source = export.add_mutually_exclusive_group(required=True)
     source.add_argument("--t2m", help="the `mogo train t2m` run folder")
     source.add_argument("--bundle", help="instead of --t2m: a bundle whose VQ decoder --vq "
-                                         "(or text side --text) replaces (a decoder fine-tune of that bundle's VQ, "
+                                         "(or text side --text) replaces (a decoder fine-tune "
+                                         "of that bundle's VQ, "
                                          "`mogo train vq --init BUNDLE --tune decoder`); every "
                                          "other file is copied")
     export.add_argument("--out", required=True, help="new bundle folder")

@@ -1,7 +1,9 @@
 """`mogo export --text RUN --bundle OLD --out NEW`: OLD with a pretrained sentence encoder as
 its text side (a `mogo train text` run: all-MiniLM-L6-v2 and the adapter onto OLD's prompt
-space), and the repertoire it reports prompts against. Every other file is copied byte for
-byte; nothing is retrained, so OLD's training runs are not needed.
+space), and the repertoire it reports prompts against. OLD's own text encoder and tokenizer
+stay, renamed (`text.trained`): the runtime reads with them the prompts whose every word they
+know, exactly as the level graphs were trained. Every file is copied byte for byte; nothing
+is retrained, so OLD's training runs are not needed.
 """
 from __future__ import annotations
 
@@ -22,8 +24,10 @@ from mogo.export.models.sentence_encoder import (CAPTIONS, ENCODER, MAX_LENGTH, 
                                                  SentenceEmbedder)
 from mogo.export.onnx.bundle import _new_folder
 from mogo.export.onnx.text_graph import export_sentence_text_graph
-from mogo.manifest import SENTENCE_ENCODER, Manifest, Pretrained, Repertoire, Text, TrainingRun
+from mogo.manifest import (SENTENCE_ENCODER, Manifest, Pretrained, Repertoire, Text,
+                           TrainedEncoder, TrainingRun)
 
+TRAINED, TRAINED_TOKENIZER = "trained_text_encoder.onnx", "trained_tokenizer.json"
 REPERTOIRE_SIZE = 2048  # captions kept (k-means medoids of the training captions' embeddings)
 CHECK_CAPTIONS = 256  # val captions the int8 graph is compared with the fp32 reference on
 
@@ -38,9 +42,9 @@ def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     captions = np.load(run / CAPTIONS)
     _check_targets(old, captions)
     out = _new_folder(out)
-    for name in manifest.files:
-        if name not in (manifest.text.tokenizer, manifest.text.encoder.file):
-            shutil.copy2(old.path(name), out / name)
+    kept = {manifest.text.tokenizer: TRAINED_TOKENIZER, manifest.text.encoder.file: TRAINED}
+    for name in manifest.files:  # the old text side under new names, every other file as it is
+        shutil.copy2(old.path(name), out / kept.get(name, name))
     tokenizer = Tokenizer.from_file(str(run / ENCODER / "tokenizer.json"))
     tokenizer.enable_padding()  # to the longest prompt of a batch (the fixed 128 would cost)
     tokenizer.enable_truncation(MAX_LENGTH)
@@ -54,12 +58,14 @@ def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     pretrained = Pretrained(**provenance, reference_min_cosine=_reference_cosine(
         run / ENCODER, out, [str(t) for t in captions["val_text"][:CHECK_CAPTIONS]]))
     repertoire = _write_repertoire(out, run / ENCODER, captions)
+    trained_encoder = TrainedEncoder(TRAINED_TOKENIZER,
+                                     replace(manifest.text.encoder, file=TRAINED))
     text = Text(tokenizer="tokenizer.json", max_length=MAX_LENGTH, kind=SENTENCE_ENCODER,
-                encoder=graph, pretrained=pretrained, repertoire=repertoire)
+                encoder=graph, pretrained=pretrained, repertoire=repertoire,
+                trained=trained_encoder)
     storage = manifest.fp16_storage
-    if storage is not None:  # the new text graph is int8 as published, not fp16
-        storage = replace(storage, files=tuple(f for f in storage.files if f != graph.file),
-                          prompt_embedding_max_abs_difference=None)
+    if storage is not None:  # the new text graph is int8 as published; the old one is fp16
+        storage = replace(storage, files=tuple(sorted(kept.get(f, f) for f in storage.files)))
     trained = TrainingRun(step=best["step"], recipe=config["recipe"], data=config["data"],
                           best_val_loss=best["best_val_error"])
     return write_manifest(out, replace(manifest, text=text, fp16_storage=storage,
@@ -104,9 +110,7 @@ def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
         np.flatnonzero(group)[medoids(sentences[group], min(REPERTOIRE_SIZE // 2, group.sum()))]
         for group in (single, ~single)]))
     np.save(out / "repertoire.npy", sentences[kept].astype(np.float16))
-    words = sorted({w for t in texts for w in re.findall(r"[a-z]+", str(t).lower())})
-    (out / "repertoire.json").write_text(json.dumps(
-        dict(captions=[str(texts[k]) for k in kept], words=words), indent=0))
+    (out / "repertoire.json").write_text(json.dumps([str(texts[k]) for k in kept], indent=0))
     known = sentences[kept].astype(np.float16).astype(np.float32)
     embedder = SentenceEmbedder(encoder)
     val = nearest_cosine(captions["val_sentence"], known)

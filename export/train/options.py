@@ -1,5 +1,5 @@
-"""What `mogo train vq`, `t2m`, `evaluator` and `text` take: one dataclass per trainer, the one place of
-every option, its default and its help; `mogo train` makes its arguments from it
+"""What `mogo train vq`, `t2m`, `evaluator` and `text` take: one dataclass per trainer, the one
+place of every option, its default and its help; `mogo train` makes its arguments from it
 (`add_arguments`). Torch-free, so `mogo` builds its parser without torch.
 
 Two kinds of field. An `option` is a plain setting with its default (steps, intervals, ...). A
