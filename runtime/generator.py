@@ -119,13 +119,14 @@ class MotionGenerator:
 
     def _encode_one(self, text: str) -> list[np.ndarray]:
         """Every output of the text graph for one prompt (batch of 1), the prompt embedding by
-        the encoder trained with the model where the bundle has it and it knows every word;
-        cached, since a prompt is encoded for its repertoire check and again for its tokens."""
+        the encoder trained with the model where the bundle has it and it reads the whole
+        prompt (every word, nothing cut at its length); cached, since a prompt is encoded for
+        its repertoire check and again for its tokens."""
         outputs = _run_text(self._text, self.tokenizer.encode(text))
         if self._trained is not None:
             tokenizer, graph = self._trained
             encoding = tokenizer.encode(text)
-            if word_reading(text, encoding) == (True, []):
+            if not encoding.overflowing and word_reading(text, encoding) == (True, []):
                 outputs[0] = _run_text(graph, encoding)[0]
         return outputs
 

@@ -114,6 +114,8 @@ def test_prompts_in_the_training_words_are_read_as_in_training(generator, old_ge
     assert (generator.embed(known) == old_generator.embed(known)).all()
     other = ["a woman tiptoes forward.", "🙂"]
     assert not (generator.embed(other) == old_generator.embed(other)).any(axis=1).all()
+    long = ["a person walks forward, " * 13 + "then jumps."]  # past the old encoder's 64
+    assert not (generator.embed(long) == old_generator.embed(long)).all()
     assert generator.vocabulary() == old_generator.vocabulary()  # what alignment aims at
     step = generator.aligner(True).align("a woman plods forward").steps[0]
     assert step.prompt == "a person walks forward."  # WordNet: plod -> walk
