@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 
 from mogo.cli import CliError, require_torch
-from mogo.export.train.options import (EvaluatorTrainOptions, T2MTrainOptions, VQTrainOptions,
-                                       add_arguments, from_arguments)
+from mogo.export.train.options import (EvaluatorTrainOptions, T2MTrainOptions, TextTrainOptions,
+                                       VQTrainOptions, add_arguments, from_arguments)
 
 
 def _cmd_data_synth(args: argparse.Namespace) -> None:
@@ -61,15 +61,31 @@ def _cmd_train_evaluator(args: argparse.Namespace) -> None:
     train_evaluator(from_arguments(args, EvaluatorTrainOptions))
 
 
+def _cmd_train_text(args: argparse.Namespace) -> None:
+    require_torch()
+    from mogo.export.train.train_text import train_text
+
+    train_text(from_arguments(args, TextTrainOptions))
+
+
 def _cmd_export(args: argparse.Namespace) -> None:
     require_torch()
     from mogo.export.onnx.bundle import export_bundle, replace_vq_decoder
 
+    if (args.vq is None) == (args.text is None):
+        raise CliError("give --vq (with --t2m or --bundle) or --text (with --bundle)")
     if args.bundle is not None:
         if args.int8:
             raise CliError("--int8 quantises new level graphs; with --bundle they are copied "
                            "as they are")
-        manifest = replace_vq_decoder(Path(args.vq), Path(args.bundle), Path(args.out))
+        if args.text is not None:
+            from mogo.export.onnx.text_bundle import replace_text_side
+
+            manifest = replace_text_side(Path(args.text), Path(args.bundle), Path(args.out))
+        else:
+            manifest = replace_vq_decoder(Path(args.vq), Path(args.bundle), Path(args.out))
+    elif args.text is not None:
+        raise CliError("--text replaces the text side of a bundle: give it with --bundle")
     else:
         manifest = export_bundle(Path(args.vq), Path(args.t2m), Path(args.out), int8=args.int8)
     note = "" if manifest.int8 is None else f"; int8 level graphs {manifest.int8.describe()}"
@@ -127,17 +143,24 @@ def add_commands(commands) -> None:
              "train the text encoder and RQHC-Transformer on a trained VQ's tokens"),
             ("evaluator", EvaluatorTrainOptions, _cmd_train_evaluator,
              "train the text-motion evaluator for `mogo eval` (contrastive text and motion "
-             "encoders), exported to RUN/evaluator")):
+             "encoders), exported to RUN/evaluator"),
+            ("text", TextTrainOptions, _cmd_train_text,
+             "train the adapter from a pretrained sentence encoder (all-MiniLM-L6-v2) to a "
+             "bundle's prompt space, for `mogo export --text`")):
         command = train_commands.add_parser(name, help=what)
         add_arguments(command, options)
         command.set_defaults(run=run, finish=_leave_torchrun_worker)
 
     export = commands.add_parser("export", help="trained runs -> a bundle folder for the runtime")
-    export.add_argument("--vq", required=True, help="the `mogo train vq` run folder")
+    export.add_argument("--vq", help="the `mogo train vq` run folder")
+    export.add_argument("--text", help="instead of --vq, with --bundle: a `mogo train text` run "
+                                       "(pretrained sentence encoder and adapter) that becomes "
+                                       "the bundle's text side; every other file is copied")
     source = export.add_mutually_exclusive_group(required=True)
     source.add_argument("--t2m", help="the `mogo train t2m` run folder")
     source.add_argument("--bundle", help="instead of --t2m: a bundle whose VQ decoder --vq "
-                                         "replaces (a decoder fine-tune of that bundle's VQ, "
+                                         "(or text side --text) replaces (a decoder fine-tune "
+                                         "of that bundle's VQ, "
                                          "`mogo train vq --init BUNDLE --tune decoder`); every "
                                          "other file is copied")
     export.add_argument("--out", required=True, help="new bundle folder")

@@ -14,11 +14,11 @@ Everything here runs on numpy + onnxruntime + tokenizers + pillow; nothing impor
 The names below are the public API; every other module is the runtime's own business.
 """
 from mogo.align import Alignment
-from mogo.arguments import PromptWarning, UnknownPromptWarning
+from mogo.arguments import PromptWarning, UnfamiliarPromptWarning, UnknownPromptWarning
 from mogo.bundle import BundleError
 from mogo.clip import Motion
 from mogo.generator import DEFAULT_BUNDLE, MotionGenerator, MotionStream
 from mogo.sampling import Sampling
 
 __all__ = ["MotionGenerator", "MotionStream", "Motion", "Sampling", "Alignment", "BundleError",
-           "PromptWarning", "UnknownPromptWarning", "DEFAULT_BUNDLE"]
+           "PromptWarning", "UnfamiliarPromptWarning", "UnknownPromptWarning", "DEFAULT_BUNDLE"]

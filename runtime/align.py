@@ -10,7 +10,7 @@ the steps it was trained on, played one after another by prompt switching:
                         AlignedStep("a person waves three times.", 3.0)], source="rules")
 
 The rules need nothing but the standard library; `vocabulary` (the words of the bundle's
-tokenizer) lets them replace and report words the model never saw.
+training captions) lets them replace and report words the model never saw.
 """
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ import unicodedata
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
+from mogo.align_wordnet import WORDNET_VERBS
 from mogo.align_words import (CAUSATIVES, FILLERS, HEDGES, LEFT_ALONE, NOUNS, NUMBERS, PHRASES,
                               SECONDS, SUBJECTS, VERBS, WORD_SYNONYMS)
 from mogo.motion.skeleton import MAX_SECONDS
@@ -100,7 +101,8 @@ def conjugate(verb: str, form: str) -> str:
 
 _SUBJECT_WORDS = {w for phrase in SUBJECTS + FILLERS for w in phrase.split()}
 _JACKS = (["jumping", "jack"], ["jumping", "jacks"])
-_PRIMITIVE_OF = {verb: primitive for primitive, verbs in VERBS.items() for verb in verbs}
+_PRIMITIVE_OF = {verb: primitive for table in (WORDNET_VERBS, VERBS)  # the hand-written win
+                 for primitive, verbs in table.items() for verb in verbs}
 _BASE_OF = {conjugate(verb, form): verb for verb in _PRIMITIVE_OF for form in ("s", "ing")}
 _BASE_OF.update({verb: verb for verb in _PRIMITIVE_OF})
 
@@ -133,7 +135,7 @@ class RuleAligner(PromptAligner):
     """Built-in rules, no network: style, splitting into steps, synonyms and typos onto
     the bundle's vocabulary, numbers, and durations from the corpus's segment lengths.
 
-    vocabulary: the words the bundle's tokenizer knows (MotionGenerator.vocabulary()):
+    vocabulary: the words the model knows (MotionGenerator.vocabulary()):
     synonyms replace only words outside it, and words still outside it are reported. None:
     no word is replaced or reported (typos are still fixed onto the rules' own words)."""
 

@@ -21,6 +21,13 @@ class PromptWarning(UserWarning):
     encoder's length. The motion follows the rest; the `mogo` command prints a `note:` line."""
 
 
+class UnfamiliarPromptWarning(PromptWarning):
+    """A prompt far from everything the model was trained on (a bundle with a sentence
+    encoder reads any words, but knows only its training actions): the message gives the
+    score and the nearest captions it knows; MotionGenerator.known(prompt) gives them as
+    values. The `mogo` command prints it as a note, and refuses it with --strict."""
+
+
 class UnknownPromptWarning(PromptWarning):
     """A prompt with no word the model knows: it makes one generic motion for it. A warning,
     not an error, in the API (measurements feed such prompts on purpose; make it one with
@@ -35,15 +42,29 @@ def checked_prompt(text: object, name: str = "text") -> str:
     return text.strip()
 
 
-def read_prompt(text: object, tokenizer: Tokenizer, max_length: int, vocabulary_size: int,
-                name: str = "text") -> str:
+def read_prompt(text: object, tokenizer: Tokenizer, max_length: int,
+                vocabulary_size: int | None, name: str = "text") -> str:
     """A prompt checked: text and not empty; a prompt with no word the model knows, words it
     does not know and tokens past the text encoder's `max_length` (counted by the untruncated
     `tokenizer`) are told by a PromptWarning, for the caller's line. A word is known when it is
     one token of the vocabulary: others become [UNK] or are spelled out in single letters
-    (w ##a ##l ##k ##e ##d), and their meaning is lost."""
+    (w ##a ##l ##k ##e ##d), and their meaning is lost. vocabulary_size None: a pretrained
+    encoder, whose word pieces carry meaning, so only the length is told."""
     text = checked_prompt(text, name)
     encoding = tokenizer.encode(text)
+    if vocabulary_size is not None:
+        _tell_unknown_words(text, encoding, vocabulary_size)
+    if len(encoding.ids) > max_length:
+        read = text[:encoding.offsets[max_length - 1][1]].split()[-5:]  # its last words
+        warnings.warn(f"the prompt is {len(encoding.ids)} tokens long and the model reads only "
+                      f"{max_length}: everything after {short(' '.join(read))} is ignored "
+                      "(play the parts one after another instead)", PromptWarning, stacklevel=4)
+    return text
+
+
+def word_reading(text: str, encoding) -> tuple[bool, list[str]]:
+    """(whether a word of `text` is one token of the vocabulary, the words that are not: [UNK]
+    or spelled out in pieces), from its `encoding` by a bundle's own WordPiece tokenizer."""
     words: dict[int, list[int]] = {}  # word -> its tokens' indices ([CLS] has no word)
     for index, word in enumerate(encoding.word_ids):
         if word is not None:
@@ -56,24 +77,23 @@ def read_prompt(text: object, tokenizer: Tokenizer, max_length: int, vocabulary_
         elif spelled := text[encoding.offsets[indices[0]][0]:
                              encoding.offsets[indices[-1]][1]].strip(string.punctuation):
             unknown.append(spelled)
-    unknown = list(dict.fromkeys(unknown))
+    return known, list(dict.fromkeys(unknown))
+
+
+def _tell_unknown_words(text: str, encoding, vocabulary_size: int) -> None:
+    """A trained-with-the-model encoder's words: none known, or some unknown (see read_prompt)."""
+    known, unknown = word_reading(text, encoding)
     if not known:
         warnings.warn(f"the model knows no word of the prompt {short(text)}, so its motion "
                       f"would be a generic one: it knows the {vocabulary_size} words of its "
                       "training captions, such as 'a person walks forward' (align=True, or "
                       "--align rules, maps some other words onto them)", UnknownPromptWarning,
-                      stacklevel=4)
+                      stacklevel=5)
     elif unknown:
         listed = ", ".join(map(repr, unknown[:8])) + (f" and {len(unknown) - 8} more"
                                                       if len(unknown) > 8 else "")
         warnings.warn(f"the model does not know {listed}: their meaning is lost",
-                      PromptWarning, stacklevel=4)
-    if len(encoding.ids) > max_length:
-        read = text[:encoding.offsets[max_length - 1][1]].split()[-5:]  # its last words
-        warnings.warn(f"the prompt is {len(encoding.ids)} tokens long and the model reads only "
-                      f"{max_length}: everything after {short(' '.join(read))} is ignored "
-                      "(play the parts one after another instead)", PromptWarning, stacklevel=4)
-    return text
+                      PromptWarning, stacklevel=5)
 
 
 def checked_seconds(seconds: object, minimum: float, fps: float, maximum: float) -> float:

@@ -17,7 +17,8 @@ from dataclasses import fields
 from importlib.metadata import PackageNotFoundError, entry_points, version
 from pathlib import Path
 
-from mogo.arguments import PromptWarning, UnknownPromptWarning, plural
+from mogo.arguments import (PromptWarning, UnfamiliarPromptWarning, UnknownPromptWarning,
+                            plural)
 from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
@@ -192,6 +193,16 @@ def _cmd_info(args: argparse.Namespace) -> None:
         f"{decoder.left_context} back / {decoder.lookahead} ahead (tokens)",
         "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),
     ]
+    if text.pretrained is not None:
+        lines.append(f"encoder     {text.pretrained.name} ({text.pretrained.license}), int8 "
+                     f"graph vs fp32 reference: cosine >= {text.pretrained.reference_min_cosine}"
+                     + ("; prompts in the training words: the encoder trained with the model"
+                        if text.trained else ""))
+    if text.repertoire is not None:
+        r = text.repertoire
+        lines.append(f"repertoire  similarity threshold {r.threshold:.2f}: accepts "
+                     f"{r.held_out_accepted:.0%} of held-out captions, refuses "
+                     f"{r.outside_refused:.0%} of outside prompts")
     if m.int8 is not None:
         lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
     for part, run in m.training.items():
@@ -217,8 +228,9 @@ def _built_path(path: object) -> str:
 
 def _noting_prompts(command: Callable[[argparse.Namespace], None]):
     """`command` with a PromptWarning (words the model does not know, a prompt cut at the text
-    encoder's length) as a `note:` line on stderr, stdout staying the output; a prompt with no
-    known word refused, since its motion would be a generic one."""
+    encoder's length, far from the model's repertoire) as a `note:` line on stderr, stdout
+    staying the output; a prompt with no known word refused, since its motion would be a
+    generic one, and with --strict one far from the repertoire too."""
     @functools.wraps(command)
     def run(args: argparse.Namespace) -> None:
         with warnings.catch_warnings():
@@ -226,7 +238,8 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
             show = warnings.showwarning
 
             def note(message, category, *where, **options):
-                if issubclass(category, UnknownPromptWarning):
+                if issubclass(category, UnknownPromptWarning) or (
+                        args.strict and issubclass(category, UnfamiliarPromptWarning)):
                     raise CliError(str(message))
                 if issubclass(category, PromptWarning):
                     print(f"note: {message}", file=sys.stderr)
@@ -247,6 +260,9 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
     for option in fields(Sampling):
         command.add_argument("--" + option.name.replace("_", "-"), type=type(option.default),
                              help=f"{option.metadata['help']} (default: the bundle's)")
+    command.add_argument("--strict", action="store_true",
+                         help="refuse a prompt far from what the model was trained on (bundles "
+                              "with a repertoire; `mogo info` shows its threshold)")
     command.add_argument("--threads", type=int,
                          help="cores to use; the same motion for any count (default: 2 where "
                               "there are 2 or more, the fastest measured)")

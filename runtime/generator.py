@@ -15,8 +15,10 @@ from the features with the root carried across chunks (mogo.motion.features.Join
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
+import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
@@ -25,13 +27,14 @@ from tokenizers import Tokenizer
 
 from mogo._session import graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
-from mogo.arguments import (checked_bool, checked_int, checked_prompt, checked_schedule,
-                            checked_seconds, plural, read_prompt)
+from mogo.arguments import (UnfamiliarPromptWarning, checked_bool, checked_int, checked_prompt,
+                            checked_schedule, checked_seconds, plural, read_prompt, word_reading)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import Graph
 from mogo.motion.features import JointStream
 from mogo.motion.feet import FootPlanter, planted
+from mogo.repertoire import Familiarity, KnownCaptions
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StreamingDecoder
 from mogo.token_generator import TokenGenerator, TokenStream
@@ -39,6 +42,7 @@ from mogo.token_generator import TokenGenerator, TokenStream
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
+ENCODED_PROMPTS = 256  # prompts whose text-graph outputs are kept
 STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
 
 
@@ -61,6 +65,11 @@ class MotionGenerator:
         self._counter = Tokenizer.from_str(self.tokenizer.to_str())  # sees what is cut
         self._counter.no_truncation()
         self._text = _Graph(bundle, manifest.text.encoder, threads)
+        repertoire, trained = manifest.text.repertoire, manifest.text.trained
+        self.repertoire = None if repertoire is None else KnownCaptions(bundle, repertoire)
+        self._trained = None if trained is None else (
+            _tokenizer(bundle.path(trained.tokenizer)), _Graph(bundle, trained.encoder, threads))
+        self._encoded = functools.lru_cache(ENCODED_PROMPTS)(self._encode_one)
         levels = manifest.t2m.levels
         self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
                                      manifest.end_token, intra_op_threads=1,
@@ -88,14 +97,39 @@ class MotionGenerator:
         if isinstance(texts, str):  # not one embedding per character
             raise TypeError("texts must be a list of prompts, got one str")
         texts = [checked_prompt(t, f"texts[{k}]") for k, t in enumerate(texts)]
-        encodings = self.tokenizer.encode_batch(texts)
-        ids = np.array([e.ids for e in encodings], np.int64)
-        mask = np.array([e.attention_mask for e in encodings], np.int64)
-        return self._text.run(ids, mask)
+        if not texts:
+            raise ValueError("no prompt given")
+        return np.concatenate([self._encoded(text)[0] for text in texts])
 
     def vocabulary(self) -> set[str]:
-        """The whole words the bundle's tokenizer knows (what prompt alignment aims at)."""
-        return {w for w in self.tokenizer.get_vocab() if w.isalpha()}
+        """The whole words of the tokenizer the model was trained with (what prompt alignment
+        aims at)."""
+        tokenizer = self.tokenizer if self._trained is None else self._trained[0]
+        return {w for w in tokenizer.get_vocab() if w.isalpha()}
+
+    def known(self, prompt: str) -> Familiarity | None:
+        """How close `prompt` is to what the model was trained on (mogo.repertoire): the
+        score, the threshold and the nearest training captions; None for a bundle without a
+        repertoire (a text encoder trained with the model: see its PromptWarning instead)."""
+        if self.repertoire is None:
+            return None
+        return self._familiarity(checked_prompt(prompt, "prompt"))
+
+    def _familiarity(self, text: str) -> Familiarity:
+        return self.repertoire.familiarity(self._encoded(text)[1][0])
+
+    def _encode_one(self, text: str) -> list[np.ndarray]:
+        """Every output of the text graph for one prompt (batch of 1), the prompt embedding by
+        the encoder trained with the model where the bundle has it and it reads the whole
+        prompt (every word, nothing cut at its length); cached, since a prompt is encoded for
+        its repertoire check and again for its tokens."""
+        outputs = _run_text(self._text, self.tokenizer.encode(text))
+        if self._trained is not None:
+            tokenizer, graph = self._trained
+            encoding = tokenizer.encode(text)
+            if not encoding.overflowing and word_reading(text, encoding) == (True, []):
+                outputs[0] = _run_text(graph, encoding)[0]
+        return outputs
 
     def aligner(self, align: bool | PromptAligner) -> PromptAligner | None:
         """align=True: the rules on this bundle's vocabulary; an aligner: itself."""
@@ -266,8 +300,12 @@ class MotionGenerator:
 
     def _prompt(self, text: object, name: str = "text") -> str:
         """A prompt checked where it enters the API (see mogo.arguments.read_prompt)."""
-        return read_prompt(text, self._counter, self.manifest.text.max_length,
-                           len(self.vocabulary()), name)
+        sentence_encoder = self.manifest.text.sentence_encoder
+        text = read_prompt(text, self._counter, self.manifest.text.max_length,
+                           None if sentence_encoder else len(self.vocabulary()), name)
+        if self.repertoire is not None and not (familiarity := self._familiarity(text)).familiar:
+            warnings.warn(familiarity.describe(), UnfamiliarPromptWarning, stacklevel=3)
+        return text
 
 
 class MotionStream:
@@ -393,10 +431,17 @@ class _Graph:
 
     def __init__(self, bundle: Bundle, graph: Graph, threads: int):
         self.session = graph_session(bundle.path(graph.file), graph, threads)
-        self.inputs, self.output = list(graph.inputs), graph.outputs[0]
+        self.inputs, self.outputs = list(graph.inputs), list(graph.outputs)
+        self.output = self.outputs[0]
 
     def run(self, *arrays: np.ndarray) -> np.ndarray:
         return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]
+
+
+def _run_text(graph: _Graph, encoding) -> list[np.ndarray]:
+    """Every output of a text graph for one encoded prompt."""
+    ids, mask = (np.array([v], np.int64) for v in (encoding.ids, encoding.attention_mask))
+    return graph.session.run(graph.outputs, dict(zip(graph.inputs, (ids, mask))))
 
 
 def _tokenizer(path: Path) -> Tokenizer:

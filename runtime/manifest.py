@@ -120,12 +120,59 @@ class MotionFormat:
 
 
 @dataclass(frozen=True)
+class Pretrained:
+    """A text encoder the project did not train: where it comes from, under which licence, and
+    how far the graph that ships is from its fp32 reference (the lowest cosine of sentence
+    embeddings on the check captions)."""
+    name: str
+    license: str
+    packages: dict[str, str]  # the registry files it came from -> sha256
+    files: dict[str, str]  # the files in them that were used -> sha256
+    reference_min_cosine: float
+
+
+@dataclass(frozen=True)
+class Repertoire:
+    """What the model was trained on, as unit sentence embeddings (the encoder graph's second
+    output) of its training captions: a prompt whose nearest caption has a cosine below
+    `threshold` is far from everything the model knows. The threshold's error rates, measured
+    when it was set: the share of held-out captions it accepts, of outside prompts it refuses."""
+    embeddings: str  # .npy (N, dim) float16
+    captions: str  # .json: the N captions, in order
+    threshold: float
+    held_out_accepted: float
+    outside_refused: float
+
+
+@dataclass(frozen=True)
+class TrainedEncoder:
+    """The text encoder the level graphs were trained with, kept beside a pretrained one: a
+    prompt all of whose words its tokenizer knows is read by it, exactly as in training."""
+    tokenizer: str
+    encoder: Graph
+
+
+@dataclass(frozen=True)
 class Text:
-    """Prompt -> tokenizer (truncating at max_length) -> encoder graph -> prompt embedding."""
+    """Prompt -> tokenizer (truncating at max_length) -> encoder graph -> prompt embedding.
+    kind "SentenceEncoder": a pretrained encoder (`pretrained`) and an adapter in one graph,
+    whose second output is the sentence embedding the `repertoire` is compared in, and
+    optionally the encoder trained with the model (`trained`) for the prompts it reads whole;
+    any other kind is a text encoder trained with the model, and nothing else."""
     tokenizer: str
     max_length: int
     kind: str  # the text encoder's class
     encoder: Graph
+    pretrained: Pretrained | None = None
+    repertoire: Repertoire | None = None
+    trained: TrainedEncoder | None = None
+
+    @property
+    def sentence_encoder(self) -> bool:
+        return self.kind == SENTENCE_ENCODER
+
+
+SENTENCE_ENCODER = "SentenceEncoder"
 
 
 @dataclass(frozen=True)
@@ -242,12 +289,17 @@ class Manifest:
         return self.motion.skeleton.skeleton(self.fps)
 
     def graphs(self) -> list[Graph]:
-        return [self.text.encoder, *self.t2m.levels, self.vq.encoder, self.vq.decoder]
+        trained = () if self.text.trained is None else (self.text.trained.encoder,)
+        return [self.text.encoder, *trained, *self.t2m.levels, self.vq.encoder, self.vq.decoder]
 
     def referenced_files(self) -> set[str]:
         """Every file the manifest names outside `files`."""
-        norm = self.motion.normalization
-        return {norm.mean, norm.std, self.text.tokenizer, *(g.file for g in self.graphs())}
+        norm, repertoire = self.motion.normalization, self.text.repertoire
+        extra = () if repertoire is None else (repertoire.embeddings, repertoire.captions)
+        if self.text.trained is not None:
+            extra += (self.text.trained.tokenizer,)
+        return {norm.mean, norm.std, self.text.tokenizer, *extra,
+                *(g.file for g in self.graphs())}
 
     @classmethod
     def from_json(cls, data: object, source: str = MANIFEST) -> Manifest:
@@ -296,6 +348,7 @@ class Manifest:
             raise KeyProblem("t2m.levels", f"{self.t2m.num_levels} graphs for "
                               f"{self.vq.levels} VQ levels (vq.config.levels)")
         _check_ranges(self)
+        _check_text(self.text)
         _check_skeleton(self.motion.skeleton)
         skeleton = self.skeleton()
         expected = MotionFormat.of(skeleton, self.motion.normalization).features
@@ -326,6 +379,18 @@ def _check_ranges(manifest: Manifest) -> None:
     for path, value in at_least_zero.items():
         if value < 0:
             raise KeyProblem(path, f"{value!r}, must be >= 0")
+
+
+def _check_text(text: Text) -> None:
+    if not text.sentence_encoder:
+        return
+    if text.repertoire is None or text.pretrained is None:
+        raise KeyProblem("text", f"a {SENTENCE_ENCODER} needs its pretrained and repertoire")
+    if len(text.encoder.outputs) != 2:
+        raise KeyProblem("text.encoder.outputs", "a sentence encoder graph has two: the prompt "
+                         "embedding and the sentence embedding")
+    if not -1.0 <= text.repertoire.threshold <= 1.0:
+        raise KeyProblem("text.repertoire.threshold", "a cosine: between -1 and 1")
 
 
 def _check_skeleton(spec: SkeletonSpec) -> None:

@@ -2,6 +2,7 @@
 records and the two-process runner. Importable as `helpers` from any test folder."""
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -103,3 +104,25 @@ def travelling_clip(rng, skeleton=SMPL_22, frames=120, turn_degrees=180.0, backw
     noise = rng.normal(scale=jitter, size=(frames, skeleton.num_joints, 3))
     body = rest_pose(skeleton)[None] + noise
     return qrot(qyaw(facing)[:, None], body) + root[:, None]
+
+
+OLD_TEXT_SIDE = os.path.join(os.path.dirname(__file__), "runtime", "old_text_side")
+
+
+def bundle_with_old_text_side(folder) -> str:
+    """The shipped bundle as it was before its sentence encoder: the same level and VQ graphs
+    with the text encoder trained with them (its 254-word tokenizer; the shipped bundle keeps
+    both as trained_*) and that bundle's own manifest (tests/runtime/old_text_side), for the
+    runtime's path of such bundles."""
+    from mogo.generator import DEFAULT_BUNDLE
+    from mogo.manifest import Manifest
+
+    with open(os.path.join(OLD_TEXT_SIDE, "manifest.json")) as file:
+        old = Manifest.from_json(json.load(file))
+    os.makedirs(folder, exist_ok=True)
+    for name in old.files:
+        source = "trained_" + name if name in ("text_encoder.onnx", "tokenizer.json") else name
+        shutil.copy2(os.path.join(DEFAULT_BUNDLE, source), os.path.join(folder, name))
+    shutil.copy2(os.path.join(OLD_TEXT_SIDE, "manifest.json"),
+                 os.path.join(folder, "manifest.json"))
+    return str(folder)

