@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 from PIL import Image, ImageDraw
 
 WIDTH, HEIGHT = 760, 460
@@ -35,7 +36,7 @@ def log_line_chart(path: Path, title: str, x_label: str, y_label: str,
         return LEFT + fx * plot_w, TOP + (1 - fy) * plot_h
 
     ticks = ((lambda r: [10**d for d in range(r[0], r[1] + 1)]) if log
-             else (lambda r: [r[0] + (r[1] - r[0]) * k / 5 for k in range(6)]))
+             else (lambda r: list(np.arange(r[0], r[1] + r[2] / 2, r[2]))))
     x_low, y_low = (10**x_range[0], 10**y_range[0]) if log else (x_range[0], y_range[0])
     for tick in ticks(x_range):
         px, _ = to_pixel(tick, y_low)
@@ -71,9 +72,15 @@ def _decades(low: float, high: float) -> tuple[int, int]:
     return first, max(last, first + 1)
 
 
-def _linear(low: float, high: float) -> tuple[float, float]:
-    """From 0 (or below, for negative values) to just above the highest value."""
-    return min(0.0, low), max(high, min(0.0, low) + 1e-9)
+def _linear(low: float, high: float) -> tuple[float, float, float]:
+    """From 0 (or below, for negative values) to the highest value rounded up to a tick, and
+    the tick spacing: a power of ten, or a fifth of one where that gives too few ticks."""
+    low = min(0.0, low)
+    span = max(high - low, 1e-9)
+    unit = 10 ** math.floor(math.log10(span))
+    if span / unit < 3:
+        unit /= 5
+    return math.floor(low / unit) * unit, math.ceil(high / unit) * unit, unit
 
 
 def _label(value: float) -> str:

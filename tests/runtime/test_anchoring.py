@@ -5,8 +5,8 @@ settling into the hold."""
 import numpy as np
 import pytest
 
-from mogo import MotionGenerator
-from mogo.anchoring import Anchoring, settles
+from mogo import Anchoring, MotionGenerator
+from mogo.anchoring import settles
 
 SMALL = Anchoring(span=20, keep=5, max_one_off=60)
 
