@@ -1,12 +1,12 @@
 """The `mogo` verbs of the measuring side: bench (latency; torch for the step tables), eval
-(quality; runtime only) and real-motion (the VQ on real motion capture; runtime only).
-mogo.cli adds them through the "mogo.commands" entry point."""
+(quality; runtime only), real-motion (the VQ on real motion capture; runtime only) and
+long-streams (runtime only). mogo.cli adds them through the "mogo.commands" entry point."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from mogo.cli import require_torch
+from mogo.cli import CliError, require_torch
 
 
 def _cmd_bench(args: argparse.Namespace) -> None:
@@ -46,6 +46,14 @@ def _cmd_real_motion(args: argparse.Namespace) -> None:
     run(args.bundle, Path(args.out), Path(args.cache))
 
 
+def _cmd_long_streams(args: argparse.Namespace) -> None:
+    from mogo.bench.long_streams import MODES, main
+
+    if not set(args.modes) <= set(MODES):
+        raise CliError(f"--modes: choose from {', '.join(MODES)}, got {' '.join(args.modes)}")
+    main(args)
+
+
 def add_commands(commands) -> None:
     """Adds bench and eval to the `mogo` parser's subcommands."""
     bench = commands.add_parser(
@@ -78,6 +86,26 @@ def add_commands(commands) -> None:
     serve.add_argument("--out", default="bench_out",
                        help="folder for serve_bench.json and serve_bench.png (default bench_out/)")
     serve.set_defaults(run=_cmd_bench_serve)
+
+    streams = commands.add_parser(
+        "long-streams", help="do long streams keep doing what they were asked? every action of "
+                             "the repertoire, re-anchoring off and on (no torch)")
+    streams.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
+    streams.add_argument("--out", default="bench_out", help="folder for long_streams.md, .json "
+                                                           "and .png (default bench_out/)")
+    streams.add_argument("--minutes", type=float, default=10.0, help="length of each stream")
+    streams.add_argument("--seeds", type=int, default=2, help="streams per action and mode")
+    streams.add_argument("--switches", type=int, default=30,
+                         help="prompt switches per seed and mode (one every 10 s)")
+    streams.add_argument("--modes", nargs="+", default=["off", "on"],
+                         help="re-anchoring off (before) and/or on (default both)")
+    streams.add_argument("--jobs", type=int, default=2, help="streams run in parallel")
+    streams.add_argument("--tables-from", nargs="+", metavar="JSON",
+                         help="no streams: the tables and plot of saved runs "
+                              "(long_streams.json), merged")
+    streams.add_argument("--quick", action="store_true",
+                         help="a smoke run: two actions, 20-s streams, one seed, one switch")
+    streams.set_defaults(run=_cmd_long_streams)
 
     evaluation = commands.add_parser(
         "eval", help="a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "

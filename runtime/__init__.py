@@ -6,7 +6,7 @@
     motion = generator.generate("a person walks forward", seconds=4, seed=0)
     motion.save_bvh("walk.bvh")
 
-    stream = generator.stream("a person jogs forward", seed=1)   # endless, constant memory
+    stream = generator.stream("a person jogs forward", seed=1)   # endless, keeps jogging
     for frame in stream.frames(200):                     # (22, 3) joints, metres, Y up
         ...
 
@@ -14,6 +14,7 @@ Everything here runs on numpy + onnxruntime + tokenizers + pillow; nothing impor
 The names below are the public API; every other module is the runtime's own business.
 """
 from mogo.align import Alignment
+from mogo.anchoring import Anchoring
 from mogo.arguments import PromptWarning, UnfamiliarPromptWarning, UnknownPromptWarning
 from mogo.bundle import BundleError
 from mogo.clip import Motion
@@ -21,4 +22,5 @@ from mogo.generator import DEFAULT_BUNDLE, MotionGenerator, MotionStream
 from mogo.sampling import Sampling
 
 __all__ = ["MotionGenerator", "MotionStream", "Motion", "Sampling", "Alignment", "BundleError",
-           "PromptWarning", "UnfamiliarPromptWarning", "UnknownPromptWarning", "DEFAULT_BUNDLE"]
+           "PromptWarning", "UnfamiliarPromptWarning", "UnknownPromptWarning", "DEFAULT_BUNDLE",
+           "Anchoring"]

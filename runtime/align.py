@@ -306,17 +306,23 @@ class RuleAligner(PromptAligner):
         if stated and _count(stated.group(1)):
             seconds = float(_count(stated.group(1)))
         else:
-            primitive = next((_PRIMITIVE_OF[_BASE_OF[w]] for w in phrase if w in _BASE_OF
-                              and _PRIMITIVE_OF[_BASE_OF[w]] is not None), None)
-            if "jumping" in phrase and ("jacks" in phrase or "jack" in phrase):
-                primitive = "jumping_jacks"
-            primitive = primitive or next((NOUNS[w] for w in phrase if w in NOUNS), None)
+            primitive = primitive_of(phrase)
             estimate = SECONDS[primitive]
             if isinstance(estimate, tuple):
                 base, per_repetition = estimate
                 estimate = base + per_repetition * _repetitions(phrase)
             seconds = estimate
         return round(min(max(seconds, MIN_STEP_SECONDS), self.max_step_seconds), 2)
+
+
+def primitive_of(words: list[str]) -> str | None:
+    """The primitive plain words ask for: their first action verb's, else an action noun's
+    ("does three squats"); None when they name none."""
+    primitive = next((_PRIMITIVE_OF[_BASE_OF[w]] for w in words if w in _BASE_OF
+                      and _PRIMITIVE_OF[_BASE_OF[w]] is not None), None)
+    if "jumping" in words and ("jacks" in words or "jack" in words):
+        primitive = "jumping_jacks"
+    return primitive or next((NOUNS[w] for w in words if w in NOUNS), None)
 
 
 def _count(word: str) -> int | None:

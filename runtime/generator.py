@@ -27,6 +27,7 @@ from tokenizers import Tokenizer
 
 from mogo._session import graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
+from mogo.anchoring import Anchor, Anchoring
 from mogo.arguments import (UnfamiliarPromptWarning, checked_bool, checked_int, checked_prompt,
                             checked_schedule, checked_seconds, plural, read_prompt, word_reading)
 from mogo.bundle import Bundle, BundleError
@@ -222,7 +223,7 @@ class MotionGenerator:
     def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
               plant_feet: bool) -> Motion:
         stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window,
-                              plant_feet)
+                              plant_feet, anchoring=None)
         for k, (prompt, seconds) in enumerate(schedule):
             if k:
                 stream._switch_prompt(prompt)
@@ -267,13 +268,24 @@ class MotionGenerator:
 
     # -- streams -------------------------------------------------------------------------------
     def stream(self, text: str, seed: int | None = None, sampling: Sampling | None = None,
-               window: int | None = None, plant_feet: bool = True, **options) -> MotionStream:
-        """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`."""
+               window: int | None = None, plant_feet: bool = True,
+               anchoring: Anchoring | bool = True, **options) -> MotionStream:
+        """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`.
+        `anchoring`: True re-anchors the stream (mogo.anchoring: it keeps doing what the
+        prompt says, one-off prompts settle into a hold), an Anchoring tunes it, False
+        lets the model run on from step 0 (it drifts after a few seconds)."""
         sampling = self.sampling(sampling, **options)
         seed = _seed(seed)
         window = self.defaults.window if window is None else checked_int(window, "window", 1)
+        if anchoring is True:
+            anchoring = Anchoring()
+        elif anchoring is False:
+            anchoring = None
+        elif not isinstance(anchoring, Anchoring):
+            raise TypeError(f"anchoring must be True, False or an Anchoring, got "
+                            f"{type(anchoring).__name__}")
         return MotionStream(self, self._prompt(text), seed, sampling, window,
-                            checked_bool(plant_feet, "plant_feet"))
+                            checked_bool(plant_feet, "plant_feet"), anchoring)
 
     def streaming_decoder(self) -> StreamingDecoder:
         d = self._decoder
@@ -312,11 +324,13 @@ class MotionStream:
     """One endless motion: `step()` draws one token step and returns the frames that became
     final (joints (n, J, 3); none while the decoder waits for its right context, then bursts of
     STREAM_DECODE_EVERY). Memory and step time stay constant: the KV cache slides over the
-    last `window` steps. Planting the feet holds each frame back until the frames of its
-    lookahead (mogo.motion.feet.LOOKAHEAD) are decoded."""
+    last `window` steps, or, re-anchored (`anchoring`, mogo.anchoring), holds at most its span.
+    Planting the feet holds each frame back until the frames of its lookahead
+    (mogo.motion.feet.LOOKAHEAD) are decoded."""
 
     def __init__(self, generator: MotionGenerator, text: str, seed: int, sampling: Sampling,
-                 window: int | None, plant_feet: bool = True):
+                 window: int | None, plant_feet: bool = True,
+                 anchoring: Anchoring | None = None):
         self.generator = generator
         self.seed = seed
         self.prompts: list[tuple[int, str]] = [(0, text)]  # checked by the generator
@@ -330,9 +344,11 @@ class MotionStream:
         self._skip = 0
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
         self._record: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+        self.anchor = (None if anchoring is None else
+                       Anchor(anchoring, self._tokens, lambda t: generator.embed([t])[0], text))
 
     def step(self) -> np.ndarray:
-        row = self._tokens.step()
+        row = self._next_tokens()
         frames = self._emit(row[None], self._decoder.push(row[None]))
         if len(self._unread):
             frames, self._unread = np.concatenate([self._unread, frames]), self._unread[:0]
@@ -358,7 +374,10 @@ class MotionStream:
     def _switch_prompt(self, text: str) -> None:
         """`set_prompt` for a prompt already checked (a schedule's)."""
         embedding = self.generator.embed([text])[0]
-        self._tokens.set_prompt(embedding)
+        if self.anchor is None:
+            self._tokens.set_prompt(embedding)
+        else:
+            self.anchor.switch(text, embedding)
         self.prompts.append((self.frames_emitted + self._pending_frames(), text))
 
     def continue_from(self, motion: Motion) -> None:
@@ -368,6 +387,8 @@ class MotionStream:
             raise ValueError("continue_from must come before the first step of a stream")
         tokens = self.generator.encode_motion(motion)
         self._tokens.continue_from(tokens)
+        if self.anchor is not None:
+            self.anchor.continued(tokens)
         self._final(self._denormalise(self._decoder.push(tokens)))
         self._skip = self._pending_frames()  # the clip's own last frames: not emitted again
 
@@ -385,7 +406,7 @@ class MotionStream:
         more steps, not kept, as the right context of its last frames (as `generate` does), so
         they are the frames the stream would have emitted had it gone on."""
         g = self.generator
-        context = [self._tokens.step() for _ in range(self._decoder.lookahead)]
+        context = [self._next_tokens() for _ in range(self._decoder.lookahead)]
         features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
         self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
@@ -394,6 +415,9 @@ class MotionStream:
         tokens, features, joints = (np.concatenate(column)
                                     for column in zip(empty, *(self._record or [])))
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
+
+    def _next_tokens(self) -> np.ndarray:
+        return self._tokens.step() if self.anchor is None else self.anchor.step()
 
     def _emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False
               ) -> np.ndarray:

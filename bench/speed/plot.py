@@ -1,10 +1,12 @@
 """A small line chart as a PNG with pillow alone (no plotting library to install): log-log
-axes, one coloured line per series, a legend. Enough to see how step time grows with the cache."""
+axes (or linear ones), one coloured line per series, a legend. Enough to see how step time
+grows with the cache."""
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
+import numpy as np
 from PIL import Image, ImageDraw
 
 WIDTH, HEIGHT = 760, 460
@@ -14,30 +16,36 @@ COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e
 
 
 def log_line_chart(path: Path, title: str, x_label: str, y_label: str,
-                   series: dict[str, list[tuple[float, float]]]) -> None:
-    """series: name -> [(x, y), ...], all values > 0; drawn on log10 axes."""
+                   series: dict[str, list[tuple[float, float]]], log: bool = True) -> None:
+    """series: name -> [(x, y), ...], all values > 0; drawn on log10 axes (log=False: linear
+    axes from 0, any values >= 0)."""
     points = [p for values in series.values() for p in values]
     if not points:
         raise ValueError("nothing to plot")
-    x_range = _decades(min(x for x, _ in points), max(x for x, _ in points))
-    y_range = _decades(min(y for _, y in points), max(y for _, y in points))
+    ranges = _decades if log else _linear
+    scale = math.log10 if log else float
+    x_range = ranges(min(x for x, _ in points), max(x for x, _ in points))
+    y_range = ranges(min(y for _, y in points), max(y for _, y in points))
     image = Image.new("RGB", (WIDTH, HEIGHT), "white")
     draw = ImageDraw.Draw(image)
     plot_w, plot_h = WIDTH - LEFT - RIGHT, HEIGHT - TOP - BOTTOM
 
     def to_pixel(x: float, y: float) -> tuple[float, float]:
-        fx = (math.log10(x) - x_range[0]) / (x_range[1] - x_range[0])
-        fy = (math.log10(y) - y_range[0]) / (y_range[1] - y_range[0])
+        fx = (scale(x) - x_range[0]) / (x_range[1] - x_range[0])
+        fy = (scale(y) - y_range[0]) / (y_range[1] - y_range[0])
         return LEFT + fx * plot_w, TOP + (1 - fy) * plot_h
 
-    for decade in range(x_range[0], x_range[1] + 1):
-        px, _ = to_pixel(10**decade, 10**y_range[0])
+    ticks = ((lambda r: [10**d for d in range(r[0], r[1] + 1)]) if log
+             else (lambda r: list(np.arange(r[0], r[1] + r[2] / 2, r[2]))))
+    x_low, y_low = (10**x_range[0], 10**y_range[0]) if log else (x_range[0], y_range[0])
+    for tick in ticks(x_range):
+        px, _ = to_pixel(tick, y_low)
         draw.line([(px, TOP), (px, TOP + plot_h)], fill="#dddddd")
-        draw.text((px - 10, TOP + plot_h + 6), _label(10**decade), fill="black")
-    for decade in range(y_range[0], y_range[1] + 1):
-        _, py = to_pixel(10**x_range[0], 10**decade)
+        draw.text((px - 10, TOP + plot_h + 6), _label(tick), fill="black")
+    for tick in ticks(y_range):
+        _, py = to_pixel(x_low, tick)
         draw.line([(LEFT, py), (LEFT + plot_w, py)], fill="#dddddd")
-        draw.text((8, py - 6), _label(10**decade), fill="black")
+        draw.text((8, py - 6), _label(tick), fill="black")
     draw.rectangle([LEFT, TOP, LEFT + plot_w, TOP + plot_h], outline="black")
     draw.text((LEFT, 12), title, fill="black")
     draw.text((LEFT + plot_w // 2 - 40, HEIGHT - 22), x_label, fill="black")
@@ -64,5 +72,18 @@ def _decades(low: float, high: float) -> tuple[int, int]:
     return first, max(last, first + 1)
 
 
+def _linear(low: float, high: float) -> tuple[float, float, float]:
+    """From 0 (or below, for negative values) to the highest value rounded up to a tick, and
+    the tick spacing: a power of ten, or a fifth of one where that gives too few ticks."""
+    low = min(0.0, low)
+    span = max(high - low, 1e-9)
+    unit = 10 ** math.floor(math.log10(span))
+    if span / unit < 3:
+        unit /= 5
+    return math.floor(low / unit) * unit, math.ceil(high / unit) * unit, unit
+
+
 def _label(value: float) -> str:
-    return f"{value:g}" if 1e-3 <= value < 1e5 else f"1e{round(math.log10(value))}"
+    if value == 0 or 1e-3 <= abs(value) < 1e5:
+        return f"{value:g}"
+    return f"1e{round(math.log10(abs(value)))}"

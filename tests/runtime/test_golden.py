@@ -1,14 +1,16 @@
 """Golden outputs of the shipped bundle: fixed prompts and seeds through generate (sampled,
 greedy, top-k, guided, model-ended, batched, past the sliding window), play with a prompt
-switch, a stream switching prompt at frame 30 and after its window has wrapped, and
-continue_from, each pinned by the sha256 of the exact bytes of its tokens (int64) and joints
-(float32). Any change to sampling, seeding, the token loop, decoding or the joints shows here.
+switch, a stream switching prompt at frame 30, one past its window (not re-anchored) and one
+re-anchored past its span, and continue_from, each pinned by the sha256 of the exact bytes of
+its tokens (int64) and joints (float32). Any change to sampling, seeding, the token loop,
+decoding or the joints shows here.
 
 golden.json was first recorded from the code before issue 17's restructure (commit c41cff4,
 then `mogo.runtime.generator`), so this test is that restructure's "same bundle, prompt and
 seed give byte-identical tokens and motion". After a deliberate change of the model or of what
 a seed draws, re-record it and say why in the commit (issue 25 did, for the joints alone: feet
-are planted by default; the *_feet_as_decoded cases keep the bytes from before it):
+are planted by default; the *_feet_as_decoded cases keep the bytes from before it; issue 19
+did for streams past their first anchor, re-anchored by default):
 
     python tests/runtime/test_golden.py --record
 
@@ -78,7 +80,7 @@ def outputs(generator) -> dict[str, dict]:
     stream.set_prompt("a person jumps on the spot.")
     frames += list(stream.frames(30))
     cases["stream/60_frames_switch_at_30"] = pinned(np.array(frames), prompts=stream.prompts)
-    stream = generator.stream("a person walks forward.", seed=6)
+    stream = generator.stream("a person walks forward.", seed=6, anchoring=False)
     stream.advance(140)  # past the 128-step window: its slots are in ring order
     stream.set_prompt("a person turns around and walks back.")
     stream.advance(20)
@@ -86,14 +88,20 @@ def outputs(generator) -> dict[str, dict]:
     cases["stream/switch_after_the_window_wrapped"] = pinned(wrapped.joints, wrapped.tokens,
                                                              wrapped.prompts)
     # plant_feet=False: the joints as decoded, the bytes recorded before feet were planted
+    # (and before streams were re-anchored)
     raw = generator.generate("a person walks forward.", seconds=2.0, seed=0, plant_feet=False)
     cases["generate/walk_2s_seed0_feet_as_decoded"] = pinned(raw.joints, raw.tokens)
-    stream = generator.stream("a person jogs in a circle.", seed=2, plant_feet=False)
+    stream = generator.stream("a person jogs in a circle.", seed=2, plant_feet=False,
+                              anchoring=False)
     frames = list(stream.frames(30))
     stream.set_prompt("a person jumps on the spot.")
     frames += list(stream.frames(30))
     cases["stream/60_frames_switch_at_30_feet_as_decoded"] = pinned(np.array(frames),
                                                                     prompts=stream.prompts)
+    stream = generator.stream("a person walks forward.", seed=6)
+    stream.advance(140)  # re-anchored every 30 steps (mogo.anchoring)
+    anchored = stream.finish()
+    cases["stream/re_anchored_140_steps"] = pinned(anchored.joints, anchored.tokens)
     clip = generator.generate("a person walks forward.", seconds=3.0, seed=4)
     cases["continue_from/encoded_clip"] = {"tokens": digest(generator.encode_motion(clip))}
     stream = generator.stream("a person turns left.", seed=9)

@@ -204,10 +204,10 @@ def test_generate_and_stream_slide_the_bundles_window(generator, past_lengths):
     generator.generate(PROMPTS[0], seconds=steps / generator.fps, seed=1)
     assert max(past_lengths) == 1 + window
     past_lengths.clear()
-    generator.stream(PROMPTS[0], seed=1).advance(steps)
+    generator.stream(PROMPTS[0], seed=1, anchoring=False).advance(steps)
     assert max(past_lengths) == 1 + window
     past_lengths.clear()
-    generator.stream(PROMPTS[0], seed=1, window=7).advance(20)
+    generator.stream(PROMPTS[0], seed=1, window=7, anchoring=False).advance(20)
     assert max(past_lengths) == 1 + 7
 
 

@@ -1,0 +1,40 @@
+"""`mogo long-streams --quick` end to end on the shipped bundle (two actions, both modes), and
+the window checks it rests on, judged against the procedural animator's own performance."""
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from mogo.bench.quality.stream_checks import (REPERTOIRE, WindowCheck, drift, reaction_frames,
+                                              reference, window_passes)
+from mogo.cli import main
+
+
+def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
+    assert main(["long-streams", "--quick", "--jobs", "1", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "| walk forward | a person walks forward. |" in printed
+    assert "| sit down (one-off: hold) |" in printed and "within 1.5 s" in printed
+    result = json.loads((tmp_path / "long_streams.json").read_text())
+    assert {r["mode"] for r in result["streams"]} == {"off", "on"}
+    assert all(len(r["passes"]) == 2 for r in result["streams"])  # 20 s: two 10-s windows
+    assert all(len(s["reactions"]) == 1 for s in result["switches"])
+    assert Image.open(tmp_path / "long_streams.png").size[0] > 0
+
+
+@pytest.mark.parametrize("action", [a for a in REPERTOIRE if a.continuing], ids=lambda a: a.name)
+def test_the_animator_passes_the_window_checks_of_its_own_continuing_actions(action):
+    check = WindowCheck(action, 200)
+    other = reference(action, 400, seed=1)  # another performer
+    assert all(window_passes(check, other))
+    assert reaction_frames(WindowCheck(action, 60), other) is not None
+
+
+def test_a_still_figure_holds_and_does_not_walk():
+    sit, walk = (next(a for a in REPERTOIRE if a.name == n) for n in ("sit down", "walk forward"))
+    still = np.repeat(reference(walk, 1, seed=0), 400, axis=0)  # one frame, held 20 s
+    assert window_passes(WindowCheck(sit, 200), still) == [False, True]  # never sat, then holds
+    assert window_passes(WindowCheck(walk, 200), still) == [False, False]
+    figures = drift(still)
+    assert figures["slide"] == 0 and figures["pelvis_low"] == figures["pelvis_high"]

@@ -1,0 +1,91 @@
+"""Re-anchored streams (mogo.anchoring): deterministic, frames equal to the offline decode of
+their tokens across anchors, a held state bounded by the span, prompt switches re-anchoring
+at once (test_generator's switch test checks there is no jump in the pose), one-off prompts
+settling into the hold."""
+import numpy as np
+import pytest
+
+from mogo import Anchoring, MotionGenerator
+from mogo.anchoring import settles
+
+SMALL = Anchoring(span=20, keep=5, max_one_off=60)
+
+
+@pytest.fixture(scope="module")
+def generator():
+    return MotionGenerator.load()
+
+
+@pytest.mark.parametrize("prompt,ends", [
+    ("a person walks forward.", False), ("a person jogs backward.", False),
+    ("someone waves with the right hand.", False), ("a person does jumping jacks.", False),
+    ("a person spins to the left.", False), ("a person stands still.", False),
+    ("a person claps.", False), ("a person sits down.", True), ("a person takes a seat.", True),
+    ("a person bows.", True), ("a person turns left.", True), ("a person jumps.", True),
+    ("someone kicks with the right foot.", True), ("a person waves three times.", True),
+    ("a person walks forward for 4 steps.", True), ("a person walks, then waves.", True),
+])
+def test_prompts_that_end_are_told_from_those_that_go_on(prompt, ends):
+    assert settles(prompt) is ends
+
+
+def test_re_anchored_streams_are_deterministic_and_decode_like_their_tokens(generator):
+    lookahead = generator.manifest.vq.decoder.lookahead
+    runs = []
+    for _ in range(2):
+        stream = generator.stream("a person jogs forward.", seed=3, anchoring=SMALL)
+        stream.advance(100)
+        runs.append((stream.finish(), stream.anchor.anchors))
+    (motion, anchors), (again, _) = runs
+    assert anchors == (100 + lookahead - SMALL.span) // (SMALL.span - SMALL.keep) + 1
+    assert np.array_equal(motion.tokens, again.tokens)
+    assert np.array_equal(motion.joints, again.joints)
+    longer = generator.stream("a person jogs forward.", seed=3, anchoring=SMALL)
+    longer.advance(100 + lookahead)
+    context = longer.finish().tokens
+    assert np.array_equal(context[:100], motion.tokens)
+    offline = generator.decode(context, [], frames=100)
+    np.testing.assert_allclose(motion.joints, offline.joints, atol=1e-5)
+    plain = generator.stream("a person jogs forward.", seed=3, anchoring=False)
+    plain.advance(100)
+    tokens = plain.finish().tokens
+    assert np.array_equal(tokens[:SMALL.span], motion.tokens[:SMALL.span])  # until the anchor
+    assert not np.array_equal(tokens, motion.tokens)
+
+
+def test_a_re_anchored_stream_holds_at_most_its_span(generator):
+    stream = generator.stream("a person walks forward.", seed=1, anchoring=SMALL)
+    for _ in range(5 * SMALL.span):
+        stream.step()
+        held = stream._tokens
+        assert len(held.positions) <= SMALL.span + 1 and held.positions.max() < SMALL.span
+        assert all(cache.shape[2] <= SMALL.span + 1 for level in held.caches for cache in level)
+        assert len(stream.anchor.recent) == min(SMALL.keep, held.steps)
+
+
+def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
+    stream = generator.stream("a person walks forward.", seed=2, anchoring=SMALL)
+    stream.advance(13)
+    before = stream.anchor.anchors
+    stream.set_prompt("a person waves with the right hand.")
+    assert stream.anchor.anchors == before + 1
+    assert stream._tokens.steps == SMALL.keep
+    recent = stream.anchor.recent.copy()
+    assert np.array_equal(recent, stream.finish().tokens[13 - SMALL.keep:13])
+
+
+def test_a_one_off_prompt_settles_into_the_hold(generator):
+    stream = generator.stream("a person bows.", seed=0, anchoring=SMALL)
+    assert stream._tokens.allow_end and not stream.anchor.holding
+    stream.advance(SMALL.max_one_off + 1)
+    assert stream.anchor.holding and not stream._tokens.allow_end
+    assert stream._tokens.steps <= SMALL.span
+    stream.set_prompt("a person walks forward.")
+    assert not stream.anchor.holding and not stream._tokens.allow_end
+
+
+def test_anchoring_arguments_are_checked(generator):
+    with pytest.raises(ValueError, match="keep < span"):
+        Anchoring(span=10, keep=10)
+    with pytest.raises(TypeError, match="anchoring must be"):
+        generator.stream("a person walks forward.", anchoring="yes")
