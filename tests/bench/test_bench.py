@@ -11,6 +11,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from mogo.bench.speed import latency, step, timing
 from mogo.bench.speed.plot import log_line_chart
+from mogo.bundle import read_manifest
 from mogo.cli import main
 from mogo.export.models.t2m import T2M, T2MConfig
 from mogo.generator import DEFAULT_BUNDLE
@@ -88,7 +89,8 @@ def test_quick_run_writes_tables_json_and_plots(tmp_path, capsys):
         assert row["real_time_factor"] * row["clip_s"] == pytest.approx(product["clip_seconds"])
         assert [int(n) for n in row["stream_step_ms"]] == latency.long_stream_points(
             settings.long_steps)
-    assert 20 < product["disk_mb"] < 40 and product["peak_rss_mib"] > 50
+    shipped = read_manifest(DEFAULT_BUNDLE).total_bytes / 1e6  # every file the bundle lists
+    assert product["disk_mb"] == pytest.approx(shipped) and product["peak_rss_mib"] > 50
     backends = saved["steps"]["tiny"]["backends"]
     assert len(backends) == 10  # 2 kinds x (1 thread, 2 threads, 2 level groups) + 4 torch
     for row in backends.values():
