@@ -6,12 +6,16 @@ both ways (with --data), and what planting costs a stream per frame against one 
 
 A contact frame of a foot joint (ankle or toe, t -> t+1) is one where the clip's contact
 channel is above 0.5 and its decoded velocity is under HumanML3D's contact threshold (what a
-contact means in the format; the planter holds exactly these); the "channel alone" rows count
-every frame the channel flags. Measures, on joints in metres:
+contact means in the format); the "channel alone" rows count every frame the channel flags
+(the planter holds these unless the foot's decoded step is a full swing, feet.HELD_STEP).
+Measures, on joints in metres:
 - slide: horizontal speed of foot joints in contact (cm/s), and the share over 10 cm/s;
 - floor: the deepest foot joint below y = 0 (cm), and the share of frames below -1 cm;
-- bones: thigh, shin and foot lengths against the clip's mean decoded lengths (left and right
-  averaged: one skeleton), mean error (%) and share of bone-frames off by more than 1%;
+- pop: the change of a foot joint's velocity from one frame to the next (m/frame per frame,
+  all frames): its worst per clip, averaged over clips, and its 99th percentile;
+- bones: thigh, shin and foot lengths against the skeleton's canonical ones (the rest offsets,
+  left and right averaged, as mogo.motion.rig), mean error (%) and share of bone-frames off by
+  more than 1%;
 - change: mean distance of every joint, and of the leg joints, from the decoded ones (cm).
 Torch-free.
 """
@@ -28,6 +32,7 @@ from mogo.arguments import PromptWarning
 from mogo.generator import STREAM_DECODE_EVERY, MotionGenerator
 from mogo.motion.features import FOOT_CONTACT_THRESHOLD, feature_layout
 from mogo.motion.feet import LOOKAHEAD, FootPlanter, leg_joints, planted
+from mogo.motion.rig import rest_offsets
 
 LOCOMOTION = ("a person walks forward.", "a person jogs forward.", "a person runs forward.",
               "a person walks backward.", "a person turns around.",
@@ -55,7 +60,8 @@ def foot_measures(clips: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]],
     """The measures over clips (joints, features, decoded joints or None), frames pooled."""
     legs = leg_joints(skeleton)
     feet = legs[:, 2:].reshape(-1)
-    speeds, depths, below, errors, moved, moved_legs = [], [], [], [], [], []
+    rest = np.linalg.norm(rest_offsets(skeleton), axis=1)
+    speeds, depths, below, pops, errors, moved, moved_legs = [], [], [], [], [], [], []
     for joints, features, decoded in clips:
         step = np.diff(joints[:, feet], axis=0)[..., [0, 2]]
         flags = contacts(features[:len(step)], skeleton, confirmed)  # real clips: T-1 rows
@@ -63,12 +69,11 @@ def foot_measures(clips: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]],
         lowest = joints[:, feet, 1].min(-1)
         depths.append(max(0.0, -float(lowest.min())))
         below.append(lowest < -FLOOR)
-        reference = decoded if decoded is not None else joints
+        pops.append(np.linalg.norm(np.diff(joints[:, feet], 2, axis=0), axis=-1).ravel())
         for bone in range(3):
             a, b = legs[:, bone], legs[:, bone + 1]
             length = np.linalg.norm(joints[:, b] - joints[:, a], axis=-1)
-            mean = np.linalg.norm(reference[:, b] - reference[:, a], axis=-1).mean()
-            errors.append(np.abs(length / mean - 1).ravel())
+            errors.append(np.abs(length / rest[b] - 1).ravel())
         if decoded is not None:
             distance = np.linalg.norm(joints - decoded, axis=-1)
             moved.append(distance.ravel())
@@ -76,6 +81,8 @@ def foot_measures(clips: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]],
     speed, error = np.concatenate(speeds), np.concatenate(errors)
     result = dict(speed=100 * speed.mean(), sliding=100 * np.mean(speed > SLIDING),
                   depth=100 * max(depths), below=100 * np.concatenate(below).mean(),
+                  pop=np.mean([p.max() for p in pops]),
+                  pop_p99=float(np.percentile(np.concatenate(pops), 99)),
                   bone_error=100 * error.mean(), bone_off=100 * np.mean(error > 0.01))
     if moved:
         result.update(change=100 * np.concatenate(moved).mean(),
@@ -105,11 +112,13 @@ def format_feet(rows: dict[str, dict[str, float]]) -> str:
         return f"{row[key]:.{digits}f}" if key in row else "-"
 
     lines = ["| clips | slide in contact (cm/s) | sliding > 10 cm/s | deepest below floor (cm) "
-             "| frames > 1 cm below | leg bone error | bone-frames > 1% off | joint change "
-             "(cm) | leg joint change (cm) |", "|---|---|---|---|---|---|---|---|---|"]
+             "| frames > 1 cm below | foot pop, worst per clip | foot pop, p99 | leg bone error "
+             "| bone-frames > 1% off | joint change (cm) | leg joint change (cm) |",
+             "|---" * 11 + "|"]
     for name, row in rows.items():
         lines.append(f"| {name} | {cell(row, 'speed')} | {cell(row, 'sliding')}% | "
                      f"{cell(row, 'depth')} | {cell(row, 'below')}% | "
+                     f"{cell(row, 'pop', 3)} | {cell(row, 'pop_p99', 3)} | "
                      f"{cell(row, 'bone_error', 2)}% | {cell(row, 'bone_off')}% | "
                      f"{cell(row, 'change', 2)} | {cell(row, 'change_legs', 2)} |")
     return "\n".join(lines)

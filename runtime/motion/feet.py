@@ -3,20 +3,21 @@
 Decoded feet skate: they drift while the motion's own contact channels (the last four feature
 dims: left ankle, left toe, right ankle, right toe; "moved less than ~4.5 cm in this frame")
 say they are planted. `FootPlanter` fixes the legs and nothing else:
-- each contact joint is held while its channel is above CONTACT and its decoded velocity is
-  under HumanML3D's contact threshold (a channel that says "still" of a swinging foot is not
-  believed), the frame after too (a contact is "still from t to t+1"), at its mean decoded
-  position over the first PIN_FRAMES frames of the contact; its height is never below that
-  pin (a heel may rise, a foot never sinks into its stance);
+- each contact joint is held while its channel is above CONTACT and its decoded step is under
+  HELD_STEP (a channel that says "still" of a foot in full swing is not believed), the frame
+  after too (a contact is "still from t to t+1"), at its mean decoded position over the first
+  PIN_FRAMES frames of the contact; its height is never below that pin (a heel may rise, a
+  foot never sinks into its stance);
 - it eases onto the pin over BLEND_IN frames before the contact and back onto its decoded path
   over BLEND_OUT frames after it, by blending offsets with a smoothstep: neither position nor
   speed jumps;
 - the foot stays rigid (ankle to toe at the foot's length, the more planted end held) and on or
   above the floor (y >= 0);
 - each leg is solved by analytic two-bone IK: hip as decoded, knee in the plane of the decoded
-  knee, ankle on its target; thigh, shin and foot at the clip's running mean lengths, so they
-  stop stretching. A target out of the leg's reach is pulled towards the hip (the foot slides
-  rather than the pelvis moving): root motion is never changed.
+  knee, ankle on its target; thigh, shin and foot at the bundle skeleton's canonical lengths
+  (its rest offsets, left and right averaged, as the BVH rig's), so they stop stretching. A
+  target out of the leg's reach is pulled towards the hip (the foot slides rather than the
+  pelvis moving): root motion is never changed.
 
 It reads LOOKAHEAD frames ahead, so a stream emits a frame LOOKAHEAD frames after it is decoded.
 Any chunking of `push` (then `flush`) gives the output of one push of the whole clip.
@@ -25,10 +26,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import FOOT_CONTACT_THRESHOLD, feature_layout
+from .features import feature_layout
+from .rig import rest_offsets
 from .skeleton import Skeleton
 
-CONTACT = 0.5  # a contact channel above this holds its joint
+CONTACT = 0.5  # a contact channel above this holds its joint ...
+# ... unless its decoded step is longer (2.4 m/s at 20 fps): the channel then flags a foot in
+# full swing, and holding it would compress that stride into the frames before the next
+# contact (docs/feet.md: slide by the channel alone against the foot's worst acceleration)
+HELD_STEP = 0.12  # metres per frame
 BLEND_IN = 3  # frames to ease onto a pin before its contact starts
 BLEND_OUT = 8  # frames to ease back onto the decoded path after a contact (no lookahead)
 PIN_FRAMES = 6  # the pin: mean position over the first frames of a contact
@@ -98,8 +104,8 @@ class FootPlanter:
         self._since = np.full(joints, 1 << 30)  # frames since then
         self._features = np.zeros((0, skeleton.feature_dim), np.float32)
         self._joints = np.zeros((0, skeleton.num_joints, 3))
-        self._length_sum, self._length_count = np.zeros(3), 0
-        self._length_cumsum = np.zeros((0, 3))  # per buffered frame: sums through it
+        rest = np.linalg.norm(rest_offsets(skeleton), axis=1)  # the bundle's canonical bones
+        self._lengths = rest[self.legs[0, 1:]]  # thigh, shin, foot (left and right averaged)
 
     @property
     def pending(self) -> int:
@@ -116,36 +122,24 @@ class FootPlanter:
         return self._clean(len(self._joints))
 
     def _buffer(self, features: np.ndarray, joints: np.ndarray) -> None:
-        joints = np.asarray(joints, np.float64)
         self._features = np.concatenate([self._features, features])
-        self._joints = np.concatenate([self._joints, joints])
-        hip, knee, ankle, toe = self.legs.T
-        bones = np.stack([np.linalg.norm(joints[:, b] - joints[:, a], axis=-1).mean(-1)
-                          for a, b in ((hip, knee), (knee, ankle), (ankle, toe))], -1)
-        sums = self._length_sum + np.cumsum(bones, 0)
-        self._length_cumsum = np.concatenate([self._length_cumsum, sums])
-        if len(bones):
-            self._length_sum = sums[-1]
+        self._joints = np.concatenate([self._joints, np.asarray(joints, np.float64)])
 
     def _clean(self, ready: int) -> tuple[np.ndarray, np.ndarray]:
         """Plant the first `ready` buffered frames and drop them from the buffer."""
         joints = self._joints
         targets, weights = self._targets(self._flags(), joints[:, self.contacts], ready)
-        last = np.minimum(np.arange(ready) + LOOKAHEAD, len(joints) - 1)
-        counts = self._length_count + last + 1
-        lengths = self._length_cumsum[last] / counts[:, None]  # (ready, 3) thigh, shin, foot
-        out = self._solve(joints[:ready], targets, weights, lengths)
+        out = self._solve(joints[:ready], targets, weights,
+                          np.broadcast_to(self._lengths, (ready, 3)))
         features = self._features[:ready]
         self._features, self._joints = self._features[ready:], joints[ready:]
-        self._length_cumsum = self._length_cumsum[ready:]
-        self._length_count += ready
         return features, out.astype(np.float32)
 
     def _flags(self) -> np.ndarray:
-        """(n, 4) contacts of the buffered frames: the channel says so and the decoded
-        velocity agrees (a foot moving faster than HumanML3D's contact threshold is not held)."""
+        """(n, 4) contacts of the buffered frames: the channel says so and the decoded foot
+        is not in full swing (see HELD_STEP)."""
         speed = np.sum(self._features[:, self._velocity].astype(np.float64) ** 2, -1)
-        return (self._features[:, -4:] > CONTACT) & (speed < FOOT_CONTACT_THRESHOLD)
+        return (self._features[:, -4:] > CONTACT) & (speed < HELD_STEP ** 2)
 
     def _targets(self, flags: np.ndarray, paths: np.ndarray, ready: int
                  ) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,7 @@ def _clip(step: float, frames: int = 21) -> tuple[np.ndarray, np.ndarray]:
     return joints, features
 
 
-def test_sliding_floor_bones_and_change_are_measured():
+def test_sliding_floor_pop_bones_and_change_are_measured():
     joints, features = _clip(0.01)  # 20 cm/s, every foot joint in contact
     decoded = joints.copy()
     joints[:, 4] += [0.0, 0.0, 0.02]  # both knees 2 cm forward: thigh and shin change
@@ -35,8 +35,11 @@ def test_sliding_floor_bones_and_change_are_measured():
     assert abs(result["depth"] - 5.0) < 1e-6 and abs(result["below"] - 100 / 21) < 1e-6
     assert result["bone_error"] > 0 and result["change"] > 0
     assert abs(result["change_legs"] - 100 * 0.02 * 2 / 6) < 1e-6  # 2 of the 6 leg joints moved
-    still = foot_measures([_clip(0.0) + (None,)], SMPL_22)
+    still_joints, still_features = _clip(0.0)
+    still = foot_measures([(still_joints, still_features, None)], SMPL_22)
     assert still["speed"] == 0 and still["sliding"] == 0 and "change" not in still
+    dip = still_joints[0, FEET, 1].max() + 0.05  # the highest foot joint's dip: down, back up
+    assert abs(still["pop"] - 2 * dip) < 1e-9
     assert "| x | 0.0 | 0.0% |" in format_feet({"x": still})
 
 

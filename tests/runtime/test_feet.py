@@ -6,8 +6,9 @@ import pytest
 
 from mogo.generator import STREAM_DECODE_EVERY, MotionGenerator
 from mogo.motion.features import JointStream, feature_layout
-from mogo.motion.feet import (BLEND_OUT, LOOKAHEAD, PIN_FRAMES, FootPlanter, leg_joints, planted,
-                             two_bone_ik)
+from mogo.motion.feet import (BLEND_OUT, HELD_STEP, LOOKAHEAD, PIN_FRAMES, FootPlanter,
+                             leg_joints, planted, two_bone_ik)
+from mogo.motion.rig import rest_offsets
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
 LEGS = leg_joints(SMPL_22)  # (2, 4) hip, knee, ankle, toe
@@ -93,21 +94,24 @@ def test_a_foot_is_held_still_through_its_contact_and_eased_in_and_out_without_a
     assert np.array_equal(out[:, untouched], joints[:, untouched].astype(np.float32))
 
 
-def test_legs_get_the_running_mean_bone_lengths_and_feet_stay_on_or_above_the_floor():
+@pytest.mark.parametrize("speed, held", [(0.06, True), (1.2 * HELD_STEP, False)])
+def test_a_flagged_foot_is_held_unless_its_decoded_step_is_a_full_swing(speed, held):
+    features, joints = _sliding_left_foot(speed=speed)  # 0.06: over the format's 4.5 cm
+    ankle = planted(features, joints, SMPL_22)[:, LEGS[0, 2]]
+    assert (np.ptp(ankle[15:36], axis=0).max() < 1e-6) == held
+
+
+def test_legs_get_the_skeletons_canonical_bone_lengths_and_feet_stay_on_or_above_the_floor():
     rng = np.random.default_rng(1)
     features, joints = _sliding_left_foot()
     joints = joints + rng.normal(scale=0.01, size=joints.shape)  # stretchy bones
     joints[20:30, LEGS[1, 2:], 1] -= 0.05  # the right foot sinks into the floor
     out = planted(features, joints, SMPL_22)
-    frames = np.arange(len(joints))
-    seen = np.minimum(frames + LOOKAHEAD, len(joints) - 1) + 1  # frames read by each
-    for bone in range(3):  # thigh, shin, foot: both sides at the mean of what was read
+    rest = np.linalg.norm(rest_offsets(SMPL_22), axis=1)  # the BVH rig's: left, right averaged
+    for bone in range(3):  # thigh, shin, foot: both sides, from the first frame on
         a, b = LEGS[:, bone], LEGS[:, bone + 1]
-        decoded = np.linalg.norm(joints[:, b] - joints[:, a], axis=-1).mean(-1)
-        expected = np.cumsum(decoded)[seen - 1] / seen
-        for side in range(2):
-            length = np.linalg.norm(out[:, b[side]] - out[:, a[side]], axis=-1)
-            np.testing.assert_allclose(length, expected, rtol=1e-5)
+        length = np.linalg.norm(out[:, b] - out[:, a], axis=-1)
+        np.testing.assert_allclose(length, np.broadcast_to(rest[b], length.shape), rtol=1e-5)
     assert out[:, CONTACT_JOINTS, 1].min() >= -1e-6
 
 
