@@ -6,8 +6,8 @@ both ways (with --data), and what planting costs a stream per frame against one 
 
 A contact frame of a foot joint (ankle or toe, t -> t+1) is one where the clip's contact
 channel is above 0.5 and its decoded velocity is under HumanML3D's contact threshold (what a
-contact means in the format); the "channel alone" rows count every frame the channel flags
-(the planter holds these unless the foot's decoded step is a full swing, feet.HELD_STEP).
+contact means in the format; the planter holds exactly these); the "channel alone" rows count
+every frame the channel flags.
 Measures, on joints in metres:
 - slide: horizontal speed of foot joints in contact (cm/s), and the share over 10 cm/s;
 - floor: the deepest foot joint below y = 0 (cm), and the share of frames below -1 cm;

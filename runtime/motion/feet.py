@@ -3,11 +3,11 @@
 Decoded feet skate: they drift while the motion's own contact channels (the last four feature
 dims: left ankle, left toe, right ankle, right toe; "moved less than ~4.5 cm in this frame")
 say they are planted. `FootPlanter` fixes the legs and nothing else:
-- each contact joint is held while its channel is above CONTACT and its decoded step is under
-  HELD_STEP (a channel that says "still" of a foot in full swing is not believed), the frame
-  after too (a contact is "still from t to t+1"), at its mean decoded position over the first
-  PIN_FRAMES frames of the contact; its height is never below that pin (a heel may rise, a
-  foot never sinks into its stance);
+- each contact joint is held while its channel is above CONTACT and its decoded velocity is
+  under HumanML3D's contact threshold (a channel that says "still" of a swinging foot is not
+  believed), the frame after too (a contact is "still from t to t+1"), at its mean decoded
+  position over the first PIN_FRAMES frames of the contact; its height is never below that
+  pin (a heel may rise, a foot never sinks into its stance);
 - it eases onto the pin over BLEND_IN frames before the contact and back onto its decoded path
   over BLEND_OUT frames after it, by blending offsets with a smoothstep: neither position nor
   speed jumps;
@@ -26,15 +26,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import feature_layout
+from .features import FOOT_CONTACT_THRESHOLD, feature_layout
 from .rig import rest_offsets
 from .skeleton import Skeleton
 
-CONTACT = 0.5  # a contact channel above this holds its joint ...
-# ... unless its decoded step is longer (2.4 m/s at 20 fps): the channel then flags a foot in
-# full swing, and holding it would compress that stride into the frames before the next
-# contact (docs/feet.md: slide by the channel alone against the foot's worst acceleration)
-HELD_STEP = 0.12  # metres per frame
+CONTACT = 0.5  # a contact channel above this holds its joint
 BLEND_IN = 3  # frames to ease onto a pin before its contact starts
 BLEND_OUT = 8  # frames to ease back onto the decoded path after a contact (no lookahead)
 PIN_FRAMES = 6  # the pin: mean position over the first frames of a contact
@@ -136,10 +132,11 @@ class FootPlanter:
         return features, out.astype(np.float32)
 
     def _flags(self) -> np.ndarray:
-        """(n, 4) contacts of the buffered frames: the channel says so and the decoded foot
-        is not in full swing (see HELD_STEP)."""
+        """(n, 4) contacts of the buffered frames: the channel says so and the decoded
+        velocity agrees (a foot moving faster than HumanML3D's contact threshold is not held:
+        holding it squeezes its stride into the frames before the next contact, docs/feet.md)."""
         speed = np.sum(self._features[:, self._velocity].astype(np.float64) ** 2, -1)
-        return (self._features[:, -4:] > CONTACT) & (speed < HELD_STEP ** 2)
+        return (self._features[:, -4:] > CONTACT) & (speed < FOOT_CONTACT_THRESHOLD)
 
     def _targets(self, flags: np.ndarray, paths: np.ndarray, ready: int
                  ) -> tuple[np.ndarray, np.ndarray]:
