@@ -152,8 +152,8 @@ def figures_table(result: dict) -> str:
         lasts = [r["step_seconds"][-1] for r in streams if r["step_seconds"]]
         finite = seconds[np.isfinite(seconds)]
         for name, value in {
-            "switches: new action under way within 1.5 s": f"{np.mean(seconds <= PROMPT_SECONDS):.0%} "
-                                                          f"of {len(seconds)}",
+            "switches: new action under way within 1.5 s":
+                f"{np.mean(seconds <= PROMPT_SECONDS):.0%} of {len(seconds)}",
             "switches: median / 90th percentile reaction (s)":
                 " / ".join(f"{np.percentile(seconds, q, method='lower'):.2f}" for q in (50, 90)),
             "switches: never under way within 10 s": f"{np.sum(~np.isfinite(seconds))}",
@@ -167,7 +167,7 @@ def figures_table(result: dict) -> str:
             "foot sliding in contact, stream / 5-s clips (cm/s)":
                 f"{100 * np.mean([x['slide'] for x in d]):.1f} / "
                 f"{100 * np.mean([r['short_slide'] for r in streams]):.1f}",
-            "ms per step, first / last minute (busy 2-core VM)":
+            "ms per step, first / last minute":
                 f"{1000 * np.mean(firsts):.2f} / {1000 * np.mean(lasts):.2f}" if times else "-",
         }.items():
             rows.setdefault(name, []).append(value)

@@ -4,8 +4,9 @@ The model learnt from 2-10 s clips, so it never saw a clip position past ~200 st
 left to run drifts into other actions after ~5 s. Re-anchored, the stream goes on, every
 `span` steps, as if it were a fresh clip that starts with its last `keep` steps
 (TokenStream.continue_from): the positions the model sees stay small and the motion goes on
-from where it is. A prompt switch re-anchors at once under the new prompt, so the new action
-starts as a fresh clip would. A prompt that asks for something that ends (`settles`: sit
+from where it is. A prompt switch re-anchors at once under the new prompt from only the last
+`switch_keep` steps, so the new action starts as a fresh clip of it would (keeping the whole
+`keep` there, the model first goes on with the old action: measured in docs/long_streams.md). A prompt that asks for something that ends (`settles`: sit
 down, bow, jump three times, "..., then ...") runs until the model ends its clip, then the
 stream holds: it goes on, re-anchored, under `Anchoring.hold_prompt`.
 
@@ -33,10 +34,12 @@ _COUNTS = frozenset(NUMBERS[1:]) | {"once", "twice", "then"}
 @dataclass(frozen=True)
 class Anchoring:
     """How a stream re-anchors: a fresh clip every `span` steps, starting with the last `keep`
-    steps; `max_one_off` steps at most before a one-off prompt holds (the bundle's longest
-    clip, 9.8 s, where the model has not ended it itself); the prompt of the hold."""
+    steps (at a prompt switch, `switch_keep`); `max_one_off` steps at most before a one-off
+    prompt holds (the bundle's longest clip, 9.8 s, where the model has not ended it itself);
+    the prompt of the hold."""
     span: int = 40
     keep: int = 10
+    switch_keep: int = 1
     max_one_off: int = 196
     hold_prompt: str = "a person stands still."
 
@@ -44,6 +47,9 @@ class Anchoring:
         if not 1 <= self.keep < self.span:
             raise ValueError(f"anchoring needs 1 <= keep < span, got keep={self.keep}, "
                              f"span={self.span}")
+        if not 1 <= self.switch_keep <= self.keep:
+            raise ValueError(f"anchoring needs 1 <= switch_keep <= keep, got "
+                             f"switch_keep={self.switch_keep}, keep={self.keep}")
 
 
 def settles(text: str) -> bool:
@@ -66,12 +72,12 @@ class Anchor:
         self._tokens.allow_end = settles(text)
 
     def switch(self, text: str, embedding: np.ndarray) -> None:
-        """A new prompt: a fresh clip under it at once, from the last `keep` steps."""
+        """A new prompt: a fresh clip under it at once, from the last `switch_keep` steps."""
         self._tokens.set_prompt(embedding)
         self.holding = False
         self._tokens.allow_end = settles(text)
         if len(self.recent):
-            self._reanchor()
+            self._reanchor(self.anchoring.switch_keep)
 
     def continued(self, tokens: np.ndarray) -> None:
         """The stream goes on from these steps (MotionStream.continue_from)."""
@@ -97,6 +103,6 @@ class Anchor:
         self.holding = True
         self._reanchor()
 
-    def _reanchor(self) -> None:
-        self._tokens.continue_from(self.recent)
+    def _reanchor(self, keep: int | None = None) -> None:
+        self._tokens.continue_from(self.recent[-(keep or self.anchoring.keep):])
         self.anchors += 1

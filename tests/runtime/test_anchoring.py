@@ -69,7 +69,7 @@ def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
     before = stream.anchor.anchors
     stream.set_prompt("a person waves with the right hand.")
     assert stream.anchor.anchors == before + 1
-    assert stream._tokens.steps == SMALL.keep
+    assert stream._tokens.steps == SMALL.switch_keep  # a fresh clip from the last step
     recent = stream.anchor.recent.copy()
     assert np.array_equal(recent, stream.finish().tokens[13 - SMALL.keep:13])
 
@@ -87,5 +87,7 @@ def test_a_one_off_prompt_settles_into_the_hold(generator):
 def test_anchoring_arguments_are_checked(generator):
     with pytest.raises(ValueError, match="keep < span"):
         Anchoring(span=10, keep=10)
+    with pytest.raises(ValueError, match="switch_keep <= keep"):
+        Anchoring(keep=4, switch_keep=5)
     with pytest.raises(TypeError, match="anchoring must be"):
         generator.stream("a person walks forward.", anchoring="yes")
