@@ -17,6 +17,7 @@ import time
 
 import addon_utils
 import bpy
+from bpy_extras import anim_utils
 from mathutils import Matrix, Vector
 
 LEGS = ("UpLeg", "Leg", "Foot", "ToeBase")
@@ -30,7 +31,7 @@ def main() -> None:
     bpy.ops.preferences.addon_install(filepath=request["zip"], overwrite=True)
     addon_utils.enable("mogo_blender", default_set=True, handle_error=_raise)
     preferences = bpy.context.preferences.addons["mogo_blender"].preferences
-    result = {"python": list(sys.version_info[:2])}
+    result = {"python": list(sys.version_info[:2]), "blender": bpy.app.version_string}
     preferences.site_packages = request["empty"]
     result["without_runtime"] = _error_of(bpy.ops.mogo.generate)
     preferences.site_packages = request["site_packages"]
@@ -44,14 +45,14 @@ def main() -> None:
     result["generate_seconds"] = time.perf_counter() - started
     ours = bpy.data.objects["MOGO"]
     first = ours.animation_data.action
+    result.update(fps=scene.render.fps / scene.render.fps_base, frame_start=scene.frame_start,
+                  frame_end=scene.frame_end, keys=len(_hips_keys(first)),
+                  ours=_heads(scene, ours))  # as Generate left it playing
     settings.custom_sampling, settings.top_k = True, 5
     bpy.ops.mogo.generate()  # a second take, with the panel's own sampling: a new action
     result["actions"] = [first.name, ours.animation_data.action.name]
+    result["second_take_plays"] = _plays(scene, ours)
     ours.animation_data.action = first
-    result.update(fps=scene.render.fps / scene.render.fps_base, frame_start=scene.frame_start,
-                  frame_end=scene.frame_end,
-                  keys=len(first.fcurves.find('pose.bones["Hips"].rotation_quaternion',
-                                              index=0).keyframe_points))
     target = _target(ours, request["scale"], math.radians(request["a_pose"]))
     settings.target = target
     result["empty_prompt"] = _empty_prompt_error(settings)
@@ -59,7 +60,7 @@ def main() -> None:
     result["mapped"] = sum(bool(item.bone) for item in settings.mapping)
     bpy.ops.mogo.retarget()
     result["retarget_action"] = target.animation_data.action.name
-    result["ours"], result["target"] = _heads(scene, ours), _heads(scene, target)
+    result["target"] = _heads(scene, target)
     result["target_rest"] = {b.name: list(target.matrix_world @ b.head_local)
                              for b in target.data.bones}
     if request.get("png"):
@@ -88,11 +89,30 @@ def _live(scene, frames: int) -> dict:
         if len(prompts) == 2 and session.written >= prompts[1][0] + frames:
             break
     bpy.ops.mogo.live(mode="STOP")
-    action = bpy.data.objects["MOGO"].animation_data.action
-    points = action.fcurves.find('pose.bones["Hips"].rotation_quaternion', index=0)
-    return dict(action=action.name, written=session.written, prompts=session.stream.prompts,
-                keys=[point.co[0] for point in points.keyframe_points],
-                error=str(session.error or ""), running="live" in ui._CACHE)
+    ours = bpy.data.objects["MOGO"]
+    return dict(action=ours.animation_data.action.name, written=session.written,
+                prompts=session.stream.prompts, keys=_hips_keys(ours.animation_data.action),
+                plays=_plays(scene, ours), error=str(session.error or ""),
+                running="live" in ui._CACHE)
+
+
+def _hips_keys(action) -> list[float]:
+    """The frames of the Hips' rotation keys: in Action.fcurves before Blender 4.4, from 4.4
+    in the channel bag of the action's slot (5.0 has no Action.fcurves)."""
+    curves = action.fcurves if bpy.app.version < (4, 4, 0) else \
+        anim_utils.action_get_channelbag_for_slot(action, action.slots[0]).fcurves
+    points = curves.find('pose.bones["Hips"].rotation_quaternion', index=0).keyframe_points
+    return [point.co[0] for point in points]
+
+
+def _plays(scene, armature) -> bool:
+    """Whether the armature moves with its current action, first to last frame (on Blender
+    4.4+ an action whose slot is not bound to the armature leaves it still)."""
+    bone, heads = armature.pose.bones["Hips"], []
+    for frame in armature.animation_data.action.frame_range:
+        scene.frame_set(int(frame))
+        heads.append(armature.matrix_world @ bone.head)
+    return (heads[1] - heads[0]).length > 0.05
 
 
 def _raise(error):

@@ -2,6 +2,7 @@
 
     python -m mogo.bench.quality.blender_addon [--png docs/blender_retarget.png]
                                                [--screenshot docs/blender_panel.png]
+                                               [--bpy-python /tmp/bpy4-venv/bin/python]
 
 Builds the add-on zip (`mogo blender-addon`), and has Blender (bench/blender/addon_scene.py)
 install it, Generate a walk and Retarget it onto a Mixamo-named armature of other proportions
@@ -9,6 +10,8 @@ install it, Generate a walk and Retarget it onto a Mixamo-named armature of othe
 armature's joints against the runtime's rig (mogo.motion.rig) and against the generated
 joints, and the target's feet, hands and hips against ours scaled by its proportions.
 --screenshot: Blender's window with the panel (bench/blender/addon_screenshot.py, on xvfb-run).
+--bpy-python: a Python with the `bpy` module from PyPI (Blender 4.x) runs the same scene script
+instead of a blender executable (bench/blender/bpy_module.py).
 Blender's Python must be the version of this one: the add-on is pointed at this
 environment's site-packages (a user installs with the add-on's Install button instead).
 """
@@ -34,6 +37,7 @@ from mogo.motion.bvh import NAMINGS
 
 SCRIPT = Path(__file__).resolve().parents[1] / "blender" / "addon_scene.py"
 SCREENSHOT_SCRIPT = SCRIPT.with_name("addon_screenshot.py")
+BPY_MODULE = SCRIPT.with_name("bpy_module.py")
 SCALE = dict(leg=1.2, arm=0.85, torso=1.1)
 A_POSE = 40.0  # degrees the target's arms hang below the T-pose
 # Our joint (Mixamo bone name) -> the chain root its position is measured from, and its scale.
@@ -56,7 +60,17 @@ class Figures:
     follow: dict  # label -> worst distance (m) of the target's joint from ours scaled
 
 
-def run(blender: str, prompt: str = "a person walks forward.", seconds: float = 3.0,
+def background(blender: str) -> list[str]:
+    """The command that runs a scene script (and its arguments) in a headless Blender."""
+    return [blender, "-b", "--factory-startup", "--python"]
+
+
+def as_module(python: str) -> list[str]:
+    """The same under a Python that has the `bpy` module (Blender 4.x wheels from PyPI)."""
+    return [python, str(BPY_MODULE)]
+
+
+def run(launcher: list[str], prompt: str = "a person walks forward.", seconds: float = 3.0,
         seed: int = 0, png: Path | None = None, frame: int = 30,
         size: tuple[int, int] = (640, 400), samples: int = 16, timeout: float = 300.0
         ) -> Figures:
@@ -66,10 +80,10 @@ def run(blender: str, prompt: str = "a person walks forward.", seconds: float = 
         request.update(size=list(size), samples=samples)
         if png is not None:
             request["png"] = str(folder / "frame.png")
-        done = _blender([blender, "-b"], SCRIPT, folder, request, timeout)
+        done = _blender(launcher, SCRIPT, folder, request, timeout)
         result_path = folder / "result.json"
         if not result_path.is_file():
-            _explain(done)
+            _explain(done, request)
         scene = json.loads(result_path.read_text())
         if png is not None:
             _small_png(Path(request["png"]), png)
@@ -88,9 +102,10 @@ def screenshot(blender: str, png: Path, timeout: float = 300.0) -> None:
         request = dict(_request(folder, "a person walks forward.", 3.0, 0, 30),
                        png=str(folder / "screen.png"))
         done = _blender([xvfb, "-a", "-s", "-screen 0 1280x800x24", blender,
-                         "--enable-event-simulate"], SCREENSHOT_SCRIPT, folder, request, timeout)
+                         "--enable-event-simulate", "--factory-startup", "--python"],
+                        SCREENSHOT_SCRIPT, folder, request, timeout)
         if not Path(request["png"]).is_file():
-            _explain(done)
+            _explain(done, request)
         _small_png(Path(request["png"]), png)
 
 
@@ -104,12 +119,12 @@ def _request(folder: Path, prompt: str, seconds: float, seed: int, frame: int) -
                 result=str(folder / "result.json"))
 
 
-def _blender(command: list[str], script: Path, folder: Path, request: dict, timeout: float
+def _blender(launcher: list[str], script: Path, folder: Path, request: dict, timeout: float
              ) -> subprocess.CompletedProcess:
     (folder / "request.json").write_text(json.dumps(request))
-    return subprocess.run(command + ["--factory-startup", "--python", str(script), "--",
-                                     str(folder / "request.json")], capture_output=True,
-                          text=True, timeout=timeout, env=_clean_environment(folder / "scripts"))
+    return subprocess.run(launcher + [str(script), "--", str(folder / "request.json")],
+                          capture_output=True, text=True, timeout=timeout,
+                          env=_clean_environment(folder / "scripts"))
 
 
 def _clean_environment(scripts: Path) -> dict:
@@ -123,10 +138,12 @@ def _clean_environment(scripts: Path) -> dict:
     return environment
 
 
-def _explain(done: subprocess.CompletedProcess) -> None:
+def _explain(done: subprocess.CompletedProcess, request: dict) -> None:
+    """Why Blender wrote no result. Its runtime-missing line for the empty folder is expected
+    (a check); for this environment's site-packages it means another Python version."""
     output = done.stdout + done.stderr
     version = f"{sys.version_info.major}.{sys.version_info.minor}"
-    if "MOGO runtime not found" in output or "numpy.core" in output:
+    if f"missing in {request['site_packages']})" in output or "numpy.core" in output:
         raise PythonMismatch(f"Blender's Python cannot use this Python {version}'s packages")
     raise RuntimeError(f"Blender failed:\n{output[-3000:]}")
 
@@ -172,7 +189,7 @@ def _worst(found: np.ndarray, expected: np.ndarray) -> float:
 
 def table(figures: Figures) -> str:
     scene = figures.scene
-    lines = ["| check | figure |", "|---|---:|",
+    lines = ["| check | figure |", "|---|---:|", f"| Blender | {scene['blender']} |",
              f"| frames / keys / scene fps | {figures.frames} / {scene['keys']} / "
              f"{scene['fps']:g} |",
              f"| our armature vs the runtime's rig, max (cm) | {figures.rig_max * 100:.4f} |",
@@ -191,10 +208,14 @@ def main() -> None:
     parser.add_argument("--screenshot", type=Path,
                         help="Blender's window with the panel, on a virtual display, here")
     parser.add_argument("--blender", default=shutil.which("blender"))
+    parser.add_argument("--bpy-python", help="a Python with the bpy module, instead of Blender")
     args = parser.parse_args()
-    if not args.blender:
-        parser.exit(2, "blender_addon: error: no blender on PATH (--blender)\n")
-    figures = run(args.blender, png=args.png)
+    if not (args.blender or args.bpy_python):
+        parser.exit(2, "blender_addon: error: no blender on PATH (--blender, --bpy-python)\n")
+    if args.screenshot and not args.blender:
+        parser.exit(2, "blender_addon: error: --screenshot needs a blender executable\n")
+    figures = run(as_module(args.bpy_python) if args.bpy_python else background(args.blender),
+                  png=args.png)
     print(table(figures))
     if args.png:
         print(f"wrote {args.png}")

@@ -11,6 +11,7 @@ from .motion_keys import BONE_NAMES, OurRig
 from .ui import RIG_KEY
 
 ARMATURE = "MOGO"  # our armature object's name
+SLOTTED = bpy.app.version >= (4, 4, 0)  # actions animate through slots (channel bags)
 
 
 def our_armature(context, ours: OurRig):
@@ -80,23 +81,44 @@ def new_action(armature, name: str):
     if armature.animation_data is None:
         armature.animation_data_create()
     armature.animation_data.action = action
+    if SLOTTED:  # the action animates the armature through a slot bound to it
+        armature.animation_data.action_slot = action.slots.new(id_type="OBJECT",
+                                                               name=armature.name)
     for bone in armature.pose.bones:
         bone.rotation_mode = "QUATERNION"
     return action
+
+
+def channels(action, slot=None):
+    """Where an action keeps its F-curves and their groups: the action itself before Blender
+    4.4; from 4.4 (slotted actions; 5.0 has no Action.fcurves) the channel bag of `slot`
+    (else its first, which new_action binds to the armature) in its keyframe strip, made
+    where missing."""
+    if not SLOTTED:
+        return action
+    if slot is None:
+        slot = action.slots[0] if len(action.slots) else action.slots.new(id_type="OBJECT",
+                                                                          name=ARMATURE)
+    if not len(action.layers):
+        action.layers.new("Layer").strips.new(type="KEYFRAME")
+    return action.layers[0].strips[0].channelbag(slot, ensure=True)
 
 
 def add_keys(action, bone: str, frames: np.ndarray, quaternions: np.ndarray,
              locations: np.ndarray | None = None) -> None:
     """Keys at `frames` for one pose bone: rotation (T, 4), location (T, 3) if given; appended
     to the bone's curves when they exist (a stream's chunks)."""
-    channels = [("rotation_quaternion", quaternions)]
+    values_of = [("rotation_quaternion", quaternions)]
     if locations is not None:
-        channels.append(("location", locations))
-    for prop, values in channels:
+        values_of.append(("location", locations))
+    bag = channels(action)
+    for prop, values in values_of:
         path = f'pose.bones["{bone}"].{prop}'
         for axis in range(values.shape[1]):
-            curve = action.fcurves.find(path, index=axis) or action.fcurves.new(
-                path, index=axis, action_group=bone)
+            curve = bag.fcurves.find(path, index=axis)
+            if curve is None:
+                curve = bag.fcurves.new(path, index=axis)
+                curve.group = bag.groups.get(bone) or bag.groups.new(bone)
             start = len(curve.keyframe_points)
             curve.keyframe_points.add(len(frames))
             co = np.stack([frames, values[:, axis]], axis=1).astype(np.float32)
@@ -126,15 +148,16 @@ def read_pose(action, armature, ours: OurRig) -> tuple[np.ndarray, np.ndarray, n
     rest = rest_frames(armature, BONE_NAMES)
     parents = [p if p >= 0 else None for p in ours.skeleton.parents]
     frames, quaternions, pelvis = None, [], None
+    fcurves = channels(action, getattr(armature.animation_data, "action_slot", None)).fcurves
     for name in BONE_NAMES:
         path = f'pose.bones["{name}"].rotation_quaternion'
-        curves = [action.fcurves.find(path, index=axis) for axis in range(4)]
+        curves = [fcurves.find(path, index=axis) for axis in range(4)]
         if any(curve is None for curve in curves):
             raise ValueError(f"the action {action.name!r} has no rotation keys for {name}")
         if frames is None:
             frames = np.array([point.co[0] for point in curves[0].keyframe_points])
         quaternions.append([[c.evaluate(f) for c in curves] for f in frames])
-    location = [action.fcurves.find(f'pose.bones["{BONE_NAMES[0]}"].location', index=axis)
+    location = [fcurves.find(f'pose.bones["{BONE_NAMES[0]}"].location', index=axis)
                 for axis in range(3)]
     offset = np.array([[c.evaluate(f) if c else 0.0 for c in location] for f in frames])
     pelvis = ours.heads[0] + offset @ rest[0].T
