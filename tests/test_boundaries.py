@@ -43,6 +43,9 @@ ADDON_MAY_IMPORT = {"bpy", "mathutils", "addon_utils", "numpy", "mogo", "mogo.mo
                     "mogo.motion.bvh", "mogo.motion.quaternion"}
 
 
+CODE_FOLDERS = ("runtime", "export", "bench", "tests")  # the repository's code (no venvs)
+
+
 def sources(folder: Path):
     return sorted(p for p in folder.rglob("*.py")
                   if ".venv" not in p.parts and not p.is_relative_to(ADDON_DIR))
@@ -114,7 +117,7 @@ def test_the_blender_addon_uses_the_public_api_and_is_not_imported_by_the_runtim
             for forms in names:
                 assert forms[0].split(".")[0] in stdlib or ADDON_MAY_IMPORT & set(forms), (
                     f"{path.name} imports {forms[-1]}")
-    for path in sources(ROOT):
+    for path in (p for folder in CODE_FOLDERS for p in sources(ROOT / folder)):
         assert not any(within(n, "mogo.blender_addon") for n in imported_modules(path)), path
 
 
