@@ -11,6 +11,7 @@ REQUEST.json: {"zip", "site_packages", "empty" (a folder without the runtime), "
 add-on is installed there, not into the user's Blender.
 """
 import json
+import os
 import math
 import sys
 import time
@@ -19,6 +20,9 @@ import addon_utils
 import bpy
 from bpy_extras import anim_utils
 from mathutils import Matrix, Vector
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from stage import render  # noqa: E402 - the sibling script, found once the folder is on the path
 
 LEGS = ("UpLeg", "Leg", "Foot", "ToeBase")
 ARMS = ("Arm", "ForeArm", "Hand")
@@ -199,24 +203,7 @@ def _render(scene, armatures, request: dict) -> None:
     _paint(bpy.context.object, "floor", (0.35, 0.37, 0.4))
     middle = sum((a.matrix_world @ a.pose.bones[0].head for a in armatures), Vector()) / 2
     target = Vector((middle.x, middle.y, 0.9))
-    camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
-    camera.location = target + Vector((3.4, -5.2, 0.5))
-    camera.rotation_euler = (target - camera.location).to_track_quat("-Z", "Y").to_euler()
-    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
-    sun.data.energy = 2.5
-    sun.rotation_euler = (math.radians(40), 0.0, math.radians(30))
-    for thing in (camera, sun):
-        scene.collection.objects.link(thing)
-    scene.camera = camera
-    scene.world = bpy.data.worlds.new("world")
-    scene.world.color = (0.25, 0.27, 0.3)
-    scene.render.engine = "CYCLES"
-    scene.cycles.device, scene.cycles.samples = "CPU", request.get("samples", 16)
-    scene.cycles.use_denoising = False  # Debian's build has no OpenImageDenoise
-    scene.render.resolution_x, scene.render.resolution_y = request.get("size", [640, 400])
-    scene.render.resolution_percentage = 100
-    scene.render.filepath = request["png"]
-    bpy.ops.render.render(write_still=True)
+    render(scene, target, Vector((3.4, -5.2, 0.5)), request, [640, 400])
 
 
 def _rods(armature, colour) -> None:

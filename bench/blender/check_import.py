@@ -18,6 +18,7 @@ its own process only.
 """
 import builtins
 import json
+import os
 import math
 import sys
 
@@ -25,6 +26,9 @@ import bmesh
 import bpy
 from io_anim_bvh import import_bvh
 from mathutils import Matrix, Vector
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from stage import render  # noqa: E402 - the sibling script, found once the folder is on the path
 
 
 def _open_without_u(file, mode="r", *args, **kwargs):
@@ -95,26 +99,7 @@ def _render(scene, armature, request: dict) -> None:
     bpy.context.object.data.materials.append(_material("floor", (0.35, 0.37, 0.4)))
     pelvis = armature.matrix_world @ armature.pose.bones[0].head
     target = Vector((pelvis.x, pelvis.y, 0.85))
-    camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
-    camera.location = target + Vector((1.9, -2.9, 0.5))
-    camera.rotation_euler = (target - camera.location).to_track_quat("-Z", "Y").to_euler()
-    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
-    sun.data.energy = 2.5
-    sun.rotation_euler = (math.radians(40), 0.0, math.radians(30))
-    for thing in (camera, sun):
-        scene.collection.objects.link(thing)
-    scene.camera = camera
-    world = bpy.data.worlds.new("world")
-    world.color = (0.25, 0.27, 0.3)
-    scene.world = world
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = request.get("samples", 16)
-    scene.cycles.use_denoising = False  # Debian's build has no OpenImageDenoise
-    scene.render.resolution_x, scene.render.resolution_y = request.get("size", [480, 480])
-    scene.render.resolution_percentage = 100
-    scene.render.filepath = request["png"]
-    bpy.ops.render.render(write_still=True)
+    render(scene, target, Vector((1.9, -2.9, 0.5)), request, [480, 480])
 
 
 def _mannequin(armature) -> None:
@@ -127,7 +112,7 @@ def _mannequin(armature) -> None:
     shapes = bmesh.new()
     layer = shapes.verts.layers.deform.verify()
     for index, bone in enumerate(armature.data.bones):
-        group = body.vertex_groups.new(name=bone.name)
+        body.vertex_groups.new(name=bone.name)  # the group the deform layer indexes
         head, tail = bone.head_local, bone.tail_local
         length = (tail - head).length
         if bone.name.lower() == "head" or length < 0.03:
