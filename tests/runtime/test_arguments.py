@@ -8,18 +8,10 @@ import pytest
 
 from mogo import MotionGenerator, PromptWarning, Sampling, UnknownPromptWarning
 
-from helpers import bundle_with_old_text_side
-
 
 @pytest.fixture(scope="module")
 def generator():
     return MotionGenerator.load()
-
-
-@pytest.fixture(scope="module")
-def old_generator(tmp_path_factory):
-    """A text encoder trained with the model (254 words): the unknown-word warnings are its."""
-    return MotionGenerator.load(bundle_with_old_text_side(tmp_path_factory.mktemp("old")))
 
 
 @pytest.mark.parametrize("call,message", [

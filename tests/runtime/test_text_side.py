@@ -17,17 +17,12 @@ from mogo.cli import main
 from mogo.generator import DEFAULT_BUNDLE
 from mogo.manifest import Manifest
 
-from helpers import OLD_TEXT_SIDE, bundle_with_old_text_side
+from helpers import OLD_TEXT_SIDE
 
 
 @pytest.fixture(scope="module")
 def generator():
     return MotionGenerator.load()
-
-
-@pytest.fixture(scope="module")
-def old_generator(tmp_path_factory):
-    return MotionGenerator.load(bundle_with_old_text_side(tmp_path_factory.mktemp("old")))
 
 
 def test_the_shipped_bundle_has_a_pretrained_encoder_with_its_provenance(generator):
