@@ -58,3 +58,15 @@ def _difference(actual: list[str], expected: list[str]) -> str:
         if name != wanted:
             return f"number {index} is {name!r}, the manifest says {wanted!r}"
     return f"{len(actual)} in the graph, {len(expected)} in the manifest"
+
+
+class NamedGraph:
+    """A bundle graph's session with its manifest names: inputs in, first output out."""
+
+    def __init__(self, bundle, graph: Graph, threads: int):
+        self.session = graph_session(bundle.path(graph.file), graph, threads)
+        self.inputs, self.outputs = list(graph.inputs), list(graph.outputs)
+        self.output = self.outputs[0]
+
+    def run(self, *arrays):
+        return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]

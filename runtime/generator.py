@@ -15,35 +15,31 @@ from the features with the root carried across chunks (mogo.motion.features.Join
 """
 from __future__ import annotations
 
-import functools
 import math
 import os
-import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
-from tokenizers import Tokenizer
 
-from mogo._session import graph_session
+from mogo._session import NamedGraph, graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.anchoring import Anchor, Anchoring
-from mogo.arguments import (UnfamiliarPromptWarning, checked_bool, checked_int, checked_prompt,
-                            checked_schedule, checked_seconds, plural, read_prompt, word_reading)
+from mogo.arguments import (checked_bool, checked_int, checked_prompt, checked_schedule,
+                            checked_seconds, plural)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
-from mogo.manifest import Graph
 from mogo.motion.features import JointStream
 from mogo.motion.feet import FootPlanter, planted
-from mogo.repertoire import Familiarity, KnownCaptions
+from mogo.repertoire import Familiarity
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StreamingDecoder
+from mogo.text_side import TextSide
 from mogo.token_generator import TokenGenerator, TokenStream
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
-ENCODED_PROMPTS = 256  # prompts whose text-graph outputs are kept
 STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
 
 
@@ -62,15 +58,8 @@ class MotionGenerator:
         self.skeleton = manifest.skeleton()
         self.fps = manifest.fps
         self.defaults = manifest.defaults
-        self.tokenizer = _tokenizer(bundle.path(manifest.text.tokenizer))
-        self._counter = Tokenizer.from_str(self.tokenizer.to_str())  # sees what is cut
-        self._counter.no_truncation()
-        self._text = _Graph(bundle, manifest.text.encoder, threads)
-        repertoire, trained = manifest.text.repertoire, manifest.text.trained
-        self.repertoire = None if repertoire is None else KnownCaptions(bundle, repertoire)
-        self._trained = None if trained is None else (
-            _tokenizer(bundle.path(trained.tokenizer)), _Graph(bundle, trained.encoder, threads))
-        self._encoded = functools.lru_cache(ENCODED_PROMPTS)(self._encode_one)
+        self.text = TextSide(bundle, threads)
+        self.tokenizer, self.repertoire = self.text.tokenizer, self.text.repertoire
         levels = manifest.t2m.levels
         self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
                                      manifest.end_token, intra_op_threads=1,
@@ -79,7 +68,7 @@ class MotionGenerator:
         self._decoder = manifest.vq.decoder
         self._decoder_session = graph_session(bundle.path(self._decoder.file), self._decoder,
                                               threads)
-        self._vq_encoder = _Graph(bundle, manifest.vq.encoder, threads)
+        self._vq_encoder = NamedGraph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
 
     @classmethod
@@ -95,18 +84,12 @@ class MotionGenerator:
     # -- text --------------------------------------------------------------------------------
     def embed(self, texts: Sequence[str]) -> np.ndarray:
         """Prompt embeddings (B, text_dim) float32."""
-        if isinstance(texts, str):  # not one embedding per character
-            raise TypeError("texts must be a list of prompts, got one str")
-        texts = [checked_prompt(t, f"texts[{k}]") for k, t in enumerate(texts)]
-        if not texts:
-            raise ValueError("no prompt given")
-        return np.concatenate([self._encoded(text)[0] for text in texts])
+        return self.text.embed(texts)
 
     def vocabulary(self) -> set[str]:
         """The whole words of the tokenizer the model was trained with (what prompt alignment
         aims at)."""
-        tokenizer = self.tokenizer if self._trained is None else self._trained[0]
-        return {w for w in tokenizer.get_vocab() if w.isalpha()}
+        return self.text.vocabulary()
 
     def known(self, prompt: str) -> Familiarity | None:
         """How close `prompt` is to what the model was trained on (mogo.repertoire): the
@@ -114,23 +97,7 @@ class MotionGenerator:
         repertoire (a text encoder trained with the model: see its PromptWarning instead)."""
         if self.repertoire is None:
             return None
-        return self._familiarity(checked_prompt(prompt, "prompt"))
-
-    def _familiarity(self, text: str) -> Familiarity:
-        return self.repertoire.familiarity(self._encoded(text)[1][0])
-
-    def _encode_one(self, text: str) -> list[np.ndarray]:
-        """Every output of the text graph for one prompt (batch of 1), the prompt embedding by
-        the encoder trained with the model where the bundle has it and it reads the whole
-        prompt (every word, nothing cut at its length); cached, since a prompt is encoded for
-        its repertoire check and again for its tokens."""
-        outputs = _run_text(self._text, self.tokenizer.encode(text))
-        if self._trained is not None:
-            tokenizer, graph = self._trained
-            encoding = tokenizer.encode(text)
-            if not encoding.overflowing and word_reading(text, encoding) == (True, []):
-                outputs[0] = _run_text(graph, encoding)[0]
-        return outputs
+        return self.text.familiarity(checked_prompt(prompt, "prompt"))
 
     def aligner(self, align: bool | PromptAligner) -> PromptAligner | None:
         """align=True: the rules on this bundle's vocabulary; an aligner: itself."""
@@ -311,13 +278,8 @@ class MotionGenerator:
         return max(1, math.ceil(round(seconds * self.fps) / self.down_factor))
 
     def _prompt(self, text: object, name: str = "text") -> str:
-        """A prompt checked where it enters the API (see mogo.arguments.read_prompt)."""
-        sentence_encoder = self.manifest.text.sentence_encoder
-        text = read_prompt(text, self._counter, self.manifest.text.max_length,
-                           None if sentence_encoder else len(self.vocabulary()), name)
-        if self.repertoire is not None and not (familiarity := self._familiarity(text)).familiar:
-            warnings.warn(familiarity.describe(), UnfamiliarPromptWarning, stacklevel=3)
-        return text
+        """A prompt checked where it enters the API (see mogo.text_side.TextSide.read)."""
+        return self.text.read(text, name, stacklevel=4)
 
 
 class MotionStream:
@@ -448,32 +410,6 @@ class MotionStream:
         frames the foot planter holds back)."""
         held = 0 if self._feet is None else self._feet.pending
         return (self._decoder.pushed - self._decoder.emitted) * self.generator.down_factor + held
-
-
-class _Graph:
-    """A session with its manifest names: inputs in, first output out."""
-
-    def __init__(self, bundle: Bundle, graph: Graph, threads: int):
-        self.session = graph_session(bundle.path(graph.file), graph, threads)
-        self.inputs, self.outputs = list(graph.inputs), list(graph.outputs)
-        self.output = self.outputs[0]
-
-    def run(self, *arrays: np.ndarray) -> np.ndarray:
-        return self.session.run([self.output], dict(zip(self.inputs, arrays)))[0]
-
-
-def _run_text(graph: _Graph, encoding) -> list[np.ndarray]:
-    """Every output of a text graph for one encoded prompt."""
-    ids, mask = (np.array([v], np.int64) for v in (encoding.ids, encoding.attention_mask))
-    return graph.session.run(graph.outputs, dict(zip(graph.inputs, (ids, mask))))
-
-
-def _tokenizer(path: Path) -> Tokenizer:
-    try:
-        return Tokenizer.from_file(str(path))
-    except Exception as error:  # tokenizers raises a bare Exception
-        cause = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise BundleError(f"{path}: not a tokenizer file: {cause}") from None
 
 
 def _seed(seed: object) -> int:

@@ -1,0 +1,98 @@
+"""A bundle's text side: prompts in, prompt embeddings out, and how close a prompt is to
+what the model knows.
+
+The text graph reads a prompt with its tokenizer (a bundle with a sentence encoder:
+all-MiniLM-L6-v2 and an adapter, docs/text_encoder.md). Where the bundle also keeps the
+encoder the model was trained with (manifest `text.trained`), a prompt that encoder reads
+whole (every word known, nothing cut) is embedded by it, exactly as in training. The
+repertoire (mogo.repertoire) scores the sentence embedding against the training captions.
+"""
+from __future__ import annotations
+
+import functools
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from tokenizers import Tokenizer
+
+from mogo._session import NamedGraph
+from mogo.arguments import UnfamiliarPromptWarning, checked_prompt, read_prompt, word_reading
+from mogo.bundle import Bundle, BundleError
+from mogo.repertoire import Familiarity, KnownCaptions
+
+ENCODED_PROMPTS = 256  # prompts whose text-graph outputs are kept
+
+
+class TextSide:
+    """The text graphs and tokenizers of one bundle, with a cache of encoded prompts."""
+
+    def __init__(self, bundle: Bundle, threads: int):
+        text = self._spec = bundle.manifest.text
+        self.tokenizer = _tokenizer(bundle.path(text.tokenizer))
+        self._counter = Tokenizer.from_str(self.tokenizer.to_str())  # sees what is cut
+        self._counter.no_truncation()
+        self._graph = NamedGraph(bundle, text.encoder, threads)
+        repertoire, trained = text.repertoire, text.trained
+        self.repertoire = None if repertoire is None else KnownCaptions(bundle, repertoire)
+        self._trained = None if trained is None else (
+            _tokenizer(bundle.path(trained.tokenizer)),
+            NamedGraph(bundle, trained.encoder, threads))
+        self._encoded = functools.lru_cache(ENCODED_PROMPTS)(self._encode_one)
+
+    def embed(self, texts: Sequence[str]) -> np.ndarray:
+        """Prompt embeddings (B, text_dim) float32."""
+        if isinstance(texts, str):  # not one embedding per character
+            raise TypeError("texts must be a list of prompts, got one str")
+        texts = [checked_prompt(t, f"texts[{k}]") for k, t in enumerate(texts)]
+        if not texts:
+            raise ValueError("no prompt given")
+        return np.concatenate([self._encoded(text)[0] for text in texts])
+
+    def vocabulary(self) -> set[str]:
+        """The whole words of the tokenizer the model was trained with."""
+        tokenizer = self.tokenizer if self._trained is None else self._trained[0]
+        return {w for w in tokenizer.get_vocab() if w.isalpha()}
+
+    def familiarity(self, text: str) -> Familiarity:
+        """The repertoire's score of a checked prompt (a bundle with a repertoire)."""
+        return self.repertoire.familiarity(self._encoded(text)[1][0])
+
+    def read(self, text: object, name: str, stacklevel: int) -> str:
+        """A prompt checked where it enters the API (mogo.arguments.read_prompt), with an
+        UnfamiliarPromptWarning where it is far from the repertoire (`stacklevel`: the
+        caller's frame for the warning)."""
+        spec = self._spec
+        text = read_prompt(text, self._counter, spec.max_length,
+                           None if spec.sentence_encoder else len(self.vocabulary()), name)
+        if self.repertoire is not None and not (familiarity := self.familiarity(text)).familiar:
+            warnings.warn(familiarity.describe(), UnfamiliarPromptWarning, stacklevel=stacklevel)
+        return text
+
+    def _encode_one(self, text: str) -> list[np.ndarray]:
+        """Every output of the text graph for one prompt (batch of 1), the prompt embedding by
+        the encoder trained with the model where the bundle has it and it reads the whole
+        prompt (every word, nothing cut at its length); cached, since a prompt is encoded for
+        its repertoire check and again for its tokens."""
+        outputs = _run(self._graph, self.tokenizer.encode(text))
+        if self._trained is not None:
+            tokenizer, graph = self._trained
+            encoding = tokenizer.encode(text)
+            if not encoding.overflowing and word_reading(text, encoding) == (True, []):
+                outputs[0] = _run(graph, encoding)[0]
+        return outputs
+
+
+def _run(graph: NamedGraph, encoding) -> list[np.ndarray]:
+    """Every output of a text graph for one encoded prompt."""
+    ids, mask = (np.array([v], np.int64) for v in (encoding.ids, encoding.attention_mask))
+    return graph.session.run(graph.outputs, dict(zip(graph.inputs, (ids, mask))))
+
+
+def _tokenizer(path: Path) -> Tokenizer:
+    try:
+        return Tokenizer.from_file(str(path))
+    except Exception as error:  # tokenizers raises a bare Exception
+        cause = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise BundleError(f"{path}: not a tokenizer file: {cause}") from None
