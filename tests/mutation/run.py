@@ -1,0 +1,186 @@
+"""Mutation testing of the runtime core with cosmic-ray: a developer tool, not run in CI.
+
+cosmic-ray makes one small bug at a time in a source file (an operator swapped, a constant
+changed, a condition negated) and runs the tests that cover that file; a mutant no test
+notices "survives". The score is the share killed. docs/mutation.md has the figures and the
+survivors, each judged.
+
+cosmic-ray writes mutants into the file in place, so this never touches your checkout: it
+clones the committed HEAD into WORK/repo and imports `mogo` from that clone (WORK/import, put
+first on PYTHONPATH). Sessions are sqlite files in WORK and resume where they stopped.
+
+    pip install -e ".[dev,mutation]"
+    python tests/mutation/run.py --work ~/mogo-mutation                  # all seven files
+    python tests/mutation/run.py --work ~/mogo-mutation sampling bvh     # some of them
+    python tests/mutation/run.py --work ~/mogo-mutation --report         # the table only
+
+Mutants inside type annotations are skipped: with postponed annotations (`from __future__
+import annotations`) they are never evaluated, so no test can tell them apart.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import os
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# Each core file and the tests that cover it, fastest and most telling first (pytest -x stops
+# at the first failure).
+CORE = {
+    "sampling": ("runtime/sampling.py", "test_sampling.py test_golden.py test_token_loop.py"),
+    "token_generator": ("runtime/token_generator.py",
+                        "test_token_loop.py test_golden.py test_sampling.py"),
+    "stream_decoder": ("runtime/stream_decoder.py", "test_stream_decoder.py test_golden.py"),
+    "features": ("runtime/motion/features.py",
+                 "test_features_spec.py test_features.py test_golden.py test_stream_decoder.py"),
+    "bundle": ("runtime/bundle.py", "test_bundle_files.py test_golden.py"),
+    "bvh": ("runtime/motion/bvh.py", "test_bvh.py test_bvh_external.py test_rig.py"),
+    "generator": ("runtime/generator.py", "test_generator.py test_golden.py test_clip_edges.py "
+                  "test_arguments.py test_anchoring.py test_token_loop.py"),
+}
+TIMEOUT_S = 300  # per mutant: a mutant that hangs the tests is killed by the clock
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", metavar="NAME",
+                        help=f"core files to run (default: all): {', '.join(CORE)}")
+    parser.add_argument("--work", type=Path, required=True,
+                        help="folder for the clone and the sessions (outside the checkout)")
+    parser.add_argument("--report", action="store_true", help="print the table, run nothing")
+    args = parser.parse_args()
+    unknown = sorted(set(args.names) - set(CORE))
+    if unknown:
+        parser.error(f"unknown core file {', '.join(unknown)}; choose from {', '.join(CORE)}")
+    names = args.names or list(CORE)
+    work = args.work.expanduser().resolve()
+    if work == ROOT or ROOT in work.parents:
+        parser.error("--work must be outside the checkout (mutants are written in place)")
+    if not args.report:
+        repo = prepare_clone(work)
+        for name in names:
+            run_session(work, repo, name)
+    print(report(work, names))
+    return 0
+
+
+def prepare_clone(work: Path) -> Path:
+    """WORK/repo: a clone of HEAD with no mutant left in it, importable as `mogo`."""
+    repo = work / "repo"
+    if not repo.exists():
+        work.mkdir(parents=True, exist_ok=True)
+        subprocess.run(["git", "clone", "-q", str(ROOT), str(repo)], check=True)
+        for sub in ("bench", "export"):  # mogo.bench and mogo.export, as the install maps them
+            (repo / "runtime" / sub).symlink_to(Path("..") / sub)
+        (work / "import").mkdir()
+        (work / "import" / "mogo").symlink_to(repo / "runtime")
+    subprocess.run(["git", "checkout", "-q", "--", "runtime"], cwd=repo, check=True)
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo, check=True,
+                          capture_output=True, text=True).stdout.strip()
+    print(f"mutating a clone of {head} in {repo}", flush=True)
+    return repo
+
+
+def run_session(work: Path, repo: Path, name: str) -> None:
+    """Init the session (once), skip annotation mutants, run what is pending, with progress."""
+    path, tests = CORE[name]
+    config, session = work / f"{name}.toml", work / f"{name}.sqlite"
+    test_command = " ".join([sys.executable, "-m pytest -q -x -p no:cacheprovider",
+                             *(f"tests/runtime/{test}" for test in tests.split())])
+    config.write_text(f'[cosmic-ray]\nmodule-path = "{path}"\ntimeout = {TIMEOUT_S}.0\n'
+                      f'excluded-modules = []\ntest-command = "{test_command}"\n\n'
+                      f'[cosmic-ray.distributor]\nname = "local"\n')
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(work / "import"),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    if not session.exists():
+        subprocess.run(["cosmic-ray", "init", str(config), str(session)], cwd=repo, env=env,
+                       check=True)
+        skip_annotations(session, repo / path)
+    job = subprocess.Popen(["cosmic-ray", "exec", str(config), str(session)], cwd=repo, env=env,
+                           stdout=subprocess.DEVNULL, stderr=(work / f"{name}.log").open("a"))
+    try:
+        while job.poll() is None:
+            time.sleep(30)
+            done, total = _progress(session)
+            print(f"{name}: {done}/{total} mutants", flush=True)
+    finally:
+        job.terminate()
+        job.wait()
+        subprocess.run(["git", "checkout", "-q", "--", "runtime"], cwd=repo, check=True)
+    if job.returncode:
+        sys.exit(f"cosmic-ray exec failed for {name} (exit {job.returncode}); see "
+                 f"{work / (name + '.log')}")
+
+
+def skip_annotations(session: Path, source: Path) -> None:
+    """Mark mutants that lie inside a type annotation as skipped (never evaluated)."""
+    spans = []
+    for node in ast.walk(ast.parse(source.read_text())):
+        for annotation in _annotations(node):
+            spans.append(((annotation.lineno, annotation.col_offset),
+                          (annotation.end_lineno, annotation.end_col_offset)))
+    with sqlite3.connect(session) as db:
+        rows = db.execute("SELECT job_id, start_pos_row, start_pos_col, end_pos_row, end_pos_col "
+                          "FROM mutation_specs").fetchall()
+        skipped = [(job,) for job, *pos in rows
+                   if any(a <= (pos[0], pos[1]) and (pos[2], pos[3]) <= b for a, b in spans)]
+        db.executemany("INSERT OR REPLACE INTO work_results (worker_outcome, output, "
+                       "test_outcome, diff, job_id) VALUES ('SKIPPED', NULL, NULL, NULL, ?)",
+                       skipped)
+
+
+def _annotations(node: ast.AST) -> list[ast.expr]:
+    """The annotation expressions a node holds (arguments, return, annotated assignment)."""
+    if isinstance(node, ast.arg):
+        return [node.annotation] if node.annotation else []
+    if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+        return [node.returns] if node.returns else []
+    if isinstance(node, ast.AnnAssign):
+        return [node.annotation]
+    return []
+
+
+def _progress(session: Path) -> tuple[int, int]:
+    with sqlite3.connect(session) as db:
+        total = db.execute("SELECT COUNT(*) FROM work_items").fetchone()[0]
+        done = db.execute("SELECT COUNT(*) FROM work_results").fetchone()[0]
+    return done, total
+
+
+def report(work: Path, names: list[str]) -> str:
+    """A markdown table of the sessions in WORK; survivors go to WORK/NAME_survivors.md."""
+    lines = ["| file | mutants | in annotations | not testable | killed | survived | pending "
+             "| score |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for name in names:
+        session = work / f"{name}.sqlite"
+        if not session.exists():
+            continue
+        with sqlite3.connect(session) as db:
+            total = db.execute("SELECT COUNT(*) FROM work_items").fetchone()[0]
+            outcomes = dict(db.execute(
+                "SELECT COALESCE(test_outcome, worker_outcome), COUNT(*) FROM work_results "
+                "GROUP BY 1").fetchall())
+            survivors = db.execute(
+                "SELECT s.start_pos_row, s.operator_name, r.diff FROM work_results r "
+                "JOIN mutation_specs s USING (job_id) WHERE r.test_outcome = 'SURVIVED' "
+                "ORDER BY s.start_pos_row").fetchall()
+        skipped, killed = outcomes.get("SKIPPED", 0), outcomes.get("KILLED", 0)
+        survived = outcomes.get("SURVIVED", 0)
+        untestable = sum(outcomes.values()) - skipped - killed - survived  # e.g. incompetent
+        score = f"{100 * killed / (killed + survived):.1f}%" if killed + survived else "-"
+        lines.append(f"| {CORE[name][0]} | {total} | {skipped} | {untestable} | {killed} "
+                     f"| {survived} | {total - sum(outcomes.values())} | {score} |")
+        (work / f"{name}_survivors.md").write_text("".join(
+            f"## line {row}: {operator}\n```diff\n{diff.strip()}\n```\n"
+            for row, operator, diff in survivors))
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
