@@ -13,6 +13,10 @@ first on PYTHONPATH). Sessions are sqlite files in WORK and resume where they st
     python tests/mutation/run.py --work ~/mogo-mutation                  # all seven files
     python tests/mutation/run.py --work ~/mogo-mutation sampling bvh     # some of them
     python tests/mutation/run.py --work ~/mogo-mutation --report         # the table only
+    python tests/mutation/run.py --work ~/mogo-mutation --retest         # new tests: survivors again
+
+Each run first moves the clone to the checkout's HEAD (commit what you want measured); a file
+whose source changed since its session was made gets a new session.
 
 Mutants inside type annotations are skipped: with postponed annotations (`from __future__
 import annotations`) they are never evaluated, so no test can tell them apart.
@@ -21,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import hashlib
 import os
 import sqlite3
 import subprocess
@@ -54,6 +59,8 @@ def main() -> int:
     parser.add_argument("--work", type=Path, required=True,
                         help="folder for the clone and the sessions (outside the checkout)")
     parser.add_argument("--report", action="store_true", help="print the table, run nothing")
+    parser.add_argument("--retest", action="store_true",
+                        help="run the survivors again (after adding tests)")
     args = parser.parse_args()
     unknown = sorted(set(args.names) - set(CORE))
     if unknown:
@@ -65,13 +72,14 @@ def main() -> int:
     if not args.report:
         repo = prepare_clone(work)
         for name in names:
-            run_session(work, repo, name)
+            run_session(work, repo, name, args.retest)
     print(report(work, names))
     return 0
 
 
 def prepare_clone(work: Path) -> Path:
-    """WORK/repo: a clone of HEAD with no mutant left in it, importable as `mogo`."""
+    """WORK/repo: a clone at the checkout's HEAD with no mutant left in it, importable as
+    `mogo`."""
     repo = work / "repo"
     if not repo.exists():
         work.mkdir(parents=True, exist_ok=True)
@@ -81,16 +89,25 @@ def prepare_clone(work: Path) -> Path:
         (work / "import").mkdir()
         (work / "import" / "mogo").symlink_to(repo / "runtime")
     subprocess.run(["git", "checkout", "-q", "--", "runtime"], cwd=repo, check=True)
+    subprocess.run(["git", "fetch", "-q", str(ROOT), "HEAD"], cwd=repo, check=True)
+    subprocess.run(["git", "checkout", "-q", "--detach", "FETCH_HEAD"], cwd=repo, check=True)
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo, check=True,
                           capture_output=True, text=True).stdout.strip()
     print(f"mutating a clone of {head} in {repo}", flush=True)
     return repo
 
 
-def run_session(work: Path, repo: Path, name: str) -> None:
-    """Init the session (once), skip annotation mutants, run what is pending, with progress."""
+def run_session(work: Path, repo: Path, name: str, retest: bool) -> None:
+    """Init the session (anew where the file changed since), skip annotation mutants, run what
+    is pending (and the survivors again, with `retest`: the tests changed), with progress."""
     path, tests = CORE[name]
     config, session = work / f"{name}.toml", work / f"{name}.sqlite"
+    source = work / f"{name}.source"  # the sha256 of the file the session was made from
+    digest = hashlib.sha256((repo / path).read_bytes()).hexdigest()
+    if session.exists() and source.exists() and source.read_text() != digest:
+        print(f"{name}: {path} changed since its session was made; starting a new one "
+              f"(the old one is kept as {session.name}.old)", flush=True)
+        session.replace(session.with_name(session.name + ".old"))
     test_command = " ".join([sys.executable, "-m pytest -q -x -p no:cacheprovider",
                              *(f"tests/runtime/{test}" for test in tests.split())])
     config.write_text(f'[cosmic-ray]\nmodule-path = "{path}"\ntimeout = {TIMEOUT_S}.0\n'
@@ -102,6 +119,10 @@ def run_session(work: Path, repo: Path, name: str) -> None:
         subprocess.run(["cosmic-ray", "init", str(config), str(session)], cwd=repo, env=env,
                        check=True)
         skip_annotations(session, repo / path)
+        source.write_text(digest)
+    if retest:
+        with sqlite3.connect(session) as db:
+            db.execute("DELETE FROM work_results WHERE test_outcome = 'SURVIVED'")
     job = subprocess.Popen(["cosmic-ray", "exec", str(config), str(session)], cwd=repo, env=env,
                            stdout=subprocess.DEVNULL, stderr=(work / f"{name}.log").open("a"))
     try:
