@@ -10,7 +10,8 @@ body a little:
   BODY_FRAMES frames; the shift accumulates, so the body travels less and the foot keeps its
   decoded motion relative to the body, with nothing to catch up at release;
 - each contact joint is held while its channel is above CONTACT and its decoded step is under
-  HOLD_STEP (a foot swinging faster is not believed planted), the frame after too (a contact
+  HOLD_STEP, HumanML3D's contact threshold (a foot swinging faster is not believed planted:
+  holding it squeezes its stride into the frames left, a pop), the frame after too (a contact
   is "still from t to t+1"), at its mean position over the first PIN_FRAMES frames of the
   contact; its height is never below that pin (a heel may rise, a foot never sinks);
 - it eases onto the pin over BLEND_IN frames before the contact and back onto its path over
@@ -31,12 +32,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import feature_layout
+from .features import FOOT_CONTACT_THRESHOLD, feature_layout
 from .rig import rest_offsets
 from .skeleton import Skeleton
 
 CONTACT = 0.5  # a contact channel above this holds its joint
-HOLD_STEP = 0.12  # m a frame (2.4 m/s at 20 fps): a flagged joint stepping further is not held
+# m a frame (0.9 m/s, HumanML3D's contact threshold): a flagged joint stepping further is not
+# held (0.12, 2.4 m/s, would meet issue 25's 3 cm/s at a cost in pops: docs/feet.md)
+HOLD_STEP = FOOT_CONTACT_THRESHOLD ** 0.5
 BODY_STEP = 0.067  # m a frame (1.34 m/s): a flagged joint's step beyond this moves the body back
 BODY_FRAMES = 3  # frames each such step back is spread over (the body slows, it does not jerk)
 BLEND_IN = 3  # frames to ease onto a pin before its contact starts
