@@ -150,9 +150,8 @@ class FootPlanter:
         """(n, 3) the body's horizontal shift at each buffered frame. Where the channel flags a
         foot joint whose decoded step (to the next frame) is longer than BODY_STEP, the body
         steps back by the excess (the mean over such joints), spread over BODY_FRAMES frames:
-        the foot's step shrinks towards BODY_STEP (the pins hold the rest), it keeps its
-        motion relative to the body, and the body travels less. The shift accumulates over
-        the stream."""
+        the foot's step shrinks towards BODY_STEP, it keeps its motion relative to the body,
+        and the body travels less. The shift accumulates over the stream."""
         n = len(self._joints)
         steps = np.diff(self._joints[:, self.contacts], axis=0)  # (n - 1, 4, 3)
         steps[..., 1] = 0.0

@@ -1,6 +1,7 @@
 """Foot planting (mogo.motion.feet): the two-bone IK, feet held during their contacts with
-continuous blends, rigid legs on or above the floor, any chunking of a stream giving the
-offline result, and the generator's plant_feet option (off: the joints as decoded)."""
+continuous blends, rigid legs on or above the floor, the body stepping back where a flagged
+foot still swings, any chunking of a stream giving the offline result, and the generator's
+plant_feet option (off: the joints as decoded)."""
 import numpy as np
 import pytest
 
