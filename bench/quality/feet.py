@@ -6,22 +6,30 @@ both ways (with --data), and what planting costs a stream per frame against one 
 
 A contact frame of a foot joint (ankle or toe, t -> t+1) is one where the clip's contact
 channel is above 0.5 and its decoded velocity is under HumanML3D's contact threshold (what a
-contact means in the format; the planter holds exactly these); the "channel alone" rows count
-every frame the channel flags.
+contact means in the format); the "channel alone" rows count every frame the channel flags
+(issue 25's definition).
 Measures, on joints in metres:
 - slide: horizontal speed of foot joints in contact (cm/s), and the share over 10 cm/s;
 - floor: the deepest foot joint below y = 0 (cm), and the share of frames below -1 cm;
 - pop: the change of a foot joint's velocity from one frame to the next (m/frame per frame,
-  all frames): its worst per clip, averaged over clips, and its 99th percentile;
+  all frames): its worst per clip, averaged over clips, and its 99th percentile; the same
+  worst for the pelvis (the body's stutter where planting moves it);
 - bones: thigh, shin and foot lengths against the skeleton's canonical ones (the rest offsets,
   left and right averaged, as mogo.motion.rig), mean error (%) and share of bone-frames off by
   more than 1%;
-- change: mean distance of every joint, and of the leg joints, from the decoded ones (cm).
+- change: mean distance of every joint, and of the leg joints, from the decoded ones, the
+  body's horizontal shift aside (each relative to its pelvis's ground point; cm);
+- travel: the pelvis's horizontal path length against the decoded one's, per clip (%): its
+  mean and the clip changed most.
+The planted rows are the default planter, the planter as first merged (legs only: the body as
+decoded), and the default holding flagged joints up to 2.4 m/s instead of HumanML3D's contact
+threshold (what issue 25's channel-alone target takes).
 Torch-free.
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import platform
 import time
 import warnings
@@ -39,6 +47,11 @@ LOCOMOTION = ("a person walks forward.", "a person jogs forward.", "a person run
               "a person walks in a circle.")
 SEEDS, SECONDS = 4, 5.0  # 24 clips of 5 s
 SLIDING = 0.10  # m/s: a contact frame faster than this slides
+VARIANTS = {  # row name: FootPlanter's steps (m a frame)
+    "feet planted": {},
+    "feet planted as first merged (legs only)": dict(body_step=np.inf),
+    "feet planted, held under 2.4 m/s": dict(hold_step=0.12),
+}
 FLOOR = 0.01  # m below the floor that counts as penetration
 
 
@@ -61,7 +74,7 @@ def foot_measures(clips: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]],
     legs = leg_joints(skeleton)
     feet = legs[:, 2:].reshape(-1)
     rest = np.linalg.norm(rest_offsets(skeleton), axis=1)
-    speeds, depths, below, pops, errors, moved, moved_legs = [], [], [], [], [], [], []
+    speeds, depths, below, pops, pelvis, errors, moved, moved_legs, travel = ([] for _ in range(9))
     for joints, features, decoded in clips:
         step = np.diff(joints[:, feet], axis=0)[..., [0, 2]]
         flags = contacts(features[:len(step)], skeleton, confirmed)  # real clips: T-1 rows
@@ -70,28 +83,40 @@ def foot_measures(clips: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]],
         depths.append(max(0.0, -float(lowest.min())))
         below.append(lowest < -FLOOR)
         pops.append(np.linalg.norm(np.diff(joints[:, feet], 2, axis=0), axis=-1).ravel())
+        pelvis.append(np.linalg.norm(np.diff(joints[:, 0], 2, axis=0), axis=-1).max())
         for bone in range(3):
             a, b = legs[:, bone], legs[:, bone + 1]
             length = np.linalg.norm(joints[:, b] - joints[:, a], axis=-1)
             errors.append(np.abs(length / rest[b] - 1).ravel())
         if decoded is not None:
-            distance = np.linalg.norm(joints - decoded, axis=-1)
+            ground = np.array([1.0, 0.0, 1.0])  # the pelvis's ground point: the body's shift
+            distance = np.linalg.norm((joints - joints[:, :1] * ground)
+                                      - (decoded - decoded[:, :1] * ground), axis=-1)
             moved.append(distance.ravel())
             moved_legs.append(distance[:, legs[:, 1:].ravel()].ravel())
+            travel.append(100 * (_path(joints) / max(_path(decoded), 1e-9) - 1))
     speed, error = np.concatenate(speeds), np.concatenate(errors)
     result = dict(speed=100 * speed.mean(), sliding=100 * np.mean(speed > SLIDING),
                   depth=100 * max(depths), below=100 * np.concatenate(below).mean(),
                   pop=np.mean([p.max() for p in pops]),
                   pop_p99=float(np.percentile(np.concatenate(pops), 99)),
+                  pelvis_pop=float(np.mean(pelvis)),
                   bone_error=100 * error.mean(), bone_off=100 * np.mean(error > 0.01))
     if moved:
         result.update(change=100 * np.concatenate(moved).mean(),
-                      change_legs=100 * np.concatenate(moved_legs).mean())
+                      change_legs=100 * np.concatenate(moved_legs).mean(),
+                      travel=float(np.mean(travel)), travel_most=max(travel, key=abs))
     return result
 
 
+def _path(joints: np.ndarray) -> float:
+    """Horizontal path length of the pelvis (m)."""
+    return float(np.linalg.norm(np.diff(joints[:, 0, [0, 2]], axis=0), axis=-1).sum())
+
+
+@functools.lru_cache(maxsize=1)
 def locomotion(generator: MotionGenerator) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The 24 clips as decoded: (joints, features, joints) each."""
+    """The 24 clips as decoded: (joints, features, joints) each (made once per generator)."""
     clips = []
     for prompt in LOCOMOTION:
         for seed in range(SEEDS):
@@ -112,32 +137,55 @@ def format_feet(rows: dict[str, dict[str, float]]) -> str:
         return f"{row[key]:.{digits}f}" if key in row else "-"
 
     lines = ["| clips | slide in contact (cm/s) | sliding > 10 cm/s | deepest below floor (cm) "
-             "| frames > 1 cm below | foot pop, worst per clip | foot pop, p99 | leg bone error "
-             "| bone-frames > 1% off | joint change (cm) | leg joint change (cm) |",
-             "|---" * 11 + "|"]
+             "| frames > 1 cm below | foot pop, worst per clip | foot pop, p99 "
+             "| pelvis pop, worst per clip | leg bone error "
+             "| bone-frames > 1% off | joint change (cm) | leg joint change (cm) "
+             "| body travel vs decoded (most changed clip) |", "|---" * 13 + "|"]
     for name, row in rows.items():
         lines.append(f"| {name} | {cell(row, 'speed')} | {cell(row, 'sliding')}% | "
                      f"{cell(row, 'depth')} | {cell(row, 'below')}% | "
                      f"{cell(row, 'pop', 3)} | {cell(row, 'pop_p99', 3)} | "
+                     f"{cell(row, 'pelvis_pop', 3)} | "
                      f"{cell(row, 'bone_error', 2)}% | {cell(row, 'bone_off')}% | "
-                     f"{cell(row, 'change', 2)} | {cell(row, 'change_legs', 2)} |")
+                     f"{cell(row, 'change', 2)} | {cell(row, 'change_legs', 2)} | "
+                     + (f"{row['travel']:+.1f}% ({row['travel_most']:+.0f}%) |"
+                        if "travel" in row else "- |"))
     return "\n".join(lines)
 
 
 def feet_rows(generator: MotionGenerator, data=None) -> dict[str, dict[str, float]]:
-    """The table's rows: the locomotion clips as decoded and planted (contact confirmed by the
-    decoded velocity, and the channel alone), and the corpus's real test clips."""
+    """The table's rows: the locomotion clips as decoded and planted by each of VARIANTS
+    (contact confirmed by the decoded velocity, and the channel alone), and the corpus's real
+    test clips."""
     decoded = locomotion(generator)
-    planted_clips = [(planted(f, j, generator.skeleton), f, j) for j, f, _ in decoded]
+    variants = {name: [(planted(f, j, generator.skeleton, **steps), f, j) for j, f, _ in decoded]
+                for name, steps in VARIANTS.items()}
     rows = {}
     for confirmed, label in ((True, ""), (False, ", channel alone")):
         rows[f"generated, as decoded{label}"] = foot_measures(decoded, generator.skeleton,
                                                              confirmed)
-        rows[f"generated, feet planted{label}"] = foot_measures(planted_clips,
-                                                               generator.skeleton, confirmed)
+        for name, clips in variants.items():
+            rows[f"generated, {name}{label}"] = foot_measures(clips, generator.skeleton,
+                                                            confirmed)
     if data is not None:
         rows["real (corpus test split)"] = foot_measures(real_clips(data), generator.skeleton)
     return rows
+
+
+def by_prompt(generator: MotionGenerator) -> str:
+    """Per prompt (its seeds' clips): the body's travel with feet planted against the decoded,
+    and the worst foot pop per clip as decoded, planted as first merged, and planted."""
+    clips, skeleton = locomotion(generator), generator.skeleton
+    first = VARIANTS["feet planted as first merged (legs only)"]
+    lines = ["| prompt | body travel vs decoded | foot pop, worst per clip: as decoded / as "
+             "first merged / planted |", "|---|---|---|"]
+    for k, prompt in enumerate(LOCOMOTION):
+        mine = clips[k * SEEDS:(k + 1) * SEEDS]
+        pops = [foot_measures([(j if steps is None else planted(f, j, skeleton, **steps), f, j)
+                               for j, f, _ in mine], skeleton, False) for steps in (None, first, {})]
+        lines.append(f"| {prompt} | {pops[2]['travel']:+.1f}% | "
+                     + " / ".join(f"{p['pop']:.3f}" for p in pops) + " |")
+    return "\n".join(lines)
 
 
 def semantic_both_ways(generator: MotionGenerator, data, per_primitive: int = 20, seed: int = 0
@@ -227,6 +275,7 @@ def main() -> None:
     print(f"{len(LOCOMOTION) * SEEDS} generated clips of {SECONDS:g} s ({', '.join(LOCOMOTION)}; "
           f"seeds 0-{SEEDS - 1}); planting reads {LOOKAHEAD} frames ahead\n")
     print(format_feet(feet_rows(generator, args.data)))
+    print(f"\nPer prompt ({SEEDS} clips each):\n\n{by_prompt(generator)}")
     if args.data:
         print(f"\nSemantic checks (mogo.bench.quality.semantic, {args.per_primitive} test captions "
               f"per primitive, the same clips both ways):\n")

@@ -2,22 +2,28 @@
 
 Decoded feet skate: they drift while the motion's own contact channels (the last four feature
 dims: left ankle, left toe, right ankle, right toe; "moved less than ~4.5 cm in this frame")
-say they are planted. `FootPlanter` fixes the legs and nothing else:
-- each contact joint is held while its channel is above CONTACT and its decoded velocity is
-  under HumanML3D's contact threshold (a channel that says "still" of a swinging foot is not
-  believed), the frame after too (a contact is "still from t to t+1"), at its mean decoded
-  position over the first PIN_FRAMES frames of the contact; its height is never below that
-  pin (a heel may rise, a foot never sinks into its stance);
-- it eases onto the pin over BLEND_IN frames before the contact and back onto its decoded path
-  over BLEND_OUT frames after it, by blending offsets with a smoothstep: neither position nor
+say they are planted, and the channels often call a foot planted a frame or two before it
+lands and after it lifts, while it still swings. `FootPlanter` fixes the legs and moves the
+body a little:
+- the body: where a flagged joint steps further than BODY_STEP to the next frame, the whole
+  body steps back horizontally by the excess (the mean over such joints), spread over
+  BODY_FRAMES frames; the shift accumulates, so the body travels less and the foot keeps its
+  decoded motion relative to the body, with nothing to catch up at release;
+- each contact joint is held while its channel is above CONTACT and its decoded step is under
+  HOLD_STEP, HumanML3D's contact threshold (a foot swinging faster is not believed planted:
+  holding it squeezes its stride into the frames left, a pop), the frame after too (a contact
+  is "still from t to t+1"), at its mean position over the first PIN_FRAMES frames of the
+  contact; its height is never below that pin (a heel may rise, a foot never sinks);
+- it eases onto the pin over BLEND_IN frames before the contact and back onto its path over
+  BLEND_OUT frames after it, by blending offsets with a smoothstep: neither position nor
   speed jumps;
 - the foot stays rigid (ankle to toe at the foot's length, the more planted end held) and on or
   above the floor (y >= 0);
-- each leg is solved by analytic two-bone IK: hip as decoded, knee in the plane of the decoded
-  knee, ankle on its target; thigh, shin and foot at the bundle skeleton's canonical lengths
-  (its rest offsets, left and right averaged, as the BVH rig's), so they stop stretching. A
-  target out of the leg's reach is pulled towards the hip (the foot slides rather than the
-  pelvis moving): root motion is never changed.
+- each leg is solved by analytic two-bone IK: hip as the (shifted) body's, knee in the plane of
+  the decoded knee, ankle on its target; thigh, shin and foot at the bundle skeleton's
+  canonical lengths (its rest offsets, left and right averaged, as the BVH rig's), so they
+  stop stretching. A target out of the leg's reach is pulled towards the hip (the foot slides
+  rather than the pelvis dropping).
 
 It reads LOOKAHEAD frames ahead, so a stream emits a frame LOOKAHEAD frames after it is decoded.
 Any chunking of `push` (then `flush`) gives the output of one push of the whole clip.
@@ -31,6 +37,11 @@ from .rig import rest_offsets
 from .skeleton import Skeleton
 
 CONTACT = 0.5  # a contact channel above this holds its joint
+# m a frame (0.9 m/s, HumanML3D's contact threshold): a flagged joint stepping further is not
+# held (0.12, 2.4 m/s, would meet issue 25's 3 cm/s at a cost in pops: docs/feet.md)
+HOLD_STEP = FOOT_CONTACT_THRESHOLD ** 0.5
+BODY_STEP = 0.067  # m a frame (1.34 m/s): a flagged joint's step beyond this moves the body back
+BODY_FRAMES = 3  # frames each such step back is spread over (the body slows, it does not jerk)
 BLEND_IN = 3  # frames to ease onto a pin before its contact starts
 BLEND_OUT = 8  # frames to ease back onto the decoded path after a contact (no lookahead)
 PIN_FRAMES = 6  # the pin: mean position over the first frames of a contact
@@ -86,7 +97,9 @@ class FootPlanter:
     """Cleans feet frame by frame: `push` decoded rows (features (n, D), joints (n, J, 3)),
     get back the rows whose frames are final, with planted feet; `flush` at the end."""
 
-    def __init__(self, skeleton: Skeleton):
+    def __init__(self, skeleton: Skeleton, hold_step: float = HOLD_STEP,
+                 body_step: float = BODY_STEP):
+        self.hold_step, self.body_step = hold_step, body_step  # the bench compares others
         self.legs = leg_joints(skeleton)  # (2, 4)
         self.contacts = self.legs[:, 2:].reshape(-1)  # left ankle, left toe, right ...
         start = dict((name, start) for name, start, _ in feature_layout(skeleton))
@@ -98,6 +111,8 @@ class FootPlanter:
         self._pin = np.zeros((joints, 3))  # the pin of its contact, while held
         self._released = np.zeros((joints, 3))  # its offset at the last held frame
         self._since = np.full(joints, 1 << 30)  # frames since then
+        self._shift = np.zeros(3)  # the body's horizontal shift at the next frame out
+        self._backs = np.zeros((BODY_FRAMES - 1, 3))  # its steps back at the frames before
         self._features = np.zeros((0, skeleton.feature_dim), np.float32)
         self._joints = np.zeros((0, skeleton.num_joints, 3))
         rest = np.linalg.norm(rest_offsets(skeleton), axis=1)  # the bundle's canonical bones
@@ -123,25 +138,44 @@ class FootPlanter:
 
     def _clean(self, ready: int) -> tuple[np.ndarray, np.ndarray]:
         """Plant the first `ready` buffered frames and drop them from the buffer."""
-        joints = self._joints
+        joints = self._joints + self._shifts(ready)[:, None]
         targets, weights = self._targets(self._flags(), joints[:, self.contacts], ready)
         out = self._solve(joints[:ready], targets, weights,
                           np.broadcast_to(self._lengths, (ready, 3)))
         features = self._features[:ready]
-        self._features, self._joints = self._features[ready:], joints[ready:]
+        self._features, self._joints = self._features[ready:], self._joints[ready:]
         return features, out.astype(np.float32)
 
+    def _shifts(self, ready: int) -> np.ndarray:
+        """(n, 3) the body's horizontal shift at each buffered frame. Where the channel flags a
+        foot joint whose decoded step (to the next frame) is longer than BODY_STEP, the body
+        steps back by the excess (the mean over such joints), spread over BODY_FRAMES frames:
+        the foot's step shrinks towards BODY_STEP, it keeps its motion relative to the body,
+        and the body travels less. The shift accumulates over the stream."""
+        n = len(self._joints)
+        steps = np.diff(self._joints[:, self.contacts], axis=0)  # (n - 1, 4, 3)
+        steps[..., 1] = 0.0
+        length = _norm(steps)[..., 0]
+        fast = (self._features[:-1, -4:] > CONTACT) & (length > self.body_step)
+        excess = np.where(fast, 1.0 - self.body_step / np.maximum(length, 1e-9), 0.0)
+        back = -np.sum(excess[..., None] * steps, 1) / np.maximum(fast.sum(1), 1)[:, None]
+        backs = np.concatenate([self._backs, back, np.zeros((1, 3))])  # (n + BODY_FRAMES - 1, 3)
+        spread = sum(backs[k:k + n] for k in range(BODY_FRAMES)) / BODY_FRAMES  # (n, 3)
+        shifts = self._shift + np.concatenate([np.zeros((1, 3)), np.cumsum(spread, 0)])
+        self._shift, self._backs = shifts[ready], backs[ready:ready + BODY_FRAMES - 1]
+        return shifts[:n]
+
     def _flags(self) -> np.ndarray:
-        """(n, 4) contacts of the buffered frames: the channel says so and the decoded
-        velocity agrees (a foot moving faster than HumanML3D's contact threshold is not held:
+        """(n, 4) contacts of the buffered frames: the channel says so and the decoded joint
+        steps less than HOLD_STEP (a swinging foot the channel calls planted is not held:
         holding it squeezes its stride into the frames before the next contact, docs/feet.md)."""
         speed = np.sum(self._features[:, self._velocity].astype(np.float64) ** 2, -1)
-        return (self._features[:, -4:] > CONTACT) & (speed < FOOT_CONTACT_THRESHOLD)
+        return (self._features[:, -4:] > CONTACT) & (speed < self.hold_step ** 2)
 
     def _targets(self, flags: np.ndarray, paths: np.ndarray, ready: int
                  ) -> tuple[np.ndarray, np.ndarray]:
         """Targets (ready, 4, 3) and planted weights (ready, 4) of the contact joints in the
-        first `ready` buffered frames, from their flags (n, 4) and decoded paths (n, 4, 3)."""
+        first `ready` buffered frames, from their flags (n, 4) and paths (n, 4, 3)."""
         if not ready:
             return np.zeros((0, 4, 3)), np.zeros((0, 4))
         n, frames = len(flags), np.arange(len(flags))[:, None]
@@ -214,8 +248,10 @@ def _offset(pin: np.ndarray, position: np.ndarray) -> np.ndarray:
     return offset
 
 
-def planted(features: np.ndarray, joints: np.ndarray, skeleton: Skeleton) -> np.ndarray:
-    """The joints (T, J, 3) float32 of a whole clip with planted feet (one push and a flush)."""
-    planter = FootPlanter(skeleton)
+def planted(features: np.ndarray, joints: np.ndarray, skeleton: Skeleton, **steps: float
+            ) -> np.ndarray:
+    """The joints (T, J, 3) float32 of a whole clip with planted feet (one push and a flush);
+    `steps`: FootPlanter's hold_step and body_step."""
+    planter = FootPlanter(skeleton, **steps)
     first = planter.push(features, joints)[1]
     return np.concatenate([first, planter.flush()[1]])

@@ -47,3 +47,12 @@ def test_a_contact_the_decoded_velocity_contradicts_is_not_one():
     _, features = _clip(0.1)  # 10 cm a frame: over HumanML3D's contact threshold
     assert not contacts(features, SMPL_22).any()
     assert contacts(features, SMPL_22, confirmed=False).all()
+
+
+def test_a_body_that_travels_less_changes_travel_not_the_pose():
+    slow, features = _clip(0.005)
+    fast, _ = _clip(0.01)
+    result = foot_measures([(slow, features, fast)], SMPL_22)
+    assert abs(result["travel"] + 50.0) < 1e-6 and abs(result["travel_most"] + 50.0) < 1e-6
+    assert result["change"] < 1e-9 and result["change_legs"] < 1e-9
+    assert "| -50.0% (-50%) |" in format_feet({"x": result})

@@ -1,13 +1,14 @@
 """Foot planting (mogo.motion.feet): the two-bone IK, feet held during their contacts with
-continuous blends, rigid legs on or above the floor, any chunking of a stream giving the
-offline result, and the generator's plant_feet option (off: the joints as decoded)."""
+continuous blends, rigid legs on or above the floor, the body stepping back where a flagged
+foot still swings, any chunking of a stream giving the offline result, and the generator's
+plant_feet option (off: the joints as decoded)."""
 import numpy as np
 import pytest
 
 from mogo.generator import STREAM_DECODE_EVERY, MotionGenerator
 from mogo.motion.features import JointStream, feature_layout
-from mogo.motion.feet import (BLEND_OUT, LOOKAHEAD, PIN_FRAMES, FootPlanter,
-                             leg_joints, planted, two_bone_ik)
+from mogo.motion.feet import (BLEND_OUT, BODY_FRAMES, BODY_STEP, LOOKAHEAD, PIN_FRAMES,
+                             FootPlanter, leg_joints, planted, two_bone_ik)
 from mogo.motion.rig import rest_offsets
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
@@ -108,11 +109,28 @@ def test_legs_get_the_skeletons_canonical_bone_lengths_and_feet_stay_on_or_above
     assert out[:, CONTACT_JOINTS, 1].min() >= -1e-6
 
 
+def test_a_flagged_foot_stepping_fast_moves_the_body_back_by_the_excess_smoothly():
+    features, joints = _sliding_left_foot(speed=0.1)  # flagged in [15, 35) at 10 cm a frame
+    out = planted(features, joints, SMPL_22)
+    upper = [j for j in range(22) if j not in LEGS[:, 1:].reshape(-1)]  # hips and above
+    shift = out[:, upper] - joints[:, upper]
+    assert np.ptp(shift, axis=1).max() < 1e-6  # the whole body moves as one, horizontally
+    shift = shift[:, 0]
+    assert np.abs(shift[:, :2]).max() < 1e-6
+    excess = 0.1 - BODY_STEP  # per flagged frame, spread over BODY_FRAMES frames
+    np.testing.assert_allclose(shift[:16, 2], 0.0, atol=1e-6)
+    np.testing.assert_allclose(shift[35 + BODY_FRAMES - 1:, 2], -20 * excess, atol=1e-5)
+    steps = np.diff(shift[:, 2])
+    assert steps.max() < 1e-6 and steps.min() > -excess - 1e-6  # no jump back
+    assert np.abs(np.diff(steps)).max() < excess / BODY_FRAMES + 1e-6  # eased in and out
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_any_chunking_gives_the_offline_result(seed):
     rng = np.random.default_rng(seed)
-    features, joints = _sliding_left_foot(frames=90)
-    features[:, -4:] = rng.uniform(0, 1, (90, 4)) > 0.4  # contacts starting and ending often
+    joints = _standing(90)  # feet stepping 0-16 cm a frame: some held, some moving the body
+    joints[:, CONTACT_JOINTS, 2] += np.cumsum(rng.uniform(0, 0.16, (90, 1)), 0)
+    features = _features(joints, rng.uniform(0, 1, (90, 4)) > 0.4)  # contacts on and off often
     offline = planted(features, joints, SMPL_22)
     planter, rows, pieces, at = FootPlanter(SMPL_22), [], [], 0
     while at < len(joints):
