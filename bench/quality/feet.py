@@ -53,6 +53,13 @@ VARIANTS = {  # row name: FootPlanter's steps (m a frame)
     "feet planted, held under 2.4 m/s": dict(hold_step=0.12),
 }
 FLOOR = 0.01  # m below the floor that counts as penetration
+TRADE_OFF = (  # (hold_step, body_step), m a frame: the --trade-off table's planters
+    (FOOT_CONTACT_THRESHOLD ** 0.5, np.inf), (0.07, np.inf), (0.10, np.inf), (0.12, np.inf),
+    (np.inf, np.inf), (FOOT_CONTACT_THRESHOLD ** 0.5, 0.067),
+    (FOOT_CONTACT_THRESHOLD ** 0.5, FOOT_CONTACT_THRESHOLD ** 0.5), (0.07, 0.067), (0.10, 0.067),
+    (0.12, 0.067), (np.inf, 0.067), (0.10, FOOT_CONTACT_THRESHOLD ** 0.5),
+    (FOOT_CONTACT_THRESHOLD ** 0.5, 0.0),
+)
 
 
 def contacts(features: np.ndarray, skeleton, confirmed: bool = True) -> np.ndarray:
@@ -114,12 +121,13 @@ def _path(joints: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(joints[:, 0, [0, 2]], axis=0), axis=-1).sum())
 
 
-@functools.lru_cache(maxsize=1)
-def locomotion(generator: MotionGenerator) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+@functools.lru_cache(maxsize=2)
+def locomotion(generator: MotionGenerator, first_seed: int = 0
+               ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The 24 clips as decoded: (joints, features, joints) each (made once per generator)."""
     clips = []
     for prompt in LOCOMOTION:
-        for seed in range(SEEDS):
+        for seed in range(first_seed, first_seed + SEEDS):
             motion = generator.generate(prompt, seconds=SECONDS, seed=seed, plant_feet=False)
             clips.append((motion.joints, motion.features, motion.joints))
     return clips
@@ -182,10 +190,41 @@ def by_prompt(generator: MotionGenerator) -> str:
     for k, prompt in enumerate(LOCOMOTION):
         mine = clips[k * SEEDS:(k + 1) * SEEDS]
         pops = [foot_measures([(j if steps is None else planted(f, j, skeleton, **steps), f, j)
-                               for j, f, _ in mine], skeleton, False) for steps in (None, first, {})]
+                               for j, f, _ in mine], skeleton, False)
+                for steps in (None, first, {})]
         lines.append(f"| {prompt} | {pops[2]['travel']:+.1f}% | "
                      + " / ".join(f"{p['pop']:.3f}" for p in pops) + " |")
     return "\n".join(lines)
+
+
+def trade_off(generator: MotionGenerator) -> str:
+    """The channel-alone slide against the pop and the body's travel, planter by planter
+    (TRADE_OFF), on the 24 clips and, for the slide, on 24 others (the next SEEDS seeds)."""
+    skeleton = generator.skeleton
+    lines = ["| planter | slide, channel alone (cm/s) | > 10 cm/s | foot pop, worst per clip | "
+             "p99 | worst, \"walks forward\" | pelvis pop, worst per clip | body travel vs "
+             f"decoded (most changed clip) | slide, seeds {SEEDS}-{2 * SEEDS - 1} |",
+             "|---" * 9 + "|"]
+    for hold, body in TRADE_OFF:
+        main, other = ([(planted(f, j, skeleton, hold_step=hold, body_step=body), f, j)
+                        for j, f, _ in clips]
+                       for clips in (locomotion(generator), locomotion(generator, SEEDS)))
+        row, walks = (foot_measures(clips, skeleton, False) for clips in (main, main[:SEEDS]))
+        lines.append(f"| {_planter(hold, body, skeleton.fps)} | {row['speed']:.1f} | "
+                     f"{row['sliding']:.1f}% | "
+                     f"{row['pop']:.3f} | {row['pop_p99']:.3f} | {walks['pop']:.3f} | "
+                     f"{row['pelvis_pop']:.3f} | {row['travel']:+.1f}% "
+                     f"({row['travel_most']:+.0f}%) | "
+                     f"{foot_measures(other, skeleton, False)['speed']:.1f} |")
+    return "\n".join(lines)
+
+
+def _planter(hold: float, body: float, fps: float) -> str:
+    """A planter's row name, its steps in m/s."""
+    body = ("legs only" if body == np.inf else "body takes every flagged step" if body == 0
+            else f"body past {body * fps:.2f} m/s")
+    hold = ("every flagged frame held" if hold == np.inf else f"held under {hold * fps:.1f} m/s")
+    return f"{body}, {hold}"
 
 
 def semantic_both_ways(generator: MotionGenerator, data, per_primitive: int = 20, seed: int = 0
@@ -270,8 +309,13 @@ def main() -> None:
     parser.add_argument("--bundle", help="bundle folder (default: the shipped one)")
     parser.add_argument("--per-primitive", type=int, default=20,
                         help="generated captions per primitive for the semantic checks")
+    parser.add_argument("--trade-off", action="store_true",
+                        help="only the table of planters: slide against pop and travel")
     args = parser.parse_args()
     generator = MotionGenerator.load(args.bundle)
+    if args.trade_off:
+        print(trade_off(generator))
+        return
     print(f"{len(LOCOMOTION) * SEEDS} generated clips of {SECONDS:g} s ({', '.join(LOCOMOTION)}; "
           f"seeds 0-{SEEDS - 1}); planting reads {LOOKAHEAD} frames ahead\n")
     print(format_feet(feet_rows(generator, args.data)))
