@@ -34,6 +34,7 @@ PROMPTS = ["a person walks forward", "a person jogs in a circle", "a person jump
            "a person waves with the right hand", "a person squats", "a person kicks",
            "a person turns left", "a person claps", "a person runs forward", "a person bows"]
 FPS = 20.0
+WARM_CLIENTS = 4
 
 
 def free_port() -> int:
@@ -164,7 +165,7 @@ def run(clients: list[int], seconds: float, threads: int | None, bundle: str | N
         out: Path) -> dict:
     port = free_port()
     command = [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--max-streams",
-               str(max(clients) + 1)]
+               str(max(*clients, WARM_CLIENTS) + 1)]
     command += ["--threads", str(threads)] if threads else []
     command += ["--bundle", bundle] if bundle else []
     server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
@@ -172,7 +173,7 @@ def run(clients: list[int], seconds: float, threads: int | None, bundle: str | N
         if "mogo serve:" not in server.stderr.readline():
             raise RuntimeError("mogo serve did not start")
         url = f"http://127.0.0.1:{port}/v1/stream"
-        measure(url, server.pid, 4, 4.0)  # warm: graphs run once, caches allocated
+        measure(url, server.pid, WARM_CLIENTS, 4.0)  # warm: graphs run once, caches allocated
         first = sorted(asyncio.run(first_frame_ms(url)) for _ in range(7))
         rows = []
         for n in clients:

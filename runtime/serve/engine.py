@@ -3,10 +3,13 @@
 Every stream is paced to real time on a shared tick (one token step per frame, `fps` ticks a
 second), LEAD steps ahead so that its frames leave before they are due. A new stream catches
 up at once (its first frame comes after the decoder's lookahead), then steps on the shared
-ticks with all the others. Streams share a call when their caches have one layout
-(mogo.serve.stepper): at the same step during warm-up, at the same phase after it. A stream
-takes a few extra steps (more lead, once) to join a larger group: a warm-up cohort a little
-ahead, or the common phase, so that past warm-up one call of each level graph serves them all. Not thread-safe: the server calls it from one thread.
+ticks with all the others. Until its window fills a stream steps alone on the bundle's own
+level graphs (cheapest for one row, so the first frame waits on no batch); then streams share
+a call when their caches have one layout (mogo.serve.stepper): at the same phase (or, without
+solo steps, at the same step during warm-up). A stream takes a few extra steps (more lead,
+once) to join a larger group, the common phase (or a warm-up cohort a little ahead), so that
+past warm-up one call of each level graph serves them all. Not thread-safe: the server calls
+it from one thread.
 """
 from __future__ import annotations
 
@@ -73,7 +76,8 @@ class Engine:
         window = manifest.defaults.window
         if window is None:  # an unbounded cache: every stream would grow without end
             raise ValueError("mogo serve needs a bundle with a KV window (defaults.window)")
-        self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"])
+        self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"],
+                               solo=generator.tokens.with_level_workers(threads))
         self.fps = generator.fps
         decoder = manifest.vq.decoder
         self.lead = (decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
@@ -132,7 +136,7 @@ class Engine:
         most ALIGN_STEPS ahead; past it, the most common phase. Bounded: ALIGN_STEPS extra
         steps in warm-up, COMPACT_EVERY more past it (so at most that much more lead)."""
         kind, value = key = stream.tokens.key
-        if stream.extra >= ALIGN_STEPS + (COMPACT_EVERY if kind == "steady" else 0):
+        if kind == "solo" or stream.extra >= ALIGN_STEPS + (COMPACT_EVERY if kind == "steady" else 0):
             return False
         if kind == "steady":
             phases = Counter({k[1]: n for k, n in keys.items() if k[0] == "steady"})

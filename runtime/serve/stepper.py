@@ -19,6 +19,13 @@ distances. The server keeps streams on one phase (mogo.serve.engine), so past wa
 all share one call. Rows never mix inside a graph (int8 graphs are made row-wise first,
 mogo.serve.rowwise), and a stream's layout depends only on its own steps, so its tokens do
 not depend on what else runs. Sampling is the runtime's, row for row (mogo.sampling).
+
+Until its window fills (its first W + 1 steps) a stream's layout is also the runtime's
+TokenStream's, so a Stepper given `solo` level graphs (the bundle's own, as exported) runs
+those steps on a TokenStream of its own, one row per call: far cheaper than a one-row call of
+the row-wise graphs, and no batch is needed for a stream's first frame. Then the stream hands
+its cache over (no copy) and is batched. Where a stream switches path is its own step count,
+so this too is the same whatever else runs.
 """
 from __future__ import annotations
 
@@ -27,7 +34,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
-from mogo.token_generator import TokenGenerator
+from mogo.token_generator import TokenGenerator, TokenStream
 
 COMPACT_EVERY = 8  # steps between copies that drop dead cache slots
 
@@ -48,10 +55,17 @@ class BatchedStream:
         self.slot_tokens = np.zeros((0, L), np.int64)  # tokens of every slot, layout order
         self.batch: _Batch | None = None
         self.row = 0
+        self.solo: TokenStream | None = None  # its steps before the window fills, if solo
+        if stepper.solo is not None:
+            self.solo = stepper.solo.start(embedding, seed, sampling, stepper.window,
+                                           allow_end=False)
 
     @property
     def key(self) -> tuple:
-        """Streams with equal keys have caches of one layout, at the same distances."""
+        """Streams with equal keys have caches of one layout, at the same distances (a solo
+        stream shares with none)."""
+        if self.solo is not None:
+            return ("solo", id(self))
         if self.steps < self.stepper.steady_from:
             return ("warm", self.steps)
         return ("steady", self.dead)
@@ -60,6 +74,9 @@ class BatchedStream:
         """Condition the following steps on a new prompt: every held slot is recomputed under
         it (as mogo.token_generator.TokenStream.set_prompt does), in this stream's layout."""
         self.prompt = self._rows(embedding)
+        if self.solo is not None:
+            self.solo.set_prompt(embedding)
+            return
         if not self.steps:
             return
         g = self.stepper.tokens
@@ -71,6 +88,18 @@ class BatchedStream:
             level, self.prompt, self.uncond, token_ids, positions, none,
             g.empty_cache(level, len(self.uncond))))
         self.batch, self.row = _Batch([self], [p for _, p in outputs]), 0
+
+    def step_solo(self) -> np.ndarray:
+        """The next step on the stream's own TokenStream; the last one before the window
+        fills hands its state over to the batched layout (the same: prefix, then every step)."""
+        solo = self.solo
+        drawn = solo.step()
+        self.steps += 1
+        if self.steps == self.stepper.window + 1:
+            self.live = [int(p) for p in solo.positions]
+            self.slot_tokens, self.last, self.rng = solo.slot_tokens, solo.last, solo.rng
+            self.batch, self.row, self.solo = _Batch([self], solo.caches), 0, None
+        return drawn
 
     def cache(self, level: int) -> list[np.ndarray]:
         rows = slice(self.row, self.row + len(self.uncond))
@@ -91,10 +120,13 @@ class _Batch:
 class Stepper:
     """Level graphs shared by any number of BatchedStreams; `step` advances a set of them."""
 
-    def __init__(self, tokens: TokenGenerator, window: int, max_relative_distance: int):
+    def __init__(self, tokens: TokenGenerator, window: int, max_relative_distance: int,
+                 solo: TokenGenerator | None = None):
+        """`solo`: level graphs for the steps before a stream's window fills, one stream per
+        call (see the module docstring); None batches those too."""
         if window < 1:
             raise ValueError(f"window must be >= 1 steps, got {window}")
-        self.tokens, self.window = tokens, window
+        self.tokens, self.window, self.solo = tokens, window, solo
         self.steady_from = max(window + 1, max_relative_distance)  # see the module docstring
 
     def start(self, embedding: np.ndarray, seed: int, sampling: Sampling) -> BatchedStream:
@@ -104,9 +136,12 @@ class Stepper:
         """One token step of each stream (tokens (L,) each, in order): one call per level for
         every group of streams with the same key."""
         groups: dict[tuple, list[BatchedStream]] = {}
-        for stream in streams:
-            groups.setdefault(stream.key, []).append(stream)
         rows = {}
+        for stream in streams:
+            if stream.solo is not None:
+                rows[id(stream)] = stream.step_solo()
+            else:
+                groups.setdefault(stream.key, []).append(stream)
         for members in groups.values():
             rows.update(zip(map(id, members), self._step_group(members)))
         return [rows[id(stream)] for stream in streams]
