@@ -72,7 +72,7 @@ class Engine:
         if tokens is None:
             tokens = TokenGenerator([rowwise_graph(generator.bundle.path(g.file))
                                      for g in levels], levels, manifest.end_token,
-                                    intra_op_threads=1, level_workers=threads)
+                                    intra_op_threads=1)  # the shards run in parallel
         window = manifest.defaults.window
         if window is None:  # an unbounded cache: every stream would grow without end
             raise ValueError("mogo serve needs a bundle with a KV window (defaults.window)")
@@ -83,7 +83,7 @@ class Engine:
         self.lead = (decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
                      + math.ceil(FEET_LOOKAHEAD / generator.down_factor))
         self.streams: dict[int, ServedStream] = {}
-        self._pool = ThreadPoolExecutor(1, "mogo-decode") if threads > 1 else None
+        self._pool = ThreadPoolExecutor(1, "mogo-shard") if threads > 1 else None
         self._ids = itertools.count(1)
         self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
 
@@ -148,16 +148,19 @@ class Engine:
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         """One step of each stream in `due`: (stream, index of its first new frame, joints
         (n, J, 3)) for each that made frames."""
-        pairs = list(zip(due, self.stepper.step([s.tokens for s in due])))
-        if self._pool is None or len(pairs) < 2:
-            return self._push(pairs)
-        half = len(pairs) // 2  # decoders on two threads: each stream's own, so any split
-        other = self._pool.submit(self._push, pairs[half:])
-        return self._push(pairs[:half]) + other.result()
+        if self._pool is None or len(due) < 2:
+            return self._step(due)
+        # two shards, each its own calls, sampling and decoding, on two threads: onnxruntime
+        # and much of numpy release the GIL, so one shard's graphs run beside the other's
+        # Python. A stream's numbers do not depend on its shard (rows never mix); halves in
+        # a stable order keep each shard's batch from the last round (no copy).
+        half = len(due) // 2
+        other = self._pool.submit(self._step, due[half:])
+        return self._step(due[:half]) + other.result()
 
-    def _push(self, pairs: list[tuple[ServedStream, np.ndarray]]) -> list[tuple]:
+    def _step(self, due: list[ServedStream]) -> list[tuple]:
         out = []
-        for stream, row in pairs:
+        for stream, row in zip(due, self.stepper.step([s.tokens for s in due])):
             first = stream.frames_sent
             joints = stream.push(row, self.generator.bundle)
             if len(joints):
