@@ -3,13 +3,13 @@
 Every stream is paced to real time on a shared tick (one token step per frame, `fps` ticks a
 second), LEAD steps ahead so that its frames leave before they are due. A new stream catches
 up at once (its first frame comes after the decoder's lookahead), then steps on the shared
-ticks with all the others. Until its window fills a stream steps alone on the bundle's own
+ticks with all the others. Until its first frame a stream steps alone on the bundle's own
 level graphs (cheapest for one row, so the first frame waits on no batch); then streams share
-a call when their caches have one layout (mogo.serve.stepper): at the same phase (or, without
-solo steps, at the same step during warm-up). A stream takes a few extra steps (more lead,
-once) to join a larger group, the common phase (or a warm-up cohort a little ahead), so that
-past warm-up one call of each level graph serves them all. Not thread-safe: the server calls
-it from one thread.
+a call when their caches have one layout (mogo.serve.stepper): at the same step during
+warm-up, at the same phase after it. A stream takes a few extra steps (more lead, once) to
+join a larger group: a warm-up cohort a little ahead, or the common phase, so that past
+warm-up one call of each level graph serves them all. Not thread-safe: the server calls it
+from one thread.
 """
 from __future__ import annotations
 
@@ -76,12 +76,13 @@ class Engine:
         window = manifest.defaults.window
         if window is None:  # an unbounded cache: every stream would grow without end
             raise ValueError("mogo serve needs a bundle with a KV window (defaults.window)")
-        self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"],
-                               solo=generator.tokens.with_level_workers(threads))
         self.fps = generator.fps
         decoder = manifest.vq.decoder
-        self.lead = (decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
-                     + math.ceil(FEET_LOOKAHEAD / generator.down_factor))
+        first_frame = decoder.lookahead + 1 + math.ceil(FEET_LOOKAHEAD / generator.down_factor)
+        self.lead = first_frame + 2 * generator.streaming_decoder().every
+        self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"],
+                               solo=generator.tokens.with_level_workers(threads),
+                               solo_steps=min(first_frame, window + 1))
         self.streams: dict[int, ServedStream] = {}
         self._pool = ThreadPoolExecutor(1, "mogo-shard") if threads > 1 else None
         self._ids = itertools.count(1)
