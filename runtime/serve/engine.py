@@ -29,6 +29,8 @@ from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
 from mogo.token_generator import TokenGenerator
 
 ALIGN_STEPS = 24  # extra steps a stream may take to join a larger group (1.2 s more lead)
+SHARD_FROM = 16  # due streams from which a round runs as two shards: a second call of each
+# level graph costs ~2 ms of CPU more a round, and below this one core keeps real time easily
 EMBEDDINGS_KEPT = 256  # prompt embeddings cached (switching back costs no text encoding)
 
 
@@ -149,7 +151,7 @@ class Engine:
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         """One step of each stream in `due`: (stream, index of its first new frame, joints
         (n, J, 3)) for each that made frames."""
-        if self._pool is None or len(due) < 2:
+        if self._pool is None or len(due) < SHARD_FROM:
             return self._step(due)
         # two shards, each its own calls, sampling and decoding, on two threads: onnxruntime
         # and much of numpy release the GIL, so one shard's graphs run beside the other's
