@@ -24,6 +24,7 @@ from mogo.generator import MotionGenerator
 from mogo.motion.features import JointStream
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.motion.feet import FootPlanter
+from mogo.serve.newslot import newslot_graph
 from mogo.serve.rowwise import rowwise_graph
 from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
 from mogo.token_generator import TokenGenerator
@@ -66,13 +67,13 @@ class Engine:
 
     def __init__(self, generator: MotionGenerator, threads: int = 1,
                  tokens: TokenGenerator | None = None):
-        """`tokens`: the bundle's level graphs made row-wise (mogo.serve.rowwise); None makes
-        them."""
+        """`tokens`: the bundle's level graphs made row-wise (mogo.serve.rowwise) and returning
+        only the new cache slot (mogo.serve.newslot); None makes them."""
         self.generator = generator
         manifest = generator.manifest
         levels = manifest.t2m.levels
         if tokens is None:
-            tokens = TokenGenerator([rowwise_graph(generator.bundle.path(g.file))
+            tokens = TokenGenerator([newslot_graph(rowwise_graph(generator.bundle.path(g.file)))
                                      for g in levels], levels, manifest.end_token,
                                     intra_op_threads=1)  # the shards run in parallel
         window = manifest.defaults.window
@@ -139,7 +140,8 @@ class Engine:
         most ALIGN_STEPS ahead; past it, the most common phase. Bounded: ALIGN_STEPS extra
         steps in warm-up, COMPACT_EVERY more past it (so at most that much more lead)."""
         kind, value = key = stream.tokens.key
-        if kind == "solo" or stream.extra >= ALIGN_STEPS + (COMPACT_EVERY if kind == "steady" else 0):
+        bound = ALIGN_STEPS + (COMPACT_EVERY if kind == "steady" else 0)
+        if kind == "solo" or stream.extra >= bound:
             return False
         if kind == "steady":
             phases = Counter({k[1]: n for k, n in keys.items() if k[0] == "steady"})

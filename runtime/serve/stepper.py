@@ -11,7 +11,10 @@ Each stream keeps its cache in one layout, the same whatever else runs:
 
 Once the window W is full, the step that falls out of it is not removed (that is a copy of the
 whole cache) but marked dead: given a position after the query, attention masks it exactly.
-Every COMPACT_EVERY steps the dead slots are dropped in one copy. A stream at step n holds
+Every COMPACT_EVERY steps the dead slots are dropped in one copy. The layout lives in arrays of
+a fixed 1 + W + COMPACT_EVERY slots, the free ones at the end marked dead too: the level graphs
+(rewritten by mogo.serve.newslot) return only the new slot, which is written in place, so no
+step copies a cache. A stream at step n holds
 d = f(n) dead slots, so two streams can share a call when they are at the same step (warm-up:
 n < max(W + 1, R)) or, past warm-up, at the same n mod COMPACT_EVERY: the prefix is then
 beyond R from the query for both, and the call uses one set of virtual positions with the same
@@ -89,7 +92,7 @@ class BatchedStream:
         outputs = g.each_level(lambda level: g.run(
             level, self.prompt, self.uncond, token_ids, positions, none,
             g.empty_cache(level, len(self.uncond))))
-        self.batch, self.row = _Batch([self], [p for _, p in outputs]), 0
+        self.batch, self.row = _Batch([self], self.stepper.held([p for _, p in outputs])), 0
 
     def step_solo(self) -> np.ndarray:
         """The next step on the stream's own TokenStream; the last solo step hands its state
@@ -100,7 +103,8 @@ class BatchedStream:
         if self.steps == self.stepper.solo_steps:
             self.live = [int(p) for p in solo.positions]
             self.slot_tokens, self.last, self.rng = solo.slot_tokens, solo.last, solo.rng
-            self.batch, self.row, self.solo = _Batch([self], solo.caches), 0, None
+            self.batch, self.row = _Batch([self], self.stepper.held(solo.caches)), 0
+            self.solo = None
         return drawn
 
     def cache(self, level: int) -> list[np.ndarray]:
@@ -133,6 +137,7 @@ class Stepper:
                              f"{solo_steps}")
         self.tokens, self.window = tokens, window
         self.solo, self.solo_steps = solo, solo_steps
+        self.slots = 1 + window + COMPACT_EVERY  # the cache arrays' size: see _advance
         self.steady_from = max(window + 1, max_relative_distance)  # see the module docstring
 
     def start(self, embedding: np.ndarray, seed: int, sampling: Sampling) -> BatchedStream:
@@ -161,6 +166,7 @@ class Stepper:
         else:  # the same distances for every stream: live steps 1..W back, the prefix beyond R
             query = self.steady_from
             past = [0] + [query + 1] * first.dead + list(range(query - self.window, query))
+        past += [query + 1] * (self.slots - len(past))  # free slots: dead
         prompt = np.concatenate([s.prompt for s in members])
         uncond = np.concatenate([s.uncond for s in members])
         token_ids = np.concatenate([np.repeat(s.last[None, None], len(s.uncond), axis=0)
@@ -173,7 +179,7 @@ class Stepper:
         for level, (level_logits, _) in enumerate(outputs):
             logits[:, level, :level_logits.shape[1]] = level_logits
         tokens = self._sample(members, logits, uniforms)
-        self._advance(members, [present for _, present in outputs], tokens)
+        self._advance(members, caches, [present for _, present in outputs], tokens)
         return tokens
 
     def _sample(self, members: list[BatchedStream], logits: np.ndarray,
@@ -201,26 +207,42 @@ class Stepper:
         """The members' caches as one batch: the arrays of the last call when it held exactly
         these streams in this order (no copy), else their rows joined."""
         g = self.tokens
-        if not members[0].steps:
-            return [g.empty_cache(level, sum(len(s.uncond) for s in members))
-                    for level in range(g.num_levels)]
+        if members[0].batch is None:  # before the first step: every slot free
+            rows = sum(len(s.uncond) for s in members)
+            return self.held([g.empty_cache(level, rows) for level in range(g.num_levels)])
         batch = members[0].batch
         if batch.members == members and all(s.batch is batch for s in members):
             return batch.caches
         return [[np.concatenate(parts) for parts in zip(*(s.cache(level) for s in members))]
                 for level in range(g.num_levels)]
 
-    def _advance(self, members: list[BatchedStream], presents: list[list[np.ndarray]],
-                 tokens: list[np.ndarray]) -> None:
-        """The new slot is appended to every member's layout; the step leaving the window stays
-        where it is, now dead (dead slots lie right after the prefix); COMPACT_EVERY dead slots
-        are dropped in one copy. Members share their dead count (it is part of the key)."""
-        dead = members[0].dead + (len(members[0].live) == 1 + self.window)
+    def held(self, caches: list[list[np.ndarray]]) -> list[list[np.ndarray]]:
+        """Caches (per level, per layer (rows, heads, slots, head_dim)) in arrays of
+        `self.slots` slots, the free ones zero (masked, so they add exactly nothing)."""
+        def widened(cache: np.ndarray) -> np.ndarray:
+            rows, heads, slots, dim = cache.shape
+            out = np.zeros((rows, heads, self.slots, dim), np.float32)
+            out[:, :, :slots] = cache
+            return out
+        return [[widened(cache) for cache in level] for level in caches]
+
+    def _advance(self, members: list[BatchedStream], caches: list[list[np.ndarray]],
+                 presents: list[list[np.ndarray]], tokens: list[np.ndarray]) -> None:
+        """The new slot (each present) is written after the members' held slots, in place;
+        the step leaving the window stays where it is, now dead (dead slots lie right after
+        the prefix); once there are COMPACT_EVERY of them the live slots move over them in one
+        copy. Members share their layout (it is part of the key). Held slots never pass
+        1 + W + COMPACT_EVERY: the prefix, 7 dead, W live and the new one at most."""
+        first = members[0]
+        used = len(first.live) + first.dead
+        dead = first.dead + (len(first.live) == 1 + self.window)
         compact = dead == COMPACT_EVERY
-        if compact:
-            presents = [[np.concatenate([held[:, :, :1], held[:, :, 1 + dead:]], axis=2)
-                         for held in level] for level in presents]
-        batch, row = _Batch(list(members), presents), 0
+        for level, new in zip(caches, presents):
+            for cache, slot in zip(level, new):
+                cache[:, :, used] = slot[:, :, -1]
+                if compact:
+                    cache[:, :, 1:1 + self.window] = cache[:, :, 1 + dead:1 + dead + self.window]
+        batch, row = _Batch(list(members), caches), 0
         for stream, drawn in zip(members, tokens):
             live = stream.live + [stream.steps]
             slots = np.concatenate([stream.slot_tokens, stream.last[None]])
