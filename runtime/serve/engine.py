@@ -156,9 +156,9 @@ class Engine:
         if self._pool is None or len(due) < SHARD_FROM:
             return self._step(due)
         # two shards, each its own calls, sampling and decoding, on two threads: onnxruntime
-        # and much of numpy release the GIL, so one shard's graphs run beside the other's
-        # Python. A stream's numbers do not depend on its shard (rows never mix); halves in
-        # a stable order keep each shard's batch from the last round (no copy).
+        # releases the GIL, so one shard's graphs run beside the other's Python. A stream's
+        # numbers do not depend on its shard (rows never mix); halves in a stable order keep
+        # each shard's batch from the last round (no copy).
         half = len(due) // 2
         other = self._pool.submit(self._step, due[half:])
         return self._step(due[:half]) + other.result()

@@ -14,23 +14,23 @@ whole cache) but marked dead: given a position after the query, attention masks 
 Every COMPACT_EVERY steps the dead slots are dropped in one copy. The layout lives in arrays of
 a fixed 1 + W + COMPACT_EVERY slots, the free ones at the end marked dead too: the level graphs
 (rewritten by mogo.serve.newslot) return only the new slot, which is written in place, so no
-step copies a cache. A stream at step n holds
-d = f(n) dead slots, so two streams can share a call when they are at the same step (warm-up:
-n < max(W + 1, R)) or, past warm-up, at the same n mod COMPACT_EVERY: the prefix is then
-beyond R from the query for both, and the call uses one set of virtual positions with the same
-distances. The server keeps streams on one phase (mogo.serve.engine), so past warm-up they
-all share one call. Rows never mix inside a graph (int8 graphs are made row-wise first,
-mogo.serve.rowwise), and a stream's layout depends only on its own steps, so its tokens do
-not depend on what else runs. Sampling is the runtime's, row for row (mogo.sampling).
+other step copies a cache. A stream at step n holds d = f(n) dead slots, so two streams can
+share a call when they are at the same step (warm-up: n < max(W + 1, R)) or, past warm-up, at
+the same n mod COMPACT_EVERY: the prefix is then beyond R from the query for both, and the
+call uses one set of virtual positions with the same distances. The server keeps streams on
+one phase (mogo.serve.engine), so past warm-up they all share one call. Rows never mix inside
+a graph (int8 graphs are made row-wise first, mogo.serve.rowwise), and a stream's layout
+depends only on its own steps, so its tokens do not depend on what else runs. Sampling is
+the runtime's, row for row (mogo.sampling).
 
 Until its window fills (its first W + 1 steps) a stream's layout is also the runtime's
 TokenStream's, so a Stepper given `solo` level graphs (the bundle's own, as exported) runs a
 stream's first `solo_steps` steps on a TokenStream of its own, one row per call: far cheaper
 than a one-row call of the row-wise graphs (~1.1 against ~2.8 ms CPU a step), so a new stream
-gets its first frame without waiting on a batch; then it hands its cache over (no copy) and is
-batched. (Batched warm-up cohorts cost less per step than solo steps, ~1 ms, so solo steps
-stop there.) Where a stream switches path is its own step count, so this too is the same
-whatever else runs.
+gets its first frame without waiting on a batch; then its cache is copied once into the
+batched arrays. (Batched warm-up cohorts cost less per step than solo steps, ~1 ms, so solo
+steps stop there.) Where a stream switches path is its own step count, so this too is the
+same whatever else runs.
 """
 from __future__ import annotations
 
@@ -128,8 +128,9 @@ class Stepper:
 
     def __init__(self, tokens: TokenGenerator, window: int, max_relative_distance: int,
                  solo: TokenGenerator | None = None, solo_steps: int = 0):
-        """`solo`: level graphs for each stream's first `solo_steps` steps (1 to window + 1),
-        one stream per call (see the module docstring); None batches every step."""
+        """`tokens`: level graphs that return only the new cache slot (mogo.serve.newslot);
+        `solo`: level graphs for each stream's first `solo_steps` steps (1 to window + 1), one
+        stream per call (see the module docstring); None batches every step."""
         if window < 1:
             raise ValueError(f"window must be >= 1 steps, got {window}")
         if solo is not None and not 1 <= solo_steps <= window + 1:
@@ -218,7 +219,8 @@ class Stepper:
 
     def held(self, caches: list[list[np.ndarray]]) -> list[list[np.ndarray]]:
         """Caches (per level, per layer (rows, heads, slots, head_dim)) in arrays of
-        `self.slots` slots, the free ones zero (masked, so they add exactly nothing)."""
+        `self.slots` slots. Free slots are masked, so they add exactly nothing as long as they
+        are finite: zero here, stale slots after a compaction."""
         def widened(cache: np.ndarray) -> np.ndarray:
             rows, heads, slots, dim = cache.shape
             out = np.zeros((rows, heads, self.slots, dim), np.float32)
