@@ -85,6 +85,9 @@ def add_commands(commands) -> None:
     serve.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
     serve.add_argument("--out", default="bench_out",
                        help="folder for serve_bench.json and serve_bench.png (default bench_out/)")
+    serve.add_argument("--engine-only", action="store_true",
+                       help="no server: the engine's CPU per stream step and wall per tick for "
+                            "each --clients, and one stream's first frame (serve_engine.json)")
     serve.set_defaults(run=_cmd_bench_serve)
 
     streams = commands.add_parser(

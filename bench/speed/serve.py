@@ -11,9 +11,11 @@ client got >= 97% of the frame rate and p99 lateness stayed within one frame (50
 The clients run on the same machine as the server: their own CPU use is part of the load.
 
 `engine_cost` measures the compute alone, in this process, with no sockets: N streams past
-warm-up stepped on the engine's clock, CPU time (all threads) per stream step and wall time
-per tick. CPU time shows what N costs even on a busy machine; 1000 / (fps * CPU ms) streams
-per core is the ceiling it sets.
+warm-up stepped on the engine's clock, CPU time (all threads) per stream step, wall time per
+tick and the cores used (CPU over wall). CPU time shows what N costs even on a busy machine;
+1000 / (fps * CPU ms) streams per core is the ceiling it sets. `engine_first_frame` times a
+new stream's first frame on a warm engine, no sockets, in CPU and wall time
+(`--engine-only` runs these two alone).
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ PROMPTS = ["a person walks forward", "a person jogs in a circle", "a person jump
            "a person waves with the right hand", "a person squats", "a person kicks",
            "a person turns left", "a person claps", "a person runs forward", "a person bows"]
 FPS = 20.0
+WARM_CLIENTS = 4
 
 
 def free_port() -> int:
@@ -138,15 +141,37 @@ def engine_cost(clients: int, threads: int, ticks: int = 40) -> dict:
     cpu, wall = time.process_time(), time.perf_counter()
     steps = run_until(now + ticks / engine.fps)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    engine.shutdown()
     return dict(clients=clients, cpu_ms_per_step=cpu * 1e3 / steps,
-                wall_ms_per_tick=wall * 1e3 / ticks)
+                wall_ms_per_tick=wall * 1e3 / ticks, cores=cpu / wall)
+
+
+def engine_first_frame(threads: int, repeats: int = 7) -> dict:
+    """Median CPU and wall ms from a new stream's open to its first frame, one stream on a
+    warm engine (its graphs have run once), no sockets."""
+    from mogo.generator import MotionGenerator
+    from mogo.serve.engine import Engine
+
+    generator = MotionGenerator.load(threads=threads)
+    engine = Engine(generator, threads)
+    times = []
+    for k in range(repeats + 1):  # the first one warms the graphs
+        cpu, wall = time.process_time(), time.perf_counter()
+        stream = engine.open(PROMPTS[0], k, generator.sampling(None), time.monotonic())
+        while not engine.round(engine.due(time.monotonic())):
+            pass
+        times.append(((time.process_time() - cpu) * 1e3, (time.perf_counter() - wall) * 1e3))
+        engine.close(stream)
+    engine.shutdown()
+    cpu, wall = np.median(times[1:], axis=0)
+    return dict(cpu_ms=float(cpu), wall_ms=float(wall))
 
 
 def engine_table(rows: list[dict]) -> str:
-    lines = ["| streams | CPU per stream step | wall per tick (real time: <= 50 ms) |",
-             "|---:|---:|---:|"]
-    lines += [f"| {r['clients']} | {r['cpu_ms_per_step']:.2f} ms | {r['wall_ms_per_tick']:.1f} ms |"
-              for r in rows]
+    lines = ["| streams | CPU per stream step | wall per tick (real time: <= 50 ms) | cores used |",
+             "|---:|---:|---:|---:|"]
+    lines += [f"| {r['clients']} | {r['cpu_ms_per_step']:.2f} ms | {r['wall_ms_per_tick']:.1f} ms "
+              f"| {r['cores']:.2f} |" for r in rows]
     return "\n".join(lines)
 
 
@@ -164,7 +189,7 @@ def run(clients: list[int], seconds: float, threads: int | None, bundle: str | N
         out: Path) -> dict:
     port = free_port()
     command = [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--max-streams",
-               str(max(clients) + 1)]
+               str(max(*clients, WARM_CLIENTS) + 1)]
     command += ["--threads", str(threads)] if threads else []
     command += ["--bundle", bundle] if bundle else []
     server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
@@ -172,7 +197,7 @@ def run(clients: list[int], seconds: float, threads: int | None, bundle: str | N
         if "mogo serve:" not in server.stderr.readline():
             raise RuntimeError("mogo serve did not start")
         url = f"http://127.0.0.1:{port}/v1/stream"
-        measure(url, server.pid, 4, 4.0)  # warm: graphs run once, caches allocated
+        measure(url, server.pid, WARM_CLIENTS, 4.0)  # warm: graphs run once, caches allocated
         first = sorted(asyncio.run(first_frame_ms(url)) for _ in range(7))
         rows = []
         for n in clients:
@@ -197,7 +222,26 @@ def run(clients: list[int], seconds: float, threads: int | None, bundle: str | N
     return result
 
 
+def engine_only(clients: list[int], threads: int | None, out: Path) -> dict:
+    threads = threads or 2
+    result = dict(threads=threads, first_frame=engine_first_frame(threads),
+                  engine=[engine_cost(n, threads) for n in clients])
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "serve_engine.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
 def main_from_args(args) -> None:
+    if args.engine_only:
+        result = engine_only(args.clients, args.threads, Path(args.out))
+        print(f"The engine alone (no sockets, {result['threads']} threads), streams past "
+              "warm-up:\n")
+        print(engine_table(result["engine"]))
+        first = result["first_frame"]
+        print(f"\nfirst frame, one stream, engine warm: {first['wall_ms']:.0f} ms wall, "
+              f"{first['cpu_ms']:.0f} ms CPU (medians of 7)")
+        print(f"wrote {Path(args.out) / 'serve_engine.json'}")
+        return
     result = run(args.clients, args.seconds, args.threads, args.bundle, Path(args.out))
     print(table(result["rows"]))
     print("\nThe engine alone (no sockets), streams past warm-up:\n")

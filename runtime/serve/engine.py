@@ -3,10 +3,13 @@
 Every stream is paced to real time on a shared tick (one token step per frame, `fps` ticks a
 second), LEAD steps ahead so that its frames leave before they are due. A new stream catches
 up at once (its first frame comes after the decoder's lookahead), then steps on the shared
-ticks with all the others. Streams share a call when their caches have one layout
-(mogo.serve.stepper): at the same step during warm-up, at the same phase after it. A stream
-takes a few extra steps (more lead, once) to join a larger group: a warm-up cohort a little
-ahead, or the common phase, so that past warm-up one call of each level graph serves them all. Not thread-safe: the server calls it from one thread.
+ticks with all the others. Until its first frame a stream steps alone on the bundle's own
+level graphs (cheapest for one row, so the first frame waits on no batch); then streams share
+a call when their caches have one layout (mogo.serve.stepper): at the same step during
+warm-up, at the same phase after it. A stream takes a few extra steps (more lead, once) to
+join a larger group: a warm-up cohort a little ahead, or the common phase, so that past
+warm-up one call of each level graph serves them all. Not thread-safe: the server calls it
+from one thread.
 """
 from __future__ import annotations
 
@@ -21,11 +24,14 @@ from mogo.generator import MotionGenerator
 from mogo.motion.features import JointStream
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.motion.feet import FootPlanter
+from mogo.serve.newslot import newslot_graph
 from mogo.serve.rowwise import rowwise_graph
 from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
 from mogo.token_generator import TokenGenerator
 
 ALIGN_STEPS = 24  # extra steps a stream may take to join a larger group (1.2 s more lead)
+SHARD_FROM = 16  # due streams from which a round runs as two shards: a second call of each
+# level graph costs ~2 ms of CPU more a round, and below this one core keeps real time easily
 EMBEDDINGS_KEPT = 256  # prompt embeddings cached (switching back costs no text encoding)
 
 
@@ -61,25 +67,27 @@ class Engine:
 
     def __init__(self, generator: MotionGenerator, threads: int = 1,
                  tokens: TokenGenerator | None = None):
-        """`tokens`: the bundle's level graphs made row-wise (mogo.serve.rowwise); None makes
-        them."""
+        """`tokens`: the bundle's level graphs made row-wise (mogo.serve.rowwise) and returning
+        only the new cache slot (mogo.serve.newslot); None makes them."""
         self.generator = generator
         manifest = generator.manifest
         levels = manifest.t2m.levels
         if tokens is None:
-            tokens = TokenGenerator([rowwise_graph(generator.bundle.path(g.file))
+            tokens = TokenGenerator([newslot_graph(rowwise_graph(generator.bundle.path(g.file)))
                                      for g in levels], levels, manifest.end_token,
-                                    intra_op_threads=1, level_workers=threads)
+                                    intra_op_threads=1)  # the shards run in parallel
         window = manifest.defaults.window
         if window is None:  # an unbounded cache: every stream would grow without end
             raise ValueError("mogo serve needs a bundle with a KV window (defaults.window)")
-        self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"])
         self.fps = generator.fps
         decoder = manifest.vq.decoder
-        self.lead = (decoder.lookahead + 1 + 2 * generator.streaming_decoder().every
-                     + math.ceil(FEET_LOOKAHEAD / generator.down_factor))
+        first_frame = decoder.lookahead + 1 + math.ceil(FEET_LOOKAHEAD / generator.down_factor)
+        self.lead = first_frame + 2 * generator.streaming_decoder().every
+        self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"],
+                               solo=generator.tokens.with_level_workers(threads),
+                               solo_steps=min(first_frame, window + 1))
         self.streams: dict[int, ServedStream] = {}
-        self._pool = ThreadPoolExecutor(1, "mogo-decode") if threads > 1 else None
+        self._pool = ThreadPoolExecutor(1, "mogo-shard") if threads > 1 else None
         self._ids = itertools.count(1)
         self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
 
@@ -132,7 +140,8 @@ class Engine:
         most ALIGN_STEPS ahead; past it, the most common phase. Bounded: ALIGN_STEPS extra
         steps in warm-up, COMPACT_EVERY more past it (so at most that much more lead)."""
         kind, value = key = stream.tokens.key
-        if stream.extra >= ALIGN_STEPS + (COMPACT_EVERY if kind == "steady" else 0):
+        bound = ALIGN_STEPS + (COMPACT_EVERY if kind == "steady" else 0)
+        if kind == "solo" or stream.extra >= bound:
             return False
         if kind == "steady":
             phases = Counter({k[1]: n for k, n in keys.items() if k[0] == "steady"})
@@ -144,16 +153,19 @@ class Engine:
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         """One step of each stream in `due`: (stream, index of its first new frame, joints
         (n, J, 3)) for each that made frames."""
-        pairs = list(zip(due, self.stepper.step([s.tokens for s in due])))
-        if self._pool is None or len(pairs) < 2:
-            return self._push(pairs)
-        half = len(pairs) // 2  # decoders on two threads: each stream's own, so any split
-        other = self._pool.submit(self._push, pairs[half:])
-        return self._push(pairs[:half]) + other.result()
+        if self._pool is None or len(due) < SHARD_FROM:
+            return self._step(due)
+        # two shards, each its own calls, sampling and decoding, on two threads: onnxruntime
+        # releases the GIL, so one shard's graphs run beside the other's Python. A stream's
+        # numbers do not depend on its shard (rows never mix); halves in a stable order keep
+        # each shard's batch from the last round (no copy).
+        half = len(due) // 2
+        other = self._pool.submit(self._step, due[half:])
+        return self._step(due[:half]) + other.result()
 
-    def _push(self, pairs: list[tuple[ServedStream, np.ndarray]]) -> list[tuple]:
+    def _step(self, due: list[ServedStream]) -> list[tuple]:
         out = []
-        for stream, row in pairs:
+        for stream, row in zip(due, self.stepper.step([s.tokens for s in due])):
             first = stream.frames_sent
             joints = stream.push(row, self.generator.bundle)
             if len(joints):
