@@ -16,8 +16,8 @@ the model could have been trained on:
 - a prompt that asks for something that ends (`settles`: sit down, bow, jump three times,
   "..., then ...") runs until the model ends its clip, then the stream holds: a fresh clip
   of `Anchoring.hold_prompt`, which starts standing still (re-anchored from the end of a
-  turn, the hold went on turning slowly), then re-anchored (STILL: the model does not end
-  clips of standing still).
+  turn, the hold went on turning slowly), then re-anchored from its last `still_keep` steps
+  (STILL: the model does not end clips of standing still).
 
 Only which tokens are drawn changes: the decoder sees one continuous token stream, so the
 frames still equal an offline decode of the tokens, and the cache never holds more than
@@ -38,7 +38,9 @@ from mogo.token_generator import TokenStream
 # jumping jacks, squat, punch, idle) go on for as long as the stream runs.
 ONE_OFF = frozenset({"sit", "bow", "turn", "jump", "kick", "stretch", "raise_arms"})
 # Standing still has no cycle to start again: the model does not end a clip of it, which goes
-# on re-anchored (fresh clips of it showed their first pose as a small settle every few s).
+# on re-anchored from its last still_keep steps (fresh clips of it showed their first pose as
+# a small settle every few seconds; re-anchored from 10 steps, a hold fell into a slow turn
+# after minutes and kept it).
 STILL = "idle"
 _COUNTS = frozenset(NUMBERS[1:]) | {"once", "twice", "then"}
 
@@ -46,7 +48,8 @@ _COUNTS = frozenset(NUMBERS[1:]) | {"once", "twice", "then"}
 @dataclass(frozen=True)
 class Anchoring:
     """How a stream re-anchors: where the model has not ended its clip after `span` steps, a
-    fresh clip starting with the last `keep` steps (at a prompt switch, `switch_keep`);
+    fresh clip starting with the last `keep` steps (at a prompt switch, `switch_keep`; while
+    standing still, `still_keep`: kept longer, a slow turn carried on from clip to clip);
     `max_one_off` steps at most before a one-off prompt holds (the bundle's longest clip,
     9.8 s, where the model has not ended it itself); the prompt of the hold. The span is
     longer than the clips of short actions (a spin's turn: 2 s), so that the model ends them
@@ -54,6 +57,7 @@ class Anchoring:
     span: int = 80
     keep: int = 10
     switch_keep: int = 1
+    still_keep: int = 1
     max_one_off: int = 196
     hold_prompt: str = "a person stands still."
 
@@ -61,9 +65,10 @@ class Anchoring:
         if not 1 <= self.keep < self.span:
             raise ValueError(f"anchoring needs 1 <= keep < span, got keep={self.keep}, "
                              f"span={self.span}")
-        if not 1 <= self.switch_keep <= self.keep:
-            raise ValueError(f"anchoring needs 1 <= switch_keep <= keep, got "
-                             f"switch_keep={self.switch_keep}, keep={self.keep}")
+        for name in ("switch_keep", "still_keep"):
+            if not 1 <= getattr(self, name) <= self.keep:
+                raise ValueError(f"anchoring needs 1 <= {name} <= keep, got "
+                                 f"{name}={getattr(self, name)}, keep={self.keep}")
 
 
 def settles(text: str) -> bool:
@@ -114,12 +119,13 @@ class Anchor:
             if self._tokens.steps >= self.anchoring.max_one_off:
                 self._hold()
         elif self._tokens.steps >= self.anchoring.span:
-            self._reanchor()
+            self._reanchor(self.anchoring.still_keep if self.still else None)
         return row
 
     def _kind(self, text: str) -> None:
         self.one_off = settles(text)
-        self._tokens.allow_end = primitive_of(plain_words(text)) != STILL
+        self.still = primitive_of(plain_words(text)) == STILL
+        self._tokens.allow_end = not self.still
 
     def _hold(self) -> None:
         """A fresh clip of the hold prompt: one re-anchored from the end of a turn went on

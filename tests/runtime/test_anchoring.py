@@ -87,6 +87,13 @@ def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator):
     assert stream._tokens.allow_end  # a walk the model ends starts again
 
 
+def test_standing_still_is_never_ended_and_re_anchors_from_its_last_step(generator):
+    stream = generator.stream("a person stands still.", seed=5, anchoring=SMALL)
+    assert stream.anchor.still and not stream._tokens.allow_end
+    stream.advance(SMALL.span)
+    assert stream._tokens.steps == SMALL.still_keep and stream.anchor.fresh == 0
+
+
 def test_a_spin_the_model_ends_starts_again_and_keeps_turning(generator):
     """The model ends a spin after one turn (2 s, within the span): a fresh clip of it starts
     (re-anchored from the turn's standing end instead, the model stood). Frames still decode
@@ -113,5 +120,7 @@ def test_anchoring_arguments_are_checked(generator):
         Anchoring(span=10, keep=10)
     with pytest.raises(ValueError, match="switch_keep <= keep"):
         Anchoring(keep=4, switch_keep=5)
+    with pytest.raises(ValueError, match="still_keep <= keep"):
+        Anchoring(keep=4, still_keep=0)
     with pytest.raises(TypeError, match="anchoring must be"):
         generator.stream("a person walks forward.", anchoring="yes")
