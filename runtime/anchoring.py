@@ -38,9 +38,9 @@ from mogo.token_generator import TokenStream
 # jumping jacks, squat, punch, idle) go on for as long as the stream runs.
 ONE_OFF = frozenset({"sit", "bow", "turn", "jump", "kick", "stretch", "raise_arms"})
 # Standing still has no cycle to start again: the model does not end a clip of it, which goes
-# on re-anchored from its last still_keep steps (fresh clips of it showed their first pose as
-# a small settle every few seconds; re-anchored from 10 steps, a hold fell into a slow turn
-# after minutes and kept it).
+# on re-anchored from its last still_keep steps (fresh clips of it, or re-anchors from 1 step,
+# showed their first pose as a small settle every few seconds; re-anchored from 10 steps, a
+# hold fell into a slow turn after minutes and kept it).
 STILL = "idle"
 _COUNTS = frozenset(NUMBERS[1:]) | {"once", "twice", "then"}
 
@@ -49,7 +49,8 @@ _COUNTS = frozenset(NUMBERS[1:]) | {"once", "twice", "then"}
 class Anchoring:
     """How a stream re-anchors: where the model has not ended its clip after `span` steps, a
     fresh clip starting with the last `keep` steps (at a prompt switch, `switch_keep`; while
-    standing still, `still_keep`: kept longer, a slow turn carried on from clip to clip);
+    standing still, `still_keep`: from 10, a slow turn carried on from clip to clip, from 1,
+    each re-anchor settled into a fresh pose);
     `max_one_off` steps at most before a one-off prompt holds (the bundle's longest clip,
     9.8 s, where the model has not ended it itself); the prompt of the hold. The span is
     longer than the clips of short actions (a spin's turn: 2 s), so that the model ends them
@@ -57,7 +58,7 @@ class Anchoring:
     span: int = 80
     keep: int = 10
     switch_keep: int = 1
-    still_keep: int = 1
+    still_keep: int = 5
     max_one_off: int = 196
     hold_prompt: str = "a person stands still."
 

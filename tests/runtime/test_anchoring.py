@@ -87,7 +87,7 @@ def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator):
     assert stream._tokens.allow_end  # a walk the model ends starts again
 
 
-def test_standing_still_is_never_ended_and_re_anchors_from_its_last_step(generator):
+def test_standing_still_is_never_ended_and_re_anchors_from_its_last_still_keep_steps(generator):
     stream = generator.stream("a person stands still.", seed=5, anchoring=SMALL)
     assert stream.anchor.still and not stream._tokens.allow_end
     stream.advance(SMALL.span)
