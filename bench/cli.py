@@ -48,9 +48,15 @@ def _cmd_real_motion(args: argparse.Namespace) -> None:
 
 def _cmd_long_streams(args: argparse.Namespace) -> None:
     from mogo.bench.long_streams import MODES, main
+    from mogo.bench.quality.stream_checks import REPERTOIRE
 
     if not set(args.modes) <= set(MODES):
         raise CliError(f"--modes: choose from {', '.join(MODES)}, got {' '.join(args.modes)}")
+    names = [a.name for a in REPERTOIRE]
+    if unknown := [a for a in args.actions or () if a not in names]:
+        raise CliError(f"--actions: no action {unknown[0]!r}; choose from {', '.join(names)}")
+    if args.switches < 0:
+        raise CliError(f"--switches must be >= 0 (0: none), got {args.switches}")
     main(args)
 
 
@@ -99,10 +105,13 @@ def add_commands(commands) -> None:
     streams.add_argument("--minutes", type=float, default=10.0, help="length of each stream")
     streams.add_argument("--seeds", type=int, default=2, help="streams per action and mode")
     streams.add_argument("--switches", type=int, default=30,
-                         help="prompt switches per seed and mode (one every 10 s)")
+                         help="prompt switches per seed and mode (one every 10 s; 0: none)")
     streams.add_argument("--modes", nargs="+", default=["off", "on"],
                          help="re-anchoring off (before) and/or on (default both)")
     streams.add_argument("--jobs", type=int, default=2, help="streams run in parallel")
+    streams.add_argument("--actions", nargs="+", metavar="NAME",
+                         help="only these actions of the repertoire (default all; e.g. "
+                              "'jog forward' spin)")
     streams.add_argument("--tables-from", nargs="+", metavar="JSON",
                          help="no streams: the tables and plot of saved runs "
                               "(long_streams.json), merged")

@@ -1,7 +1,8 @@
 """`mogo long-streams`: do long streams keep doing what they were asked?
 
-Streams of every action of the repertoire (mogo.bench.quality.stream_checks), `minutes` long,
-for several seeds, with re-anchoring off (the model runs on from step 0, the behaviour before
+Streams of every action of the repertoire (mogo.bench.quality.stream_checks; or of those
+chosen, e.g. the failing ones while a change is tried), `minutes` long, for several seeds,
+with re-anchoring off (the model runs on from step 0, the behaviour before
 mogo.anchoring) and on: the share of 10-s windows that pass the action's check, how fast a
 prompt switch shows (streams switching between continuing actions every 10 s), the seams of
 re-anchoring (joint speed there against ordinary frames), drift (pelvis height band, feet
@@ -40,8 +41,9 @@ def _worker_generator(bundle: str | None):
 
 
 def _stream(bundle, prompt: str, seed: int, anchoring: bool, frames: int,
-            switches: list[str] = ()) -> tuple[np.ndarray, list[int], list[float]]:
-    """A stream's joints, the frames where it re-anchored and seconds per step by minute."""
+            switches: list[str] = ()) -> tuple[np.ndarray, list[int], list[float], int]:
+    """A stream's joints, the frames where it re-anchored, seconds per step by minute and how
+    many of the re-anchors were fresh clips."""
     stream = _worker_generator(bundle).stream(prompt, seed=seed, anchoring=anchoring)
     chunks, seams, minute_times, steps, start = [], [], [], 0, time.perf_counter()
     down = stream.generator.down_factor
@@ -57,19 +59,20 @@ def _stream(bundle, prompt: str, seed: int, anchoring: bool, frames: int,
         if steps % (60 * FPS) == 0:
             minute_times.append((time.perf_counter() - start) / (60 * FPS))
             start = time.perf_counter()
-    return np.concatenate(chunks)[:frames], seams, minute_times
+    fresh = stream.anchor.fresh if stream.anchor else 0
+    return np.concatenate(chunks)[:frames], seams, minute_times, fresh
 
 
 def run_action(bundle, action: Action, seed: int, mode: str, minutes: float) -> dict:
     frames = int(minutes * 60 * FPS)
-    joints, seams, times = _stream(bundle, action.prompt, seed, MODES[mode], frames)
+    joints, seams, times, fresh = _stream(bundle, action.prompt, seed, MODES[mode], frames)
     short = _worker_generator(bundle).generate(action.prompt, seconds=5, seed=seed).joints
     speed = joint_speed(joints)
     seams = [f for f in seams if 1 <= f < len(speed)]
     return dict(action=action.name, seed=seed, mode=mode,
                 passes=window_passes(WindowCheck(action, WINDOW), joints),
                 drift=drift(joints), short_slide=drift(short)["slide"],
-                seam_speed=[float(speed[f - 1]) for f in seams],
+                seam_speed=[float(speed[f - 1]) for f in seams], fresh=fresh,
                 ordinary_p99=float(np.percentile(speed, 99)), step_seconds=times)
 
 
@@ -81,8 +84,8 @@ def run_switches(bundle, seed: int, mode: str, switches: int) -> dict:
     while len(order) < switches + 1:
         order.append(continuing[(continuing.index(order[-1]) + 1 + rng.integers(
             len(continuing) - 1)) % len(continuing)])
-    joints, _, _ = _stream(bundle, order[0].prompt, seed, MODES[mode],
-                           SWITCH_EVERY * len(order), [a.prompt for a in order[1:]])
+    joints, *_ = _stream(bundle, order[0].prompt, seed, MODES[mode],
+                         SWITCH_EVERY * len(order), [a.prompt for a in order[1:]])
     checks = {a.name: WindowCheck(a, REACTION_WINDOW) for a in set(order[1:])}
     reactions = [reaction_frames(checks[a.name], joints[k * SWITCH_EVERY:(k + 1) * SWITCH_EVERY])
                  for k, a in enumerate(order) if k]
@@ -95,7 +98,7 @@ def measure(bundle: str | None, minutes: float, seeds: int, switches: int, jobs:
         streams = [pool.submit(run_action, bundle, a, s, m, minutes)
                    for m in modes for a in actions for s in range(seeds)]
         switching = [pool.submit(run_switches, bundle, s, m, switches)
-                     for m in modes for s in range(seeds)]
+                     for m in modes for s in range(seeds) if switches]
         return dict(modes=modes, lengths={m: (minutes, seeds) for m in modes},
                     streams=[f.result() for f in streams],
                     switches=[f.result() for f in switching])
@@ -150,17 +153,12 @@ def figures_table(result: dict) -> str:
         times = [t for r in streams for t in r["step_seconds"]]
         firsts = [r["step_seconds"][0] for r in streams if r["step_seconds"]]
         lasts = [r["step_seconds"][-1] for r in streams if r["step_seconds"]]
-        finite = seconds[np.isfinite(seconds)]
+        fresh = sum(r.get("fresh", 0) for r in streams)
         for name, value in {
-            "switches: new action under way within 1.5 s":
-                f"{np.mean(seconds <= PROMPT_SECONDS):.0%} of {len(seconds)}",
-            "switches: median / 90th percentile reaction (s)":
-                " / ".join(f"{np.percentile(seconds, q, method='lower'):.2f}" for q in (50, 90)),
-            "switches: never under way within 10 s": f"{np.sum(~np.isfinite(seconds))}",
-            "switches: mean reaction where it shows (s)":
-                f"{finite.mean():.2f}" if len(finite) else "-",
+            **_switch_figures(seconds),
             "seams: joint speed above the stream's 99th percentile":
-                f"{np.mean([s > p for s, p in seams]):.1%} of {len(seams)}" if seams else "none",
+                f"{np.mean([s > p for s, p in seams]):.1%} of {len(seams)} ({fresh} fresh "
+                f"clips)" if seams else "none",
             "pelvis height, 1st-99th percentile, lowest / highest stream (m)":
                 f"{min(x['pelvis_low'] for x in d):.2f} / {max(x['pelvis_high'] for x in d):.2f}",
             "deepest foot under the floor (cm)": f"{100 * max(x['under_floor'] for x in d):.1f}",
@@ -173,6 +171,22 @@ def figures_table(result: dict) -> str:
             rows.setdefault(name, []).append(value)
     lines += [f"| {name} | " + " | ".join(values) + " |" for name, values in rows.items()]
     return "\n".join(lines)
+
+
+def _switch_figures(seconds: np.ndarray) -> dict[str, str]:
+    """The switch rows of the figures table from reaction times (s; inf: never)."""
+    if not len(seconds):
+        return {}
+    finite = seconds[np.isfinite(seconds)]
+    return {
+        "switches: new action under way within 1.5 s":
+            f"{np.mean(seconds <= PROMPT_SECONDS):.0%} of {len(seconds)}",
+        "switches: median / 90th percentile reaction (s)":
+            " / ".join(f"{np.percentile(seconds, q, method='lower'):.2f}" for q in (50, 90)),
+        "switches: never under way within 10 s": f"{np.sum(~np.isfinite(seconds))}",
+        "switches: mean reaction where it shows (s)":
+            f"{finite.mean():.2f}" if len(finite) else "-",
+    }
 
 
 def plot(result: dict, path: Path) -> None:
@@ -215,7 +229,8 @@ def report(result: dict) -> str:
 def main(args: argparse.Namespace) -> None:
     minutes, seeds, switches = ((1 / 3, 1, 1) if args.quick else
                                 (args.minutes, args.seeds, args.switches))
-    actions = REPERTOIRE if not args.quick else tuple(REPERTOIRE[k] for k in (0, -5))
+    actions = (tuple(a for a in REPERTOIRE if a.name in args.actions) if args.actions else
+               tuple(REPERTOIRE[k] for k in (0, -5)) if args.quick else REPERTOIRE)
     result = (merged(args.tables_from) if args.tables_from else
               measure(args.bundle, minutes, seeds, switches, args.jobs, args.modes, actions))
     text = report(result)

@@ -1,14 +1,23 @@
 """Re-anchoring: long streams kept in the regime the model was trained on.
 
 The model learnt from 2-10 s clips, so it never saw a clip position past ~200 steps; a stream
-left to run drifts into other actions after ~5 s. Re-anchored, the stream goes on, every
-`span` steps, as if it were a fresh clip that starts with its last `keep` steps
-(TokenStream.continue_from): the positions the model sees stay small and the motion goes on
-from where it is. A prompt switch re-anchors at once under the new prompt from only the last
-`switch_keep` steps, so the new action starts as a fresh clip of it would (keeping the whole
-`keep` there, the model first goes on with the old action: measured in docs/long_streams.md). A prompt that asks for something that ends (`settles`: sit
-down, bow, jump three times, "..., then ...") runs until the model ends its clip, then the
-stream holds: it goes on, re-anchored, under `Anchoring.hold_prompt`.
+left to run drifts into other actions after ~5 s. Re-anchored, the stream is a chain of clips
+the model could have been trained on:
+
+- where the model ends its clip (the end token: after one turn for a spin, after a few
+  seconds for a walk), a fresh clip of the prompt starts at step 0 (TokenStream.restart): the
+  action starts over at its own pace, as a clip of it does, instead of going on from a state
+  no training clip was in (re-anchored after a whole spin, the model stood);
+- where it has not ended it after `span` steps, the stream goes on as if it were a fresh clip
+  that starts with its last `keep` steps (TokenStream.continue_from);
+- a prompt switch re-anchors at once under the new prompt from only the last `switch_keep`
+  steps, so the new action starts as a fresh clip of it would (keeping the whole `keep`
+  there, the model first goes on with the old action: measured in docs/long_streams.md);
+- a prompt that asks for something that ends (`settles`: sit down, bow, jump three times,
+  "..., then ...") runs until the model ends its clip, then the stream holds: a fresh clip
+  of `Anchoring.hold_prompt`, which starts standing still (re-anchored from the end of a
+  turn, the hold went on turning slowly), then re-anchored from its last `still_keep` steps
+  (STILL: the model does not end clips of standing still).
 
 Only which tokens are drawn changes: the decoder sees one continuous token stream, so the
 frames still equal an offline decode of the tokens, and the cache never holds more than
@@ -28,18 +37,28 @@ from mogo.token_generator import TokenStream
 # Primitives that happen once and are done; the others (walk, jog, run, spin, wave, clap,
 # jumping jacks, squat, punch, idle) go on for as long as the stream runs.
 ONE_OFF = frozenset({"sit", "bow", "turn", "jump", "kick", "stretch", "raise_arms"})
+# Standing still has no cycle to start again: the model does not end a clip of it, which goes
+# on re-anchored from its last still_keep steps (fresh clips of it, or re-anchors from 1 step,
+# showed their first pose as a small settle every few seconds; re-anchored from 10 steps, a
+# hold fell into a slow turn after minutes and kept it).
+STILL = "idle"
 _COUNTS = frozenset(NUMBERS[1:]) | {"once", "twice", "then"}
 
 
 @dataclass(frozen=True)
 class Anchoring:
-    """How a stream re-anchors: a fresh clip every `span` steps, starting with the last `keep`
-    steps (at a prompt switch, `switch_keep`); `max_one_off` steps at most before a one-off
-    prompt holds (the bundle's longest clip, 9.8 s, where the model has not ended it itself);
-    the prompt of the hold."""
-    span: int = 40
+    """How a stream re-anchors: where the model has not ended its clip after `span` steps, a
+    fresh clip starting with the last `keep` steps (at a prompt switch, `switch_keep`; while
+    standing still, `still_keep`: from 10, a slow turn carried on from clip to clip, from 1,
+    each re-anchor settled into a fresh pose);
+    `max_one_off` steps at most before a one-off prompt holds (the bundle's longest clip,
+    9.8 s, where the model has not ended it itself); the prompt of the hold. The span is
+    longer than the clips of short actions (a spin's turn: 2 s), so that the model ends them
+    itself before."""
+    span: int = 80
     keep: int = 10
     switch_keep: int = 1
+    still_keep: int = 5
     max_one_off: int = 196
     hold_prompt: str = "a person stands still."
 
@@ -47,9 +66,10 @@ class Anchoring:
         if not 1 <= self.keep < self.span:
             raise ValueError(f"anchoring needs 1 <= keep < span, got keep={self.keep}, "
                              f"span={self.span}")
-        if not 1 <= self.switch_keep <= self.keep:
-            raise ValueError(f"anchoring needs 1 <= switch_keep <= keep, got "
-                             f"switch_keep={self.switch_keep}, keep={self.keep}")
+        for name in ("switch_keep", "still_keep"):
+            if not 1 <= getattr(self, name) <= self.keep:
+                raise ValueError(f"anchoring needs 1 <= {name} <= keep, got "
+                                 f"{name}={getattr(self, name)}, keep={self.keep}")
 
 
 def settles(text: str) -> bool:
@@ -61,21 +81,24 @@ def settles(text: str) -> bool:
 
 
 class Anchor:
-    """One stream's re-anchoring: its last `keep` token steps, and whether it holds."""
+    """One stream's re-anchoring: its last `keep` token steps, and whether it holds. The
+    model may end its clip (TokenStream.allow_end; not while standing still): the stream
+    then goes on with a fresh clip, of the prompt or, after a one-off, of the hold."""
 
     def __init__(self, anchoring: Anchoring, tokens: TokenStream,
                  embed: Callable[[str], np.ndarray], text: str):
         self.anchoring, self._tokens, self._embed = anchoring, tokens, embed
         self.recent = np.zeros((0, tokens.generator.num_levels), np.int64)
-        self.anchors = 0  # re-anchors so far
+        self.anchors = 0  # re-anchors and fresh clips so far
+        self.fresh = 0  # of which fresh clips
         self.holding = False
-        self._tokens.allow_end = settles(text)
+        self._kind(text)
 
     def switch(self, text: str, embedding: np.ndarray) -> None:
         """A new prompt: a fresh clip under it at once, from the last `switch_keep` steps."""
         self._tokens.set_prompt(embedding)
         self.holding = False
-        self._tokens.allow_end = settles(text)
+        self._kind(text)
         if len(self.recent):
             self._reanchor(self.anchoring.switch_keep)
 
@@ -84,24 +107,40 @@ class Anchor:
         self.recent = np.asarray(tokens, np.int64)[-self.anchoring.keep:]
 
     def step(self) -> np.ndarray:
-        """The next token step, re-anchoring or settling into the hold where due."""
+        """The next token step, starting a fresh clip, re-anchoring or settling where due."""
         row = self._tokens.step()
-        if row is None:  # the model ended a one-off prompt's clip
-            self._hold()
+        if row is None:  # the model ended its clip (never at step 0: the row comes)
+            if self.one_off:
+                self._hold()
+            else:
+                self._restart()
             row = self._tokens.step()
         self.recent = np.concatenate([self.recent, row[None]])[-self.anchoring.keep:]
-        if self._tokens.allow_end:
+        if self.one_off:
             if self._tokens.steps >= self.anchoring.max_one_off:
                 self._hold()
         elif self._tokens.steps >= self.anchoring.span:
-            self._reanchor()
+            self._reanchor(self.anchoring.still_keep if self.still else None)
         return row
 
+    def _kind(self, text: str) -> None:
+        self.one_off = settles(text)
+        self.still = primitive_of(plain_words(text)) == STILL
+        self._tokens.allow_end = not self.still
+
     def _hold(self) -> None:
-        self._tokens.set_prompt(self._embed(self.anchoring.hold_prompt))
-        self._tokens.allow_end = False
+        """A fresh clip of the hold prompt: one re-anchored from the end of a turn went on
+        turning slowly."""
+        hold = self.anchoring.hold_prompt
+        self._tokens.set_prompt(self._embed(hold))
         self.holding = True
-        self._reanchor()
+        self._kind(hold)
+        self._restart()
+
+    def _restart(self) -> None:
+        self._tokens.restart()
+        self.anchors += 1
+        self.fresh += 1
 
     def _reanchor(self, keep: int | None = None) -> None:
         self._tokens.continue_from(self.recent[-(keep or self.anchoring.keep):])

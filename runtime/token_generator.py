@@ -143,14 +143,7 @@ class TokenStream:
         self.rng = make_rng(seed)
         self.uncond = np.array([False, True][:2 if sampling.guided else 1])
         self.prompt = self._batch(prompt_embedding)
-        L = generator.num_levels
-        self.caches = [generator.empty_cache(level, len(self.uncond)) for level in range(L)]
-        self.positions = np.zeros(0, np.int64)  # (P,) position of every cache slot
-        self.slot_tokens = np.zeros((0, L), np.int64)  # (P, L) the tokens each slot holds
-        self.last = np.zeros(L, np.int64)  # tokens of the latest step (none yet: any valid id)
-        self.steps = 0  # steps drawn
-        self.ended = False
-        self._oldest = 1  # with a full window: the slot the next step overwrites
+        self.restart()
 
     def step(self) -> np.ndarray | None:
         """The tokens (L,) of the next step, or None once level 0 has drawn the end token.
@@ -208,6 +201,18 @@ class TokenStream:
             self.positions, self.slot_tokens = self.positions[keep], self.slot_tokens[keep]
         self._oldest = 1
         self._prefill()
+
+    def restart(self) -> None:
+        """Forget every step drawn (not the random state): the next step is step 0 of a fresh
+        clip under the prompt."""
+        g, L = self.generator, self.generator.num_levels
+        self.caches = [g.empty_cache(level, len(self.uncond)) for level in range(L)]
+        self.positions = np.zeros(0, np.int64)  # (P,) position of every cache slot
+        self.slot_tokens = np.zeros((0, L), np.int64)  # (P, L) the tokens each slot holds
+        self.last = np.zeros(L, np.int64)  # tokens of the latest step (none yet: any valid id)
+        self.steps = 0  # steps drawn
+        self.ended = False
+        self._oldest = 1  # with a full window: the slot the next step overwrites
 
     def _prefill(self) -> None:
         """Recompute every level's cache for the held slots under the current prompt."""

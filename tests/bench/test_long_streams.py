@@ -1,5 +1,5 @@
-"""`mogo long-streams --quick` end to end on the shipped bundle (two actions, both modes), and
-the window checks it rests on, judged against the procedural animator's own performance."""
+"""`mogo long-streams --quick` end to end on the shipped bundle (two actions, both modes), a run
+of chosen actions, and the window checks it rests on, judged against the procedural animator's own performance."""
 import json
 
 import numpy as np
@@ -21,6 +21,24 @@ def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
     assert all(len(r["passes"]) == 2 for r in result["streams"])  # 20 s: two 10-s windows
     assert all(len(s["reactions"]) == 1 for s in result["switches"])
     assert Image.open(tmp_path / "long_streams.png").size[0] > 0
+
+
+def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
+    assert main(["long-streams", "--modes", "on", "--minutes", str(1 / 6), "--seeds", "1",
+                 "--switches", "0", "--actions", "spin", "--jobs", "1",
+                 "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "| spin | a person spins to the left. |" in printed and "walk" not in printed
+    assert "switches:" not in printed and "fresh clips" in printed
+    result = json.loads((tmp_path / "long_streams.json").read_text())
+    assert [r["action"] for r in result["streams"]] == ["spin"] and result["switches"] == []
+
+
+@pytest.mark.parametrize("args,message", [(["--actions", "moonwalk"], "no action 'moonwalk'"),
+                                          (["--switches", "-1"], "--switches must be >= 0")])
+def test_bad_choices_are_one_line_errors(args, message, capsys):
+    assert main(["long-streams", *args]) == 2
+    assert message in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("action", [a for a in REPERTOIRE if a.continuing], ids=lambda a: a.name)

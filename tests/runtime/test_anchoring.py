@@ -1,12 +1,13 @@
 """Re-anchored streams (mogo.anchoring): deterministic, frames equal to the offline decode of
-their tokens across anchors, a held state bounded by the span, prompt switches re-anchoring
-at once (test_generator's switch test checks there is no jump in the pose), one-off prompts
-settling into the hold."""
+their tokens across anchors and fresh clips, a held state bounded by the span, prompt switches
+re-anchoring at once (test_generator's switch test checks there is no jump in the pose),
+clips the model ends starting afresh, one-off prompts settling into the hold."""
 import numpy as np
 import pytest
 
 from mogo import Anchoring, MotionGenerator
 from mogo.anchoring import settles
+from mogo.motion.features import facing_directions
 
 SMALL = Anchoring(span=20, keep=5, max_one_off=60)
 
@@ -74,14 +75,45 @@ def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
     assert np.array_equal(recent, stream.finish().tokens[13 - SMALL.keep:13])
 
 
-def test_a_one_off_prompt_settles_into_the_hold(generator):
+def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator):
     stream = generator.stream("a person bows.", seed=0, anchoring=SMALL)
-    assert stream._tokens.allow_end and not stream.anchor.holding
+    assert stream.anchor.one_off and stream._tokens.allow_end and not stream.anchor.holding
     stream.advance(SMALL.max_one_off + 1)
-    assert stream.anchor.holding and not stream._tokens.allow_end
+    assert stream.anchor.holding and not stream.anchor.one_off and stream.anchor.fresh == 1
+    assert not stream._tokens.allow_end  # the hold stands still: the model does not end it
     assert stream._tokens.steps <= SMALL.span
     stream.set_prompt("a person walks forward.")
-    assert not stream.anchor.holding and not stream._tokens.allow_end
+    assert not stream.anchor.holding and not stream.anchor.one_off
+    assert stream._tokens.allow_end  # a walk the model ends starts again
+
+
+def test_standing_still_is_never_ended_and_re_anchors_from_its_last_still_keep_steps(generator):
+    stream = generator.stream("a person stands still.", seed=5, anchoring=SMALL)
+    assert stream.anchor.still and not stream._tokens.allow_end
+    stream.advance(SMALL.span)
+    assert stream._tokens.steps == SMALL.still_keep and stream.anchor.fresh == 0
+
+
+def test_a_spin_the_model_ends_starts_again_and_keeps_turning(generator):
+    """The model ends a spin after one turn (2 s, within the span): a fresh clip of it starts
+    (re-anchored from the turn's standing end instead, the model stood). Frames still decode
+    like the tokens across the fresh clips."""
+    lookahead = generator.manifest.vq.decoder.lookahead
+    stream = generator.stream("a person spins to the left.", seed=0)
+    stream.advance(200)
+    motion = stream.finish()
+    clip = generator.generate("a person spins to the left.", seed=0).tokens
+    assert np.array_equal(motion.tokens[:len(clip)], clip)  # the first clip: generate's
+    assert stream.anchor.fresh >= 3 and stream.anchor.fresh == stream.anchor.anchors
+    facing = facing_directions(motion.joints[:200], generator.skeleton, facing_sigma=0)
+    turned = np.degrees(np.ptp(np.unwrap(np.arctan2(facing[:, 0], facing[:, 2]))))
+    assert turned > 3 * 360 - 90  # about 180 degrees a second, as the corpus spins
+    longer = generator.stream("a person spins to the left.", seed=0)
+    longer.advance(200 + lookahead)
+    context = longer.finish().tokens
+    assert np.array_equal(context[:200], motion.tokens)
+    offline = generator.decode(context, [], frames=200)
+    np.testing.assert_allclose(motion.joints, offline.joints, atol=1e-5)
 
 
 def test_anchoring_arguments_are_checked(generator):
@@ -89,5 +121,7 @@ def test_anchoring_arguments_are_checked(generator):
         Anchoring(span=10, keep=10)
     with pytest.raises(ValueError, match="switch_keep <= keep"):
         Anchoring(keep=4, switch_keep=5)
+    with pytest.raises(ValueError, match="still_keep <= keep"):
+        Anchoring(keep=4, still_keep=0)
     with pytest.raises(TypeError, match="anchoring must be"):
         generator.stream("a person walks forward.", anchoring="yes")

@@ -10,7 +10,9 @@ then `mogo.runtime.generator`), so this test is that restructure's "same bundle,
 seed give byte-identical tokens and motion". After a deliberate change of the model or of what
 a seed draws, re-record it and say why in the commit (issue 25 did, for the joints alone: feet
 are planted by default; the *_feet_as_decoded cases keep the bytes from before it; issue 19
-did for streams past their first anchor, re-anchored by default):
+did for streams past their first anchor, re-anchored by default, and again for the
+re-anchored stream cases when the model could end a stream's clip to start a fresh one: such
+a stream draws differently from its first step):
 
     python tests/runtime/test_golden.py --record
 
@@ -99,7 +101,7 @@ def outputs(generator) -> dict[str, dict]:
     cases["stream/60_frames_switch_at_30_feet_as_decoded"] = pinned(np.array(frames),
                                                                     prompts=stream.prompts)
     stream = generator.stream("a person walks forward.", seed=6)
-    stream.advance(140)  # re-anchored every 30 steps (mogo.anchoring)
+    stream.advance(140)  # fresh clips where the model ends one, re-anchored (mogo.anchoring)
     anchored = stream.finish()
     cases["stream/re_anchored_140_steps"] = pinned(anchored.joints, anchored.tokens)
     clip = generator.generate("a person walks forward.", seconds=3.0, seed=4)

@@ -1,7 +1,7 @@
 """mogo.token_generator on the shipped bundle, against the contracts its docstrings state: the
 uniforms of the seed mapping, the end token, the sliding window (the cache holds the prompt
 prefix and the last `window` steps, each slot at its own position with its own tokens, never
-more), prompt switches after the window has wrapped, and continue_from.
+more), prompt switches after the window has wrapped, continue_from and restart.
 
 A reference for "the model sees exactly these slots": one prefill of the held slots under a
 prompt, then the step's own position on that cache, computed here from the rules (position 0
@@ -311,6 +311,18 @@ def test_continue_from_refuses_what_is_not_a_clip_of_steps(tokens, embeddings):
     for bad in (np.zeros((0, L), np.int64), np.zeros((3, L - 1), np.int64), np.zeros(L)):
         with pytest.raises(ValueError, match="tokens to continue from"):
             stream.continue_from(bad)
+
+
+def test_restart_forgets_every_step_drawn(tokens, embeddings):
+    """After restart the stream is a fresh clip under its prompt: greedy, the same steps as a
+    stream just started (whatever it drew before and whatever its random state)."""
+    greedy = Sampling(temperature=0)
+    stream = tokens.start(embeddings[1], seed=3, sampling=greedy, window=5, allow_end=False)
+    run(stream, 9)  # past the window: the slots in ring order
+    stream.restart()
+    assert stream.steps == 0 and len(stream.positions) == 0
+    started = tokens.start(embeddings[1], seed=8, sampling=greedy, window=5, allow_end=False)
+    assert np.array_equal(run(stream, 8), run(started, 8))
 
 
 # -- the rest of the loop's promises ---------------------------------------------------------------
