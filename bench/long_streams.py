@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +23,7 @@ import numpy as np
 from mogo.bench.quality.stream_checks import (FPS, REPERTOIRE, Action, WindowCheck, drift,
                                               joint_speed, reaction_frames, window_passes)
 from mogo.bench.speed.plot import log_line_chart
+from mogo.progress import Progress
 
 WINDOW = 10 * FPS  # frames of a judged window
 REACTION_WINDOW = 2 * FPS  # frames that show an action under way after a switch
@@ -99,6 +100,10 @@ def measure(bundle: str | None, minutes: float, seeds: int, switches: int, jobs:
                    for m in modes for a in actions for s in range(seeds)]
         switching = [pool.submit(run_switches, bundle, s, m, switches)
                      for m in modes for s in range(seeds) if switches]
+        progress = Progress(len(streams) + len(switching), "long streams", unit="streams")
+        for _ in as_completed(streams + switching):
+            progress.update()
+        progress.close()
         return dict(modes=modes, lengths={m: (minutes, seeds) for m in modes},
                     streams=[f.result() for f in streams],
                     switches=[f.result() for f in switching])
