@@ -145,7 +145,8 @@ def test_empty_input_and_bad_ids(shipped):
     for ids, message in [(np.full((2, levels), codes), "must lie in"),
                          (np.full((2, levels), -1), "must lie in"),
                          (np.zeros((2, levels), np.float32), "must be integers"),
-                         (np.zeros((2, levels + 1), np.int64), "must be"),
+                         (np.zeros((2, levels + 1), np.int64), r"must be \(n, %d\)" % levels),
+                         (np.zeros((2, levels - 1), np.int64), r"must be \(n, %d\)" % levels),
                          (np.zeros(levels, np.int64), "must be")]:
         with pytest.raises(ValueError, match=message):
             d.push(ids)
