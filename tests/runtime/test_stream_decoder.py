@@ -145,11 +145,13 @@ def test_empty_input_and_bad_ids(shipped):
     with pytest.raises(ValueError, match="must lie in"):
         d.flush(np.full((2, levels), codes))
     for ids, message in [(np.full((2, levels), codes), "must lie in"),
+                         (np.full((2, levels), codes + 7), "must lie in"),
                          (np.full((2, levels), -1), "must lie in"),
                          (np.zeros((2, levels), np.float32), "must be integers"),
                          (np.zeros((2, levels + 1), np.int64), r"must be \(n, %d\)" % levels),
                          (np.zeros((2, levels - 1), np.int64), r"must be \(n, %d\)" % levels),
-                         (np.zeros(levels, np.int64), "must be")]:
+                         (np.zeros(levels, np.int64), "must be"),
+                         (np.zeros((2, levels, 1), np.int64), r"must be \(n, %d\)" % levels)]:
         with pytest.raises(ValueError, match=message):
             d.push(ids)
     with pytest.raises(ValueError, match="every must be >= 1"):
