@@ -2,6 +2,7 @@
 manifest schema (mogo.manifest) on it and on the shipped bundle; damaged graphs on a copy of
 the shipped bundle."""
 import json
+import os
 import re
 import shutil
 
@@ -190,9 +191,11 @@ def test_a_bundle_path_that_is_no_bundle_folder_gets_one_line(bundle, tmp_path):
             Bundle.load(path)
 
 
-def test_an_unreadable_bundle_folder_is_refused_naming_it(bundle, monkeypatch):
-    # os.access stands in for a folder without permission (root reads any folder)
-    monkeypatch.setattr("mogo.bundle.os.access", lambda path, mode: False)
+@pytest.mark.parametrize("denied", [os.R_OK, os.X_OK])
+def test_an_unreadable_bundle_folder_is_refused_naming_it(bundle, monkeypatch, denied):
+    """A folder that cannot be listed (no r) or entered (no x); os.access stands in for the
+    permission bits (root reads any folder)."""
+    monkeypatch.setattr("mogo.bundle.os.access", lambda path, mode: not mode & denied)
     with pytest.raises(BundleError, match=re.escape(f"{bundle}: no permission to read")):
         Bundle.load(bundle)
 
@@ -274,6 +277,19 @@ def test_a_file_name_leaving_the_folder_is_refused(bundle, name):
     _listed(bundle, name, bundle / "mean.npy")
     with pytest.raises(BundleError, match=re.escape(f"{name!r} leaves the bundle folder") + "$"):
         Bundle.load(bundle)  # refused by name, before the file system is asked
+
+
+@pytest.mark.parametrize("absolute", [True, False])
+def test_an_outside_file_named_and_listed_with_its_sha256_is_refused_by_name(bundle, absolute):
+    """The forged manifest: its mean.npy outside the folder, named as the mean and listed with
+    a matching size and sha256, is refused by its name before the file system is asked."""
+    outside = bundle.parent / "mean.npy"
+    shutil.copy(bundle / "mean.npy", outside)
+    name = str(outside) if absolute else "../mean.npy"
+    _edit(bundle, lambda m: m["motion"]["normalization"].update(mean=name))
+    _listed(bundle, name, outside)
+    with pytest.raises(BundleError, match=re.escape(f"{name!r} leaves the bundle folder") + "$"):
+        Bundle.load(bundle)
 
 
 @pytest.mark.parametrize("key", ["mean", "tokenizer"])
