@@ -1,6 +1,7 @@
 """Bundle verification on a hand-made folder (no models needed): what is refused, and how; the
 manifest schema (mogo.manifest) on it and on the shipped bundle; damaged graphs on a copy of
 the shipped bundle."""
+import dataclasses
 import json
 import os
 import re
@@ -57,12 +58,19 @@ def test_a_good_bundle_loads(bundle):
     assert loaded.manifest.fps == 20.0 and loaded.manifest.motion.skeleton.name == "humanml3d"
     assert loaded.mean.shape == (263,) and loaded.std.dtype == np.float32
     assert set(_manifest(bundle)["files"]) == {"mean.npy", "std.npy", "tokenizer.json", *GRAPHS}
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        loaded.root = bundle.parent  # verified as it is: never pointed elsewhere afterwards
 
 
 @pytest.mark.parametrize("damage,message", [
     (lambda r: (r / "level_0.onnx").unlink(), "level_0.onnx: missing"),
     (lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 50), "level_0.onnx: 600 bytes"),
     (lambda r: (r / "level_0.onnx").write_bytes(b"GRAPH BYTES " * 100),
+     "level_0.onnx: sha256 does not match"),
+    # a listed sha256 that is not the file's, sorting below it and above it
+    (lambda r: _edit(r, lambda m: m["files"]["level_0.onnx"].update(sha256="0" * 64)),
+     "level_0.onnx: sha256 does not match"),
+    (lambda r: _edit(r, lambda m: m["files"]["level_0.onnx"].update(sha256="f" * 64)),
      "level_0.onnx: sha256 does not match"),
     (lambda r: (r / MANIFEST).unlink(), "manifest.json: missing"),
     (lambda r: (r / MANIFEST).write_text("{not json"), "manifest.json: not valid JSON"),
@@ -248,6 +256,7 @@ def test_info_says_what_it_checked(capsys):
 
 @pytest.mark.parametrize("write,message", [
     (lambda p: p.write_text("hello"), "mean.npy: not a .npy array file"),
+    (lambda p: p.write_bytes(b"\xff" * 300), "mean.npy: not a .npy array file"),
     (lambda p: p.write_bytes(p.read_bytes()[:200]), "mean.npy: not a plain .npy array (Failed"),
     (lambda p: np.save(p, np.full(263, "a")), "mean.npy: holds <U1 values, expected real numbers"),
     (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: contains NaN or infinite values"),
