@@ -208,6 +208,16 @@ def test_an_unreadable_bundle_folder_is_refused_naming_it(bundle, monkeypatch, d
         Bundle.load(bundle)
 
 
+def test_a_manifest_that_cannot_be_read_is_one_line_naming_it(bundle, monkeypatch):
+    """Permission denied on manifest.json; read_text stands in (root reads any file)."""
+    def denied(path, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(path))
+    monkeypatch.setattr("mogo.bundle.Path.read_text", denied)
+    with pytest.raises(BundleError, match=re.escape(f"{bundle / MANIFEST}: cannot read it "
+                                                    "(Permission denied)")):
+        Bundle.load(bundle)
+
+
 @pytest.fixture
 def shipped_copy(tmp_path):
     root = tmp_path / "shipped"
