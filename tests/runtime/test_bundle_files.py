@@ -65,6 +65,8 @@ def test_a_good_bundle_loads(bundle):
 @pytest.mark.parametrize("damage,message", [
     (lambda r: (r / "level_0.onnx").unlink(), "level_0.onnx: missing"),
     (lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 50), "level_0.onnx: 600 bytes"),
+    (lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 101),
+     "level_0.onnx: 1212 bytes, the manifest says 1200"),
     (lambda r: (r / "level_0.onnx").write_bytes(b"GRAPH BYTES " * 100),
      "level_0.onnx: sha256 does not match"),
     # a listed sha256 that is not the file's, sorting below it and above it
