@@ -191,13 +191,15 @@ def test_a_bad_value_in_the_manifest_names_the_file_and_key(bundle, change, mess
 
 def test_a_bundle_path_that_is_no_bundle_folder_gets_one_line(bundle, tmp_path):
     (tmp_path / "file").write_text("x")
+    (tmp_path / "zz").write_text("x")  # names sorting before and after manifest.json
     (tmp_path / "empty").mkdir()
     for path, message in ((tmp_path / "file", "a file, not a bundle folder"),
+                          (tmp_path / "zz", "a file, not a bundle folder"),
                           (bundle / MANIFEST, f"a file, not a bundle folder; give its folder, "
                                               f"{bundle}"),
                           (tmp_path / "empty", "an empty folder; a bundle folder holds a "
-                                               "manifest.json")):
-        with pytest.raises(BundleError, match=re.escape(f"{path}: {message}")):
+                                               "manifest.json and the files it lists")):
+        with pytest.raises(BundleError, match=re.escape(f"{path}: {message}") + "$"):
             Bundle.load(path)
 
 
