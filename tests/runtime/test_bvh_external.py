@@ -6,7 +6,7 @@ import pytest
 
 from mogo import MotionGenerator
 from mogo.motion import rig
-from mogo.motion.bvh import NAMINGS, save_bvh
+from mogo.motion.bvh import NAMINGS, UNITS, save_bvh
 from mogo.motion.quaternion import qfrom_axis_angle, qmul, qrot, qyaw
 from mogo.motion.skeleton import SMPL_22
 
@@ -103,6 +103,24 @@ def test_bvhio_reads_what_our_rig_says(tmp_path, naming, scale):
     exact = _positions(_write(tmp_path, stretched, scale=100.0, bone_translations=True),
                        scale=100.0)
     np.testing.assert_allclose(exact, stretched, atol=1e-5)
+
+
+def test_a_file_in_centimetres_is_the_file_in_metres_times_100(tmp_path):
+    """--bvh-units cm: every OFFSET line (end sites included) and the root's position channels
+    are 100 times those of the file in metres, read off the text; the angles are the same."""
+    joints = _clip(seed=3, swing_degrees=40.0, frames=10)
+    offsets, motion = {}, {}
+    for unit in ("m", "cm"):
+        path = tmp_path / f"{unit}.bvh"
+        save_bvh(path, joints, SMPL_22, fps=20.0, scale=UNITS[unit])
+        head, frames = path.read_text().split("Frame Time:")
+        offsets[unit] = np.array([line.split()[1:] for line in head.splitlines()
+                                  if line.strip().startswith("OFFSET")], float)
+        motion[unit] = np.array([line.split() for line in frames.splitlines()[1:]], float)
+    assert len(offsets["m"]) == 22 + 5  # the joints and the end sites (head, hands, feet)
+    np.testing.assert_allclose(offsets["cm"], 100 * offsets["m"], atol=1e-4)
+    np.testing.assert_allclose(motion["cm"][:, :3], 100 * motion["m"][:, :3], atol=1e-4)
+    np.testing.assert_array_equal(motion["cm"][:, 3:], motion["m"][:, 3:])
 
 
 def test_a_spinning_clip_has_unwrapped_angles(tmp_path):
