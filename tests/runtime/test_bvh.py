@@ -79,6 +79,11 @@ def test_file_is_a_well_formed_hierarchy(tmp_path):
     assert text.startswith("HIERARCHY\nROOT Hips\n")
     assert text.count("{") == text.count("}")
     assert text.count("JOINT ") == 21 and text.count("End Site") == 5
+    depth = 0  # braces open: each line is indented two spaces per level
+    for line in text.split("MOTION")[0].splitlines()[1:]:
+        depth -= line.strip() == "}"
+        assert line == "  " * depth + line.strip()
+        depth += line.strip() == "{"
     assert f"Frames: {FRAMES}\nFrame Time: 0.05000000\n" in text
     motion = text.split("Frame Time: 0.05000000\n")[1].splitlines()
     assert len(motion) == FRAMES and all(len(line.split()) == 6 + 3 * 21 for line in motion)

@@ -87,6 +87,24 @@ def test_rest_pose_is_a_clean_t_pose_on_the_floor(tmp_path):
         assert (b - a)[1] > 0.05
 
 
+def test_end_sites_continue_the_last_bone_of_each_chain(tmp_path):
+    """The tips of the head, hands and toes (End Site offsets, read off the text) point on
+    along their joint's own offset: the head up, the hands out, the toes forward."""
+    path = tmp_path / "clip.bvh"
+    save_bvh(path, _clip(seed=0, swing_degrees=10.0, frames=4), SMPL_22, fps=20.0)
+    lines = [line.split() for line in path.read_text().split("MOTION")[0].splitlines()]
+    tips = {}
+    for i, words in enumerate(lines):
+        if words[0] in ("ROOT", "JOINT"):
+            name, offset = words[1], np.array(lines[i + 2][1:], float)
+        elif words == ["End", "Site"]:
+            tips[name] = offset, np.array(lines[i + 2][1:], float)
+    assert sorted(tips) == ["Head", "LeftHand", "LeftToeBase", "RightHand", "RightToeBase"]
+    for name, (offset, tip) in tips.items():
+        np.testing.assert_allclose(np.cross(offset, tip), 0.0, atol=1e-5, err_msg=name)
+        assert offset @ tip > 0.0001, name
+
+
 @pytest.mark.parametrize("naming,scale", [("mixamo", 1.0), ("smpl", 100.0)])
 def test_bvhio_reads_what_our_rig_says(tmp_path, naming, scale):
     """bvhio's forward kinematics equals our rig's; for motion of the corpus's proportions
