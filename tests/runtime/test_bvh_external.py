@@ -190,6 +190,24 @@ def test_a_somersault_has_continuous_angles(tmp_path, twist):
     np.testing.assert_allclose(_positions(parsed), joints, atol=1e-5)
 
 
+@pytest.mark.parametrize("phases", [[("z", 178), ("x", 100), ("z", 0)],
+                                    [("z", 90), ("x", 150), ("z", 178)]])
+def test_a_tumble_keeps_continuous_angles(tmp_path, phases):
+    """The root rolls (about Z), pitches past X = 90, rolls again: each frame's triple is the
+    one nearest the frame before (not frame 0, nor an older one), so no channel jumps."""
+    z, x = [0.0], [0.0]
+    for axis, target in phases:  # 11 frames per phase, one angle moving
+        z += list(np.linspace(z[-1], target if axis == "z" else z[-1], 12)[1:])
+        x += list(np.linspace(x[-1], target if axis == "x" else x[-1], 12)[1:])
+    local = np.tile(np.array([1.0, 0, 0, 0]), (len(z), 22, 1))
+    local[:, 0] = qmul(qfrom_axis_angle(np.array([0, 0, 1.0]), np.radians(z)),
+                       qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(x)))
+    joints = _pose(local, np.tile([0.0, 1.0, 0.0], (len(z), 1)))
+    parsed = _write(tmp_path, joints)
+    assert np.abs(np.diff(parsed[1][:, 3:6], axis=0)).max() < 30.0  # 16 degrees a frame at most
+    np.testing.assert_allclose(_positions(parsed), joints, atol=1e-5)
+
+
 def test_the_first_frame_has_the_principal_angles(tmp_path):
     """Continuity starts from frame 0 as extracted (X within +-90 degrees), even when the
     clip ends past X = 90, where the other triple of frame 0 would be nearer its last frame."""
