@@ -17,7 +17,7 @@ import pytest
 
 import mogo.token_generator as token_loop
 from mogo import DEFAULT_BUNDLE, MotionGenerator, Sampling
-from mogo.token_generator import balanced_groups
+from mogo.token_generator import TokenGenerator, balanced_groups
 
 PROMPTS = ["a person walks forward.", "a person jumps on the spot.", "someone waves."]
 TOP_P = Sampling(top_p=0.9)
@@ -320,6 +320,30 @@ def test_a_batched_prompt_embeds_as_the_same_prompt_alone(generator):
     together = generator.embed([short, long])
     np.testing.assert_allclose(together[0], generator.embed([short])[0], atol=1e-5, rtol=0)
     np.testing.assert_allclose(together[1], generator.embed([long])[0], atol=1e-5, rtol=0)
+
+
+def test_the_level_graphs_are_read_as_the_model_config_states(generator, tokens):
+    """The cache shape (layers, heads, head_dim) read off each graph's past inputs is the
+    t2m config's; level 0 scores every code and the end token."""
+    config = generator.manifest.t2m.config
+    assert tokens.cache_shapes == [(layers, heads, config["head_dim"])
+                                   for layers, heads in zip(config["layers"], config["heads"])]
+    assert tokens.num_classes == config["codebook_size"] + 1
+    logits, _ = tokens.run(0, np.zeros((1, config["text_dim"]), np.float32), np.array([False]),
+                           np.zeros((1, 1, tokens.num_levels), np.int64), np.array([0]),
+                           np.zeros(0, np.int64), tokens.empty_cache(0, 1))
+    assert logits.shape == (1, tokens.num_classes)
+
+
+def test_level_workers_are_checked_where_the_graphs_are_opened(generator, tokens, embeddings):
+    levels = generator.manifest.t2m.levels
+    paths = [generator.bundle.path(graph.file) for graph in levels]
+    with pytest.raises(ValueError, match="level_workers must be >= 1, got 0"):
+        TokenGenerator(paths, levels, generator.manifest.end_token, level_workers=0)
+    two = TokenGenerator(paths, levels, generator.manifest.end_token, level_workers=2)
+    assert two.level_groups == [[0, 3, 5], [1, 2, 4]]  # by the config's layers, 4 3 2 2 1 1
+    assert np.array_equal(two.generate(embeddings[1], num_frames=6, seed=1),
+                          tokens.generate(embeddings[1], num_frames=6, seed=1))
 
 
 def test_level_groups_balance_layers_and_group_0_holds_level_0():
