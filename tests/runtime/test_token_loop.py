@@ -11,6 +11,7 @@ cache (set_prompt, continue_from) must give those logits. (A stream that only sl
 need not: its kept slots were computed when older steps were still visible.)"""
 import copy
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -342,8 +343,19 @@ def test_level_workers_are_checked_where_the_graphs_are_opened(generator, tokens
         TokenGenerator(paths, levels, generator.manifest.end_token, level_workers=0)
     two = TokenGenerator(paths, levels, generator.manifest.end_token, level_workers=2)
     assert two.level_groups == [[0, 3, 5], [1, 2, 4]]  # by the config's layers, 4 3 2 2 1 1
+    threads = {}
+    run_level = two.run
+
+    def recording(level, *args):
+        threads.setdefault(level, set()).add(threading.get_ident())
+        return run_level(level, *args)
+
+    two.run = recording
     assert np.array_equal(two.generate(embeddings[1], num_frames=6, seed=1),
                           tokens.generate(embeddings[1], num_frames=6, seed=1))
+    here = {threading.get_ident()}  # group 0 on the caller's thread, group 1 on a worker
+    assert all(threads[level] == here for level in (0, 3, 5))
+    assert all(threads[level].isdisjoint(here) for level in (1, 2, 4))
 
 
 def test_level_groups_balance_layers_and_group_0_holds_level_0():
