@@ -339,8 +339,12 @@ def test_the_level_graphs_are_read_as_the_model_config_states(generator, tokens)
 def test_level_workers_are_checked_where_the_graphs_are_opened(generator, tokens, embeddings):
     levels = generator.manifest.t2m.levels
     paths = [generator.bundle.path(graph.file) for graph in levels]
-    with pytest.raises(ValueError, match="level_workers must be >= 1, got 0"):
-        TokenGenerator(paths, levels, generator.manifest.end_token, level_workers=0)
+    for make in (lambda: TokenGenerator(paths, levels, generator.manifest.end_token,
+                                        level_workers=0),
+                 lambda: tokens.with_level_workers(0)):
+        with pytest.raises(ValueError, match="level_workers must be >= 1, got 0"):
+            make()
+    assert tokens.with_level_workers(1).level_groups == [list(range(6))]
     two = TokenGenerator(paths, levels, generator.manifest.end_token, level_workers=2)
     assert two.level_groups == [[0, 3, 5], [1, 2, 4]]  # by the config's layers, 4 3 2 2 1 1
     threads = {}
