@@ -12,13 +12,16 @@ need not: its kept slots were computed when older steps were still visible.)"""
 import copy
 import json
 import threading
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 import mogo.token_generator as token_loop
 from mogo import DEFAULT_BUNDLE, MotionGenerator, Sampling
-from mogo.token_generator import TokenGenerator, balanced_groups
+from mogo.manifest import BundleError
+from mogo.token_generator import (LEVEL_INPUTS, TokenGenerator, _cache_shape,
+                                  balanced_groups)
 
 PROMPTS = ["a person walks forward.", "a person jumps on the spot.", "someone waves."]
 TOP_P = Sampling(top_p=0.9)
@@ -345,6 +348,8 @@ def test_level_workers_are_checked_where_the_graphs_are_opened(generator, tokens
         with pytest.raises(ValueError, match="level_workers must be >= 1, got 0"):
             make()
     assert tokens.with_level_workers(1).level_groups == [list(range(6))]
+    assert TokenGenerator(paths, levels, generator.manifest.end_token).level_groups == [
+        list(range(6))]  # one worker unless asked
     two = TokenGenerator(paths, levels, generator.manifest.end_token, level_workers=2)
     assert two.level_groups == [[0, 3, 5], [1, 2, 4]]  # by the config's layers, 4 3 2 2 1 1
     threads = {}
@@ -360,6 +365,21 @@ def test_level_workers_are_checked_where_the_graphs_are_opened(generator, tokens
     here = {threading.get_ident()}  # group 0 on the caller's thread, group 1 on a worker
     assert all(threads[level] == here for level in (0, 3, 5))
     assert all(threads[level].isdisjoint(here) for level in (1, 2, 4))
+
+
+@pytest.mark.parametrize("pasts,problem", [
+    ([[1, 4, "past", 8]] * 4, None), ([[1, 4, "past", 8]] * 3, "odd"), ([], "no pasts"),
+    ([[1, 4, 8]] * 4, "three axes"), ([[1, "heads", "past", 8]] * 2, "heads not fixed"),
+    ([[1, 4, "past", "dim"]] * 2, "head_dim not fixed")])
+def test_a_graph_without_key_and_value_pairs_of_pasts_is_no_level_graph(pasts, problem):
+    inputs = [SimpleNamespace(name=name, shape=[1]) for name in LEVEL_INPUTS]
+    inputs += [SimpleNamespace(name=f"past_{i}", shape=shape) for i, shape in enumerate(pasts)]
+    session = SimpleNamespace(get_inputs=lambda: inputs)
+    if problem is None:
+        assert _cache_shape(session, "level_0.onnx") == (2, 4, 8)
+    else:
+        with pytest.raises(BundleError, match="level_0.onnx: not a level graph"):
+            _cache_shape(session, "level_0.onnx")
 
 
 def test_level_groups_balance_layers_and_group_0_holds_level_0():
