@@ -124,6 +124,10 @@ def test_the_same_seed_gives_the_same_tokens_another_seed_others(tokens, embeddi
     assert np.array_equal(first, again) and not np.array_equal(first, other)
     assert np.array_equal(first, tokens.generate(embeddings[0], num_frames=20, sampling=TOP_P,
                                                  seed=3))
+    seed_0 = tokens.generate(embeddings[0], num_frames=4, sampling=TOP_P, seed=0)
+    assert np.array_equal(tokens.generate(embeddings[0], num_frames=4, sampling=TOP_P), seed_0)
+    assert np.array_equal(run(tokens.start(embeddings[0], sampling=TOP_P, allow_end=False), 4),
+                          seed_0)
     spread = tokens.with_level_workers(2)  # levels run concurrently: the same tokens
     assert np.array_equal(first, spread.generate(embeddings[0], num_frames=20, sampling=TOP_P,
                                                  seed=3))
@@ -312,7 +316,8 @@ def test_continue_from_without_a_window_keeps_every_step(tokens, embeddings, dra
 def test_continue_from_refuses_what_is_not_a_clip_of_steps(tokens, embeddings):
     stream = tokens.start(embeddings[0], seed=0)
     L = tokens.num_levels
-    for bad in (np.zeros((0, L), np.int64), np.zeros((3, L - 1), np.int64), np.zeros(L)):
+    for bad in (np.zeros((0, L), np.int64), np.zeros((3, L - 1), np.int64),
+                np.zeros((3, L + 1), np.int64), np.zeros(L)):
         with pytest.raises(ValueError, match="tokens to continue from"):
             stream.continue_from(bad)
 
@@ -342,6 +347,10 @@ def test_the_level_graphs_are_read_as_the_model_config_states(generator, tokens)
 def test_level_workers_are_checked_where_the_graphs_are_opened(generator, tokens, embeddings):
     levels = generator.manifest.t2m.levels
     paths = [generator.bundle.path(graph.file) for graph in levels]
+    with pytest.raises(ValueError, match="5 graph files for 6 graph entries"):
+        TokenGenerator(paths[:5], levels, generator.manifest.end_token)
+    with pytest.raises(ValueError, match="7 graph files for 6 graph entries"):
+        TokenGenerator(paths + paths[:1], levels, generator.manifest.end_token)
     for make in (lambda: TokenGenerator(paths, levels, generator.manifest.end_token,
                                         level_workers=0),
                  lambda: tokens.with_level_workers(0)):
