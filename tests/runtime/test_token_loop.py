@@ -317,7 +317,7 @@ def test_continue_from_refuses_what_is_not_a_clip_of_steps(tokens, embeddings):
     stream = tokens.start(embeddings[0], seed=0)
     L = tokens.num_levels
     for bad in (np.zeros((0, L), np.int64), np.zeros((3, L - 1), np.int64),
-                np.zeros((3, L + 1), np.int64), np.zeros(L)):
+                np.zeros((3, L + 1), np.int64), np.zeros(L), np.zeros((3, L, 1), np.int64)):
         with pytest.raises(ValueError, match="tokens to continue from"):
             stream.continue_from(bad)
 
