@@ -161,11 +161,18 @@ def end_always_wins(tokens, monkeypatch):
     monkeypatch.setattr(tokens, "run", run_level)
 
 
-def test_the_end_token_may_end_a_stream_from_its_second_step(tokens, embeddings, end_always_wins):
+def test_the_end_token_may_end_a_stream_from_its_second_step(tokens, embeddings, end_always_wins,
+                                                             monkeypatch):
     stream = tokens.start(embeddings[0], seed=0, sampling=TOP_P)
     first = stream.step()
     assert first is not None and first[0] != tokens.end_token  # never an empty motion
-    assert stream.step() is None and stream.step() is None
+    assert stream.step() is None
+
+    def no_more(*args):
+        raise AssertionError("an ended stream ran a level graph")
+
+    monkeypatch.setattr(tokens, "run", no_more)
+    assert stream.step() is None and stream.step() is None  # ended for good, nothing drawn
     assert tokens.generate(embeddings[0], sampling=TOP_P).shape == (1, tokens.num_levels)
 
 
@@ -396,3 +403,4 @@ def test_level_groups_balance_layers_and_group_0_holds_level_0():
     assert balanced_groups([4, 3, 2, 2, 1, 1], 1) == [[0, 1, 2, 3, 4, 5]]
     assert balanced_groups([1, 1], 5) == [[0], [1]]
     assert balanced_groups([1, 5, 1], 2) == [[0, 2], [1]]
+    assert balanced_groups([1, 1, 4], 2) == [[0, 1], [2]]  # the heaviest placed first
