@@ -167,13 +167,13 @@ def test_the_end_token_may_end_a_stream_from_its_second_step(tokens, embeddings,
     first = stream.step()
     assert first is not None and first[0] != tokens.end_token  # never an empty motion
     assert stream.step() is None
+    assert tokens.generate(embeddings[0], sampling=TOP_P).shape == (1, tokens.num_levels)
 
     def no_more(*args):
         raise AssertionError("an ended stream ran a level graph")
 
     monkeypatch.setattr(tokens, "run", no_more)
     assert stream.step() is None and stream.step() is None  # ended for good, nothing drawn
-    assert tokens.generate(embeddings[0], sampling=TOP_P).shape == (1, tokens.num_levels)
 
 
 def test_a_forced_length_never_draws_the_end_token(tokens, embeddings, end_always_wins):
