@@ -176,9 +176,13 @@ def test_the_end_token_may_end_a_stream_from_its_second_step(tokens, embeddings,
     assert stream.step() is None and stream.step() is None  # ended for good, nothing drawn
 
 
-def test_a_forced_length_never_draws_the_end_token(tokens, embeddings, end_always_wins):
-    steps = tokens.generate(embeddings[0], num_frames=6, sampling=TOP_P)
-    assert steps.shape == (6, tokens.num_levels) and not np.any(steps[:, 0] == tokens.end_token)
+@pytest.mark.parametrize("length", [6, 257])
+def test_a_forced_length_never_draws_the_end_token(tokens, embeddings, end_always_wins, length):
+    """Exactly `length` steps, also past 256 (12.8 s), where a count compared by identity
+    instead of value would run on: CPython caches small ints only."""
+    steps = tokens.generate(embeddings[0], num_frames=length, sampling=TOP_P)
+    assert steps.shape == (length, tokens.num_levels)
+    assert not np.any(steps[:, 0] == tokens.end_token)
 
 
 # -- the sliding window ----------------------------------------------------------------------------
