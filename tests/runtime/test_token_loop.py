@@ -196,11 +196,14 @@ def test_the_window_holds_the_prefix_and_the_last_steps_at_every_step(tokens, em
         assert len(stream.positions) <= 1 + window
 
 
-def test_the_window_bounds_the_cache_of_a_long_stream(tokens, embeddings):
-    stream = tokens.start(embeddings[0], seed=2, sampling=TOP_P, window=128, allow_end=False)
-    steps = run(stream, 300)
-    assert len(stream.positions) == 129
-    assert_holds_prefix_and_last_steps(stream, steps, 128)
+@pytest.mark.parametrize("window,length", [(128, 300), (256, 290)])
+def test_the_window_bounds_the_cache_of_a_long_stream(tokens, embeddings, window, length):
+    """The shipped window, and one past 255 steps (where a length compared by identity, not
+    value, would never count as full: CPython caches small ints only)."""
+    stream = tokens.start(embeddings[0], seed=2, sampling=TOP_P, window=window, allow_end=False)
+    steps = run(stream, length)
+    assert len(stream.positions) == window + 1
+    assert_holds_prefix_and_last_steps(stream, steps, window)
 
 
 @pytest.fixture
