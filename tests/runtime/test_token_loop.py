@@ -392,6 +392,7 @@ def test_level_workers_are_checked_where_the_graphs_are_opened(generator, tokens
 
 @pytest.mark.parametrize("pasts,problem", [
     ([[1, 4, "past", 8]] * 4, None), ([[1, 4, "past", 8]] * 3, "odd"), ([], "no pasts"),
+    ([[1, 4, "past", 8]], "a key without its value"),
     ([[1, 4, 8]] * 4, "three axes"), ([[1, 4, "past", 8, 1]] * 2, "five axes"), ([[1, "heads", "past", 8]] * 2, "heads not fixed"),
     ([[1, 4, "past", "dim"]] * 2, "head_dim not fixed")])
 def test_a_graph_without_key_and_value_pairs_of_pasts_is_no_level_graph(pasts, problem):
