@@ -10,7 +10,8 @@ logits they pick the same token. For one level at one step, in float64:
            -> top-k: keep the first k                   (0 = off)
            -> softmax: exp(z - max), cumulative sum c   (never normalised; c[-1] is the total)
            -> top-p: keep entries whose preceding mass c - p is < top_p * c[-1]   (1 = off)
-           -> inverse CDF: the first kept entry with c > uniform * c[-1]
+           -> inverse CDF: the first kept entry with c > uniform * c[-1]   (uniform < 1, so
+              uniform * c[-1] < c[-1] in float64 too: some kept entry always qualifies)
 
 The options (checked by Sampling itself, so the API and the command refuse the same values):
 temperature 0 or from 1e-6 on, top_k >= 0 (any k above the number of classes keeps them all),
@@ -165,4 +166,4 @@ def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndar
                                 axis=1)
     total = c[rows, keep - 1]
     index = np.count_nonzero(c <= (uniforms * total)[:, None], axis=1)
-    return order[rows, np.minimum(index, keep - 1)]
+    return order[rows, index]

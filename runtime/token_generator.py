@@ -98,7 +98,7 @@ class TokenGenerator:
         """One call of a level graph -> logits of the last position (batch, K[+1]), presents."""
         graph = self.graphs[level]
         feed = dict(zip(graph.inputs, [prompt, uncond, token_ids, positions, past_positions,
-                                       *past]))
+                                       *past], strict=True))  # one array per input, no more
         logits, *presents = self.sessions[level].run(list(graph.outputs), feed)
         return logits, presents
 

@@ -102,8 +102,8 @@ def _continuous(angles: np.ndarray) -> np.ndarray:
     """Euler angles (T, J, 3) made continuous over frames, so tools can interpolate them: of
     the two triples that give each rotation, (z, x, y) and (z + pi, pi - x, y + pi), the one
     nearest the previous frame, then unwrapped (whole turns added) frame to frame."""
-    alternate = angles + np.array([np.pi, 0.0, np.pi])
-    alternate[..., 1] = np.pi - angles[..., 1]
+    z, x, y = np.moveaxis(angles, -1, 0)
+    alternate = np.stack([z + np.pi, np.pi - x, y + np.pi], axis=-1)
     chosen = angles.copy()
     for t in range(1, len(angles)):
         steps = [np.abs((c[t] - chosen[t - 1] + np.pi) % (2 * np.pi) - np.pi).sum(-1)

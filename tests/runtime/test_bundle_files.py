@@ -1,7 +1,9 @@
 """Bundle verification on a hand-made folder (no models needed): what is refused, and how; the
 manifest schema (mogo.manifest) on it and on the shipped bundle; damaged graphs on a copy of
 the shipped bundle."""
+import dataclasses
 import json
+import os
 import re
 import shutil
 
@@ -56,12 +58,21 @@ def test_a_good_bundle_loads(bundle):
     assert loaded.manifest.fps == 20.0 and loaded.manifest.motion.skeleton.name == "humanml3d"
     assert loaded.mean.shape == (263,) and loaded.std.dtype == np.float32
     assert set(_manifest(bundle)["files"]) == {"mean.npy", "std.npy", "tokenizer.json", *GRAPHS}
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        loaded.root = bundle.parent  # verified as it is: never pointed elsewhere afterwards
 
 
 @pytest.mark.parametrize("damage,message", [
     (lambda r: (r / "level_0.onnx").unlink(), "level_0.onnx: missing"),
     (lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 50), "level_0.onnx: 600 bytes"),
+    (lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 101),
+     "level_0.onnx: 1212 bytes, the manifest says 1200"),
     (lambda r: (r / "level_0.onnx").write_bytes(b"GRAPH BYTES " * 100),
+     "level_0.onnx: sha256 does not match"),
+    # a listed sha256 that is not the file's, sorting below it and above it
+    (lambda r: _edit(r, lambda m: m["files"]["level_0.onnx"].update(sha256="0" * 64)),
+     "level_0.onnx: sha256 does not match"),
+    (lambda r: _edit(r, lambda m: m["files"]["level_0.onnx"].update(sha256="f" * 64)),
      "level_0.onnx: sha256 does not match"),
     (lambda r: (r / MANIFEST).unlink(), "manifest.json: missing"),
     (lambda r: (r / MANIFEST).write_text("{not json"), "manifest.json: not valid JSON"),
@@ -180,20 +191,34 @@ def test_a_bad_value_in_the_manifest_names_the_file_and_key(bundle, change, mess
 
 def test_a_bundle_path_that_is_no_bundle_folder_gets_one_line(bundle, tmp_path):
     (tmp_path / "file").write_text("x")
+    (tmp_path / "zz").write_text("x")  # names sorting before and after manifest.json
     (tmp_path / "empty").mkdir()
     for path, message in ((tmp_path / "file", "a file, not a bundle folder"),
+                          (tmp_path / "zz", "a file, not a bundle folder"),
                           (bundle / MANIFEST, f"a file, not a bundle folder; give its folder, "
                                               f"{bundle}"),
                           (tmp_path / "empty", "an empty folder; a bundle folder holds a "
-                                               "manifest.json")):
-        with pytest.raises(BundleError, match=re.escape(f"{path}: {message}")):
+                                               "manifest.json and the files it lists")):
+        with pytest.raises(BundleError, match=re.escape(f"{path}: {message}") + "$"):
             Bundle.load(path)
 
 
-def test_an_unreadable_bundle_folder_is_refused_naming_it(bundle, monkeypatch):
-    # os.access stands in for a folder without permission (root reads any folder)
-    monkeypatch.setattr("mogo.bundle.os.access", lambda path, mode: False)
+@pytest.mark.parametrize("denied", [os.R_OK, os.X_OK])
+def test_an_unreadable_bundle_folder_is_refused_naming_it(bundle, monkeypatch, denied):
+    """A folder that cannot be listed (no r) or entered (no x); os.access stands in for the
+    permission bits (root reads any folder)."""
+    monkeypatch.setattr("mogo.bundle.os.access", lambda path, mode: not mode & denied)
     with pytest.raises(BundleError, match=re.escape(f"{bundle}: no permission to read")):
+        Bundle.load(bundle)
+
+
+def test_a_manifest_that_cannot_be_read_is_one_line_naming_it(bundle, monkeypatch):
+    """Permission denied on manifest.json; read_text stands in (root reads any file)."""
+    def denied(path, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(path))
+    monkeypatch.setattr("mogo.bundle.Path.read_text", denied)
+    with pytest.raises(BundleError, match=re.escape(f"{bundle / MANIFEST}: cannot read it "
+                                                    "(Permission denied)")):
         Bundle.load(bundle)
 
 
@@ -245,6 +270,7 @@ def test_info_says_what_it_checked(capsys):
 
 @pytest.mark.parametrize("write,message", [
     (lambda p: p.write_text("hello"), "mean.npy: not a .npy array file"),
+    (lambda p: p.write_bytes(b"\xff" * 300), "mean.npy: not a .npy array file"),
     (lambda p: p.write_bytes(p.read_bytes()[:200]), "mean.npy: not a plain .npy array (Failed"),
     (lambda p: np.save(p, np.full(263, "a")), "mean.npy: holds <U1 values, expected real numbers"),
     (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: contains NaN or infinite values"),
@@ -274,6 +300,19 @@ def test_a_file_name_leaving_the_folder_is_refused(bundle, name):
     _listed(bundle, name, bundle / "mean.npy")
     with pytest.raises(BundleError, match=re.escape(f"{name!r} leaves the bundle folder") + "$"):
         Bundle.load(bundle)  # refused by name, before the file system is asked
+
+
+@pytest.mark.parametrize("absolute", [True, False])
+def test_an_outside_file_named_and_listed_with_its_sha256_is_refused_by_name(bundle, absolute):
+    """The forged manifest: its mean.npy outside the folder, named as the mean and listed with
+    a matching size and sha256, is refused by its name before the file system is asked."""
+    outside = bundle.parent / "mean.npy"
+    shutil.copy(bundle / "mean.npy", outside)
+    name = str(outside) if absolute else "../mean.npy"
+    _edit(bundle, lambda m: m["motion"]["normalization"].update(mean=name))
+    _listed(bundle, name, outside)
+    with pytest.raises(BundleError, match=re.escape(f"{name!r} leaves the bundle folder") + "$"):
+        Bundle.load(bundle)
 
 
 @pytest.mark.parametrize("key", ["mean", "tokenizer"])

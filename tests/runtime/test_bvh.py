@@ -79,6 +79,11 @@ def test_file_is_a_well_formed_hierarchy(tmp_path):
     assert text.startswith("HIERARCHY\nROOT Hips\n")
     assert text.count("{") == text.count("}")
     assert text.count("JOINT ") == 21 and text.count("End Site") == 5
+    depth = 0  # braces open: each line is indented two spaces per level
+    for line in text.split("MOTION")[0].splitlines()[1:]:
+        depth -= line.strip() == "}"
+        assert line == "  " * depth + line.strip()
+        depth += line.strip() == "{"
     assert f"Frames: {FRAMES}\nFrame Time: 0.05000000\n" in text
     motion = text.split("Frame Time: 0.05000000\n")[1].splitlines()
     assert len(motion) == FRAMES and all(len(line.split()) == 6 + 3 * 21 for line in motion)
@@ -94,6 +99,9 @@ def test_bad_input_is_refused(tmp_path):
         save_bvh(tmp_path / "a.bvh", broken, SMPL_22, fps=20.0)
     with pytest.raises(ValueError, match="fps"):
         save_bvh(tmp_path / "a.bvh", joints, SMPL_22, fps=0.0)
+    for scale in (0.0, -0.5, -100.0):
+        with pytest.raises(ValueError, match=f"scale must be positive, got {scale}"):
+            save_bvh(tmp_path / "a.bvh", joints, SMPL_22, fps=20.0, scale=scale)
     assert not (tmp_path / "a.bvh").exists()
     (tmp_path / "b.bvh").write_text("not a bvh")
     with pytest.raises(ValueError, match="not a BVH"):

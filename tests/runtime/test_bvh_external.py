@@ -6,7 +6,7 @@ import pytest
 
 from mogo import MotionGenerator
 from mogo.motion import rig
-from mogo.motion.bvh import NAMINGS, save_bvh
+from mogo.motion.bvh import NAMINGS, UNITS, save_bvh
 from mogo.motion.quaternion import qfrom_axis_angle, qmul, qrot, qyaw
 from mogo.motion.skeleton import SMPL_22
 
@@ -87,6 +87,24 @@ def test_rest_pose_is_a_clean_t_pose_on_the_floor(tmp_path):
         assert (b - a)[1] > 0.05
 
 
+def test_end_sites_continue_the_last_bone_of_each_chain(tmp_path):
+    """The tips of the head, hands and toes (End Site offsets, read off the text) point on
+    along their joint's own offset: the head up, the hands out, the toes forward."""
+    path = tmp_path / "clip.bvh"
+    save_bvh(path, _clip(seed=0, swing_degrees=10.0, frames=4), SMPL_22, fps=20.0)
+    lines = [line.split() for line in path.read_text().split("MOTION")[0].splitlines()]
+    tips = {}
+    for i, words in enumerate(lines):
+        if words[0] in ("ROOT", "JOINT"):
+            name, offset = words[1], np.array(lines[i + 2][1:], float)
+        elif words == ["End", "Site"]:
+            tips[name] = offset, np.array(lines[i + 2][1:], float)
+    assert sorted(tips) == ["Head", "LeftHand", "LeftToeBase", "RightHand", "RightToeBase"]
+    for name, (offset, tip) in tips.items():
+        np.testing.assert_allclose(np.cross(offset, tip), 0.0, atol=1e-5, err_msg=name)
+        assert offset @ tip > 0.0001, name
+
+
 @pytest.mark.parametrize("naming,scale", [("mixamo", 1.0), ("smpl", 100.0)])
 def test_bvhio_reads_what_our_rig_says(tmp_path, naming, scale):
     """bvhio's forward kinematics equals our rig's; for motion of the corpus's proportions
@@ -103,6 +121,24 @@ def test_bvhio_reads_what_our_rig_says(tmp_path, naming, scale):
     exact = _positions(_write(tmp_path, stretched, scale=100.0, bone_translations=True),
                        scale=100.0)
     np.testing.assert_allclose(exact, stretched, atol=1e-5)
+
+
+def test_a_file_in_centimetres_is_the_file_in_metres_times_100(tmp_path):
+    """--bvh-units cm: every OFFSET line (end sites included) and the root's position channels
+    are 100 times those of the file in metres, read off the text; the angles are the same."""
+    joints = _clip(seed=3, swing_degrees=40.0, frames=10)
+    offsets, motion = {}, {}
+    for unit in ("m", "cm"):
+        path = tmp_path / f"{unit}.bvh"
+        save_bvh(path, joints, SMPL_22, fps=20.0, scale=UNITS[unit])
+        head, frames = path.read_text().split("Frame Time:")
+        offsets[unit] = np.array([line.split()[1:] for line in head.splitlines()
+                                  if line.strip().startswith("OFFSET")], float)
+        motion[unit] = np.array([line.split() for line in frames.splitlines()[1:]], float)
+    assert len(offsets["m"]) == 22 + 5  # the joints and the end sites (head, hands, feet)
+    np.testing.assert_allclose(offsets["cm"], 100 * offsets["m"], atol=1e-4)
+    np.testing.assert_allclose(motion["cm"][:, :3], 100 * motion["m"][:, :3], atol=1e-4)
+    np.testing.assert_array_equal(motion["cm"][:, 3:], motion["m"][:, 3:])
 
 
 def test_a_spinning_clip_has_unwrapped_angles(tmp_path):
@@ -135,17 +171,52 @@ def test_a_generated_spin_reads_back_and_turns_on_past_a_circle(tmp_path):
     np.testing.assert_allclose(exact, motion.joints, atol=1e-5)
 
 
-def test_a_somersault_has_continuous_angles(tmp_path):
+@pytest.mark.parametrize("twist", [0.0, 10.0])
+def test_a_somersault_has_continuous_angles(tmp_path, twist):
     """The root pitching through a full circle crosses X = +-90 degrees, where the principal
     ZXY angles flip Z and Y by 180 in one frame; the file keeps the equivalent continuous ones
-    (X running on past 90), which tools interpolate without a spurious half turn."""
+    (X running on past 90), which tools interpolate without a spurious half turn. With a
+    twist about the spine swaying by +-`twist` degrees, Z and Y wrap past +-180 together on
+    the way, which must not be taken for a jump."""
     frames = 73
+    t = np.linspace(0.0, 1.0, frames)
     local = np.tile(np.array([1.0, 0, 0, 0]), (frames, 22, 1))
-    local[:, 0] = qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(np.linspace(0, 360, frames)))
+    local[:, 0] = qmul(qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(360 * t)),
+                       qyaw(np.radians(twist * np.sin(6 * np.pi * t))))
     joints = _pose(local, np.tile([0.0, 1.0, 0.0], (frames, 1)))
     parsed = _write(tmp_path, joints)
-    assert np.abs(np.diff(parsed[1][:, 3:6], axis=0)).max() < 10.0  # the root: 5 degrees a frame
+    steps = np.abs(np.diff(parsed[1][:, 3:6], axis=0))  # the root: 5 degrees a frame, or so
+    assert steps.max() < 15.0
     np.testing.assert_allclose(_positions(parsed), joints, atol=1e-5)
+
+
+@pytest.mark.parametrize("phases", [[("z", 178), ("x", 100), ("z", 0)],
+                                    [("z", 90), ("x", 150), ("z", 178)]])
+def test_a_tumble_keeps_continuous_angles(tmp_path, phases):
+    """The root rolls (about Z), pitches past X = 90, rolls again: each frame's triple is the
+    one nearest the frame before (not frame 0, nor an older one), so no channel jumps."""
+    z, x = [0.0], [0.0]
+    for axis, target in phases:  # 11 frames per phase, one angle moving
+        z += list(np.linspace(z[-1], target if axis == "z" else z[-1], 12)[1:])
+        x += list(np.linspace(x[-1], target if axis == "x" else x[-1], 12)[1:])
+    local = np.tile(np.array([1.0, 0, 0, 0]), (len(z), 22, 1))
+    local[:, 0] = qmul(qfrom_axis_angle(np.array([0, 0, 1.0]), np.radians(z)),
+                       qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(x)))
+    joints = _pose(local, np.tile([0.0, 1.0, 0.0], (len(z), 1)))
+    parsed = _write(tmp_path, joints)
+    assert np.abs(np.diff(parsed[1][:, 3:6], axis=0)).max() < 30.0  # 16 degrees a frame at most
+    np.testing.assert_allclose(_positions(parsed), joints, atol=1e-5)
+
+
+def test_the_first_frame_has_the_principal_angles(tmp_path):
+    """Continuity starts from frame 0 as extracted (X within +-90 degrees), even when the
+    clip ends past X = 90, where the other triple of frame 0 would be nearer its last frame."""
+    frames = 5
+    local = np.tile(np.array([1.0, 0, 0, 0]), (frames, 22, 1))
+    local[:, 0] = qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(np.linspace(86, 106, frames)))
+    parsed = _write(tmp_path, _pose(local, np.tile([0.0, 1.0, 0.0], (frames, 1))))
+    np.testing.assert_allclose(parsed[1][:, 3:6], [[0, 86 + 5 * t, 0] for t in range(frames)],
+                               atol=1e-4)  # Z X Y of the root, X running on past 90 at once
 
 
 @pytest.mark.parametrize("degrees", [90.0, -90.0])

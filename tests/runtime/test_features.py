@@ -69,7 +69,7 @@ def test_turning_left_gives_positive_facing_change():
 
 @pytest.mark.parametrize("bad,message", [
     (np.zeros((10, 21, 3)), "joints must be"),
-    (np.zeros((1, 22, 3)), "at least 2 frames"),
+    (np.zeros((1, 22, 3)), "at least 2 frames, got 1$"),
     (np.full((5, 22, 3), np.nan), "NaN"),
 ])
 def test_bad_joints_are_rejected(bad, message):

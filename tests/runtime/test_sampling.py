@@ -2,6 +2,7 @@
 answers are worked out here by hand: the tie rule, temperature, top-k, top-p, the inverse CDF,
 the guidance formula and the -inf padding of the narrower levels. No torch: the torch reference
 shares this sampler, so only known answers can tell whether it is right."""
+import dataclasses
 import math
 
 import numpy as np
@@ -94,6 +95,17 @@ def test_top_k_keeps_the_k_largest():
 
 
 PROBS = np.log([0.5, 0.3, 0.15, 0.05])  # mass before each entry: 0, 0.5, 0.8, 0.95
+LARGEST_UNIFORM = np.nextafter(1.0, 0.0)  # the largest value rng.random() returns
+
+
+@pytest.mark.parametrize("logits,sampling,last_kept", [
+    (PROBS, Sampling(), 3), (PROBS, Sampling(top_k=2), 1), (PROBS, Sampling(top_p=0.9), 2),
+    (PROBS, Sampling(top_k=3, top_p=0.82), 1), (np.array([0.0, 1.0, -np.inf, -np.inf]),
+                                                 Sampling(), 0)])
+def test_the_largest_uniform_draws_the_last_kept_entry(logits, sampling, last_kept):
+    """u = 1 - 2**-53 still lands inside the kept mass (u * total < total in float64): the last
+    kept entry, never one past the top-k or top-p cut, never a padding column."""
+    assert choose_token(logits, None, LARGEST_UNIFORM, sampling) == last_kept
 
 
 @pytest.mark.parametrize("top_p,last_kept", [(1.0, 3), (0.96, 3), (0.9, 2), (0.79, 1),
@@ -222,6 +234,7 @@ def test_the_seed_maps_to_pcg64_uniforms_one_per_level_per_step():
     (dict(temperature=10**400), "temperature must be finite"),
     (dict(top_k=-1), "top_k must be >= 0"),
     (dict(top_p=0.0), r"top_p must be in \(0, 1\]"),
+    (dict(top_p=-0.5), r"top_p must be in \(0, 1\]"),
     (dict(top_p=1.5), r"top_p must be in \(0, 1\]"),
     (dict(top_p=float("nan")), "top_p must be finite, got nan"),
     (dict(guidance=float("nan")), "guidance must be finite, got nan"),
@@ -244,6 +257,26 @@ def test_options_of_the_wrong_type_are_refused(options, message):
     """No text converted behind the caller's back, no bool taken for a number."""
     with pytest.raises(TypeError, match=message):
         Sampling(**options)
+
+
+def test_a_checked_sampling_cannot_be_changed_behind_its_checks():
+    """Frozen: no field can be set to a value the checks refuse; equal options hash equal."""
+    sampling = Sampling(top_p=0.9)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        sampling.top_p = -1.0
+    assert {sampling: "kept"}[Sampling(top_p=0.9)] == "kept"
+
+
+def test_updated_replaces_the_options_given_and_refuses_unknown_names():
+    """None is "not given". An unknown name is refused naming the first in sorted order (the
+    same message whatever order the caller gave) and listing the options."""
+    assert Sampling(top_k=4).updated(dict(top_p=0.5, temperature=None)) == Sampling(1.0, 4, 0.5)
+    listed = "; the options are temperature, top_k, top_p, guidance$"
+    for options in (dict(warmth=1, beam=2), dict(beam=2, warmth=1)):
+        with pytest.raises(TypeError, match="unknown sampling option 'beam'" + listed):
+            Sampling().updated(options)
+    with pytest.raises(TypeError, match="unknown sampling option 'warmth'" + listed):
+        Sampling().updated(dict(top_k=2, warmth=1))
 
 
 def test_numpy_numbers_are_stored_as_the_fields_own_types():

@@ -3,8 +3,10 @@ same tokens, whatever the burst size, the push sizes and the length (around the 
 the whole receptive field); the first frame comes as soon as its right context exists; the
 buffer stays bounded; and the receptive field the manifest states is the decoder's own."""
 import json
+from types import SimpleNamespace
 
 import numpy as np
+import onnxruntime as ort
 import pytest
 
 from mogo import DEFAULT_BUNDLE, MotionGenerator
@@ -30,9 +32,9 @@ def shipped(generator) -> StreamingDecoder:
 
 
 def decoder(shipped, every=1) -> StreamingDecoder:
-    return StreamingDecoder(shipped.session, LEFT, LOOKAHEAD, shipped.codebook_size,
-                            ids_name=shipped.ids_name, features_name=shipped.features_name,
-                            every=every)
+    return StreamingDecoder(shipped.session, left_context=LEFT, lookahead=LOOKAHEAD,
+                            codebook_size=shipped.codebook_size, ids_name=shipped.ids_name,
+                            features_name=shipped.features_name, every=every)
 
 
 def random_ids(shipped, n: int, seed: int = 0) -> np.ndarray:
@@ -143,13 +145,76 @@ def test_empty_input_and_bad_ids(shipped):
     with pytest.raises(ValueError, match="must lie in"):
         d.flush(np.full((2, levels), codes))
     for ids, message in [(np.full((2, levels), codes), "must lie in"),
+                         (np.full((2, levels), codes + 7), "must lie in"),
                          (np.full((2, levels), -1), "must lie in"),
                          (np.zeros((2, levels), np.float32), "must be integers"),
-                         (np.zeros((2, levels + 1), np.int64), "must be"),
-                         (np.zeros(levels, np.int64), "must be")]:
+                         (np.zeros((2, levels + 1), np.int64), r"must be \(n, %d\)" % levels),
+                         (np.zeros((2, levels - 1), np.int64), r"must be \(n, %d\)" % levels),
+                         (np.zeros(levels, np.int64), "must be"),
+                         (np.zeros((2, levels, 1), np.int64), r"must be \(n, %d\)" % levels)]:
         with pytest.raises(ValueError, match=message):
             d.push(ids)
     with pytest.raises(ValueError, match="every must be >= 1"):
         decoder(shipped, every=0)
     with pytest.raises(ValueError, match="left_context, lookahead >= 0"):
         StreamingDecoder(shipped.session, -1, LOOKAHEAD, codes)
+
+
+class WindowDecoder(ort.InferenceSession):
+    """A stand-in VQ decoder in numpy with a known receptive field and `factor` frames per
+    token (the temporal upsampling the shipped bundle lacks): the frames of token t are a
+    fixed linear map of tokens t - left .. t + lookahead, zero-padded at the sequence edges,
+    which is what a stack of convolutions computes. `extra` frames make the output length no
+    whole multiple of the input's."""
+
+    def __init__(self, left: int, lookahead: int, factor: int, extra: int = 0):  # no graph
+        self.left, self.lookahead, self.factor, self.extra = left, lookahead, factor, extra
+        self.weights = np.random.default_rng(9).normal(size=(left + lookahead + 1, 2, factor * 3))
+
+    def get_inputs(self):
+        return [SimpleNamespace(name="ids", shape=[1, "tokens", 2])]
+
+    def get_outputs(self):
+        return [SimpleNamespace(name="features", shape=[1, "frames", 3])]
+
+    def run(self, names, feeds):
+        ids = feeds["ids"][0] + 1.0  # + 1: token 0 differs from the padding
+        padded = np.pad(ids, ((self.left, self.lookahead), (0, 0)))
+        windows = np.stack([padded[t:t + len(self.weights)] for t in range(len(ids))])
+        frames = np.einsum("twl,wlf->tf", windows, self.weights).reshape(-1, 3)
+        return [np.concatenate([frames, frames[:self.extra]])[None].astype(np.float32)]
+
+
+@pytest.mark.parametrize("factor", [2, 4])
+@pytest.mark.parametrize("every,chunk,length", [(1, 1, 3), (1, 2, 20), (3, 5, 23), (4, 1, 9)])
+def test_several_frames_per_token_stream_as_they_decode_offline(factor, every, chunk, length):
+    """Bundles whose VQ upsamples in time: the factor is read off each decode, streamed frames
+    are the offline ones, and the window's edges are where the stated receptive field says."""
+    d = StreamingDecoder(WindowDecoder(3, 2, factor), 3, 2, 7, every=every)
+    ids = np.random.default_rng(length).integers(0, 7, (length, 2))
+    offline = d.decode_offline(ids)
+    assert offline.shape == (length * factor, 3)
+    np.testing.assert_allclose(np.concatenate(streamed(d, ids, chunk)), offline, rtol=1e-6)
+    head = ids[:length - 2]
+    pushed = [d.push(head[i:i + chunk]) for i in range(0, len(head), chunk)]
+    cut = np.concatenate(pushed + [d.flush(ids[length - 2:])])
+    np.testing.assert_allclose(cut, offline[:(length - 2) * factor], rtol=1e-6)
+
+
+def test_a_decoder_making_no_whole_number_of_frames_per_token_is_refused():
+    d = StreamingDecoder(WindowDecoder(1, 1, 2, extra=1), 1, 1, 7)
+    with pytest.raises(ValueError, match="made 7 frames from 3 tokens"):
+        d.decode_offline(np.zeros((3, 2), np.int64))
+
+
+def test_the_smallest_valid_decoder_is_accepted():
+    """No left context, no lookahead (each token alone), one code: all valid; less is not."""
+    d = StreamingDecoder(WindowDecoder(0, 0, 1), 0, 0, 1)
+    ids = np.zeros((4, 2), np.int64)
+    assert [len(d.push(ids[i:i + 1])) for i in range(4)] == [1, 1, 1, 1]
+    assert d.buffered_tokens == 0
+    with pytest.raises(ValueError, match="must lie in \\[0, 1\\)"):
+        d.push(np.ones((1, 2), np.int64))
+    for left, lookahead, codes in ((-1, 0, 1), (0, -1, 1), (0, 0, 0)):
+        with pytest.raises(ValueError, match="left_context, lookahead >= 0 and codebook_size"):
+            StreamingDecoder(WindowDecoder(0, 0, 1), left, lookahead, codes)

@@ -11,13 +11,17 @@ cache (set_prompt, continue_from) must give those logits. (A stream that only sl
 need not: its kept slots were computed when older steps were still visible.)"""
 import copy
 import json
+import threading
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 import mogo.token_generator as token_loop
 from mogo import DEFAULT_BUNDLE, MotionGenerator, Sampling
-from mogo.token_generator import balanced_groups
+from mogo.manifest import BundleError
+from mogo.token_generator import (LEVEL_INPUTS, TokenGenerator, _cache_shape,
+                                  balanced_groups)
 
 PROMPTS = ["a person walks forward.", "a person jumps on the spot.", "someone waves."]
 TOP_P = Sampling(top_p=0.9)
@@ -120,6 +124,10 @@ def test_the_same_seed_gives_the_same_tokens_another_seed_others(tokens, embeddi
     assert np.array_equal(first, again) and not np.array_equal(first, other)
     assert np.array_equal(first, tokens.generate(embeddings[0], num_frames=20, sampling=TOP_P,
                                                  seed=3))
+    seed_0 = tokens.generate(embeddings[0], num_frames=4, sampling=TOP_P, seed=0)
+    assert np.array_equal(tokens.generate(embeddings[0], num_frames=4, sampling=TOP_P), seed_0)
+    assert np.array_equal(run(tokens.start(embeddings[0], sampling=TOP_P, allow_end=False), 4),
+                          seed_0)
     spread = tokens.with_level_workers(2)  # levels run concurrently: the same tokens
     assert np.array_equal(first, spread.generate(embeddings[0], num_frames=20, sampling=TOP_P,
                                                  seed=3))
@@ -153,17 +161,28 @@ def end_always_wins(tokens, monkeypatch):
     monkeypatch.setattr(tokens, "run", run_level)
 
 
-def test_the_end_token_may_end_a_stream_from_its_second_step(tokens, embeddings, end_always_wins):
+def test_the_end_token_may_end_a_stream_from_its_second_step(tokens, embeddings, end_always_wins,
+                                                             monkeypatch):
     stream = tokens.start(embeddings[0], seed=0, sampling=TOP_P)
     first = stream.step()
     assert first is not None and first[0] != tokens.end_token  # never an empty motion
-    assert stream.step() is None and stream.step() is None
+    assert stream.step() is None
     assert tokens.generate(embeddings[0], sampling=TOP_P).shape == (1, tokens.num_levels)
 
+    def no_more(*args):
+        raise AssertionError("an ended stream ran a level graph")
 
-def test_a_forced_length_never_draws_the_end_token(tokens, embeddings, end_always_wins):
-    steps = tokens.generate(embeddings[0], num_frames=6, sampling=TOP_P)
-    assert steps.shape == (6, tokens.num_levels) and not np.any(steps[:, 0] == tokens.end_token)
+    monkeypatch.setattr(tokens, "run", no_more)
+    assert stream.step() is None and stream.step() is None  # ended for good, nothing drawn
+
+
+@pytest.mark.parametrize("length", [6, 257])
+def test_a_forced_length_never_draws_the_end_token(tokens, embeddings, end_always_wins, length):
+    """Exactly `length` steps, also past 256 (12.8 s), where a count compared by identity
+    instead of value would run on: CPython caches small ints only."""
+    steps = tokens.generate(embeddings[0], num_frames=length, sampling=TOP_P)
+    assert steps.shape == (length, tokens.num_levels)
+    assert not np.any(steps[:, 0] == tokens.end_token)
 
 
 # -- the sliding window ----------------------------------------------------------------------------
@@ -177,11 +196,14 @@ def test_the_window_holds_the_prefix_and_the_last_steps_at_every_step(tokens, em
         assert len(stream.positions) <= 1 + window
 
 
-def test_the_window_bounds_the_cache_of_a_long_stream(tokens, embeddings):
-    stream = tokens.start(embeddings[0], seed=2, sampling=TOP_P, window=128, allow_end=False)
-    steps = run(stream, 300)
-    assert len(stream.positions) == 129
-    assert_holds_prefix_and_last_steps(stream, steps, 128)
+@pytest.mark.parametrize("window,length", [(128, 300), (256, 290)])
+def test_the_window_bounds_the_cache_of_a_long_stream(tokens, embeddings, window, length):
+    """The shipped window, and one past 255 steps (where a length compared by identity, not
+    value, would never count as full: CPython caches small ints only)."""
+    stream = tokens.start(embeddings[0], seed=2, sampling=TOP_P, window=window, allow_end=False)
+    steps = run(stream, length)
+    assert len(stream.positions) == window + 1
+    assert_holds_prefix_and_last_steps(stream, steps, window)
 
 
 @pytest.fixture
@@ -308,7 +330,8 @@ def test_continue_from_without_a_window_keeps_every_step(tokens, embeddings, dra
 def test_continue_from_refuses_what_is_not_a_clip_of_steps(tokens, embeddings):
     stream = tokens.start(embeddings[0], seed=0)
     L = tokens.num_levels
-    for bad in (np.zeros((0, L), np.int64), np.zeros((3, L - 1), np.int64), np.zeros(L)):
+    for bad in (np.zeros((0, L), np.int64), np.zeros((3, L - 1), np.int64),
+                np.zeros((3, L + 1), np.int64), np.zeros(L), np.zeros((3, L, 1), np.int64)):
         with pytest.raises(ValueError, match="tokens to continue from"):
             stream.continue_from(bad)
 
@@ -334,8 +357,70 @@ def test_a_batched_prompt_embeds_as_the_same_prompt_alone(generator):
     np.testing.assert_allclose(together[1], generator.embed([long])[0], atol=1e-5, rtol=0)
 
 
+def test_the_level_graphs_are_read_as_the_model_config_states(generator, tokens):
+    """The cache shape (layers, heads, head_dim) read off each graph's past inputs is the
+    t2m config's; level 0 scores every code and the end token."""
+    config = generator.manifest.t2m.config
+    assert tokens.cache_shapes == [(layers, heads, config["head_dim"])
+                                   for layers, heads in zip(config["layers"], config["heads"])]
+    assert tokens.num_classes == config["codebook_size"] + 1
+    logits, _ = tokens.run(0, np.zeros((1, config["text_dim"]), np.float32), np.array([False]),
+                           np.zeros((1, 1, tokens.num_levels), np.int64), np.array([0]),
+                           np.zeros(0, np.int64), tokens.empty_cache(0, 1))
+    assert logits.shape == (1, tokens.num_classes)
+
+
+def test_level_workers_are_checked_where_the_graphs_are_opened(generator, tokens, embeddings):
+    levels = generator.manifest.t2m.levels
+    paths = [generator.bundle.path(graph.file) for graph in levels]
+    with pytest.raises(ValueError, match="5 graph files for 6 graph entries"):
+        TokenGenerator(paths[:5], levels, generator.manifest.end_token)
+    with pytest.raises(ValueError, match="7 graph files for 6 graph entries"):
+        TokenGenerator(paths + paths[:1], levels, generator.manifest.end_token)
+    for make in (lambda: TokenGenerator(paths, levels, generator.manifest.end_token,
+                                        level_workers=0),
+                 lambda: tokens.with_level_workers(0)):
+        with pytest.raises(ValueError, match="level_workers must be >= 1, got 0"):
+            make()
+    assert tokens.with_level_workers(1).level_groups == [list(range(6))]
+    assert TokenGenerator(paths, levels, generator.manifest.end_token).level_groups == [
+        list(range(6))]  # one worker unless asked
+    two = TokenGenerator(paths, levels, generator.manifest.end_token, level_workers=2)
+    assert two.level_groups == [[0, 3, 5], [1, 2, 4]]  # by the config's layers, 4 3 2 2 1 1
+    threads = {}
+    run_level = two.run
+
+    def recording(level, *args):
+        threads.setdefault(level, set()).add(threading.get_ident())
+        return run_level(level, *args)
+
+    two.run = recording
+    assert np.array_equal(two.generate(embeddings[1], num_frames=6, seed=1),
+                          tokens.generate(embeddings[1], num_frames=6, seed=1))
+    here = {threading.get_ident()}  # group 0 on the caller's thread, group 1 on a worker
+    assert all(threads[level] == here for level in (0, 3, 5))
+    assert all(threads[level].isdisjoint(here) for level in (1, 2, 4))
+
+
+@pytest.mark.parametrize("pasts,problem", [
+    ([[1, 4, "past", 8]] * 4, None), ([[1, 4, "past", 8]] * 3, "odd"), ([], "no pasts"),
+    ([[1, 4, "past", 8]], "a key without its value"),
+    ([[1, 4, 8]] * 4, "three axes"), ([[1, 4, "past", 8, 1]] * 2, "five axes"), ([[1, "heads", "past", 8]] * 2, "heads not fixed"),
+    ([[1, 4, "past", "dim"]] * 2, "head_dim not fixed")])
+def test_a_graph_without_key_and_value_pairs_of_pasts_is_no_level_graph(pasts, problem):
+    inputs = [SimpleNamespace(name=name, shape=[1]) for name in LEVEL_INPUTS]
+    inputs += [SimpleNamespace(name=f"past_{i}", shape=shape) for i, shape in enumerate(pasts)]
+    session = SimpleNamespace(get_inputs=lambda: inputs)
+    if problem is None:
+        assert _cache_shape(session, "level_0.onnx") == (2, 4, 8)
+    else:
+        with pytest.raises(BundleError, match="level_0.onnx: not a level graph"):
+            _cache_shape(session, "level_0.onnx")
+
+
 def test_level_groups_balance_layers_and_group_0_holds_level_0():
     assert balanced_groups([4, 3, 2, 2, 1, 1], 2) == [[0, 3, 5], [1, 2, 4]]
     assert balanced_groups([4, 3, 2, 2, 1, 1], 1) == [[0, 1, 2, 3, 4, 5]]
     assert balanced_groups([1, 1], 5) == [[0], [1]]
     assert balanced_groups([1, 5, 1], 2) == [[0, 2], [1]]
+    assert balanced_groups([1, 1, 4], 2) == [[0, 1], [2]]  # the heaviest placed first
