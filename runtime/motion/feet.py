@@ -3,12 +3,14 @@
 Decoded feet skate: they drift while the motion's own contact channels (the last four feature
 dims: left ankle, left toe, right ankle, right toe; "moved less than ~4.5 cm in this frame")
 say they are planted, and the channels often call a foot planted a frame or two before it
-lands and after it lifts, while it still swings. `FootPlanter` fixes the legs and moves the
-body a little:
-- the body: where a flagged joint steps further than BODY_STEP to the next frame, the whole
-  body steps back horizontally by the excess (the mean over such joints), spread over
-  BODY_FRAMES frames; the shift accumulates, so the body travels less and the foot keeps its
-  decoded motion relative to the body, with nothing to catch up at release;
+lands and after it lifts, while it still swings. `FootPlanter` fixes the legs (and, only if
+asked, moves the body):
+- the body, with `body_step` (off by default): where a flagged joint steps further than
+  body_step to the next frame, the whole body steps back horizontally by the excess (the mean
+  over such joints), spread over BODY_FRAMES frames; the shift accumulates, so the body
+  travels less and the foot keeps its decoded motion relative to the body. At BODY_STEP it
+  lowers the slide a little but walks travel ~10% less and fail more of the long-stream
+  checks (docs/feet.md), so the default leaves root motion as decoded;
 - each contact joint is held while its channel is above CONTACT and its decoded step is under
   HOLD_STEP, HumanML3D's contact threshold (a foot swinging faster is not believed planted:
   holding it squeezes its stride into the frames left, a pop), the frame after too (a contact
@@ -40,7 +42,7 @@ CONTACT = 0.5  # a contact channel above this holds its joint
 # m a frame (0.9 m/s, HumanML3D's contact threshold): a flagged joint stepping further is not
 # held (0.12, 2.4 m/s, would meet issue 25's 3 cm/s at a cost in pops: docs/feet.md)
 HOLD_STEP = FOOT_CONTACT_THRESHOLD ** 0.5
-BODY_STEP = 0.067  # m a frame (1.34 m/s): a flagged joint's step beyond this moves the body back
+BODY_STEP = 0.067  # m a frame (1.34 m/s): the body step measured best, when one is asked for
 BODY_FRAMES = 3  # frames each such step back is spread over (the body slows, it does not jerk)
 BLEND_IN = 3  # frames to ease onto a pin before its contact starts
 BLEND_OUT = 8  # frames to ease back onto the decoded path after a contact (no lookahead)
@@ -98,7 +100,7 @@ class FootPlanter:
     get back the rows whose frames are final, with planted feet; `flush` at the end."""
 
     def __init__(self, skeleton: Skeleton, hold_step: float = HOLD_STEP,
-                 body_step: float = BODY_STEP):
+                 body_step: float = np.inf):
         self.hold_step, self.body_step = hold_step, body_step  # the bench compares others
         self.legs = leg_joints(skeleton)  # (2, 4)
         self.contacts = self.legs[:, 2:].reshape(-1)  # left ankle, left toe, right ...

@@ -111,7 +111,9 @@ def test_legs_get_the_skeletons_canonical_bone_lengths_and_feet_stay_on_or_above
 
 def test_a_flagged_foot_stepping_fast_moves_the_body_back_by_the_excess_smoothly():
     features, joints = _sliding_left_foot(speed=0.1)  # flagged in [15, 35) at 10 cm a frame
-    out = planted(features, joints, SMPL_22)
+    np.testing.assert_allclose(planted(features, joints, SMPL_22)[:, 0], joints[:, 0],
+                               atol=1e-6)  # by default the body is left as decoded
+    out = planted(features, joints, SMPL_22, body_step=BODY_STEP)
     upper = [j for j in range(22) if j not in LEGS[:, 1:].reshape(-1)]  # hips and above
     shift = out[:, upper] - joints[:, upper]
     assert np.ptp(shift, axis=1).max() < 1e-6  # the whole body moves as one, horizontally
@@ -131,8 +133,8 @@ def test_any_chunking_gives_the_offline_result(seed):
     joints = _standing(90)  # feet stepping 0-16 cm a frame: some held, some moving the body
     joints[:, CONTACT_JOINTS, 2] += np.cumsum(rng.uniform(0, 0.16, (90, 1)), 0)
     features = _features(joints, rng.uniform(0, 1, (90, 4)) > 0.4)  # contacts on and off often
-    offline = planted(features, joints, SMPL_22)
-    planter, rows, pieces, at = FootPlanter(SMPL_22), [], [], 0
+    offline = planted(features, joints, SMPL_22, body_step=BODY_STEP)
+    planter, rows, pieces, at = FootPlanter(SMPL_22, body_step=BODY_STEP), [], [], 0
     while at < len(joints):
         size = int(rng.integers(0, 12))
         out = planter.push(features[at:at + size], joints[at:at + size])
