@@ -7,10 +7,11 @@ import math
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, ImageDraw
+from PIL import Image, ImageDraw, ImageFont
 
 WIDTH, HEIGHT = 760, 460
 LEFT, RIGHT, TOP, BOTTOM = 70, 250, 40, 50  # margins around the plot area
+FONT = ImageFont.load_default(size=12)  # pillow's own; at its default size spaces vanish
 COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
            "#7f7f7f", "#bcbd22", "#17becf"]
 
@@ -41,15 +42,15 @@ def log_line_chart(path: Path, title: str, x_label: str, y_label: str,
     for tick in ticks(x_range):
         px, _ = to_pixel(tick, y_low)
         draw.line([(px, TOP), (px, TOP + plot_h)], fill="#dddddd")
-        draw.text((px - 10, TOP + plot_h + 6), _label(tick), fill="black")
+        draw.text((px - 10, TOP + plot_h + 6), _label(tick), fill="black", font=FONT)
     for tick in ticks(y_range):
         _, py = to_pixel(x_low, tick)
         draw.line([(LEFT, py), (LEFT + plot_w, py)], fill="#dddddd")
-        draw.text((8, py - 6), _label(tick), fill="black")
+        draw.text((8, py - 7), _label(tick), fill="black", font=FONT)
     draw.rectangle([LEFT, TOP, LEFT + plot_w, TOP + plot_h], outline="black")
-    draw.text((LEFT, 12), title, fill="black")
-    draw.text((LEFT + plot_w // 2 - 40, HEIGHT - 22), x_label, fill="black")
-    draw.text((8, TOP - 24), y_label, fill="black")
+    draw.text((LEFT, 2), title, fill="black", font=FONT)  # the y label below it, not over it
+    draw.text((LEFT + plot_w // 2 - 40, HEIGHT - 22), x_label, fill="black", font=FONT)
+    draw.text((8, TOP - 19), y_label, fill="black", font=FONT)
     for k, (name, values) in enumerate(series.items()):
         colour = COLOURS[k % len(COLOURS)]
         pixels = [to_pixel(x, y) for x, y in sorted(values)]
@@ -60,7 +61,7 @@ def log_line_chart(path: Path, title: str, x_label: str, y_label: str,
         legend_y = TOP + 16 * k
         draw.line([(WIDTH - RIGHT + 15, legend_y + 6), (WIDTH - RIGHT + 35, legend_y + 6)],
                   fill=colour, width=3)
-        draw.text((WIDTH - RIGHT + 40, legend_y), name, fill="black")
+        draw.text((WIDTH - RIGHT + 40, legend_y - 1), name, fill="black", font=FONT)
     image.save(path, optimize=True)
 
 
