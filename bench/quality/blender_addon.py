@@ -128,12 +128,14 @@ def _blender(launcher: list[str], script: Path, folder: Path, request: dict, tim
 
 
 def _clean_environment(scripts: Path) -> dict:
-    """Blender as a user starts it: outside this virtual environment (a Debian Blender finds a
-    venv's python3 on PATH and takes its site-packages), add-ons installed into `scripts`."""
+    """Blender as a user starts it: outside any virtual environment (a Debian Blender finds a
+    venv's python3 on PATH and takes its site-packages: this one's, or another activated
+    before it), add-ons installed into `scripts`."""
     environment = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
     environment["PATH"] = os.pathsep.join(
         p for p in environment.get("PATH", "").split(os.pathsep)
-        if not Path(p).resolve().is_relative_to(Path(sys.prefix).resolve()))
+        if not Path(p).resolve().is_relative_to(Path(sys.prefix).resolve())
+        and not (Path(p).parent / "pyvenv.cfg").exists())
     environment["BLENDER_USER_SCRIPTS"] = str(scripts)
     return environment
 
