@@ -156,7 +156,16 @@ def test_a_failed_rename_puts_the_old_take_back(tmp_path, monkeypatch):
     assert contents(tmp_path) == before
 
 
-def test_ctrl_c_during_the_renames_waits_until_they_are_done(tmp_path, monkeypatch):
+@pytest.fixture
+def ctrl_c():
+    """Python's own SIGINT handler, also where the suite runs with SIGINT ignored (a shell's
+    background job)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_during_the_renames_waits_until_they_are_done(tmp_path, monkeypatch, ctrl_c):
     place = files._place
 
     def interrupted(temporary, path):
@@ -265,9 +274,11 @@ def test_a_real_write_failure_is_one_line_and_changes_nothing(tmp_path):
 
 
 SLOW_WRITER = textwrap.dedent("""
-    import sys, time
+    import signal, sys, time
     from mogo import clip, generator
     from mogo.cli import main
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # even if started in the background
 
     def slowly(owner, name):
         method = getattr(owner, name)
