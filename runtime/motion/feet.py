@@ -140,7 +140,9 @@ class FootPlanter:
 
     def _clean(self, ready: int) -> tuple[np.ndarray, np.ndarray]:
         """Plant the first `ready` buffered frames and drop them from the buffer."""
-        joints = self._joints + self._shifts(ready)[:, None]
+        joints = self._joints  # the body as decoded, unless a body step is asked for
+        if self.body_step != np.inf:
+            joints = joints + self._shifts(ready)[:, None]
         targets, weights = self._targets(self._flags(), joints[:, self.contacts], ready)
         out = self._solve(joints[:ready], targets, weights,
                           np.broadcast_to(self._lengths, (ready, 3)))
