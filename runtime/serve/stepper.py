@@ -28,8 +28,8 @@ TokenStream's, so a Stepper given `solo` level graphs (the bundle's own, as expo
 stream's first `solo_steps` steps on a TokenStream of its own, one row per call: far cheaper
 than a one-row call of the row-wise graphs, so a new stream gets its first frame without
 waiting on a batch; then its cache is copied once into the batched arrays. (Batched warm-up
-cohorts cost less per step than solo steps, so solo steps stop there.) Where a stream switches path is its own step count, so this too is the
-same whatever else runs.
+cohorts cost less per step than solo steps, so solo steps stop there.) Where a stream switches
+path is its own step count, so this too is the same whatever else runs.
 """
 from __future__ import annotations
 
