@@ -199,7 +199,8 @@ def local_rotations_from_joints(positions: np.ndarray, skeleton: Skeleton,
 
     Joint j's rotation turns its raw offset direction onto the observed parent->j bone,
     relative to the accumulated rotation along its chain (each chain starts from the root's
-    facing rotation). Twist about a bone is not observable from positions and is zero.
+    facing rotation). Twist about a bone is not observable from positions and is zero. Signs
+    are left as they come: the 6D block they feed is the same for q and -q.
     """
     frames = positions.shape[0]
     rotations = np.zeros((frames, skeleton.num_joints, 4))
@@ -212,7 +213,7 @@ def local_rotations_from_joints(positions: np.ndarray, skeleton: Skeleton,
             local = qmul(qinv(accumulated), qbetween(rest, bone))
             rotations[:, child] = local
             accumulated = qmul(accumulated, local)
-    return _continuous_sign(rotations)
+    return rotations
 
 
 def foot_contacts(positions: np.ndarray, skeleton: Skeleton,
@@ -221,14 +222,6 @@ def foot_contacts(positions: np.ndarray, skeleton: Skeleton,
     feet = list(skeleton.left_foot) + list(skeleton.right_foot)
     step = positions[1:, feet] - positions[:-1, feet]
     return (np.sum(step ** 2, axis=-1) < threshold).astype(np.float32)
-
-
-def _continuous_sign(quats: np.ndarray) -> np.ndarray:
-    """Flip quaternion signs over time so consecutive frames stay in the same hemisphere."""
-    dots = np.sum(quats[1:] * quats[:-1], axis=-1)
-    flips = np.concatenate([np.zeros((1,) + dots.shape[1:], dtype=bool), dots < 0], axis=0)
-    signs = np.where(np.cumsum(flips, axis=0) % 2 == 1, -1.0, 1.0)
-    return quats * signs[..., None]
 
 
 def _gaussian_smooth(x: np.ndarray, sigma: float) -> np.ndarray:

@@ -68,8 +68,9 @@ def test_turning_left_gives_positive_facing_change():
 
 
 @pytest.mark.parametrize("bad,message", [
-    (np.zeros((10, 21, 3)), "joints must be"),
-    (np.zeros((1, 22, 3)), "at least 2 frames, got 1$"),
+    (np.zeros((10, 21, 3)), r"^joints must be \(T, 22, 3\) for the humanml3d skeleton, got "
+                            r"shape \(10, 21, 3\)$"),
+    (np.zeros((1, 22, 3)), "^a clip needs at least 2 frames, got 1$"),
     (np.full((5, 22, 3), np.nan), "NaN"),
 ])
 def test_bad_joints_are_rejected(bad, message):
@@ -80,6 +81,12 @@ def test_bad_joints_are_rejected(bad, message):
 def test_unknown_feature_dim_is_rejected():
     with pytest.raises(ValueError, match="no skeleton has 100-dim"):
         features_to_joints(np.zeros((5, 100)))
+
+
+def test_features_need_a_time_axis():
+    with pytest.raises(ValueError, match=r"^features must be \(\.\.\., T, D\), got shape "
+                                         r"\(263,\)$"):
+        features_to_joints(np.zeros(263))
 
 
 def test_mirroring_twice_is_identity():

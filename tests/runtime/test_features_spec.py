@@ -97,6 +97,49 @@ def test_rotations_block_is_the_identity_when_every_bone_lies_along_its_raw_offs
                                atol=1e-6)
 
 
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """3x3 matrix of the shortest rotation taking unit vector a onto unit vector b (Rodrigues)."""
+    axis, cos = np.cross(a, b), float(a @ b)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + k + k @ k / (1.0 + cos)
+
+
+@pytest.mark.parametrize("leaf", ["left_wrist", "head", "right_foot"])
+def test_a_turned_bone_at_the_end_of_a_chain_gives_its_rotation(leaf):
+    # Every other bone along its raw offset, so the leaf's local rotation is the one taking its
+    # raw offset onto the turned bone; its 6D form is that matrix's first two columns.
+    joint = SMPL_22.index(leaf)
+    pose = np.zeros((J, 3))
+    bone = _yaw(0.7) @ np.array([[1.0, 0, 0], [0, 0.6, -0.8], [0, 0.8, 0.6]]) \
+        @ SMPL_22.raw_offsets[joint]
+    for j, parent in enumerate(SMPL_22.parents):
+        if parent >= 0:
+            direction = bone if j == joint else SMPL_22.raw_offsets[j]
+            pose[j] = pose[parent] + np.linalg.norm(SMPL_22.rest_offsets[j]) * direction
+    features, _ = joints_to_features(_placed_in_world(np.repeat(pose[None], 3, axis=0)))
+    rotation = _rotation_between(SMPL_22.raw_offsets[joint], bone)
+    rotations = features[:, ROT].reshape(2, J - 1, 6)
+    np.testing.assert_allclose(rotations[:, joint - 1], np.broadcast_to(
+        np.concatenate([rotation[:, 0], rotation[:, 1]]), (2, 6)), atol=1e-6)
+
+
+def test_given_local_rotations_fill_the_6d_block_and_must_have_their_shape():
+    clip = np.repeat(_rest_pose()[None], 3, axis=0)
+    half = np.sin(np.pi / 4) * np.array([1.0, 0.0, 0.0])  # 90 degrees about +X, every joint
+    rotations = np.broadcast_to(np.array([np.cos(np.pi / 4), *half]), (3, J, 4))
+    features, _ = joints_to_features(clip, local_rotations=rotations)
+    np.testing.assert_allclose(features[:, ROT].reshape(2, J - 1, 6), np.broadcast_to(
+        [1.0, 0, 0, 0, 0, 1.0], (2, J - 1, 6)), atol=1e-6)  # columns of Rx(90): x, z
+    with pytest.raises(ValueError, match=r"^local_rotations must be \(3, 22, 4\), got "
+                                         r"\(3, 22, 3\)$"):
+        joints_to_features(clip, local_rotations=rotations[..., :3])
+
+
+def test_two_frames_are_the_shortest_clip():
+    features, canonical = joints_to_features(np.repeat(_rest_pose()[None], 2, axis=0))
+    assert features.shape == (1, 263) and canonical.shape == (2, J, 3)
+
+
 def _contact_clip(ankle_step: float, foot_step: float) -> np.ndarray:
     """A still body whose left ankle and left foot slide along X by the given m/frame."""
     joints = np.repeat(_rest_pose()[None], 4, axis=0)
@@ -164,21 +207,23 @@ def _scipy_facing(joints: np.ndarray, sigma: float = 20.0) -> np.ndarray:
     return np.unwrap(np.arctan2(forward[:, 0], forward[:, 2]))
 
 
-@pytest.mark.parametrize("frames", [40, 200])  # shorter and longer than the 80-frame kernel
-def test_facing_is_smoothed_like_scipy_gaussian_filter1d(frames):
+# 40 and 200 frames: shorter and longer than the 80-frame half-kernel of sigma 20; sigma 5.25
+# (a facing_sigma of one's own) cuts its kernel at an odd radius, 21 frames
+@pytest.mark.parametrize("frames, sigma", [(40, 20.0), (200, 20.0), (60, 5.25)])
+def test_facing_is_smoothed_like_scipy_gaussian_filter1d(frames, sigma):
     pytest.importorskip("scipy")
     rng = np.random.default_rng(3)
     angles = 0.04 * np.arange(frames) + 0.3 * np.sin(0.1 * np.arange(frames)) \
         + rng.normal(0.0, 0.15, frames)
     joints = _turning_clip(angles, 0.03)
-    features, _ = joints_to_features(_placed_in_world(joints))
-    expected = -0.5 * np.diff(_scipy_facing(joints))
+    features, _ = joints_to_features(_placed_in_world(joints), facing_sigma=sigma)
+    expected = -0.5 * np.diff(_scipy_facing(joints, sigma))
     # Both filters are float64 with the same 161-tap kernel (truncate=4.0); what remains is the
     # float32 output (values ~0.02 rad, rounding ~2e-9). A kernel cut at 2 sigma, or sigma 10,
     # moves these angles by ~1e-4 or more.
     np.testing.assert_allclose(features[:, 0], expected, rtol=0, atol=2e-7)
     # The smoothed facing also sets the frame of the joint velocities.
-    facing = _scipy_facing(joints)
+    facing = _scipy_facing(joints, sigma)
     step = joints[1:, 0] - joints[:-1, 0]
     local = np.einsum("tij,tj->ti", np.stack([_yaw(-a) for a in facing[:-1]]), step)
     np.testing.assert_allclose(features[:, 193:196], local, atol=1e-6)
