@@ -247,3 +247,17 @@ def test_a_bundle_of_two_frames_per_token_runs_through_the_generator(tmp_path):
     offline = generator.decode(context, [], frames=30)
     assert offline.joints.shape == (30, 22, 3)
     np.testing.assert_allclose(streamed.joints, offline.joints, atol=1e-5)
+    # encoding reads whole tokens only: a frame left over is not read
+    odd = replace(motion, features=np.concatenate([motion.features, motion.features[-1:]]))
+    assert np.array_equal(generator.encode_motion(odd), generator.encode_motion(motion))
+    assert generator.encode_motion(motion).shape == (15, generator.tokens.num_levels)
+    # a switch after 7 token steps is recorded at their 14th frame, whatever is still pending
+    switched = generator.stream(PROMPT, seed=2, anchoring=False)
+    switched.advance(7)
+    switched.set_prompt("a person jumps.")
+    assert switched.prompts == [(0, PROMPT), (14, "a person jumps.")]
+    # going on from the clip: its own frames are not emitted again, 2 new frames a token step
+    going_on = generator.stream(PROMPT, seed=3, anchoring=False)
+    going_on.continue_from(motion)
+    going_on.advance(6)
+    assert going_on.finish().joints.shape == (12, 22, 3)

@@ -47,7 +47,11 @@ CORE = {
     "bundle": ("runtime/bundle.py", "test_bundle_files.py test_golden.py"),
     "bvh": ("runtime/motion/bvh.py", "test_bvh.py test_bvh_external.py test_rig.py"),
     "generator": ("runtime/generator.py", "test_generator.py test_golden.py test_clip_edges.py "
-                  "test_arguments.py test_anchoring.py test_token_loop.py"),
+                  "test_arguments.py test_anchoring.py test_token_loop.py test_align.py "
+                  # the shipped bundle has one frame a token; this one trains a tiny bundle
+                  # of two (needs torch, ~30 s)
+                  "../export/test_export_bundle.py::"
+                  "test_a_bundle_of_two_frames_per_token_runs_through_the_generator"),
 }
 TIMEOUT_S = 300  # per mutant: a mutant that hangs the tests is killed by the clock
 
