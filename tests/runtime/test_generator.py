@@ -97,13 +97,20 @@ def test_frames_iterator_and_lookahead(generator):
     stream = generator.stream("a person walks forward.", seed=0, plant_feet=False)
     lookahead = generator.manifest.vq.decoder.lookahead
     assert all(len(stream.step()) == 0 for _ in range(lookahead))  # waiting for right context
-    assert len(stream.step()) == 1  # the first frame as soon as it can be, then bursts
+    first = stream.step()
+    assert len(first) == 1  # the first frame as soon as it can be, then bursts
     frames = list(stream.frames(limit=10))
     assert len(frames) == 10 and frames[0].shape == (22, 3)
     emitted = stream.frames_emitted
     assert emitted == 1 + 2 * STREAM_DECODE_EVERY  # 1 + 10 + 6 waiting for the next call
     following = stream.step()
     assert len(following) == 6 and stream.frames_emitted == emitted
+    later = [stream.step() for _ in range(2 * STREAM_DECODE_EVERY)]
+    # the same frames, each once, as from a stream read by step() alone
+    plain = generator.stream("a person walks forward.", seed=0, plant_feet=False)
+    steps = lookahead + 1 + 2 * STREAM_DECODE_EVERY + 1 + 2 * STREAM_DECODE_EVERY
+    np.testing.assert_array_equal(np.concatenate([first, frames, following, *later]),
+                                  np.concatenate([plain.step() for _ in range(steps)]))
 
 
 def test_prompt_switch_keeps_the_past_changes_the_future_without_a_jump(generator):
