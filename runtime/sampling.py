@@ -153,8 +153,7 @@ def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndar
     if sampling.temperature == 0:
         return np.argmax(z, axis=1)
     z = z / sampling.temperature
-    order = np.argsort(-z, axis=1, kind="stable")
-    z = np.take_along_axis(z, order, axis=1)
+    order, z = _descending(z)
     keep = np.count_nonzero(np.isfinite(z), axis=1)
     if sampling.top_k:
         keep = np.minimum(keep, min(sampling.top_k, z.shape[1]))
@@ -167,3 +166,16 @@ def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndar
     total = c[rows, keep - 1]
     index = np.count_nonzero(c <= (uniforms * total)[:, None], axis=1)
     return order[rows, index]
+
+
+def _descending(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's column order, largest first, ties lower id first, and the sorted rows. A
+    stable sort costs ~4x a quicksort of 512 logits, so rows are quicksorted and only those
+    with a tie among their finite values sorted again stably (the sorted values stay: tied
+    entries are equal); the order of -inf entries does not matter (they are never kept)."""
+    order = np.argsort(-z, axis=1)
+    z_sorted = np.take_along_axis(z, order, axis=1)
+    tied = np.any((z_sorted[:, 1:] == z_sorted[:, :-1]) & np.isfinite(z_sorted[:, 1:]), axis=1)
+    if tied.any():
+        order[tied] = np.argsort(-z[tied], axis=1, kind="stable")
+    return order, z_sorted

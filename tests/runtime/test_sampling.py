@@ -53,6 +53,33 @@ def test_ties_among_many_values_keep_id_order_within_each_value():
         assert choose_token(values, None, u, Sampling()) == expected
 
 
+def _by_the_spec(values: list[float], u: float, top_k: int, top_p: float) -> int:
+    """The module docstring's rule in plain Python (temperature 1, no guidance)."""
+    order = sorted((i for i in range(len(values)) if math.isfinite(values[i])),
+                   key=lambda i: (-values[i], i))[:top_k or None]
+    weights = [math.exp(values[i] - values[order[0]]) for i in order]
+    cumulative = np.cumsum(weights)
+    kept = [k for k in range(len(order)) if cumulative[k] - weights[k] < top_p * cumulative[-1]]
+    total = cumulative[len(kept) - 1]
+    return order[next(k for k in kept if cumulative[k] > u * total)]
+
+
+@pytest.mark.parametrize("top_k,top_p", [(0, 1.0), (5, 1.0), (0, 0.6), (40, 0.9)])
+def test_a_batch_of_tied_untied_and_padded_rows_draws_as_the_spec_row_by_row(top_k, top_p):
+    """Rows with ties (few values: top-k then cuts inside a tie), rows without, and rows
+    padded with -inf, in one call: each row as the rule says, whatever its neighbours."""
+    rng = np.random.default_rng(11)
+    rows = [rng.integers(0, 4, 64).astype(np.float64),  # ties everywhere
+            rng.normal(size=64),  # none
+            np.concatenate([rng.integers(0, 3, 20).astype(np.float64), np.full(44, -np.inf)]),
+            np.concatenate([rng.normal(size=30), np.full(34, -np.inf)]),
+            np.where(np.arange(64) % 7 == 0, 2.0, rng.normal(size=64))]  # one tied value
+    for u in np.linspace(0.001, 0.999, 25):
+        drawn = choose_tokens(np.array(rows), None, np.full(len(rows), u),
+                              Sampling(top_k=top_k, top_p=top_p))
+        assert drawn.tolist() == [_by_the_spec(list(r), u, top_k, top_p) for r in rows]
+
+
 def test_the_first_entry_whose_cumulative_weight_exceeds_u_times_the_total_is_taken():
     """Four equal weights: c = 1, 2, 3, 4 and u * total = 1.0 exactly for u = 0.25. The rule is
     c > u * total (strict), so id 1 and not id 0."""
