@@ -53,7 +53,9 @@ CORE = {
                   "../export/test_export_bundle.py::"
                   "test_a_bundle_of_two_frames_per_token_runs_through_the_generator"),
 }
-TIMEOUT_S = 300  # per mutant: a mutant that hangs the tests is killed by the clock
+# per mutant: a mutant that hangs the tests is killed by the clock, at this many times the
+# clean run's time (taken before each run: on a busy machine the tests take longer)
+TIMEOUT_FACTOR, MIN_TIMEOUT_S = 4, 60
 
 
 def main() -> int:
@@ -114,11 +116,13 @@ def run_session(work: Path, repo: Path, name: str, retest: bool) -> None:
         session.replace(session.with_name(session.name + ".old"))
     test_command = " ".join([sys.executable, "-m pytest -q -x -p no:cacheprovider",
                              *(f"tests/runtime/{test}" for test in tests.split())])
-    config.write_text(f'[cosmic-ray]\nmodule-path = "{path}"\ntimeout = {TIMEOUT_S}.0\n'
-                      f'excluded-modules = []\ntest-command = "{test_command}"\n\n'
-                      f'[cosmic-ray.distributor]\nname = "local"\n')
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(work / "import"),
                                                         os.environ.get("PYTHONPATH", "")])}
+    timeout = _clean_run_seconds(name, test_command, repo, env) * TIMEOUT_FACTOR
+    config.write_text(f'[cosmic-ray]\nmodule-path = "{path}"\n'
+                      f'timeout = {max(MIN_TIMEOUT_S, round(timeout))}.0\n'
+                      f'excluded-modules = []\ntest-command = "{test_command}"\n\n'
+                      f'[cosmic-ray.distributor]\nname = "local"\n')
     if not session.exists():
         subprocess.run(["cosmic-ray", "init", str(config), str(session)], cwd=repo, env=env,
                        check=True)
@@ -141,6 +145,18 @@ def run_session(work: Path, repo: Path, name: str, retest: bool) -> None:
     if job.returncode:
         sys.exit(f"cosmic-ray exec failed for {name} (exit {job.returncode}); see "
                  f"{work / (name + '.log')}")
+
+
+def _clean_run_seconds(name: str, test_command: str, repo: Path, env: dict) -> float:
+    """Run the tests once on the unmutated clone: they must pass (else every mutant would
+    count as killed); how long they took sets the timeout."""
+    start = time.perf_counter()
+    clean = subprocess.run(test_command.split(), cwd=repo, env=env, capture_output=True,
+                           text=True)
+    if clean.returncode:
+        sys.exit(f"{name}: the tests fail without any mutant; fix them first:\n"
+                 f"{clean.stdout[-2000:]}")
+    return time.perf_counter() - start
 
 
 def skip_annotations(session: Path, source: Path) -> None:
