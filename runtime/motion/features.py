@@ -124,12 +124,12 @@ def canonicalize(joints: np.ndarray, skeleton: Skeleton = SMPL_22,
 def facing_directions(positions: np.ndarray, skeleton: Skeleton,
                       facing_sigma: float = FACING_SMOOTHING_FRAMES) -> np.ndarray:
     """Unit horizontal facing direction of each frame (T, 3): up x (right - left) of hips and
-    shoulders, Gaussian-smoothed over time."""
+    shoulders, Gaussian-smoothed over time. As in HumanML3D, right - left is made unit length
+    with its height in it, so a frame where the body rolls weighs less in the smoothing."""
     r_hip, l_hip, r_shoulder, l_shoulder = skeleton.face_joints
     across = (positions[:, r_hip] - positions[:, l_hip]
               + positions[:, r_shoulder] - positions[:, l_shoulder])
-    across[:, 1] = 0.0
-    across /= _safe_norm(across, "the hips and shoulders are vertically aligned")
+    across /= _safe_norm(across, "the hips and shoulders give no left-right direction")
     forward = np.cross(np.array([0.0, 1.0, 0.0]), across)
     if facing_sigma > 0:
         forward = _gaussian_smooth(forward, facing_sigma)

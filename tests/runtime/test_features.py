@@ -83,6 +83,19 @@ def test_unknown_feature_dim_is_rejected():
         features_to_joints(np.zeros((5, 100)))
 
 
+def test_features_of_another_skeleton_are_refused_with_both_sizes():
+    with pytest.raises(ValueError, match="^features have 100 dims, the humanml3d skeleton "
+                                         "needs 263$"):
+        features_to_joints(np.zeros((5, 100)), SMPL_22)
+
+
+def test_float64_features_give_float64_joints_and_others_float32():
+    features, _ = joints_to_features(travelling_clip(np.random.default_rng(8)))
+    assert features_to_joints(features).dtype == np.float32
+    assert features_to_joints(features.astype(np.float64)).dtype == np.float64
+    assert features_to_joints(features.astype(np.float16)).dtype == np.float16
+
+
 def test_features_need_a_time_axis():
     with pytest.raises(ValueError, match=r"^features must be \(\.\.\., T, D\), got shape "
                                          r"\(263,\)$"):

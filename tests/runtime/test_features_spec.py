@@ -135,6 +135,14 @@ def test_given_local_rotations_fill_the_6d_block_and_must_have_their_shape():
         joints_to_features(clip, local_rotations=rotations[..., :3])
 
 
+def test_a_frame_with_no_left_right_direction_is_refused_by_name():
+    clip = np.repeat(_rest_pose()[None], 5, axis=0)
+    clip[3, [1, 16]] = clip[3, [2, 17]]  # left hip and shoulder onto the right ones
+    with pytest.raises(ValueError, match="^cannot compute the facing direction at frame 3: "
+                                         "the hips and shoulders give no left-right direction$"):
+        joints_to_features(clip)
+
+
 def test_two_frames_are_the_shortest_clip():
     features, canonical = joints_to_features(np.repeat(_rest_pose()[None], 2, axis=0))
     assert features.shape == (1, 263) and canonical.shape == (2, J, 3)
@@ -168,13 +176,22 @@ def test_each_contact_column_belongs_to_its_own_joint():
     np.testing.assert_array_equal(features[:, CONTACT], np.tile([1.0, 0.0, 1.0, 0.0], (3, 1)))
 
 
-def _turning_clip(angles: np.ndarray, speed: float) -> np.ndarray:
+def _turning_clip(angles: np.ndarray, speed: float, rolls: np.ndarray | None = None
+                  ) -> np.ndarray:
     """The rest pose turned to the given yaw each frame, its root walking forward at `speed`
-    m/frame along its facing; starts canonical (root XZ at 0, facing +Z)."""
+    m/frame along its facing; starts canonical (root XZ at 0, facing +Z). `rolls`: angles
+    (rad) the body leans sideways (about its forward axis) each frame."""
     headings = np.stack([np.sin(angles), np.zeros_like(angles), np.cos(angles)], axis=-1)
     root = np.concatenate([np.zeros((1, 3)), np.cumsum(speed * headings[:-1], axis=0)])
+    rolls = np.zeros_like(angles) if rolls is None else rolls
     pose = _rest_pose()
-    return np.stack([pose @ _yaw(a).T + r for a, r in zip(angles, root)])
+    return np.stack([pose @ _roll(b).T @ _yaw(a).T + r for a, b, r in zip(angles, rolls, root)])
+
+
+def _roll(angle: float) -> np.ndarray:
+    """3x3 rotation by `angle` about +Z."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def test_joint_velocities_are_in_the_facing_frame_of_the_current_frame():
@@ -207,16 +224,20 @@ def _scipy_facing(joints: np.ndarray, sigma: float = 20.0) -> np.ndarray:
     return np.unwrap(np.arctan2(forward[:, 0], forward[:, 2]))
 
 
-# 40 and 200 frames: shorter and longer than the 80-frame half-kernel of sigma 20; sigma 5.25
-# (a facing_sigma of one's own) cuts its kernel at an odd radius, 21 frames
-@pytest.mark.parametrize("frames, sigma", [(40, 20.0), (200, 20.0), (60, 5.25)])
-def test_facing_is_smoothed_like_scipy_gaussian_filter1d(frames, sigma):
+# 40 and 200 frames: shorter and longer than the 80-frame half-kernel of the default sigma
+# (None: HumanML3D's 20); sigma 0.75 (a facing_sigma of one's own) cuts its kernel at an odd
+# radius, 3 frames; a body that leans sideways weighs less in the smoothing, as in the original
+@pytest.mark.parametrize("frames, sigma, lean", [(40, None, 0.0), (200, None, 0.0),
+                                                 (60, 0.75, 0.0), (120, None, 0.6)])
+def test_facing_is_smoothed_like_scipy_gaussian_filter1d(frames, sigma, lean):
     pytest.importorskip("scipy")
     rng = np.random.default_rng(3)
     angles = 0.04 * np.arange(frames) + 0.3 * np.sin(0.1 * np.arange(frames)) \
         + rng.normal(0.0, 0.15, frames)
-    joints = _turning_clip(angles, 0.03)
-    features, _ = joints_to_features(_placed_in_world(joints), facing_sigma=sigma)
+    joints = _turning_clip(angles, 0.03, lean * np.sin(0.3 * np.arange(frames)) ** 2)
+    options = {} if sigma is None else dict(facing_sigma=sigma)
+    sigma = 20.0 if sigma is None else sigma
+    features, _ = joints_to_features(_placed_in_world(joints), **options)
     expected = -0.5 * np.diff(_scipy_facing(joints, sigma))
     # Both filters are float64 with the same 161-tap kernel (truncate=4.0); what remains is the
     # float32 output (values ~0.02 rad, rounding ~2e-9). A kernel cut at 2 sigma, or sigma 10,
