@@ -40,6 +40,10 @@ def generator():
     (lambda g: g.embed("a person walks."), "texts must be a list of prompts, got one str"),
     (lambda g: next(g.stream("a person walks.").frames("3")), "limit must be an integer"),
     (lambda g: g.stream("a person walks.").advance(2.5), "steps must be an integer"),
+    (lambda g: g.stream("a person walks.", anchoring=1),  # 1 == True, but is not True
+     "anchoring must be True, False or an Anchoring, got int"),
+    (lambda g: g.stream("a person walks.", anchoring=0.0),
+     "anchoring must be True, False or an Anchoring, got float"),
 ])
 def test_a_wrong_type_is_a_type_error_naming_the_argument(generator, call, message):
     with pytest.raises(TypeError, match=message):
