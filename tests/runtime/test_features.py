@@ -83,10 +83,11 @@ def test_unknown_feature_dim_is_rejected():
         features_to_joints(np.zeros((5, 100)))
 
 
-def test_features_of_another_skeleton_are_refused_with_both_sizes():
-    with pytest.raises(ValueError, match="^features have 100 dims, the humanml3d skeleton "
+@pytest.mark.parametrize("dims", [100, 300])
+def test_features_of_another_skeleton_are_refused_with_both_sizes(dims):
+    with pytest.raises(ValueError, match=f"^features have {dims} dims, the humanml3d skeleton "
                                          "needs 263$"):
-        features_to_joints(np.zeros((5, 100)), SMPL_22)
+        features_to_joints(np.zeros((2, 5, dims)), SMPL_22)
 
 
 def test_float64_features_give_float64_joints_and_others_float32():
@@ -94,6 +95,7 @@ def test_float64_features_give_float64_joints_and_others_float32():
     assert features_to_joints(features).dtype == np.float32
     assert features_to_joints(features.astype(np.float64)).dtype == np.float64
     assert features_to_joints(features.astype(np.float16)).dtype == np.float16
+    assert features_to_joints(features.astype(bool)).dtype == np.float32
 
 
 def test_features_need_a_time_axis():

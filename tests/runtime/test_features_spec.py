@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mogo.motion.features import joints_to_features
+from mogo.motion.features import joints_to_features, local_rotations_from_joints
 from mogo.motion.skeleton import SMPL_22
 
 J = SMPL_22.num_joints
@@ -133,6 +133,23 @@ def test_given_local_rotations_fill_the_6d_block_and_must_have_their_shape():
     with pytest.raises(ValueError, match=r"^local_rotations must be \(3, 22, 4\), got "
                                          r"\(3, 22, 3\)$"):
         joints_to_features(clip, local_rotations=rotations[..., :3])
+
+
+def test_a_facing_sigma_of_zero_or_less_smooths_nothing():
+    angles = 0.3 * np.sin(0.5 * np.arange(30))
+    joints = _placed_in_world(_turning_clip(angles, 0.03))
+    unsmoothed, _ = joints_to_features(joints, facing_sigma=0)
+    np.testing.assert_allclose(unsmoothed[:, 0], -0.5 * np.diff(angles), atol=1e-6)
+    np.testing.assert_array_equal(joints_to_features(joints, facing_sigma=-2.0)[0], unsmoothed)
+
+
+def test_local_rotations_start_with_the_root_rotation_given():
+    positions = _turning_clip(0.2 * np.arange(4), 0.05)
+    root = np.stack([np.cos(0.1 * np.arange(4)), np.zeros(4), np.sin(0.1 * np.arange(4)),
+                     np.zeros(4)], axis=-1)
+    rotations = local_rotations_from_joints(positions, SMPL_22, root)
+    assert rotations.shape == (4, J, 4)
+    np.testing.assert_array_equal(rotations[:, 0], root)
 
 
 def test_a_frame_with_no_left_right_direction_is_refused_by_name():
