@@ -111,6 +111,7 @@ def test_frames_iterator_and_lookahead(generator):
     steps = lookahead + 1 + 2 * STREAM_DECODE_EVERY + 1 + 2 * STREAM_DECODE_EVERY
     np.testing.assert_array_equal(np.concatenate([first, frames, following, *later]),
                                   np.concatenate([plain.step() for _ in range(steps)]))
+    assert len(list(plain.frames(limit=300))) == 300  # past CPython's cache of small ints
 
 
 def test_prompt_switch_keeps_the_past_changes_the_future_without_a_jump(generator):
