@@ -48,6 +48,7 @@ CORE = {
     "bvh": ("runtime/motion/bvh.py", "test_bvh.py test_bvh_external.py test_rig.py"),
     "generator": ("runtime/generator.py", "test_generator.py test_golden.py test_clip_edges.py "
                   "test_arguments.py test_anchoring.py test_token_loop.py test_align.py "
+                  "test_text_side.py "
                   # the shipped bundle has one frame a token; this one trains a tiny bundle
                   # of two (needs torch, ~30 s)
                   "../export/test_export_bundle.py::"

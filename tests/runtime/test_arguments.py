@@ -6,7 +6,8 @@ import warnings
 import numpy as np
 import pytest
 
-from mogo import MotionGenerator, PromptWarning, Sampling, UnknownPromptWarning
+from mogo import Motion, MotionGenerator, PromptWarning, Sampling, UnknownPromptWarning
+from mogo.motion.skeleton import SMPL_22
 
 
 @pytest.fixture(scope="module")
@@ -73,10 +74,28 @@ def test_load_checks_threads_before_reading_the_bundle(threads, error, message):
     (lambda g: g.play([("a person walks.", 1), ("  ", 1)]), r"schedule\[1\]: the prompt is empty"),
     (lambda g: g.generate("walk", guidance=float("nan")), "guidance must be finite, got nan"),
     (lambda g: g.generate("walk", top_k=-1), "top_k must be >= 0"),
+    (lambda g: g.generate("walk", align=1),  # 1 == True, but is not True
+     "align must be True, False or a PromptAligner, got 1"),
+    (lambda g: g.encode_motion(_clip(np.zeros((40, 263, 1)))),
+     r"motion features must be \(T, 263\), got \(40, 263, 1\)"),
+    (lambda g: g.encode_motion(_clip(np.zeros((40, 264)))),
+     r"motion features must be \(T, 263\), got \(40, 264\)"),
 ])
 def test_a_wrong_value_is_a_value_error_naming_the_argument(generator, call, message):
     with pytest.raises(ValueError, match=message):
         call(generator)
+
+
+def _clip(features: np.ndarray) -> Motion:
+    """A Motion carrying these features (only they are read when a clip is encoded)."""
+    return Motion(features, np.zeros((len(features), 22, 3), np.float32), 20.0,
+                  np.zeros((0, 6), np.int64), SMPL_22)
+
+
+def test_advancing_a_stream_by_zero_steps_draws_nothing(generator):
+    stream = generator.stream("a person walks.", seed=0)
+    stream.advance(0)
+    assert stream.finish().joints.shape[0] == 0
 
 
 def test_numpy_numbers_are_taken_as_the_same_plain_numbers(generator):

@@ -70,6 +70,8 @@ def test_turning_left_gives_positive_facing_change():
 @pytest.mark.parametrize("bad,message", [
     (np.zeros((10, 21, 3)), r"^joints must be \(T, 22, 3\) for the humanml3d skeleton, got "
                             r"shape \(10, 21, 3\)$"),
+    (np.zeros((10, 23, 3)), r"got shape \(10, 23, 3\)$"),
+    (np.zeros((10, 22, 4)), r"got shape \(10, 22, 4\)$"),
     (np.zeros((1, 22, 3)), "^a clip needs at least 2 frames, got 1$"),
     (np.full((5, 22, 3), np.nan), "NaN"),
 ])
@@ -96,6 +98,7 @@ def test_float64_features_give_float64_joints_and_others_float32():
     assert features_to_joints(features.astype(np.float64)).dtype == np.float64
     assert features_to_joints(features.astype(np.float16)).dtype == np.float16
     assert features_to_joints(features.astype(bool)).dtype == np.float32
+    assert features_to_joints(features.astype(np.int32)).dtype == np.float32
 
 
 def test_features_need_a_time_axis():

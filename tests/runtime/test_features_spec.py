@@ -130,9 +130,10 @@ def test_given_local_rotations_fill_the_6d_block_and_must_have_their_shape():
     features, _ = joints_to_features(clip, local_rotations=rotations)
     np.testing.assert_allclose(features[:, ROT].reshape(2, J - 1, 6), np.broadcast_to(
         [1.0, 0, 0, 0, 0, 1.0], (2, J - 1, 6)), atol=1e-6)  # columns of Rx(90): x, z
-    with pytest.raises(ValueError, match=r"^local_rotations must be \(3, 22, 4\), got "
-                                         r"\(3, 22, 3\)$"):
-        joints_to_features(clip, local_rotations=rotations[..., :3])
+    for wrong in (rotations[..., :3], np.ones((3, 22, 5)), np.ones((3, 23, 4))):
+        with pytest.raises(ValueError, match=r"^local_rotations must be \(3, 22, 4\), got "
+                                             rf"\({', '.join(map(str, wrong.shape))}\)$"):
+            joints_to_features(clip, local_rotations=wrong)
 
 
 def test_a_facing_sigma_of_zero_or_less_smooths_nothing():
