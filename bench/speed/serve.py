@@ -15,13 +15,16 @@ warm-up stepped on the engine's clock, CPU time (all threads) per stream step, w
 tick and the cores used (CPU over wall). CPU time shows what N costs even on a busy machine;
 1000 / (fps * CPU ms) streams per core is the ceiling it sets. `engine_first_frame` times a
 new stream's first frame on a warm engine, no sockets, in CPU and wall time
-(`--engine-only` runs these two alone).
+(`--engine-only` runs these two alone). `engine_profile` (`--profile N`) splits a stream step's
+CPU among its parts (the level graphs, sampling, the VQ decoder, joints, foot planting).
 """
 from __future__ import annotations
 
 import asyncio
+import cProfile
 import json
 import os
+import pstats
 import socket
 import subprocess
 import sys
@@ -37,6 +40,13 @@ PROMPTS = ["a person walks forward", "a person jogs in a circle", "a person jump
            "a person turns left", "a person claps", "a person runs forward", "a person bows"]
 FPS = 20.0
 WARM_CLIENTS = 4
+PARTS = {  # the parts of a served stream step (--profile): the function whose time is each
+    "level graphs (onnxruntime)": ("token_generator.py", "run"),
+    "sampling": ("sampling.py", "choose_tokens"),
+    "VQ decoder (onnxruntime)": ("stream_decoder.py", "_decode"),
+    "joints from features": ("motion/features.py", "push"),
+    "foot planting": ("motion/feet.py", "push"),
+}
 
 
 def free_port() -> int:
@@ -112,8 +122,10 @@ def measure(url: str, pid: int, clients: int, seconds: float) -> dict:
     return row
 
 
-def engine_cost(clients: int, threads: int, ticks: int = 40) -> dict:
-    """CPU ms per stream step and wall ms per tick of the Engine alone, streams past warm-up."""
+def engine_cost(clients: int, threads: int, ticks: int = 40,
+                profile: cProfile.Profile | None = None) -> dict:
+    """CPU ms per stream step and wall ms per tick of the Engine alone, streams past warm-up;
+    `profile` records the measured ticks."""
     from mogo.generator import MotionGenerator
     from mogo.serve.engine import Engine
     from mogo.serve.stepper import COMPACT_EVERY
@@ -139,11 +151,37 @@ def engine_cost(clients: int, threads: int, ticks: int = 40) -> dict:
     while min(s.tokens.steps for s in engine.streams.values()) < ready:
         run_until(now + 1 / engine.fps)
     cpu, wall = time.process_time(), time.perf_counter()
+    if profile is not None:
+        profile.enable()
     steps = run_until(now + ticks / engine.fps)
+    if profile is not None:
+        profile.disable()
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     engine.shutdown()
-    return dict(clients=clients, cpu_ms_per_step=cpu * 1e3 / steps,
+    return dict(clients=clients, steps=steps, cpu_ms_per_step=cpu * 1e3 / steps,
                 wall_ms_per_tick=wall * 1e3 / ticks, cores=cpu / wall)
+
+
+def engine_profile(clients: int) -> list[tuple[str, float]]:
+    """Where a stream step's CPU goes: (part, ms per stream step) for the parts of PARTS, the
+    rest (the stepper's and engine's own Python) and the whole, from cProfile on one thread
+    (cProfile's own cost inflates the Python-heavy parts)."""
+    profile = cProfile.Profile()
+    steps = engine_cost(clients, 1, profile=profile)["steps"]
+    stats = pstats.Stats(profile).stats  # (file, line, name) -> (..., total, cumulative, ...)
+    whole = sum(entry[2] for entry in stats.values())
+    parts = [(part, sum(entry[3] for (file, _, name), entry in stats.items()
+                        if file.endswith(module) and name == function))
+             for part, (module, function) in PARTS.items()]
+    parts.append(("the rest: the stepper's and engine's Python", whole - sum(s for _, s in parts)))
+    return [(part, seconds * 1e3 / steps) for part, seconds in parts + [("a stream step", whole)]]
+
+
+def profile_table(rows: list[tuple[str, float]]) -> str:
+    whole = rows[-1][1]
+    lines = ["| part | CPU per stream step | share |", "|---|---:|---:|"]
+    lines += [f"| {part} | {ms:.3f} ms | {100 * ms / whole:.0f}% |" for part, ms in rows]
+    return "\n".join(lines)
 
 
 def engine_first_frame(threads: int, repeats: int = 7) -> dict:
@@ -232,6 +270,11 @@ def engine_only(clients: list[int], threads: int | None, out: Path) -> dict:
 
 
 def main_from_args(args) -> None:
+    if args.profile:
+        print(f"Where the CPU of a stream step goes: {args.profile} streams past warm-up, "
+              "the engine alone on one thread, cProfile:\n")
+        print(profile_table(engine_profile(args.profile)))
+        return
     if args.engine_only:
         result = engine_only(args.clients, args.threads, Path(args.out))
         print(f"The engine alone (no sockets, {result['threads']} threads), streams past "
