@@ -43,22 +43,24 @@ def checked_prompt(text: object, name: str = "text") -> str:
 
 
 def read_prompt(text: object, tokenizer: Tokenizer, max_length: int,
-                vocabulary_size: int | None, name: str = "text") -> str:
+                vocabulary_size: int | None, name: str = "text", stacklevel: int = 2) -> str:
     """A prompt checked: text and not empty; a prompt with no word the model knows, words it
     does not know and tokens past the text encoder's `max_length` (counted by the untruncated
-    `tokenizer`) are told by a PromptWarning, for the caller's line. A word is known when it is
+    `tokenizer`) are told by a PromptWarning, for the line `stacklevel` frames up from here
+    (as warnings.warn counts: 2 is the caller of read_prompt). A word is known when it is
     one token of the vocabulary: others become [UNK] or are spelled out in single letters
     (w ##a ##l ##k ##e ##d), and their meaning is lost. vocabulary_size None: a pretrained
     encoder, whose word pieces carry meaning, so only the length is told."""
     text = checked_prompt(text, name)
     encoding = tokenizer.encode(text)
     if vocabulary_size is not None:
-        _tell_unknown_words(text, encoding, vocabulary_size)
+        _tell_unknown_words(text, encoding, vocabulary_size, stacklevel + 1)
     if len(encoding.ids) > max_length:
         read = text[:encoding.offsets[max_length - 1][1]].split()[-5:]  # its last words
         warnings.warn(f"the prompt is {len(encoding.ids)} tokens long and the model reads only "
                       f"{max_length}: everything after {short(' '.join(read))} is ignored "
-                      "(play the parts one after another instead)", PromptWarning, stacklevel=4)
+                      "(play the parts one after another instead)", PromptWarning,
+                      stacklevel=stacklevel)
     return text
 
 
@@ -80,7 +82,7 @@ def word_reading(text: str, encoding) -> tuple[bool, list[str]]:
     return known, list(dict.fromkeys(unknown))
 
 
-def _tell_unknown_words(text: str, encoding, vocabulary_size: int) -> None:
+def _tell_unknown_words(text: str, encoding, vocabulary_size: int, stacklevel: int) -> None:
     """A trained-with-the-model encoder's words: none known, or some unknown (see read_prompt)."""
     known, unknown = word_reading(text, encoding)
     if not known:
@@ -88,12 +90,12 @@ def _tell_unknown_words(text: str, encoding, vocabulary_size: int) -> None:
                       f"would be a generic one: it knows the {vocabulary_size} words of its "
                       "training captions, such as 'a person walks forward' (align=True, or "
                       "--align rules, maps some other words onto them)", UnknownPromptWarning,
-                      stacklevel=5)
+                      stacklevel=stacklevel)
     elif unknown:
         listed = ", ".join(map(repr, unknown[:8])) + (f" and {len(unknown) - 8} more"
                                                       if len(unknown) > 8 else "")
         warnings.warn(f"the model does not know {listed}: their meaning is lost",
-                      PromptWarning, stacklevel=5)
+                      PromptWarning, stacklevel=stacklevel)
 
 
 def checked_seconds(seconds: object, minimum: float, fps: float, maximum: float) -> float:

@@ -158,8 +158,10 @@ class MotionGenerator:
         seed = _seed(seed)
         aligner = self.aligner(align)
         plant_feet = checked_bool(plant_feet, "plant_feet")
-        texts = [checked_prompt(text, f"texts[{k}]") if aligner
-                 else self._prompt(text, f"texts[{k}]") for k, text in enumerate(texts)]
+        for k, text in enumerate(texts):  # not a comprehension: its own frame (Python 3.11)
+            # would put a prompt's warning inside mogo instead of at the caller's line
+            texts[k] = (checked_prompt(text, f"texts[{k}]") if aligner
+                        else self._prompt(text, f"texts[{k}]"))
         return [self._generate(text, seconds, seed + k, sampling, aligner, plant_feet)
                 for k, text in enumerate(texts)]
 

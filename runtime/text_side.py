@@ -65,7 +65,8 @@ class TextSide:
         caller's frame for the warning)."""
         spec = self._spec
         text = read_prompt(text, self._counter, spec.max_length,
-                           None if spec.sentence_encoder else len(self.vocabulary()), name)
+                           None if spec.sentence_encoder else len(self.vocabulary()), name,
+                           stacklevel + 1)
         if self.repertoire is not None and not (familiarity := self.familiarity(text)).familiar:
             warnings.warn(familiarity.describe(), UnfamiliarPromptWarning, stacklevel=stacklevel)
         return text

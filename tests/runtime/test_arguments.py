@@ -6,7 +6,8 @@ import warnings
 import numpy as np
 import pytest
 
-from mogo import Motion, MotionGenerator, PromptWarning, Sampling, UnknownPromptWarning
+from mogo import (Motion, MotionGenerator, PromptWarning, Sampling, UnfamiliarPromptWarning,
+                  UnknownPromptWarning)
 from mogo.motion.skeleton import SMPL_22
 
 
@@ -80,6 +81,9 @@ def test_load_checks_threads_before_reading_the_bundle(threads, error, message):
      r"motion features must be \(T, 263\), got \(40, 263, 1\)"),
     (lambda g: g.encode_motion(_clip(np.zeros((40, 264)))),
      r"motion features must be \(T, 263\), got \(40, 264\)"),
+    (lambda g: g.encode_motion(_clip(np.zeros((0, 263)))),
+     "the motion has 0 frames; at least 1 are needed"),
+    (lambda g: next(g.stream("a person walks.").frames(-1)), "limit must be >= 0, got -1"),
 ])
 def test_a_wrong_value_is_a_value_error_naming_the_argument(generator, call, message):
     with pytest.raises(ValueError, match=message):
@@ -126,19 +130,21 @@ def test_a_prompt_with_no_known_word_is_told_by_its_own_warning(old_generator, p
             call()
         assert len(told) == 1 and repr(prompt) in str(told[0].message)
         assert "align" in str(told[0].message)
+        assert told[0].filename == __file__  # told at the caller's line, not inside mogo
 
 
 def test_unknown_words_are_named_by_a_warning_and_the_motion_is_made(old_generator):
     """Unknown: [UNK] (xyzzy, 🙂) or spelled out letter by letter (plugh: p ##l ##u ##g ##h),
     named without the punctuation around them."""
     with pytest.warns(PromptWarning, match=r"does not know 'xyzzy', '🙂', 'plugh': their "
-                                           "meaning is lost"):
+                                           "meaning is lost") as told:
         motion = old_generator.generate("a person walks xyzzy forward 🙂!! (plugh)", seconds=1,
                                     seed=0)
-    assert len(motion.joints) == 20
+    assert len(motion.joints) == 20 and told[0].filename == __file__
     stream = old_generator.stream("a person walks forward.", seed=0)
-    with pytest.warns(PromptWarning, match="does not know 'plugh'"):
+    with pytest.warns(PromptWarning, match="does not know 'plugh'") as told:
         stream.set_prompt("a person plugh jumps.")
+    assert told[0].filename == __file__
 
 
 def test_a_prompt_past_the_text_encoders_length_is_told_where_it_is_cut(old_generator):
@@ -152,7 +158,18 @@ def test_a_prompt_past_the_text_encoders_length_is_told_where_it_is_cut(old_gene
     assert message.startswith(f"the prompt is {1 + 12 * 5 + 7} tokens long and the model reads "
                               f"only {limit}: everything after 'walks forward, then the person' "
                               "is ignored")
-    assert len(motion.joints) == 20
+    assert len(motion.joints) == 20 and told[0].filename == __file__
+
+
+def test_a_prompt_far_from_the_repertoire_is_told_at_the_callers_line(generator):
+    far = "the stock market fell sharply on tuesday"
+    for call in (lambda: generator.generate(far, seconds=1), lambda: generator.stream(far),
+                 lambda: generator.generate_batch(["a person walks.", far], seconds=1),
+                 lambda: generator.play([("a person walks.", 1), (far, 1)]),
+                 lambda: generator.stream("a person walks.").set_prompt(far)):
+        with pytest.warns(UnfamiliarPromptWarning) as told:
+            call()
+        assert [w.filename for w in told] == [__file__]
 
 
 def test_a_known_prompt_warns_of_nothing(generator):
