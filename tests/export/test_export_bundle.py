@@ -251,6 +251,9 @@ def test_a_bundle_of_two_frames_per_token_runs_through_the_generator(tmp_path):
     odd = replace(motion, features=np.concatenate([motion.features, motion.features[-1:]]))
     assert np.array_equal(generator.encode_motion(odd), generator.encode_motion(motion))
     assert generator.encode_motion(motion).shape == (15, generator.tokens.num_levels)
+    # an odd number of frames takes the token that holds the last of them
+    assert len(generator.generate(PROMPT, seconds=1.55, seed=2).tokens) == 16
+    assert len(generator.decode(context, [], frames=29).tokens) == 15
     # a switch after 7 token steps is recorded at their 14th frame, whatever is still pending
     switched = generator.stream(PROMPT, seed=2, anchoring=False)
     switched.advance(7)

@@ -83,7 +83,13 @@ def test_load_checks_threads_before_reading_the_bundle(threads, error, message):
      r"motion features must be \(T, 263\), got \(40, 264\)"),
     (lambda g: g.encode_motion(_clip(np.zeros((0, 263)))),
      "the motion has 0 frames; at least 1 are needed"),
+    (lambda g: g.encode_motion(_clip(np.zeros((40, 262)))),
+     r"motion features must be \(T, 263\), got \(40, 262\)"),
+    (lambda g: g.encode_motion(_clip(np.zeros(263))),
+     r"motion features must be \(T, 263\), got \(263,\)"),
     (lambda g: next(g.stream("a person walks.").frames(-1)), "limit must be >= 0, got -1"),
+    (lambda g: g.stream("a person walks.").advance(-1), "steps must be >= 0, got -1"),
+    (lambda g: g.generate("walk", align=0), "align must be True, False or a PromptAligner, got 0"),
 ])
 def test_a_wrong_value_is_a_value_error_naming_the_argument(generator, call, message):
     with pytest.raises(ValueError, match=message):
@@ -99,7 +105,12 @@ def _clip(features: np.ndarray) -> Motion:
 def test_advancing_a_stream_by_zero_steps_draws_nothing(generator):
     stream = generator.stream("a person walks.", seed=0)
     stream.advance(0)
+    assert list(stream.frames(0)) == []
     assert stream.finish().joints.shape[0] == 0
+
+
+def test_a_clip_of_one_frame_is_encoded(generator):
+    assert generator.encode_motion(_clip(np.zeros((1, 263)))).shape == (1, 6)
 
 
 def test_numpy_numbers_are_taken_as_the_same_plain_numbers(generator):
