@@ -94,6 +94,9 @@ def add_commands(commands) -> None:
     serve.add_argument("--engine-only", action="store_true",
                        help="no server: the engine's CPU per stream step and wall per tick for "
                             "each --clients, and one stream's first frame (serve_engine.json)")
+    serve.add_argument("--binary", action="store_true",
+                       help="the clients take binary frames instead of JSON (the protocol's "
+                            "\"binary\": true)")
     serve.add_argument("--profile", type=int, metavar="N",
                        help="no server: where the CPU of a stream step goes, N streams past "
                             "warm-up, one thread, cProfile (a table)")

@@ -61,13 +61,15 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-async def client(url: str, k: int, seconds: float, switch_at: float | None) -> list[float]:
-    """One client's frame arrival times (seconds, monotonic), frame by frame."""
+async def client(url: str, k: int, seconds: float, switch_at: float | None,
+                 binary: bool = False) -> list[float]:
+    """One client's frame arrival times (seconds, monotonic), frame by frame; `binary`: frames
+    as the protocol's binary bursts (a header of index and count, then float32 joints)."""
     import aiohttp
 
     arrivals: list[float] = []
     async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
-        await ws.send_json({"prompt": PROMPTS[k % len(PROMPTS)], "seed": k})
+        await ws.send_json({"prompt": PROMPTS[k % len(PROMPTS)], "seed": k, "binary": binary})
         end = time.monotonic() + seconds
         switched = switch_at is None
         while (left := end - time.monotonic()) > 0:
@@ -75,7 +77,11 @@ async def client(url: str, k: int, seconds: float, switch_at: float | None) -> l
                 message = await asyncio.wait_for(ws.receive(), left)
             except asyncio.TimeoutError:
                 break
-            body = json.loads(message.data)
+            if message.type == aiohttp.WSMsgType.BINARY:
+                arrivals += [time.monotonic()] * int.from_bytes(message.data[4:8], "little")
+                body = {"type": "binary frames"}
+            else:
+                body = json.loads(message.data)
             if body["type"] == "frames":
                 arrivals += [time.monotonic()] * len(body["joints"])
             elif body["type"] == "error":
@@ -97,11 +103,11 @@ async def first_frame_ms(url: str) -> float:
         return (time.monotonic() - start) * 1e3
 
 
-def measure(url: str, pid: int, clients: int, seconds: float) -> dict:
+def measure(url: str, pid: int, clients: int, seconds: float, binary: bool = False) -> dict:
     """N clients at once; their frame rate and lateness, the server's CPU use."""
     async def run():
-        return await asyncio.gather(*(client(url, k, seconds, seconds * (0.3 + 0.4 * k / clients))
-                                      for k in range(clients)))
+        return await asyncio.gather(*(client(url, k, seconds, seconds * (0.3 + 0.4 * k / clients),
+                                             binary) for k in range(clients)))
 
     cpu, wall = cpu_seconds(pid), time.monotonic()
     arrivals = asyncio.run(run())
@@ -224,7 +230,7 @@ def table(rows: list[dict]) -> str:
 
 
 def run(clients: list[int], seconds: float, threads: int | None, bundle: str | None,
-        out: Path) -> dict:
+        out: Path, binary: bool = False) -> dict:
     port = free_port()
     command = [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--max-streams",
                str(max(*clients, WARM_CLIENTS) + 1)]
@@ -239,7 +245,7 @@ def run(clients: list[int], seconds: float, threads: int | None, bundle: str | N
         first = sorted(asyncio.run(first_frame_ms(url)) for _ in range(7))
         rows = []
         for n in clients:
-            rows.append(measure(url, server.pid, n, seconds))
+            rows.append(measure(url, server.pid, n, seconds, binary))
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     finally:
         server.terminate()
@@ -285,7 +291,8 @@ def main_from_args(args) -> None:
               f"{first['cpu_ms']:.0f} ms CPU (medians of 7)")
         print(f"wrote {Path(args.out) / 'serve_engine.json'}")
         return
-    result = run(args.clients, args.seconds, args.threads, args.bundle, Path(args.out))
+    result = run(args.clients, args.seconds, args.threads, args.bundle, Path(args.out),
+                 args.binary)
     print(table(result["rows"]))
     print("\nThe engine alone (no sockets), streams past warm-up:\n")
     print(engine_table(result["engine"]))

@@ -230,3 +230,17 @@ def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator
                                  anchoring=False)
         expected = np.array(list(local.frames(limit=len(served))))
         np.testing.assert_allclose(served, expected, atol=1e-5)
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_the_benchmark_client_counts_every_frame_in_either_encoding(generator, engine_parts,
+                                                                    binary):
+    """`mogo bench-serve`'s client (mogo.bench.speed.serve.client): one arrival time per frame,
+    from JSON bursts or binary ones, whatever their size."""
+    from mogo.bench.speed.serve import client
+
+    async def test(url, server):
+        arrivals = await client(f"{url}/v1/stream", 0, 4.0, None, binary)
+        assert len(arrivals) >= 9 and arrivals == sorted(arrivals)
+        assert (len(arrivals) - 1) % 8 == 0  # a burst of the first frame, then bursts of 8
+    serving(generator, engine_parts, test)
