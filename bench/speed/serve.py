@@ -77,12 +77,9 @@ async def client(url: str, k: int, seconds: float, switch_at: float | None,
                 message = await asyncio.wait_for(ws.receive(), left)
             except asyncio.TimeoutError:
                 break
-            if message.type == aiohttp.WSMsgType.BINARY:
+            if message.type == aiohttp.WSMsgType.BINARY:  # uint32 index, uint32 n, joints
                 arrivals += [time.monotonic()] * int.from_bytes(message.data[4:8], "little")
-                body = {"type": "binary frames"}
-            else:
-                body = json.loads(message.data)
-            if body["type"] == "frames":
+            elif (body := json.loads(message.data))["type"] == "frames":
                 arrivals += [time.monotonic()] * len(body["joints"])
             elif body["type"] == "error":
                 raise RuntimeError(f"client {k}: {body['error']}")
