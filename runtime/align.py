@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 from mogo.align_wordnet import WORDNET_VERBS
 from mogo.align_words import (CAUSATIVES, FILLERS, HEDGES, LEFT_ALONE, NOUNS, NUMBERS, PHRASES,
-                              SECONDS, SUBJECTS, VERBS, WORD_SYNONYMS)
+                              SECONDS, SUBJECTS, VERBS, WORD_SYNONYMS, spoken_number)
 from mogo.motion.skeleton import MAX_SECONDS
 
 MIN_STEP_SECONDS = 1.0
@@ -101,6 +101,7 @@ def conjugate(verb: str, form: str) -> str:
 
 _SUBJECT_WORDS = {w for phrase in SUBJECTS + FILLERS for w in phrase.split()}
 _JACKS = (["jumping", "jack"], ["jumping", "jacks"])
+_SPOKEN = {spoken_number(n): n for n in range(1000)}  # the numbers the captions spell
 _PRIMITIVE_OF = {verb: primitive for table in (WORDNET_VERBS, VERBS)  # the hand-written win
                  for primitive, verbs in table.items() for verb in verbs}
 _BASE_OF = {conjugate(verb, form): verb for verb in _PRIMITIVE_OF for form in ("s", "ing")}
@@ -326,9 +327,10 @@ def primitive_of(words: list[str]) -> str | None:
 
 
 def _count(word: str) -> int | None:
+    """A number in digits or spelt ("seven", "sixty", "a hundred and thirty-five")."""
     if word.isdigit():
         return int(word)
-    return NUMBERS.index(word) if word in NUMBERS else None
+    return _SPOKEN.get(word)
 
 
 def _repetitions(phrase: list[str]) -> int:
@@ -343,15 +345,16 @@ def _repetitions(phrase: list[str]) -> int:
 
 
 def _spoken_numbers(phrase: list[str]) -> list[str]:
-    """Digits as the captions write them: "3 times" -> "three times", "2 times" -> "twice"."""
+    """Digits as the captions write them: "3 times" -> "three times", "2 times" -> "twice",
+    "90" -> "ninety"."""
     spoken, k = [], 0
     while k < len(phrase):
         word, count = phrase[k], _count(phrase[k])
         if count in (1, 2) and phrase[k + 1:k + 2] in (["times"], ["time"]):
             spoken.append("once" if count == 1 else "twice")
             k += 1
-        elif word.isdigit() and count < len(NUMBERS):
-            spoken.append(NUMBERS[count])
+        elif word.isdigit():
+            spoken.append(spoken_number(count))
         else:
             spoken.append(word)
         k += 1

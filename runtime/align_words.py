@@ -1,7 +1,10 @@
 """The word lists of the prompt-alignment rules (mogo.align.RuleAligner): verbs by the
-primitive they ask for, nouns, typical step durations, synonyms, number words, and the
-subjects, fillers and hedges the rules drop. Data only; the rules are in mogo.align."""
+primitive they ask for, nouns, typical step durations, synonyms, number words (and how the
+captions spell a number), and the subjects, fillers and hedges the rules drop. Data, and the
+number speller every reader of prompts shares; the rules are in mogo.align."""
 from __future__ import annotations
+
+import re
 
 # Verbs by the primitive they ask for. The corpus's own verbs come first; the rest are
 # synonyms, replaced by the first verb of their primitive when the bundle does not know them.
@@ -50,7 +53,9 @@ WORD_SYNONYMS = {"fwd": "forward", "forwards": "forward", "ahead": "forward",
 PHRASES = {"star jumps": "jumping jacks", "star jump": "jumping jack",
            "counter clockwise": "counterclockwise", "anti clockwise": "counterclockwise"}
 NUMBERS = ("zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine",
-           "ten", "eleven", "twelve")
+           "ten", "eleven", "twelve", "thirteen", "fourteen", "fifteen", "sixteen", "seventeen",
+           "eighteen", "nineteen")
+TENS = ("", "", "twenty", "thirty", "forty", "fifty", "sixty", "seventy", "eighty", "ninety")
 SUBJECTS = ("a person", "the person", "a man", "the man", "a woman", "the woman", "someone",
             "somebody", "the guy", "a guy", "the dude", "a dude", "the girl", "a girl",
             "the boy", "a boy", "the kid", "a kid", "the character", "a character",
@@ -86,3 +91,30 @@ LEFT_ALONE = ("a", "an", "the", "of", "and", "or", "in", "on", "at", "to", "with
                   "fast", "slow", "circle", "still", "seat", "together", "clockwise",
                   "degrees", "politely", "steps", "strides", "done", "finished", "over",
                   "yoga", "salsa", "pushups", "situps")
+
+
+def spoken_number(n: int) -> str:
+    """0-999 as the corpus's captions write them: "seven", "forty-five", "a hundred and
+    thirty-five", "three hundred and sixty"; other numbers as digits."""
+    if not 0 <= n < 1000:
+        return str(n)
+    if n < 20:
+        return NUMBERS[n]
+    if n < 100:
+        return TENS[n // 10] + ("" if n % 10 == 0 else "-" + NUMBERS[n % 10])
+    hundreds = "a hundred" if n < 200 else f"{NUMBERS[n // 100]} hundred"
+    return hundreds + ("" if n % 100 == 0 else " and " + spoken_number(n % 100))
+
+
+_NUMBER = re.compile(r"(?<![\w.,])(\d+)(?![\w]|[.,]\d)(\s+times?\b)?")
+
+
+def spoken_numbers(text: str) -> str:
+    """Whole numbers in a prompt spelt as the captions spell them, which is how the model
+    learnt them: "turns 90 degrees" -> "turns ninety degrees", "2 times" -> "twice"."""
+    def spell(match: re.Match) -> str:
+        n, times = int(match.group(1)), match.group(2)
+        if times and n in (1, 2):
+            return "once" if n == 1 else "twice"
+        return spoken_number(n) + (times or "")
+    return _NUMBER.sub(spell, text)

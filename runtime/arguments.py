@@ -10,6 +10,8 @@ from collections.abc import Iterable, Sequence
 from numbers import Integral, Real
 from typing import TYPE_CHECKING
 
+from mogo.align_words import spoken_numbers
+
 if TYPE_CHECKING:  # the `mogo` command imports this module for PromptWarning alone
     from tokenizers import Tokenizer
 
@@ -52,11 +54,12 @@ def read_prompt(text: object, tokenizer: Tokenizer, max_length: int,
     (w ##a ##l ##k ##e ##d), and their meaning is lost. vocabulary_size None: a pretrained
     encoder, whose word pieces carry meaning, so only the length is told."""
     text = checked_prompt(text, name)
-    encoding = tokenizer.encode(text)
+    spoken = spoken_numbers(text)  # what the text encoders read (mogo.text_side)
+    encoding = tokenizer.encode(spoken)
     if vocabulary_size is not None:
-        _tell_unknown_words(text, encoding, vocabulary_size, stacklevel + 1)
+        _tell_unknown_words(spoken, encoding, vocabulary_size, stacklevel + 1)
     if len(encoding.ids) > max_length:
-        read = text[:encoding.offsets[max_length - 1][1]].split()[-5:]  # its last words
+        read = spoken[:encoding.offsets[max_length - 1][1]].split()[-5:]  # its last words
         warnings.warn(f"the prompt is {len(encoding.ids)} tokens long and the model reads only "
                       f"{max_length}: everything after {short(' '.join(read))} is ignored "
                       "(play the parts one after another instead)", PromptWarning,

@@ -18,6 +18,7 @@ import numpy as np
 from tokenizers import Tokenizer
 
 from mogo._session import NamedGraph
+from mogo.align_words import spoken_numbers
 from mogo.arguments import UnfamiliarPromptWarning, checked_prompt, read_prompt, word_reading
 from mogo.bundle import Bundle, BundleError
 from mogo.repertoire import Familiarity, KnownCaptions
@@ -75,7 +76,9 @@ class TextSide:
         """Every output of the text graph for one prompt (batch of 1), the prompt embedding by
         the encoder trained with the model where the bundle has it and it reads the whole
         prompt (every word, nothing cut at its length); cached, since a prompt is encoded for
-        its repertoire check and again for its tokens."""
+        its repertoire check and again for its tokens. Numbers are read as the captions
+        spell them (mogo.align_words.spoken_numbers)."""
+        text = spoken_numbers(text)
         outputs = _run(self._graph, self.tokenizer.encode(text))
         if self._trained is not None:
             tokenizer, graph = self._trained

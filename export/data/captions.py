@@ -9,13 +9,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from mogo.align import conjugate  # shared with prompt alignment
+from mogo.align_words import spoken_number
 from mogo.export.data.animator import Segment
 from mogo.export.data.caption_templates import (JOINERS, POOLS, SUBJECTS, TEMPLATES, Sentence,
                                                 Template)
 
-_NUMBERS = ("zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine",
-            "ten", "eleven", "twelve", "thirteen", "fourteen", "fifteen", "sixteen",
-            "seventeen", "eighteen", "nineteen", "twenty")
 _VERB = re.compile(r"<(\w+)>")
 _REPETITION_NOUNS = {"jump": "jump", "squat": "squat", "clap": "clap", "punch": "punch",
                      "jumping_jacks": "jumping jack"}
@@ -23,7 +21,8 @@ _GAITS = {"walk": ("walk", "steps"), "jog": ("jog", "strides"), "run": ("run", "
 
 
 def number_word(n: int) -> str:
-    return _NUMBERS[n] if 0 <= n < len(_NUMBERS) else str(n)
+    """Counts up to twenty in words, larger ones in digits."""
+    return spoken_number(n) if 0 <= n <= 20 else str(n)
 
 
 def times_word(n: int) -> str:
@@ -53,14 +52,11 @@ def _turn_size(degrees: float) -> tuple[list[str], list[str]]:
     rounded to the nearest eighth of a circle ("about" when that rounding is coarse)."""
     eighths = max(1, round(abs(degrees) / 45))
     about = "about " if abs(abs(degrees) - 45 * eighths) > 10 else ""
-    words = {1: "forty-five", 2: "ninety", 3: "a hundred and thirty-five",
-             4: "a hundred and eighty", 5: "two hundred and twenty-five",
-             6: "two hundred and seventy", 7: "three hundred and fifteen",
-             8: "three hundred and sixty"}
     fractions = {1: ["a slight", "an eighth of a"], 2: ["a quarter", "a ninety-degree"],
                  3: ["a three-eighths"], 4: ["a half", "a half-circle"], 5: ["a five-eighths"],
                  6: ["a three-quarter"], 7: ["an almost full"], 8: ["a full"]}
-    amounts = [f"{about}{words.get(eighths, str(45 * eighths))} degrees"]
+    amount = spoken_number(45 * eighths) if eighths <= 8 else str(45 * eighths)
+    amounts = [f"{about}{amount} degrees"]
     if eighths == 2:
         amounts.append(f"{about}a quarter of a circle")
     if eighths == 4:

@@ -7,6 +7,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import pytest
 
 from mogo.align import AlignedStep, Alignment, RuleAligner, edit_distance, plain_words
+from mogo.align_words import spoken_number, spoken_numbers
 from mogo.cli import main
 from mogo.generator import MotionGenerator
 from mogo.llm_align import LLMAligner
@@ -83,6 +84,8 @@ RULES_TABLE = [
     ("star jumps x4", ["a person does jumping jacks four times."]),
     # numbers
     ("wave 3 times", ["a person waves three times."]),
+    ("turn 90 degrees to the left", ["a person turns ninety degrees to the left."]),
+    ("clap 15 times", ["a person claps fifteen times."]),
     ("clap twice", ["a person claps twice."]),
     ("punch one time with your left fist", ["a person punches once with their left fist."]),
     ("kick with the right leg 2x", ["a person kicks with the right leg twice."]),
@@ -325,3 +328,14 @@ def test_cli_align_llm_falls_back_and_says_why(server, tmp_path, capsys, monkeyp
     assert "note: the LLM server answered HTTP 500; used the rules" in printed
     assert main(["generate", "--prompts-file", str(tmp_path / "x"), "--align", "rules"]) == 2
     assert "--align rewrites one prompt" in capsys.readouterr().err
+
+
+def test_numbers_are_spelt_as_the_captions_spell_them():
+    assert [spoken_number(n) for n in (0, 13, 20, 45, 99, 100, 135, 360, 999, 1000, -1)] == [
+        "zero", "thirteen", "twenty", "forty-five", "ninety-nine", "a hundred",
+        "a hundred and thirty-five", "three hundred and sixty", "nine hundred and ninety-nine",
+        "1000", "-1"]
+    assert spoken_numbers("turn 90 degrees, clap 2 times, wave 1 time, jump 3 times") == (
+        "turn ninety degrees, clap twice, wave once, jump three times")
+    for kept in ("walk for 2.5 seconds", "jump 12x", "the v2 model", "1,000 steps"):
+        assert spoken_numbers(kept) == kept
