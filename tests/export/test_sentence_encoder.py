@@ -14,7 +14,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from mogo.export.models.sentence_encoder import Adapter, mean_pool, read_safetensors
-from mogo.export.onnx.text_bundle import calibrate, medoids
+from mogo.export.onnx.text_bundle import calibrate, medoids, own_captions
 from mogo.export.onnx.text_graph import export_sentence_text_graph
 
 HIDDEN = 8
@@ -103,6 +103,17 @@ def test_the_committed_wordnet_table_is_the_generators_output(tmp_path):
     assert "crouch" not in sum(table.values(), [])  # its first sense is stoop, and hand-written
 
 
+@pytest.mark.skipif(not Path("/usr/share/wordnet/data.noun").is_file(),
+                    reason="WordNet (Debian wordnet-base) is not installed")
+def test_the_committed_people_are_the_generators_output():
+    from mogo.export.data.wordnet_people import ADJECTIVES, PEOPLE
+    from mogo.export.data.wordnet_synonyms import people
+
+    assert people(Path("/usr/share/wordnet")) == (list(PEOPLE), list(ADJECTIVES))
+    assert {"dancer", "soldier", "nurse"} <= set(PEOPLE) and "old" in ADJECTIVES
+    assert "american" not in PEOPLE  # proper nouns are left out
+
+
 def test_the_adapter_trains_in_the_loop_and_keeps_its_best(tmp_path, one_torch_thread):
     """`mogo train text` on a run whose captions are already embedded (random stand-ins: the
     real ones need MiniLM's wheels): the loop runs, validates and keeps best.pt."""
@@ -117,6 +128,7 @@ def test_the_adapter_trains_in_the_loop_and_keeps_its_best(tmp_path, one_torch_t
         arrays[f"{split}_sentence"] = sentence / np.linalg.norm(sentence, axis=1, keepdims=True)
         arrays[f"{split}_target"] = (sentence @ rng.normal(size=(12, 4))).astype(np.float32)
         arrays[f"{split}_text"] = np.array([f"caption {k}" for k in range(n)])
+        arrays[f"{split}_variant"] = np.arange(n) >= n // 2
     run = tmp_path / "run"
     run.mkdir()
     np.savez(run / CAPTIONS, **arrays)
@@ -127,3 +139,21 @@ def test_the_adapter_trains_in_the_loop_and_keeps_its_best(tmp_path, one_torch_t
     best = load_checkpoint(run / "best.pt")
     assert best["config"]["in_dim"] == 12 and best["config"]["out_dim"] == 4
     assert best["best_val_error"] < 1.5
+    assert set(best["val"]) == {"error", "caption_error", "variant_error", "cosine"}
+    own_texts, _ = own_captions(np.load(run / CAPTIONS), "val")  # what the repertoire sees
+    assert list(own_texts) == [f"caption {k}" for k in range(8)]
+
+
+def test_captions_get_variants_with_other_people_as_their_subject():
+    from mogo.export.data.wordnet_people import PEOPLE
+    from mogo.export.train.train_text import other_subjects
+
+    captions = ["a person walks forward.", "someone claps twice.", "personally, nothing.",
+                "the person waves, then a person sits."]
+    variants, source = other_subjects(captions, np.random.default_rng(0))
+    assert list(source) == [0, 1, 3]
+    rests = ["walks forward.", "claps twice.", "waves, then a person sits."]
+    for variant, rest in zip(variants, rests):
+        words = variant[:-len(rest)].split()  # the new subject
+        assert variant.endswith(" " + rest) and words[0] in ("a", "an", "the", "my")
+        assert words[-1] in PEOPLE and len(words) in (2, 3)  # an adjective, maybe
