@@ -1,5 +1,7 @@
 """Verbs by the primitive they ask for, from WordNet 3.0 (generated: do not edit).
-Regenerate with `python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py --people-out export/data/wordnet_people.py`
+Regenerate with
+`python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py \
+    --people-out export/data/wordnet_people.py`
 (mogo.export.data.wordnet_synonyms says how)."""
 # WordNet Release 3.0. This software and database is being provided to you, the LICENSEE,
 # by Princeton University under the following license. By obtaining, using and/or copying

@@ -1,6 +1,7 @@
 """Kinds of people and adjectives, from WordNet 3.0 (generated: do not edit); the text
-adapter's training puts them in its captions' subjects.
-Regenerate with `python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py --people-out export/data/wordnet_people.py`
+adapter's training puts them in its captions' subjects. Regenerate with
+`python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py \
+    --people-out export/data/wordnet_people.py`
 (mogo.export.data.wordnet_synonyms says how)."""
 # WordNet Release 3.0. This software and database is being provided to you, the LICENSEE,
 # by Princeton University under the following license. By obtaining, using and/or copying

@@ -150,7 +150,7 @@ def _tagged(index: Path, more_than: int) -> dict[str, list[str]]:
 def render_people(nouns: list[str], adjectives: list[str], command: str) -> str:
     notice = "\n".join("# " + line for line in NOTICE.splitlines())
     return (f'"""Kinds of people and adjectives, from WordNet 3.0 (generated: do not edit); the '
-            f"text\nadapter's training puts them in its captions' subjects.\nRegenerate with "
+            f"text\nadapter's training puts them in its captions' subjects. Regenerate with\n"
             f"`{command}`\n(mogo.export.data.wordnet_synonyms says how)."
             f'"""\n{notice}\n\nPEOPLE = {tuple(nouns)!r}\nADJECTIVES = {tuple(adjectives)!r}\n')
 
@@ -159,7 +159,7 @@ def render(table: dict[str, list[str]], command: str) -> str:
     notice = "\n".join("# " + line for line in NOTICE.splitlines())
     rows = "\n".join(f"    {primitive!r}: {tuple(verbs)!r}," for primitive, verbs in table.items())
     return (f'"""Verbs by the primitive they ask for, from WordNet 3.0 (generated: do not edit).\n'
-            f"Regenerate with `{command}`\n(mogo.export.data.wordnet_synonyms says how)."
+            f"Regenerate with\n`{command}`\n(mogo.export.data.wordnet_synonyms says how)."
             f'"""\n{notice}\n\nWORDNET_VERBS = {{\n{rows}\n}}\n')
 
 
@@ -173,8 +173,8 @@ def main() -> None:
     args = parser.parse_args()
     hand_written = {verb for verbs in VERBS.values() for verb in verbs}
     table = verb_table(args.wordnet, hand_written)
-    command = ("python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py "
-               "--people-out export/data/wordnet_people.py")
+    command = ("python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py \\\n"
+               "    --people-out export/data/wordnet_people.py")
     nouns, adjectives = people(args.wordnet)
     args.out.write_text(render(table, command))
     args.people_out.write_text(render_people(nouns, adjectives, command))
