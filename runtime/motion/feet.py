@@ -128,7 +128,7 @@ class FootPlanter:
     def push(self, features: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows in, the rows now final out: (features, joints float32) with the feet planted."""
         if not len(features):  # no row in, none out (the last push kept just the lookahead):
-            # a served stream pushes nothing on 7 of every 8 token steps
+            # a stream pushes nothing on 7 of every 8 token steps
             return self._features[:0], np.zeros((0, *self._joints.shape[1:]), np.float32)
         self._buffer(features, joints)
         return self._clean(max(0, len(self._joints) - LOOKAHEAD))

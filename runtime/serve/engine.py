@@ -51,10 +51,14 @@ class ServedStream:
         self.feet = FootPlanter(g.skeleton) if plant_feet else None
         self.start_tick, self.extra = start_tick, 0
         self.frames_sent = 0
+        self.no_frames = np.zeros((0, g.skeleton.num_joints, 3), np.float32)
 
     def push(self, row: np.ndarray, bundle) -> np.ndarray:
         """The frames (n, J, 3) that the new token step made final."""
-        features = self.decoder.push(row[None]) * bundle.std + bundle.mean
+        features = self.decoder.push(row[None])
+        if not len(features):  # 7 of every 8 steps: nothing decoded, nothing to move on
+            return self.no_frames
+        features = features * bundle.std + bundle.mean
         joints = self.joints.push(features)
         if self.feet is not None:
             features, joints = self.feet.push(features, joints)
@@ -164,10 +168,20 @@ class Engine:
         return self._step(due[:half]) + other.result()
 
     def _step(self, due: list[ServedStream]) -> list[tuple]:
-        out = []
-        for stream, row in zip(due, self.stepper.step([s.tokens for s in due])):
+        bundle, made = self.generator.bundle, []
+        batched = [s for s in due if s.tokens.solo is None]
+        for stream in (s for s in due if s.tokens.solo is not None):
+            made.append((stream, stream.frames_sent, self._solo_steps(stream)))
+        for stream, row in zip(batched, self.stepper.step([s.tokens for s in batched])):
             first = stream.frames_sent
-            joints = stream.push(row, self.generator.bundle)
-            if len(joints):
-                out.append((stream, first, joints))
-        return out
+            made.append((stream, first, stream.push(row, bundle)))
+        return [(stream, first, joints) for stream, first, joints in made if len(joints)]
+
+    def _solo_steps(self, stream: ServedStream) -> np.ndarray:
+        """All of a new stream's solo steps (mogo.serve.stepper) in one go: they share no call,
+        so its first frame waits on no other round (its clock asks for them all at once: the
+        lead is more than the solo steps)."""
+        joints = [stream.no_frames]
+        while stream.tokens.solo is not None:
+            joints.append(stream.push(stream.tokens.step_solo(), self.generator.bundle))
+        return np.concatenate(joints)
