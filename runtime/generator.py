@@ -21,6 +21,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
+import onnxruntime as ort
 
 from mogo._session import NamedGraph, graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
@@ -256,9 +257,11 @@ class MotionGenerator:
         return MotionStream(self, self._prompt(text), seed, sampling, window,
                             checked_bool(plant_feet, "plant_feet"), anchoring)
 
-    def streaming_decoder(self) -> StreamingDecoder:
+    def streaming_decoder(self, session: ort.InferenceSession | None = None
+                          ) -> StreamingDecoder:
+        """`session`: another session of the bundle's decoder graph (None: this generator's)."""
         d = self._decoder
-        return StreamingDecoder(self._decoder_session, d.left_context, d.lookahead,
+        return StreamingDecoder(session or self._decoder_session, d.left_context, d.lookahead,
                                 self.codebook_size, ids_name=d.inputs[0],
                                 features_name=d.outputs[0], every=STREAM_DECODE_EVERY)
 

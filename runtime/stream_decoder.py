@@ -17,6 +17,7 @@ that factor is read off each decode (output length / input length), so any facto
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 
 import numpy as np
 import onnxruntime as ort
@@ -58,6 +59,7 @@ class StreamingDecoder:
         self._start = 0  # stream index of self._tokens[0]
         self.pushed = 0  # tokens pushed so far
         self.emitted = 0  # tokens whose frames were returned
+        self._ready = 0  # tokens whose frames the window `feed` returned makes final
 
     @property
     def buffered_tokens(self) -> int:
@@ -66,13 +68,34 @@ class StreamingDecoder:
 
     def push(self, ids: np.ndarray) -> np.ndarray:
         """Append ids (n, L); return the frames (frames, D) that became final, maybe none."""
+        window = self.feed(ids)
+        return self._none() if window is None else self.take(self._decode(window))
+
+    def feed(self, ids: np.ndarray) -> np.ndarray | None:
+        """`push` up to the decode: append ids (n, L) and return the window (tokens, L) to
+        decode now, or None. Its decode goes to `take`: so a caller can decode the windows of
+        many streams in one call (`push_many`)."""
         ids = self._checked(ids)
         self._tokens = np.concatenate([self._tokens, ids])
         self.pushed += len(ids)
         ready = self.pushed - self.lookahead
-        if self.emitted and ready - self.emitted < self.every:
-            return np.zeros((0, self.feature_dim), np.float32)
-        return self._emit(ready)
+        if ready <= self.emitted or (self.emitted and ready - self.emitted < self.every):
+            return None
+        self._ready = ready
+        return self._tokens
+
+    def take(self, features: np.ndarray) -> np.ndarray:
+        """`push` after the decode: the frames (frames, D) that became final, from the decode
+        (window frames, D) of the window `feed` returned."""
+        ready = self._ready
+        frames_per_token = len(features) // len(self._tokens)
+        first = (self.emitted - self._start) * frames_per_token
+        frames = features[first:first + (ready - self.emitted) * frames_per_token]
+        self.emitted = ready
+        keep_from = max(0, ready - self.left_context)
+        self._tokens = self._tokens[keep_from - self._start:]
+        self._start = keep_from
+        return frames
 
     def flush(self, context: np.ndarray | None = None) -> np.ndarray:
         """End the stream: return its remaining frames and get ready for a new stream.
@@ -96,25 +119,25 @@ class StreamingDecoder:
         needs. The buffer always starts at the first emitted token's left context, so it is
         exactly the window to decode."""
         if ready <= self.emitted:
-            return np.zeros((0, self.feature_dim), np.float32)
-        features = self._decode(self._tokens)
-        frames_per_token = len(features) // len(self._tokens)
-        first = (self.emitted - self._start) * frames_per_token
-        frames = features[first:first + (ready - self.emitted) * frames_per_token]
-        self.emitted = ready
-        keep_from = max(0, ready - self.left_context)
-        self._tokens = self._tokens[keep_from - self._start:]
-        self._start = keep_from
-        return frames
+            return self._none()
+        self._ready = ready
+        return self.take(self._decode(self._tokens))
+
+    def _none(self) -> np.ndarray:
+        return np.zeros((0, self.feature_dim), np.float32)
 
     def _decode(self, ids: np.ndarray) -> np.ndarray:
         if len(ids) == 0:
-            return np.zeros((0, self.feature_dim), np.float32)
-        (features,) = self.session.run([self.features_name], {self.ids_name: ids[None]})
-        if features.shape[1] % len(ids):
-            raise ValueError(f"the decoder made {features.shape[1]} frames from {len(ids)} "
-                             "tokens, not a whole number per token")
-        return features[0]
+            return self._none()
+        return self._decode_windows(ids[None])[0]
+
+    def _decode_windows(self, windows: np.ndarray) -> np.ndarray:
+        """Windows (B, tokens, L) -> features (B, frames, D), one call."""
+        (features,) = self.session.run([self.features_name], {self.ids_name: windows})
+        if features.shape[1] % windows.shape[1]:
+            raise ValueError(f"the decoder made {features.shape[1]} frames from "
+                             f"{windows.shape[1]} tokens, not a whole number per token")
+        return features
 
     def _checked(self, ids: np.ndarray) -> np.ndarray:
         ids = np.asarray(ids)
@@ -126,6 +149,28 @@ class StreamingDecoder:
             raise ValueError(f"token ids must lie in [0, {self.codebook_size}), got "
                              f"[{ids.min()}, {ids.max()}]")
         return ids.astype(np.int64)
+
+
+def push_many(decoders: Sequence[StreamingDecoder], ids: Sequence[np.ndarray]
+              ) -> list[np.ndarray]:
+    """[decoder.push(i) for each decoder and its ids], the windows due decoded in one call per
+    window length (decoders of one session): the decoder's convolutions keep batch rows
+    apart, so each gets the frames of its own push (to a float rounding at most). Streams in
+    step share their window length (left context, `every` new tokens, lookahead)."""
+    windows = [decoder.feed(i) for decoder, i in zip(decoders, ids)]
+    by_length: dict[int, list[int]] = {}
+    for k, window in enumerate(windows):
+        if window is not None:
+            by_length.setdefault(len(window), []).append(k)
+    frames = [decoder._none() for decoder in decoders]
+    for ks in by_length.values():
+        first = decoders[ks[0]]
+        if any(decoders[k].session is not first.session for k in ks):
+            raise ValueError("push_many needs decoders that share one session")
+        decoded = first._decode_windows(np.stack([windows[k] for k in ks]))
+        for k, features in zip(ks, decoded):
+            frames[k] = decoders[k].take(features)
+    return frames
 
 
 def _static_last_dim(args: list[ort.NodeArg], name: str) -> int:

@@ -43,7 +43,7 @@ WARM_CLIENTS = 4
 PARTS = {  # the parts of a served stream step (--profile): the function whose time is each
     "level graphs (onnxruntime)": ("token_generator.py", "run"),
     "sampling": ("sampling.py", "choose_tokens"),
-    "VQ decoder (onnxruntime)": ("stream_decoder.py", "_decode"),
+    "VQ decoder (onnxruntime)": ("stream_decoder.py", "_decode_windows"),
     "joints from features": ("motion/features.py", "push"),
     "foot planting": ("motion/feet.py", "push"),
 }

@@ -20,6 +20,7 @@ from collections import Counter, OrderedDict
 
 import numpy as np
 
+from mogo._session import graph_session
 from mogo.generator import MotionGenerator
 from mogo.motion.features import JointStream
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
@@ -27,6 +28,7 @@ from mogo.motion.feet import FootPlanter
 from mogo.serve.newslot import newslot_graph
 from mogo.serve.rowwise import rowwise_graph
 from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
+from mogo.stream_decoder import push_many
 from mogo.token_generator import TokenGenerator
 
 ALIGN_STEPS = 24  # extra steps a stream may take to join a larger group (1.2 s more lead)
@@ -46,7 +48,7 @@ class ServedStream:
         self.prompt, self.seed = prompt, seed
         self.tokens: BatchedStream = engine.stepper.start(engine.embedding(prompt), seed,
                                                           sampling)
-        self.decoder = g.streaming_decoder()
+        self.decoder = g.streaming_decoder(engine.decoder_session)
         self.joints = JointStream(g.skeleton)
         self.feet = FootPlanter(g.skeleton) if plant_feet else None
         self.start_tick, self.extra = start_tick, 0
@@ -55,7 +57,10 @@ class ServedStream:
 
     def push(self, row: np.ndarray, bundle) -> np.ndarray:
         """The frames (n, J, 3) that the new token step made final."""
-        features = self.decoder.push(row[None])
+        return self.move(self.decoder.push(row[None]), bundle)
+
+    def move(self, features: np.ndarray, bundle) -> np.ndarray:
+        """The frames (n, J, 3) of decoded features (n, D), normalised, made final."""
         if not len(features):  # 7 of every 8 steps: nothing decoded, nothing to move on
             return self.no_frames
         features = features * bundle.std + bundle.mean
@@ -85,6 +90,9 @@ class Engine:
             raise ValueError("mogo serve needs a bundle with a KV window (defaults.window)")
         self.fps = generator.fps
         decoder = manifest.vq.decoder
+        # one thread a call: the shards fill the cores, and a second intra-op thread measured
+        # ~30% more CPU a decode for no gain in time (the same features)
+        self.decoder_session = graph_session(generator.bundle.path(decoder.file), decoder, 1)
         first_frame = decoder.lookahead + 1 + math.ceil(FEET_LOOKAHEAD / generator.down_factor)
         self.lead = first_frame + 2 * generator.streaming_decoder().every
         self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"],
@@ -172,9 +180,12 @@ class Engine:
         batched = [s for s in due if s.tokens.solo is None]
         for stream in (s for s in due if s.tokens.solo is not None):
             made.append((stream, stream.frames_sent, self._solo_steps(stream)))
-        for stream, row in zip(batched, self.stepper.step([s.tokens for s in batched])):
+        rows = self.stepper.step([s.tokens for s in batched])
+        # the windows due decoded in one call (streams in step share their window length)
+        decoded = push_many([s.decoder for s in batched], [row[None] for row in rows])
+        for stream, features in zip(batched, decoded):
             first = stream.frames_sent
-            made.append((stream, first, stream.push(row, bundle)))
+            made.append((stream, first, stream.move(features, bundle)))
         return [(stream, first, joints) for stream, first, joints in made if len(joints)]
 
     def _solo_steps(self, stream: ServedStream) -> np.ndarray:

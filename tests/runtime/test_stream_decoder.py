@@ -10,7 +10,7 @@ import onnxruntime as ort
 import pytest
 
 from mogo import DEFAULT_BUNDLE, MotionGenerator
-from mogo.stream_decoder import StreamingDecoder
+from mogo.stream_decoder import StreamingDecoder, push_many
 
 # the receptive field as the manifest states it (the lengths below are chosen around it)
 DECODER = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())["vq"]["decoder"]
@@ -120,6 +120,33 @@ def test_flush_starts_a_new_stream(shipped):
     assert d.pushed == d.emitted == d.buffered_tokens == 0
     second = np.concatenate(streamed(d, ids, 4))
     np.testing.assert_array_equal(first, second)
+
+
+def test_push_many_gives_each_decoder_the_frames_of_its_own_push(shipped):
+    """Streams of different ages pushed together, a token each a step: their windows (none
+    due, first ones, bursts, full windows) decoded one call per length give each the frames
+    of its own push."""
+    starts = [0, 0, 3, 9, LOOKAHEAD + 2, 40]
+    together = [decoder(shipped, every=8) for _ in starts]
+    alone = [decoder(shipped, every=8) for _ in starts]
+    ids = [random_ids(shipped, 100, seed=k) for k in range(len(starts))]
+    made = 0
+    for step in range(100):
+        live = [k for k, start in enumerate(starts) if start <= step]
+        rows = [ids[k][step - starts[k]][None] for k in live]
+        got = push_many([together[k] for k in live], rows)
+        for k, row, frames in zip(live, rows, got):
+            expected = alone[k].push(row)
+            np.testing.assert_allclose(frames, expected, rtol=0, atol=1e-6)
+            made += len(frames)
+    assert made > 300
+
+
+def test_push_many_needs_one_session(shipped):
+    other = StreamingDecoder(WindowDecoder(LEFT, LOOKAHEAD, 1), LEFT, LOOKAHEAD, 7)
+    ids = [random_ids(shipped, LOOKAHEAD + 1), np.zeros((LOOKAHEAD + 1, 2), np.int64)]
+    with pytest.raises(ValueError, match="share one session"):
+        push_many([decoder(shipped), other], ids)
 
 
 def test_the_stated_receptive_field_holds(shipped):
