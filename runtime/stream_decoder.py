@@ -84,12 +84,13 @@ class StreamingDecoder:
         self._ready = ready
         return self._tokens
 
-    def take(self, features: np.ndarray) -> np.ndarray:
+    def take(self, features: np.ndarray, cut: int = 0) -> np.ndarray:
         """`push` after the decode: the frames (frames, D) that became final, from the decode
-        (window frames, D) of the window `feed` returned."""
+        (frames, D) of the window `feed` returned, less `cut` tokens at each end (see
+        `push_many`)."""
         ready = self._ready
-        frames_per_token = len(features) // len(self._tokens)
-        first = (self.emitted - self._start) * frames_per_token
+        frames_per_token = len(features) // (len(self._tokens) - 2 * cut)
+        first = (self.emitted - self._start - cut) * frames_per_token
         frames = features[first:first + (ready - self.emitted) * frames_per_token]
         self.emitted = ready
         keep_from = max(0, ready - self.left_context)
@@ -131,12 +132,16 @@ class StreamingDecoder:
             return self._none()
         return self._decode_windows(ids[None])[0]
 
-    def _decode_windows(self, windows: np.ndarray) -> np.ndarray:
-        """Windows (B, tokens, L) -> features (B, frames, D), one call."""
-        (features,) = self.session.run([self.features_name], {self.ids_name: windows})
-        if features.shape[1] % windows.shape[1]:
-            raise ValueError(f"the decoder made {features.shape[1]} frames from "
-                             f"{windows.shape[1]} tokens, not a whole number per token")
+    def _decode_windows(self, windows: np.ndarray, session: ort.InferenceSession | None = None,
+                        cut: int = 0) -> np.ndarray:
+        """Windows (B, tokens, L) -> features (B, frames, D), one call; `session` decodes the
+        windows less `cut` tokens at each end (see `push_many`)."""
+        session = session or self.session
+        (features,) = session.run([self.features_name], {self.ids_name: windows})
+        tokens = windows.shape[1] - 2 * cut
+        if features.shape[1] % tokens:
+            raise ValueError(f"the decoder made {features.shape[1]} frames from {tokens} "
+                             "tokens, not a whole number per token")
         return features
 
     def _checked(self, ids: np.ndarray) -> np.ndarray:
@@ -151,25 +156,32 @@ class StreamingDecoder:
         return ids.astype(np.int64)
 
 
-def push_many(decoders: Sequence[StreamingDecoder], ids: Sequence[np.ndarray]
-              ) -> list[np.ndarray]:
+def push_many(decoders: Sequence[StreamingDecoder], ids: Sequence[np.ndarray],
+              interior: tuple[ort.InferenceSession, int] | None = None) -> list[np.ndarray]:
     """[decoder.push(i) for each decoder and its ids], the windows due decoded in one call per
     window length (decoders of one session): the decoder's convolutions keep batch rows
-    apart, so each gets the frames of its own push (to a float rounding at most). Streams in
-    step share their window length (left context, `every` new tokens, lookahead)."""
+    apart, so each gets the frames of its own push. Streams in step share their window length
+    (left context, `every` new tokens, lookahead). `interior`: (a session of the decoder
+    graph that decodes a window less `cut` tokens at each end, cut) (mogo.serve.interior),
+    for the windows whose new tokens lie `cut` tokens or more from both ends: every window of
+    a stream past its first left context (the same frames to a float rounding)."""
     windows = [decoder.feed(i) for decoder, i in zip(decoders, ids)]
-    by_length: dict[int, list[int]] = {}
-    for k, window in enumerate(windows):
+    groups: dict[tuple[int, int], list[int]] = {}
+    for k, (decoder, window) in enumerate(zip(decoders, windows)):
         if window is not None:
-            by_length.setdefault(len(window), []).append(k)
+            cut = 0 if interior is None else interior[1]
+            if decoder.emitted - decoder._start < cut or decoder.lookahead < cut:
+                cut = 0
+            groups.setdefault((len(window), cut), []).append(k)
     frames = [decoder._none() for decoder in decoders]
-    for ks in by_length.values():
+    for (_, cut), ks in groups.items():
         first = decoders[ks[0]]
         if any(decoders[k].session is not first.session for k in ks):
             raise ValueError("push_many needs decoders that share one session")
-        decoded = first._decode_windows(np.stack([windows[k] for k in ks]))
+        decoded = first._decode_windows(np.stack([windows[k] for k in ks]),
+                                        interior[0] if cut else None, cut)
         for k, features in zip(ks, decoded):
-            frames[k] = decoders[k].take(features)
+            frames[k] = decoders[k].take(features, cut)
     return frames
 
 

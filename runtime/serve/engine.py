@@ -17,6 +17,7 @@ import itertools
 import math
 from concurrent.futures import ThreadPoolExecutor
 from collections import Counter, OrderedDict
+from pathlib import Path
 
 import numpy as np
 
@@ -25,6 +26,7 @@ from mogo.generator import MotionGenerator
 from mogo.motion.features import JointStream
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.motion.feet import FootPlanter
+from mogo.serve.interior import interior_graph
 from mogo.serve.newslot import newslot_graph
 from mogo.serve.rowwise import rowwise_graph
 from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
@@ -92,7 +94,10 @@ class Engine:
         decoder = manifest.vq.decoder
         # one thread a call: the shards fill the cores, and a second intra-op thread measured
         # ~30% more CPU a decode for no gain in time (the same features)
-        self.decoder_session = graph_session(generator.bundle.path(decoder.file), decoder, 1)
+        path = generator.bundle.path(decoder.file)
+        self.decoder_session = graph_session(path, decoder, 1)
+        data, cut = interior_graph(Path(path).read_bytes())  # full windows: ~half the CPU
+        self.interior = graph_session(data, decoder, 1), cut
         first_frame = decoder.lookahead + 1 + math.ceil(FEET_LOOKAHEAD / generator.down_factor)
         self.lead = first_frame + 2 * generator.streaming_decoder().every
         self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"],
@@ -182,7 +187,8 @@ class Engine:
             made.append((stream, stream.frames_sent, self._solo_steps(stream)))
         rows = self.stepper.step([s.tokens for s in batched])
         # the windows due decoded in one call (streams in step share their window length)
-        decoded = push_many([s.decoder for s in batched], [row[None] for row in rows])
+        decoded = push_many([s.decoder for s in batched], [row[None] for row in rows],
+                            self.interior)
         for stream, features in zip(batched, decoded):
             first = stream.frames_sent
             made.append((stream, first, stream.move(features, bundle)))

@@ -1,6 +1,7 @@
 """The engine's VQ decoding: the windows of streams due on one round are decoded in one
-batched call (mogo.stream_decoder.push_many), and every stream gets the frames its own
-per-stream decoder gives."""
+batched call (mogo.stream_decoder.push_many), full windows by the unpadded decoder
+(mogo.serve.interior), and every stream gets the frames its own per-stream decoder gives
+(to a float rounding: the interior's matrix products are narrower)."""
 import numpy as np
 import pytest
 
@@ -36,19 +37,19 @@ def test_batched_decoding_gives_each_stream_its_own_decoders_frames(generator, e
     sizes = []
     decode = StreamingDecoder._decode_windows
 
-    def counted(self, windows):
+    def counted(self, windows, *args):
         sizes.append(len(windows))
-        return decode(self, windows)
+        return decode(self, windows, *args)
 
     monkeypatch.setattr(StreamingDecoder, "_decode_windows", counted)
     batched = play(generator, engine_parts)
     assert max(sizes) >= 3  # windows of several streams went in one call
-    monkeypatch.setattr(engine_module, "push_many",
-                        lambda decoders, ids: [d.push(i) for d, i in zip(decoders, ids)])
+    monkeypatch.setattr(engine_module, "push_many", lambda decoders, ids, interior: [
+        d.push(i) for d, i in zip(decoders, ids)])
     sizes.clear()
     alone = play(generator, engine_parts)
     assert max(sizes) == 1
     assert batched.keys() == alone.keys()
     for k in batched:
         assert len(batched[k]) == len(alone[k]) > 100
-        np.testing.assert_allclose(batched[k], alone[k], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(batched[k], alone[k], rtol=0, atol=1e-5)
