@@ -9,10 +9,12 @@ positions go through every layer. `interior_graph` drops the padding: a convolut
 dilation d then returns its input's length less 2d, the residual branches are cut to the
 length of what they are added to, and the graph returns the frames of the tokens between the
 left context and the lookahead. Each of those frames is the same dot products over the same
-inputs as before (to a float rounding at most: the matrix products are narrower); the
-shipped decoder does about 40% of the multiplications. It needs a receptive field as wide on
-both sides (a non-causal decoder: padding p on each side of each convolution), and the
-`onnx` package (the serve extra). The bundle on disk is not changed.
+inputs as before (to a float rounding at most: the matrix products are narrower); a window
+of the shipped decoder takes about 40% of the multiplications. Only a window whose new
+tokens lie a receptive field from both its ends may go through it (mogo.stream_decoder's
+push_many chooses). It needs a receptive field as wide on both sides (a non-causal decoder:
+padding p on each side of each convolution), and the `onnx` package (the serve extra). The
+bundle on disk is not changed.
 """
 from __future__ import annotations
 
