@@ -96,8 +96,11 @@ class Engine:
         # ~30% more CPU a decode for no gain in time (the same features)
         path = generator.bundle.path(decoder.file)
         self.decoder_session = graph_session(path, decoder, 1)
-        data, cut = interior_graph(Path(path).read_bytes())  # full windows: ~half the CPU
-        self.interior = graph_session(data, decoder, 1), cut
+        try:  # full windows: ~half the CPU
+            data, cut = interior_graph(Path(path).read_bytes())
+            self.interior = graph_session(data, decoder, 1), cut
+        except ValueError:  # a decoder it cannot cut (upsampling, ...): whole windows
+            self.interior = None
         first_frame = decoder.lookahead + 1 + math.ceil(FEET_LOOKAHEAD / generator.down_factor)
         self.lead = first_frame + 2 * generator.streaming_decoder().every
         self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"],

@@ -23,10 +23,16 @@ import onnx
 from onnx import helper, numpy_helper
 
 
+# ops that keep every time position where it is (what lies between the convolutions)
+POSITIONWISE = {"Add", "Sub", "Mul", "Div", "Relu", "LeakyRelu", "Gelu", "Sigmoid", "Tanh",
+                "Cast", "Identity", "Gather", "ReduceSum", "Transpose"}
+
+
 def interior_graph(data: bytes) -> tuple[bytes, int]:
     """(the serialised decoder graph `data` with unpadded convolutions, the tokens it drops
-    on each side); ValueError for a graph whose padding is not symmetric or whose branches
-    are joined by anything but Add."""
+    on each side); ValueError for a graph it cannot cut: padding that is not the same on both
+    sides or does not keep the length, strides, branches joined by anything but Add, any
+    other op on the time path (an upsampling among them: tokens and frames would differ)."""
     model = onnx.load_from_string(data)
     graph = model.graph
     crop = {value.name: 0 for value in graph.input}  # positions lost on each side so far
@@ -37,13 +43,9 @@ def interior_graph(data: bytes) -> tuple[bytes, int]:
             nodes.append(node)
             continue
         if node.op_type == "Conv":
-            pads = next((list(a.ints) for a in node.attribute if a.name == "pads"), [0, 0])
-            if len(pads) != 2 or pads[0] != pads[1]:
-                raise ValueError(f"{node.name}: padding {pads} is not the same on both sides")
-            for attribute in node.attribute:
-                if attribute.name == "pads":
-                    attribute.ints[:] = [0, 0]
-            crop[node.output[0]] = cropped[0] + pads[0]
+            crop[node.output[0]] = cropped[0] + _unpadded(node)
+        elif node.op_type not in POSITIONWISE:
+            raise ValueError(f"{node.name}: {node.op_type} on the time path")
         elif len(set(cropped)) > 1:
             if node.op_type != "Add":
                 raise ValueError(f"{node.name}: branches of different lengths joined by "
@@ -59,6 +61,24 @@ def interior_graph(data: bytes) -> tuple[bytes, int]:
     for output in graph.output:
         output.type.tensor_type.shape.dim[1].dim_param = "interior_frames"
     return model.SerializeToString(), crop[graph.output[0].name]
+
+
+def _unpadded(conv: onnx.NodeProto) -> int:
+    """Drop a length-keeping convolution's padding in place; the positions it drops on each
+    side."""
+    attributes = {a.name: helper.get_attribute_value(a) for a in conv.attribute}
+    pads, kernel = attributes.get("pads", [0, 0]), attributes.get("kernel_shape", [None])
+    dilation = attributes.get("dilations", [1])[0]
+    if attributes.get("auto_pad", b"NOTSET") != b"NOTSET" or attributes.get("strides", [1]) != [1]:
+        raise ValueError(f"{conv.name}: auto_pad or strides")
+    if len(pads) != 2 or pads[0] != pads[1] or kernel[0] is None \
+            or 2 * pads[0] != dilation * (kernel[0] - 1):
+        raise ValueError(f"{conv.name}: padding {pads} is not the same on both sides or does "
+                         "not keep the length")
+    for attribute in conv.attribute:
+        if attribute.name == "pads":
+            attribute.ints[:] = [0, 0]
+    return pads[0]
 
 
 def _cut_to(add: onnx.NodeProto, crop: dict[str, int], target: int,

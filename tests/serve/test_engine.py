@@ -53,3 +53,18 @@ def test_batched_decoding_gives_each_stream_its_own_decoders_frames(generator, e
     for k in batched:
         assert len(batched[k]) == len(alone[k]) > 100
         np.testing.assert_allclose(batched[k], alone[k], rtol=0, atol=1e-5)
+
+
+def test_a_decoder_the_rewrite_cannot_cut_decodes_whole_windows(generator, engine_parts,
+                                                                 monkeypatch):
+    def refused(data):
+        raise ValueError("an upsampling on the time path")
+
+    monkeypatch.setattr(engine_module, "interior_graph", refused)
+    engine = Engine(generator, 1, tokens=engine_parts)
+    assert engine.interior is None
+    stream = engine.open("a person walks forward", 1, generator.sampling(None), 0.0)
+    frames = []
+    while sum(map(len, frames)) < 120:  # past the first full window
+        frames += [joints for _, _, joints in engine.round([stream])]
+    assert np.isfinite(np.concatenate(frames)).all()

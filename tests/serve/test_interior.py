@@ -1,6 +1,7 @@
 """The unpadded VQ decoder (mogo.serve.interior): a window's interior frames as the exported
 decoder makes them, to a float rounding, in any batch; streams pushed together through it get
-the frames of their own decoders; graphs it cannot cut are refused."""
+the frames of their own decoders; graphs it cannot cut are refused (the engine then decodes
+whole windows)."""
 import numpy as np
 import pytest
 
@@ -51,24 +52,29 @@ def test_streams_pushed_through_it_get_their_own_decoders_frames(generator, inte
     assert all(d.emitted > 2 * d.left_context for d in together[:3])
 
 
-def conv_graph(pads: list[int], join: str) -> bytes:
-    """x -> Conv(pads) -> `join` with x: a residual block as the decoder's."""
+def conv_graph(join: str = "Add", **conv) -> bytes:
+    """x -> Conv -> `join` with x: a residual block as the decoder's."""
+    conv = {"pads": [1, 1], "kernel_shape": [3], **conv}
     weight = helper.make_tensor("w", TensorProto.FLOAT, [1, 1, 3], [1.0, 2.0, 3.0])
-    nodes = [helper.make_node("Conv", ["x", "w"], ["y"], pads=pads, name="conv"),
-             helper.make_node(join, ["x", "y"], ["z"], name="join")]
+    nodes = [helper.make_node("Conv", ["x", "w"], ["y"], name="conv", **conv),
+             helper.make_node(join, ["x", "y"], ["z"], name="join", **(
+                 {"axis": 2} if join == "Concat" else {}))]
     graph = helper.make_graph(
         nodes, "g", [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 1, "t"])],
         [helper.make_tensor_value_info("z", TensorProto.FLOAT, [1, 1, "t"])], [weight])
     return helper.make_model(graph).SerializeToString()
 
 
-def test_graphs_it_cannot_cut_are_refused():
-    data, cut = interior_graph(conv_graph([1, 1], "Add"))
+def test_a_residual_block_is_cut_and_graphs_it_cannot_cut_are_refused():
+    data, cut = interior_graph(conv_graph())
     x = np.arange(7, dtype=np.float32).reshape(1, 1, 7)
-    whole = cpu_session(conv_graph([1, 1], "Add")).run(None, {"x": x})[0]
+    whole = cpu_session(conv_graph()).run(None, {"x": x})[0]
     assert cut == 1
     np.testing.assert_array_equal(cpu_session(data).run(None, {"x": x})[0], whole[..., 1:-1])
-    with pytest.raises(ValueError, match="not the same on both sides"):
-        interior_graph(conv_graph([2, 0], "Add"))
-    with pytest.raises(ValueError, match="joined by Mul, not Add"):
-        interior_graph(conv_graph([1, 1], "Mul"))
+    for graph, message in [(conv_graph(pads=[2, 0]), "not the same on both sides"),
+                           (conv_graph(pads=[2, 2]), "does not keep the length"),
+                           (conv_graph(strides=[2]), "strides"),
+                           (conv_graph("Mul"), "joined by Mul, not Add"),
+                           (conv_graph("Concat"), "Concat on the time path")]:
+        with pytest.raises(ValueError, match=message):
+            interior_graph(graph)
