@@ -17,7 +17,6 @@ import itertools
 import math
 from concurrent.futures import ThreadPoolExecutor
 from collections import Counter, OrderedDict
-from pathlib import Path
 
 import numpy as np
 
@@ -26,7 +25,7 @@ from mogo.generator import MotionGenerator
 from mogo.motion.features import JointStream
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.motion.feet import FootPlanter
-from mogo.serve.interior import interior_graph
+from mogo.serve.interior import interior_session
 from mogo.serve.newslot import newslot_graph
 from mogo.serve.rowwise import rowwise_graph
 from mogo.serve.stepper import COMPACT_EVERY, BatchedStream, Stepper
@@ -96,11 +95,9 @@ class Engine:
         # ~30% more CPU a decode for no gain in time (the same features)
         path = generator.bundle.path(decoder.file)
         self.decoder_session = graph_session(path, decoder, 1)
-        try:  # full windows: ~half the CPU
-            data, cut = interior_graph(Path(path).read_bytes())
-            self.interior = graph_session(data, decoder, 1), cut
-        except ValueError:  # a decoder it cannot cut (upsampling, ...): whole windows
-            self.interior = None
+        # full windows unpadded: ~half the CPU (None: a decoder it cannot cut, whole windows)
+        self.interior = interior_session(path, decoder, self.decoder_session,
+                                         generator.codebook_size)
         first_frame = decoder.lookahead + 1 + math.ceil(FEET_LOOKAHEAD / generator.down_factor)
         self.lead = first_frame + 2 * generator.streaming_decoder().every
         self.stepper = Stepper(tokens, window, manifest.t2m.config["max_relative_distance"],

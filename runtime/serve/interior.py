@@ -18,14 +18,40 @@ bundle on disk is not changed.
 """
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 import onnx
+import onnxruntime as ort
 from onnx import helper, numpy_helper
+
+from mogo._session import graph_session
+from mogo.manifest import Graph
 
 
 # ops that keep every time position where it is (what lies between the convolutions)
 POSITIONWISE = {"Add", "Sub", "Mul", "Div", "Relu", "LeakyRelu", "Gelu", "Sigmoid", "Tanh",
                 "Cast", "Identity", "Gather", "ReduceSum", "Transpose"}
+
+
+def interior_session(path: str | os.PathLike, graph: Graph, whole: ort.InferenceSession,
+                     codebook_size: int) -> tuple[ort.InferenceSession, int] | None:
+    """(a one-thread session of the decoder graph at `path` unpadded, the tokens it drops on
+    each side), checked against `whole` (its session as exported) on random windows; None
+    where the graph cannot be cut or the check fails: the caller decodes whole windows."""
+    try:
+        data, cut = interior_graph(Path(path).read_bytes())
+    except ValueError:
+        return None
+    session = graph_session(data, graph, 1)
+    levels = whole.get_inputs()[0].shape[-1]
+    ids = np.random.default_rng(0).integers(0, codebook_size, (2, 2 * cut + 9, levels))
+    expected = whole.run(None, {graph.inputs[0]: ids})[0][:, cut:-cut]
+    got = session.run(None, {graph.inputs[0]: ids})[0]
+    if got.shape != expected.shape or not np.allclose(got, expected, rtol=1e-4, atol=1e-4):
+        return None
+    return session, cut
 
 
 def interior_graph(data: bytes) -> tuple[bytes, int]:

@@ -8,6 +8,7 @@ import pytest
 pytest.importorskip("onnx")
 
 from mogo.serve import engine as engine_module  # noqa: E402
+from mogo.serve import interior  # noqa: E402
 from mogo.serve.engine import Engine  # noqa: E402
 from mogo.stream_decoder import StreamingDecoder  # noqa: E402
 
@@ -55,14 +56,18 @@ def test_batched_decoding_gives_each_stream_its_own_decoders_frames(generator, e
         np.testing.assert_allclose(batched[k], alone[k], rtol=0, atol=1e-5)
 
 
-def test_a_decoder_the_rewrite_cannot_cut_decodes_whole_windows(generator, engine_parts,
-                                                                 monkeypatch):
+def test_a_decoder_the_rewrite_cannot_cut_or_gets_wrong_decodes_whole_windows(
+        generator, engine_parts, monkeypatch):
     def refused(data):
         raise ValueError("an upsampling on the time path")
 
-    monkeypatch.setattr(engine_module, "interior_graph", refused)
-    engine = Engine(generator, 1, tokens=engine_parts)
-    assert engine.interior is None
+    def wrong(data):  # the padded graph: the wrong length for a cut of 31
+        return data, 31
+
+    for rewrite in (refused, wrong):
+        monkeypatch.setattr(interior, "interior_graph", rewrite)
+        engine = Engine(generator, 1, tokens=engine_parts)
+        assert engine.interior is None
     stream = engine.open("a person walks forward", 1, generator.sampling(None), 0.0)
     frames = []
     while sum(map(len, frames)) < 120:  # past the first full window
