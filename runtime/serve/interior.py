@@ -13,8 +13,10 @@ inputs as before (to a float rounding at most: the matrix products are narrower)
 of the shipped decoder takes about 40% of the multiplications. Only a window whose new
 tokens lie a receptive field from both its ends may go through it (mogo.stream_decoder's
 push_many chooses). It needs a receptive field as wide on both sides (a non-causal decoder:
-padding p on each side of each convolution), and the `onnx` package (the serve extra). The
-bundle on disk is not changed.
+padding p on each side of each convolution), and the `onnx` package (the serve extra); a
+graph it cannot cut is refused, and `interior_session` checks the cut one against the
+exported one on random windows at load (None: the server decodes whole windows). The bundle
+on disk is not changed.
 """
 from __future__ import annotations
 
