@@ -52,7 +52,7 @@ def encoder_ms(generator: MotionGenerator, prompts: list[str]) -> float:
     times = []
     for prompt in prompts:
         start = time.perf_counter()
-        generator._encode_one(prompt)
+        generator.embed([prompt])
         times.append((time.perf_counter() - start) * 1000)
     return float(np.median(times))
 
