@@ -138,9 +138,10 @@ class TextTrainOptions(RunOptions):
     batch_size: int | None = another_default(RunOptions, "batch_size", 256)
     lr: float | None = another_default(RunOptions, "lr", 1e-3)
     warmup: int | None = another_default(RunOptions, "warmup", 100)
-    steps: int = another_default(RunOptions, "steps", 3000)
-    val_every: int = another_default(RunOptions, "val_every", 250)
-    checkpoint_every: int = another_default(RunOptions, "checkpoint_every", 1000)
+    steps: int = another_default(RunOptions, "steps", 60000)
+    val_every: int = another_default(RunOptions, "val_every", 2500)
+    checkpoint_every: int = another_default(RunOptions, "checkpoint_every", 5000)
+    log_every: int = another_default(RunOptions, "log_every", 2500)
     preset: str | None = recipe("cpu_default", "(one size; default {default})",
                                 flag="--config", choices=["cpu_default"])
     bundle: Path = option(help="the bundle whose level graphs the adapter feeds (its own text "
