@@ -183,8 +183,11 @@ class Engine:
     def _step(self, due: list[ServedStream]) -> list[tuple]:
         bundle, made = self.generator.bundle, []
         batched = [s for s in due if s.tokens.solo is None]
+        # a new stream's solo steps, one a round: a burst of new streams run back to back would
+        # hold up the frames of every stream already running (25 arrivals: ~1 s)
         for stream in (s for s in due if s.tokens.solo is not None):
-            made.append((stream, stream.frames_sent, self._solo_steps(stream)))
+            made.append((stream, stream.frames_sent,
+                         stream.push(stream.tokens.step_solo(), bundle)))
         rows = self.stepper.step([s.tokens for s in batched])
         # the windows due decoded in one call (streams in step share their window length)
         decoded = push_many([s.decoder for s in batched], [row[None] for row in rows],
@@ -193,12 +196,3 @@ class Engine:
             first = stream.frames_sent
             made.append((stream, first, stream.move(features, bundle)))
         return [(stream, first, joints) for stream, first, joints in made if len(joints)]
-
-    def _solo_steps(self, stream: ServedStream) -> np.ndarray:
-        """All of a new stream's solo steps (mogo.serve.stepper) in one go: they share no call,
-        so its first frame waits on no other round (its clock asks for them all at once: the
-        lead is more than the solo steps)."""
-        joints = [stream.no_frames]
-        while stream.tokens.solo is not None:
-            joints.append(stream.push(stream.tokens.step_solo(), self.generator.bundle))
-        return np.concatenate(joints)
