@@ -2,14 +2,18 @@
 never use for its action ("a dancer plods to the left", "someone applauds three times").
 
 The key word of each phrase (marked KEY below: the verb or noun that names the action) must
-not occur in any training caption (`unseen_key_words` checks it against the corpus). Nothing
-was tuned on this set: the adapter, the repertoire threshold and the WordNet table were made
-without it. Direction, hand, foot and count words are the corpus's own (there is no other
-way to say "left").
+not occur in any training caption (`unseen_key_words` checks it against the corpus). Two
+phrasebooks: HELD_OUT (written 2026-11-23; the first adapter, the repertoire threshold and
+the WordNet table were made without it, but the second adapter's subject variants were
+suggested by it, docs/text_encoder.md) and FRESH (written 2026-11-24 after that adapter
+shipped, run on nothing before it: other verbs, and subjects none of which is among the
+adapter's WordNet people). Direction, hand, foot and count words are the corpus's own (there
+is no other way to say "left").
 """
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -54,6 +58,50 @@ KEY = {"walk": ("plods", "trudges", "saunters", "tiptoes", "ambles", "wanders"),
        "clap": ("applauds", "applause"), "punch": ("jabs", "strikes", "boxes"),
        "kick": ("boots", "punts", "lashes"), "stretch": ("limbers", "elongates", "overhead"),
        "jumping_jacks": ("star",), "idle": ("remains", "lingers", "freezes", "motionless")}
+FRESH_SUBJECTS = ("a robot", "the android", "my avatar", "a ninja", "the mannequin",
+                  "an astronaut", "the toddler", "a chef")
+FRESH_PHRASES = {
+    "walk": ("treks {d}{c}", "meanders {d}{c}", "hikes {d}{c}"),
+    "jog": ("goes at a jogger's pace {d}{c}", "moves at an unhurried running gait {d}{c}"),
+    "run": ("tears {d}{c}", "zooms {d}{c}", "hurtles {d}{c}"),
+    "turn": ("reorients {a} degrees to the {t}", "faces {a} degrees further to the {t}"),
+    "spin": ("twists all the way round to the {sd}", "does a complete revolution to the {sd}"),
+    "jump": ("goes airborne {where} {n}", "takes off {where} {n}"),
+    "squat": ("sinks into a deep knee bend {n}", "drops low on bent legs {n}"),
+    "sit": ("settles into an armchair", "rests on a bench", "takes a load off on a stool"),
+    "bow": ("makes a reverence", "nods deeply from the waist in greeting"),
+    "wave": ("flaps the {h} hand {n}", "says hi with the {h} hand {n}"),
+    "raise_arms": ("elevates the {h} arm", "lifts the {h} arm toward the ceiling"),
+    "clap": ("slaps the palms together {n}", "smacks both hands together {n}"),
+    "punch": ("thumps {n} with the {h} fist", "hits {n} with the {h} fist"),
+    "kick": ("swings the {f} leg out hard", "lets fly with the {f} foot"),
+    "stretch": ("extends the whole body upward", "loosens up with the arms over the head"),
+    "jumping_jacks": ("does {cnt} side-straddle hops", "does {cnt} star-shaped jumps"),
+    "idle": ("holds still for {secs} seconds", "pauses for {secs} seconds",
+             "stays put for {secs} seconds"),
+}
+FRESH_KEY = {"walk": ("treks", "meanders", "hikes"), "jog": ("jogger", "unhurried", "gait"),
+             "run": ("tears", "zooms", "hurtles"), "turn": ("reorients", "faces", "further"),
+             "spin": ("twists", "revolution", "complete"), "jump": ("airborne", "off"),
+             "squat": ("sinks", "bend", "drops"), "sit": ("armchair", "rests", "bench", "load"),
+             "bow": ("reverence", "nods", "greeting"), "wave": ("flaps", "hi", "says"),
+             "raise_arms": ("elevates", "ceiling"), "clap": ("slaps", "palms", "smacks"),
+             "punch": ("thumps", "hits"), "kick": ("swings", "hard", "fly"),
+             "stretch": ("extends", "upward", "loosens"), "jumping_jacks": ("straddle", "shaped"),
+             "idle": ("holds", "pauses", "put")}
+
+
+@dataclass(frozen=True)
+class Phrasebook:
+    """Subjects, phrases by primitive, and the key words that must be unseen in training."""
+    name: str
+    subjects: tuple[str, ...]
+    phrases: dict[str, tuple[str, ...]]
+    keys: dict[str, tuple[str, ...]]
+
+
+HELD_OUT = Phrasebook("held-out paraphrases", SUBJECTS, PHRASES, KEY)
+FRESH = Phrasebook("fresh paraphrases", FRESH_SUBJECTS, FRESH_PHRASES, FRESH_KEY)
 NUMBERS = ("zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten")
 
 
@@ -61,8 +109,9 @@ def times(n: int) -> str:
     return {1: "once", 2: "twice"}.get(n, f"{NUMBERS[n] if n < len(NUMBERS) else n} times")
 
 
-def paraphrase(primitive: str, params: dict, rng: np.random.Generator) -> str:
-    """One segment as a sentence in words of our own (see the module docstring)."""
+def paraphrase(primitive: str, params: dict, rng: np.random.Generator,
+               book: Phrasebook = HELD_OUT) -> str:
+    """One segment as a sentence in words of the phrasebook (see the module docstring)."""
     def pick(options):
         return options[int(rng.integers(len(options)))]
 
@@ -77,15 +126,15 @@ def paraphrase(primitive: str, params: dict, rng: np.random.Generator) -> str:
         t="left" if params.get("angle", 0) > 0 else "right", sd=params.get("direction", "left"),
         where="forward" if params.get("forward") else "in place",
         secs=NUMBERS[round(params.get("seconds", 2))])
-    text = pick(PHRASES[primitive]).format(**values)
+    text = pick(book.phrases[primitive]).format(**values)
     for part in ("hand", "arm", "fist"):  # "with the both hand" -> "with both hands"
         text = text.replace(f"the both {part}", f"both {part}s")
-    return f"{pick(SUBJECTS)} {text}."
+    return f"{pick(book.subjects)} {text}."
 
 
-def unseen_key_words(training_words: set[str]) -> list[str]:
+def unseen_key_words(training_words: set[str], book: Phrasebook = HELD_OUT) -> list[str]:
     """Key words that DO occur in the training captions (should be none)."""
-    return sorted({w for keys in KEY.values() for w in keys if w in training_words})
+    return sorted({w for keys in book.keys.values() for w in keys if w in training_words})
 
 
 def caption_words(texts) -> set[str]:

@@ -2,9 +2,10 @@
 --before OLD [--after NEW] [--per-primitive N]` (torch-free; NEW defaults to the shipped one).
 
 Prints markdown tables:
-- held-out paraphrases (mogo.bench.quality.paraphrases: key words no training caption uses)
-  of test-split single-segment items, generated with the item's real length and judged by the
-  semantic checks (mogo.bench.quality.semantic), without and with the rule aligner;
+- paraphrases from each phrasebook of mogo.bench.quality.paraphrases (key words no training
+  caption uses; HELD_OUT and FRESH) of test-split single-segment items, generated with the
+  item's real length and judged by the semantic checks (mogo.bench.quality.semantic), without
+  and with the rule aligner;
 - the in-vocabulary items themselves (their own test captions), the same way;
 - the repertoire check of a bundle that has one: the share of test captions and of the
   paraphrases it accepts, and of the outside prompts (mogo.export.data.outside_repertoire.TEST,
@@ -21,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.bench.quality.paraphrases import caption_words, paraphrase, unseen_key_words
+from mogo.bench.quality.paraphrases import (FRESH, HELD_OUT, caption_words, paraphrase,
+                                            unseen_key_words)
 from mogo.bench.quality.semantic import SemanticItem, check, program_items, stratified
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.data.outside_repertoire import TEST
@@ -67,10 +69,11 @@ def main() -> None:
     args = parser.parse_args()
     folder = HumanML3DFolder(args.data, splits=("train", "test"))
     trained = caption_words(c.text for clip in folder.ids("train") for c in folder.captions(clip))
-    seen = unseen_key_words(trained)
     items = stratified(program_items(args.data, folder.ids("test")), args.per_primitive, 0)
-    rng = np.random.default_rng(0)
-    prompts = [paraphrase(item.primitive, item.params, rng) for item in items]
+    books = {book.name: [paraphrase(item.primitive, item.params, rng, book) for item in items]
+             for book, rng in ((HELD_OUT, np.random.default_rng(0)),
+                               (FRESH, np.random.default_rng(0)))}
+    seen = [w for book in (HELD_OUT, FRESH) for w in unseen_key_words(trained, book)]
     captions = [item.caption for item in items]
     real = [folder.joints(item.clip_id)[item.start:item.end] for item in items]
     bundles = {"before": args.before, "after": args.after}
@@ -78,35 +81,38 @@ def main() -> None:
                   for name, path in bundles.items()}
     print(f"{len(items)} test items ({args.per_primitive} per primitive), one seed each; key "
           f"words seen in training captions: {', '.join(seen) or 'none'}.\n")
-    print("| bundle | paraphrases | paraphrases, --align rules | own captions |\n|---|---|---|---|")
+    print("| bundle | " + " | ".join(f"{b} | {b}, --align rules" for b in books) +
+          " | own captions |\n|---|" + "---|---|" * len(books) + "---|")
     detail = {}
     for name, generator in generators.items():
-        plain, detail[name] = pass_rate(generator, items, prompts, real, False)
-        aligned, _ = pass_rate(generator, items, prompts, real, True)
+        cells = []
+        for book, prompts in books.items():
+            plain, detail[name, book] = pass_rate(generator, items, prompts, real, False)
+            aligned, _ = pass_rate(generator, items, prompts, real, True)
+            cells += [f"{plain:.1%}", f"{aligned:.1%}"]
         own, _ = pass_rate(generator, items, captions, real, False)
-        print(f"| {name} ({generator.manifest.text.kind}) | {plain:.1%} | {aligned:.1%} | "
-              f"{own:.1%} |")
-    print("\n| primitive | " + " | ".join(f"paraphrases {n}" for n in detail) + " |\n"
-          "|---|" + "---|" * len(detail))
-    for primitive in detail["after"]:
+        print(f"| {name} ({generator.manifest.text.kind}) | {' | '.join(cells)} | {own:.1%} |")
+    print("\n| primitive | " + " | ".join(f"{book}, {name}" for name, book in detail) +
+          " |\n|---|" + "---|" * len(detail))
+    for primitive in detail["after", HELD_OUT.name]:
         cells = " | ".join(f"{d[primitive][0]}/{d[primitive][1]}" for d in detail.values())
         print(f"| {primitive} | {cells} |")
-    _repertoire_table(generators["after"], folder, prompts)
+    _repertoire_table(generators["after"], folder, books)
     print("\n| bundle | text encoder ms per prompt (median) | bundle MB |\n|---|---|---|")
-    probe = [f"{p} ({k})" for k, p in enumerate(prompts[:60])]  # new prompts: nothing cached
+    probe = [f"{p} ({k})" for k, p in enumerate(books[HELD_OUT.name][:60])]  # nothing cached
     for name, generator in generators.items():
         print(f"| {name} | {encoder_ms(generator, probe):.1f} | "
               f"{generator.manifest.total_bytes / 1e6:.1f} |")
 
 
 def _repertoire_table(generator: MotionGenerator, folder: HumanML3DFolder,
-                      paraphrases: list[str]) -> None:
+                      books: dict[str, list[str]]) -> None:
     if generator.repertoire is None:
         return
     test = sorted({c.text for clip in folder.ids("test") for c in folder.captions(clip)})
     test = [test[k] for k in np.random.default_rng(0).permutation(len(test))[:500]]
     rows = {"test captions (accepted)": (test, True),
-            "held-out paraphrases (accepted)": (paraphrases, True),
+            **{f"{book} (accepted)": (prompts, True) for book, prompts in books.items()},
             "outside prompts, TEST list (refused)": (list(TEST), False)}
     threshold = generator.repertoire.threshold
     print(f"\nRepertoire check (threshold {threshold:.3f}, set at export on val captions and "

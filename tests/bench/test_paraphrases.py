@@ -1,25 +1,45 @@
-"""The held-out paraphrase set: every primitive the semantic checks know has phrases, each
-phrase names its action by one of its key words, and the sentences render for any params."""
-import numpy as np
+"""The paraphrase phrasebooks: every primitive the semantic checks know has phrases, each
+phrase names its action by one of its key words, no key word is a word of the shipped
+model's training captions, and the sentences render for any params."""
+import re
 
-from mogo.bench.quality.paraphrases import KEY, PHRASES, caption_words, paraphrase, unseen_key_words
+import numpy as np
+import pytest
+
+from mogo.bench.quality.paraphrases import (FRESH, HELD_OUT, caption_words, paraphrase,
+                                            unseen_key_words)
 from mogo.bench.quality.semantic import CHECKS
+from mogo.generator import MotionGenerator
 
 PARAMS = dict(direction="left", turn=45, count=3, hand="both", foot="left", angle=-90,
               forward=True, seconds=2.5)
 
 
-def test_every_primitive_has_phrases_each_with_a_key_word():
-    assert set(PHRASES) == set(CHECKS) == set(KEY)
-    for primitive, phrases in PHRASES.items():
+@pytest.mark.parametrize("book", [HELD_OUT, FRESH], ids=lambda b: b.name)
+def test_every_primitive_has_phrases_each_with_an_unseen_key_word(book):
+    assert set(book.phrases) == set(CHECKS) == set(book.keys)
+    for primitive, phrases in book.phrases.items():
         for phrase in phrases:
-            assert any(key in phrase.split() for key in KEY[primitive]), phrase
+            assert set(re.findall(r"[a-z]+", phrase)) & set(book.keys[primitive]), phrase
+    # the trained tokenizer's words are the words of the training captions
+    assert unseen_key_words(MotionGenerator.load().vocabulary(), book) == []
 
 
-def test_paraphrases_render_and_key_words_are_checked_against_training_words():
+@pytest.mark.parametrize("book", [HELD_OUT, FRESH], ids=lambda b: b.name)
+def test_paraphrases_render(book):
     rng = np.random.default_rng(0)
-    for primitive in PHRASES:
-        text = paraphrase(primitive, PARAMS, rng)
+    for primitive in book.phrases:
+        text = paraphrase(primitive, PARAMS, rng, book)
         assert "{" not in text and text.endswith(".") and "the both" not in text
+        assert text.startswith(book.subjects)
+
+
+def test_key_words_are_checked_against_training_words():
     assert unseen_key_words(caption_words(["a person walks forward.", "she applauds."])) == \
         ["applauds"]
+
+
+def test_the_fresh_subjects_are_not_among_the_adapters_people():
+    from mogo.export.data.wordnet_people import PEOPLE
+
+    assert not {s.split()[-1] for s in FRESH.subjects} & set(PEOPLE)

@@ -7,3 +7,4 @@ def test_the_encoder_timing_encodes_each_prompt():
     generator = MotionGenerator.load()
     assert encoder_ms(generator, ["someone tiptoes along the hall", "a dancer curtsies"]) > 0
     assert generator.text._encoded.cache_info().currsize >= 2  # each really went through
+
