@@ -33,6 +33,10 @@ from mogo.stream_decoder import push_many
 from mogo.token_generator import TokenGenerator
 
 ALIGN_STEPS = 24  # extra steps a stream may take to join a larger group (1.2 s more lead)
+# new streams' solo steps a round (each takes its share, at least one): a lone new stream
+# reaches its first frame in two rounds, and a burst of new streams holds up the frames of the
+# running ones by about this many one-row steps a round (~20 ms), not by all of theirs
+SOLO_STEPS_A_ROUND = 20
 SHARD_FROM = 16  # due streams from which a round runs as two shards: a second call of each
 # level graph costs ~2 ms of CPU more a round, and below this one core keeps real time easily
 EMBEDDINGS_KEPT = 256  # prompt embeddings cached (switching back costs no text encoding)
@@ -183,11 +187,10 @@ class Engine:
     def _step(self, due: list[ServedStream]) -> list[tuple]:
         bundle, made = self.generator.bundle, []
         batched = [s for s in due if s.tokens.solo is None]
-        # a new stream's solo steps, one a round: a burst of new streams run back to back would
-        # hold up the frames of every stream already running (25 arrivals: ~1 s)
-        for stream in (s for s in due if s.tokens.solo is not None):
+        solo = [s for s in due if s.tokens.solo is not None]
+        for stream in solo:  # a round's solo steps shared among the new streams
             made.append((stream, stream.frames_sent,
-                         stream.push(stream.tokens.step_solo(), bundle)))
+                         self._solo_steps(stream, max(1, SOLO_STEPS_A_ROUND // len(solo)))))
         rows = self.stepper.step([s.tokens for s in batched])
         # the windows due decoded in one call (streams in step share their window length)
         decoded = push_many([s.decoder for s in batched], [row[None] for row in rows],
@@ -196,3 +199,13 @@ class Engine:
             first = stream.frames_sent
             made.append((stream, first, stream.move(features, bundle)))
         return [(stream, first, joints) for stream, first, joints in made if len(joints)]
+
+    def _solo_steps(self, stream: ServedStream, steps: int) -> np.ndarray:
+        """Up to `steps` of a new stream's solo steps (mogo.serve.stepper), back to back: its
+        clock asks for them all at once (it starts `lead` steps behind)."""
+        joints = [stream.no_frames]
+        for _ in range(steps):
+            if stream.tokens.solo is None:
+                break
+            joints.append(stream.push(stream.tokens.step_solo(), self.generator.bundle))
+        return np.concatenate(joints)
