@@ -126,11 +126,11 @@ class TextTrainer(Trainer):
         self.config, self.recipe, self.device = config, config["recipe"], device
         self.train = TensorDataset(torch.from_numpy(captions["train_sentence"]),
                                    torch.from_numpy(captions["train_target"]))
-        variant = captions["val_variant"] if "val_variant" in captions else None
+        variant = (captions["val_variant"] if "val_variant" in captions  # runs made before
+                   else np.zeros(len(captions["val_target"]), bool))
         self.val = (torch.from_numpy(captions["val_sentence"]).to(device),
                     torch.from_numpy(captions["val_target"]).to(device),
-                    torch.zeros(len(captions["val_target"]), dtype=torch.bool) if variant is None
-                    else torch.from_numpy(variant))
+                    torch.from_numpy(variant).to(device))
 
     def build(self) -> Adapter:
         return Adapter(self.config["in_dim"], self.config["out_dim"], self.recipe["hidden"])
