@@ -122,8 +122,8 @@ def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
 
 
 def own_captions(captions, split: str) -> tuple[np.ndarray, np.ndarray]:
-    """(texts, sentence embeddings) of a split's captions, without the variants with other
-    subjects the adapter also trained on (mogo.export.train.train_text.other_subjects)."""
+    """(texts, sentence embeddings) of a split's captions, without the variants the adapter
+    also trained on (mogo.export.train.train_text: other subjects, other verbs)."""
     own = ~captions[f"{split}_variant"] if f"{split}_variant" in captions else slice(None)
     return captions[f"{split}_text"][own], captions[f"{split}_sentence"][own]
 

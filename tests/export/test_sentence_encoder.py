@@ -157,3 +157,22 @@ def test_captions_get_variants_with_other_people_as_their_subject():
         words = variant[:-len(rest)].split()  # the new subject
         assert variant.endswith(" " + rest) and words[0] in ("a", "an", "the", "my")
         assert words[-1] in PEOPLE and len(words) in (2, 3)  # an adjective, maybe
+
+
+def test_captions_get_variants_with_another_verb_of_their_primitive():
+    from mogo.align_wordnet import WORDNET_VERBS
+    from mogo.align_words import VERBS
+    from mogo.export.train.train_text import other_verbs
+
+    captions = ["a person walks forward.", "someone claps twice, then jogs.",
+                "the person bends forward at the waist.", "a figure jumps in place twice."]
+    known = {w.strip(".,") for c in captions for w in c.split()}
+    variants, source = other_verbs(captions, known, np.random.default_rng(0))
+    assert list(source) == [0, 1, 3]  # no head verb in the third
+    for variant, k, primitive in zip(variants, source, ("walk", "clap", "jump")):
+        before, after = captions[k].split(), variant.split()
+        changed = [(a, b) for a, b in zip(before, after) if a != b]
+        assert len(before) == len(after) and len(changed) == 1  # the head verb alone
+        verb = changed[0][1]
+        assert verb.rstrip(",") not in known
+        assert any(verb.startswith(v[:-1]) for v in VERBS[primitive] + WORDNET_VERBS[primitive])
