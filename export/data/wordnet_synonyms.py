@@ -58,33 +58,38 @@ in this software, database and any associated documentation shall at all times r
 Princeton University and LICENSEE agrees to preserve same.'''
 
 
-def read_verbs(wordnet: Path) -> tuple[dict[str, list[str]], dict[str, tuple]]:
-    """(lemma -> its synset offsets in sense order, offset -> (words, troponym offsets,
-    lexicographer file))."""
+def read_index(wordnet: Path, pos: str) -> dict[str, tuple[list[str], int]]:
+    """lemma -> (its synset offsets in sense order, how often its senses are tagged in
+    WordNet's sense-tagged corpus), for one part of speech ("verb", "noun", "adj")."""
     senses = {}
-    for line in (wordnet / "index.verb").read_text().splitlines():
-        if line.startswith(" "):
-            continue
-        parts = line.split()
-        pointers = int(parts[3])
-        senses[parts[0]] = parts[4 + pointers + 2:]
+    for line in (wordnet / f"index.{pos}").read_text().splitlines():
+        if not line.startswith(" "):
+            parts = line.split()
+            count = int(parts[2])  # lemma pos synsets pointers [symbols] senses tagged offsets
+            senses[parts[0]] = (parts[-count:], int(parts[-count - 1]))
+    return senses
+
+
+def read_synsets(wordnet: Path, pos: str) -> dict[str, tuple[list[str], list[str], str]]:
+    """offset -> (its words as written, the offsets of its hyponyms (troponyms, for verbs),
+    its lexicographer file), for one part of speech ("verb", "noun")."""
     synsets = {}
-    for line in (wordnet / "data.verb").read_text().splitlines():
-        if line.startswith(" "):
-            continue
-        parts = line.split("|")[0].split()
-        count = int(parts[3], 16)
-        words = [parts[4 + 2 * i].lower() for i in range(count)]
-        k = 4 + 2 * count
-        pointers = [parts[k + 1 + 4 * i:k + 5 + 4 * i] for i in range(int(parts[k]))]
-        synsets[parts[0]] = (words, [p[1] for p in pointers if p[0] == "~" and p[2] == "v"],
-                             parts[1])
-    return senses, synsets
+    for line in (wordnet / f"data.{pos}").read_text().splitlines():
+        if not line.startswith(" "):
+            parts = line.split("|")[0].split()
+            count = int(parts[3], 16)
+            k = 4 + 2 * count
+            pointers = [parts[k + 1 + 4 * i:k + 5 + 4 * i] for i in range(int(parts[k]))]
+            synsets[parts[0]] = ([parts[4 + 2 * i] for i in range(count)],
+                                 [p[1] for p in pointers if p[0] == "~" and p[2] == pos[0]],
+                                 parts[1])
+    return synsets
 
 
 def verb_table(wordnet: Path, hand_written: set[str]) -> dict[str, list[str]]:
     """primitive -> the single-word verbs whose first sense falls under its heads."""
-    senses, synsets = read_verbs(wordnet)
+    senses = {lemma: offsets for lemma, (offsets, _) in read_index(wordnet, "verb").items()}
+    synsets = read_synsets(wordnet, "verb")
     depth_of: dict[str, dict[str, int]] = {}  # offset -> primitive -> depth
     kinds = set()
     for primitive, (heads, depth) in HEADS.items():
@@ -112,39 +117,17 @@ def people(wordnet: Path) -> tuple[list[str], list[str]]:
     is lower case and tagged at least once in WordNet's sense-tagged corpus: "dancer",
     "soldier", "accountant"; the adjectives tagged more than twice: "old", "tired"). Rare
     and proper nouns are left out."""
-    synsets = {}
-    for line in (wordnet / "data.noun").read_text().splitlines():
-        if not line.startswith(" "):
-            parts = line.split("|")[0].split()
-            count = int(parts[3], 16)
-            k = 4 + 2 * count
-            synsets[parts[0]] = ([parts[4 + 2 * i] for i in range(count)],
-                                 [parts[k + 2 + 4 * i] for i in range(int(parts[k]))
-                                  if parts[k + 1 + 4 * i] == "~"])
-    nouns, adjectives = _tagged(wordnet / "index.noun", 0), _tagged(wordnet / "index.adj", 2)
-    seen, frontier = set(), [nouns["person"][0]]
+    synsets, nouns = read_synsets(wordnet, "noun"), read_index(wordnet, "noun")
+    seen, frontier = set(), [nouns["person"][0][0]]
     while frontier:
         offset = frontier.pop()
         if offset not in seen:
             seen.add(offset)
             frontier += synsets[offset][1]
     kinds = {w for offset in seen for w in synsets[offset][0]}
-    return (sorted(w for w in kinds if w.isalpha() and w.islower() and w in nouns),
-            sorted(adjectives))
-
-
-def _tagged(index: Path, more_than: int) -> dict[str, list[str]]:
-    """lemma -> its synset offsets, for the one-word lemmas of an index file tagged more than
-    `more_than` times."""
-    lemmas = {}
-    for line in index.read_text().splitlines():
-        parts = line.split()
-        if line.startswith(" ") or not parts[0].isalpha():
-            continue
-        senses = int(parts[2])
-        if int(parts[-senses - 1]) > more_than:
-            lemmas[parts[0]] = parts[-senses:]
-    return lemmas
+    return (sorted(w for w in kinds if w.isalpha() and w.islower() and nouns.get(w, (0, 0))[1]),
+            sorted(w for w, (_, tagged) in read_index(wordnet, "adj").items()
+                   if w.isalpha() and tagged > 2))
 
 
 def render_people(nouns: list[str], adjectives: list[str], command: str) -> str:
