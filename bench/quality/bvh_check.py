@@ -7,6 +7,10 @@ T-pose rig, Mixamo names, metres), and prints a markdown table: forward kinemati
 (our reader) against the generated joints, then, where Blender is installed, Blender's own
 importer run headless (bench/blender/check_import.py) against the rig and against the joints.
 --png renders one frame and the rest pose side by side with Blender (Cycles, CPU).
+
+Blender: `apt-get install blender` (Debian, 3.4). Its glTF importer (the .glb check) also needs
+numpy older than 1.24 in the system's Python, which Debian's blender does not pull in:
+`/usr/bin/python3 -m pip install --break-system-packages 'numpy<1.24'`.
 """
 from __future__ import annotations
 
