@@ -1,5 +1,6 @@
 """The text side of two bundles compared: `python -m mogo.bench.quality.text_encoder --data DIR
---before OLD [--after NEW] [--per-primitive N]` (torch-free; NEW defaults to the shipped one).
+--before OLD [--after NEW] [--per-primitive N] [--seeds S] [--guidance G]` (torch-free; NEW
+defaults to the shipped one).
 
 Prints markdown tables:
 - paraphrases from each phrasebook of mogo.bench.quality.paraphrases (key words no training
@@ -31,22 +32,26 @@ from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
 
 
 def pass_rate(generator: MotionGenerator, items: list[SemanticItem], prompts: list[str],
-              real: list[np.ndarray], align: bool) -> tuple[float, dict[str, list[int]]]:
-    """Share of items whose generated clip passes its check; and per primitive [passed, n]."""
+              real: list[np.ndarray], align: bool, seeds: int = 1, **sampling
+              ) -> tuple[float, dict[str, list[int]]]:
+    """Share of generations that pass their item's check, `seeds` per item (item k of n with
+    seeds k, n + k, 2n + k, ...); and per primitive [passed, generated]. `sampling`: options
+    of MotionGenerator.generate (guidance=2, ...)."""
     per: dict[str, list[int]] = {}
     for k, (item, prompt) in enumerate(zip(items, prompts)):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            try:
-                motion = generator.generate(prompt, seconds=item.frames / generator.fps,
-                                            seed=k, align=align)
-                passed = check(item, motion.joints, real[k]).passed
-            except ValueError:  # the aligner found no motion in the prompt
-                passed = False
-        counts = per.setdefault(item.primitive, [0, 0])
-        counts[0] += passed
-        counts[1] += 1
-    return sum(c[0] for c in per.values()) / len(items), per
+        for seed in range(k, seeds * len(items), len(items)):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    motion = generator.generate(prompt, seconds=item.frames / generator.fps,
+                                                seed=seed, align=align, **sampling)
+                    passed = check(item, motion.joints, real[k]).passed
+                except ValueError:  # the aligner found no motion in the prompt
+                    passed = False
+            counts = per.setdefault(item.primitive, [0, 0])
+            counts[0] += passed
+            counts[1] += 1
+    return sum(c[0] for c in per.values()) / (seeds * len(items)), per
 
 
 def encoder_ms(generator: MotionGenerator, prompts: list[str]) -> float:
@@ -65,6 +70,10 @@ def main() -> None:
     parser.add_argument("--before", type=Path, required=True, help="the bundle compared with")
     parser.add_argument("--after", type=Path, default=DEFAULT_BUNDLE)
     parser.add_argument("--per-primitive", type=int, default=6)
+    parser.add_argument("--seeds", type=int, default=1,
+                        help="generations per item (seeds k, n + k, ...): less noise, more time")
+    parser.add_argument("--guidance", type=float, default=None,
+                        help="classifier-free guidance scale (default: each bundle's own)")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     folder = HumanML3DFolder(args.data, splits=("train", "test"))
@@ -79,18 +88,21 @@ def main() -> None:
     bundles = {"before": args.before, "after": args.after}
     generators = {name: MotionGenerator.load(path, threads=args.threads)
                   for name, path in bundles.items()}
-    print(f"{len(items)} test items ({args.per_primitive} per primitive), one seed each; key "
-          f"words seen in training captions: {', '.join(seen) or 'none'}.\n")
+    sampling = {} if args.guidance is None else dict(guidance=args.guidance)
+    print(f"{len(items)} test items ({args.per_primitive} per primitive), {args.seeds} seed(s) "
+          f"each{f', guidance {args.guidance:g}' if sampling else ''}; key words seen in "
+          f"training captions: {', '.join(seen) or 'none'}.\n")
     print("| bundle | " + " | ".join(f"{b} | {b}, --align rules" for b in books) +
           " | own captions |\n|---|" + "---|---|" * len(books) + "---|")
     detail = {}
     for name, generator in generators.items():
         cells = []
         for book, prompts in books.items():
-            plain, detail[name, book] = pass_rate(generator, items, prompts, real, False)
-            aligned, _ = pass_rate(generator, items, prompts, real, True)
+            plain, detail[name, book] = pass_rate(generator, items, prompts, real, False,
+                                                  args.seeds, **sampling)
+            aligned, _ = pass_rate(generator, items, prompts, real, True, args.seeds, **sampling)
             cells += [f"{plain:.1%}", f"{aligned:.1%}"]
-        own, _ = pass_rate(generator, items, captions, real, False)
+        own, _ = pass_rate(generator, items, captions, real, False, args.seeds, **sampling)
         print(f"| {name} ({generator.manifest.text.kind}) | {' | '.join(cells)} | {own:.1%} |")
     print("\n| primitive | " + " | ".join(f"{book}, {name}" for name, book in detail) +
           " |\n|---|" + "---|" * len(detail))

@@ -1,5 +1,9 @@
-"""The text-side benchmark's timing runs on the shipped bundle (its tables need the corpus)."""
-from mogo.bench.quality.text_encoder import encoder_ms
+"""The text-side benchmark's timing runs on the shipped bundle (its tables need the corpus);
+its pass rate's seeds and options, on a recording stand-in."""
+import numpy as np
+
+from mogo.bench.quality.semantic import SemanticItem
+from mogo.bench.quality.text_encoder import encoder_ms, pass_rate
 from mogo.generator import MotionGenerator
 
 
@@ -8,3 +12,28 @@ def test_the_encoder_timing_encodes_each_prompt():
     assert encoder_ms(generator, ["someone tiptoes along the hall", "a dancer curtsies"]) > 0
     assert generator.text._encoded.cache_info().currsize >= 2  # each really went through
 
+
+
+class _Recorder:
+    """Stands in for a MotionGenerator: records each call and stands the body still."""
+    fps = 20.0
+
+    def __init__(self):
+        self.calls = []
+
+    def generate(self, prompt, seconds, seed, align, **sampling):
+        self.calls.append((prompt, seed, sampling))
+        return type("Motion", (), dict(joints=np.zeros((round(seconds * self.fps), 22, 3))))()
+
+
+def test_pass_rate_draws_distinct_seeds_per_item_and_passes_the_sampling_options():
+    items = [SemanticItem("a", "someone stands still.", "idle", dict(seconds=2.0), 0, 40),
+             SemanticItem("b", "someone waves.", "wave", dict(hand="right", count=2), 0, 40)]
+    generator = _Recorder()
+    rate, per = pass_rate(generator, items, ["stand", "wave"], [None, None], False, seeds=3,
+                          guidance=2.0)
+    assert [(p, s) for p, s, _ in generator.calls] == [
+        ("stand", 0), ("stand", 2), ("stand", 4), ("wave", 1), ("wave", 3), ("wave", 5)]
+    assert all(sampling == dict(guidance=2.0) for *_, sampling in generator.calls)
+    # a body standing still is idle, and waves no hand
+    assert per == dict(idle=[3, 3], wave=[0, 3]) and rate == 0.5
