@@ -76,6 +76,8 @@ def main() -> None:
                         help="classifier-free guidance scale (default: each bundle's own)")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
+    if args.seeds < 1:
+        parser.error(f"--seeds must be at least 1, got {args.seeds}")
     folder = HumanML3DFolder(args.data, splits=("train", "test"))
     trained = caption_words(c.text for clip in folder.ids("train") for c in folder.captions(clip))
     items = stratified(program_items(args.data, folder.ids("test")), args.per_primitive, 0)
