@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mogo.export.data.captions import number_word, times_word
+
 SUBJECTS = ("a dancer", "an old man", "the athlete", "a girl", "a soldier", "my character",
             "a tired hiker", "the boy")
 DIRECTION = dict(forward=("forward", "straight ahead"), backward=("backward", "backwards"),
@@ -102,11 +104,6 @@ class Phrasebook:
 
 HELD_OUT = Phrasebook("held-out paraphrases", SUBJECTS, PHRASES, KEY)
 FRESH = Phrasebook("fresh paraphrases", FRESH_SUBJECTS, FRESH_PHRASES, FRESH_KEY)
-NUMBERS = ("zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten")
-
-
-def times(n: int) -> str:
-    return {1: "once", 2: "twice"}.get(n, f"{NUMBERS[n] if n < len(NUMBERS) else n} times")
 
 
 def paraphrase(primitive: str, params: dict, rng: np.random.Generator,
@@ -120,12 +117,12 @@ def paraphrase(primitive: str, params: dict, rng: np.random.Generator,
     values = dict(
         d=pick(DIRECTION[params["direction"]]) if "direction" in params
         and primitive in ("walk", "jog", "run") else "",
-        c=f" {CURVE[turn > 0]}" if turn else "", n=times(n), cnt=NUMBERS[n] if n < 11 else n,
+        c=f" {CURVE[turn > 0]}" if turn else "", n=times_word(n), cnt=number_word(n),
         h="both" if params.get("hand") == "both" else params.get("hand", "right"),
         f=params.get("foot", "right"), a=abs(params.get("angle", 0)),
         t="left" if params.get("angle", 0) > 0 else "right", sd=params.get("direction", "left"),
         where="forward" if params.get("forward") else "in place",
-        secs=NUMBERS[round(params.get("seconds", 2))])
+        secs=number_word(round(params.get("seconds", 2))))
     text = pick(book.phrases[primitive]).format(**values)
     for part in ("hand", "arm", "fist"):  # "with the both hand" -> "with both hands"
         text = text.replace(f"the both {part}", f"both {part}s")
