@@ -22,6 +22,14 @@ MAX_LENGTH = 128  # MiniLM's tokenizer.json truncates here (the model was traine
 _DTYPES = {"F32": np.float32, "F16": np.float16, "I64": np.int64}
 
 
+def variant_rows(captions, split: str) -> np.ndarray:
+    """Which rows of a run's captions.npz `split` are variants of a caption (another subject
+    or verb, mogo.export.train.train_text), not captions; none in runs made before them."""
+    if f"{split}_variant" in captions:
+        return captions[f"{split}_variant"]
+    return np.zeros(len(captions[f"{split}_text"]), bool)
+
+
 def read_safetensors(path: str | Path) -> dict[str, Tensor]:
     """The tensors of a .safetensors file (an 8-byte header length, a JSON header, raw data)."""
     data = Path(path).read_bytes()

@@ -21,11 +21,11 @@ from mogo.bundle import Bundle, write_manifest
 from mogo.export.data.outside_repertoire import CALIBRATION, INSIDE
 from mogo.export.models.runs import load_checkpoint
 from mogo.export.models.sentence_encoder import (CAPTIONS, ENCODER, MAX_LENGTH, Adapter, MiniLM,
-                                                 SentenceEmbedder)
+                                                 SentenceEmbedder, variant_rows)
 from mogo.export.onnx.bundle import _new_folder
 from mogo.export.onnx.text_graph import export_sentence_text_graph
-from mogo.manifest import (SENTENCE_ENCODER, Manifest, Pretrained, Repertoire, Text,
-                           TrainedEncoder, TrainingRun)
+from mogo.manifest import (SENTENCE_ENCODER, Manifest, Pretrained, Repertoire, Text, TrainedEncoder,
+                           TrainingRun)
 
 TRAINED, TRAINED_TOKENIZER = "trained_text_encoder.onnx", "trained_tokenizer.json"
 REPERTOIRE_SIZE = 2048  # captions kept (k-means medoids of the training captions' embeddings)
@@ -124,7 +124,7 @@ def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
 def own_captions(captions, split: str) -> tuple[np.ndarray, np.ndarray]:
     """(texts, sentence embeddings) of a split's captions, without the variants the adapter
     also trained on (mogo.export.train.train_text: other subjects, other verbs)."""
-    own = ~captions[f"{split}_variant"] if f"{split}_variant" in captions else slice(None)
+    own = ~variant_rows(captions, split)
     return captions[f"{split}_text"][own], captions[f"{split}_sentence"][own]
 
 

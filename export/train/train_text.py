@@ -41,11 +41,12 @@ from mogo.export.data.caption_templates import SUBJECTS
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.data.wordnet_people import ADJECTIVES, PEOPLE
 from mogo.export.models.sentence_encoder import (CAPTIONS, ENCODER, Adapter, SentenceEmbedder,
-                                                 unpack_minilm)
+                                                 unpack_minilm, variant_rows)
 from mogo.export.train.loop import Run, Trainer, train_loop
 from mogo.export.train.options import TextTrainOptions
 from mogo.export.train.training import (end_process, make_optimizer, merge_recipe, previous_run,
                                         start_process)
+
 
 def train_text(options: TextTrainOptions) -> None:
     """Train (or resume) an adapter run on the captions of `options.data`."""
@@ -156,8 +157,7 @@ class TextTrainer(Trainer):
         self.config, self.recipe, self.device = config, config["recipe"], device
         self.train = TensorDataset(torch.from_numpy(captions["train_sentence"]),
                                    torch.from_numpy(captions["train_target"]))
-        variant = (captions["val_variant"] if "val_variant" in captions  # runs made before
-                   else np.zeros(len(captions["val_target"]), bool))
+        variant = variant_rows(captions, "val")
         self.val = (torch.from_numpy(captions["val_sentence"]).to(device),
                     torch.from_numpy(captions["val_target"]).to(device),
                     torch.from_numpy(variant).to(device))
