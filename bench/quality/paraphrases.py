@@ -2,12 +2,15 @@
 never use for its action ("a dancer plods to the left", "someone applauds three times").
 
 The key word of each phrase (marked KEY below: the verb or noun that names the action) must
-not occur in any training caption (`unseen_key_words` checks it against the corpus). Two
+not occur in any training caption (`unseen_key_words` checks it against the corpus). Three
 phrasebooks: HELD_OUT (written 2026-11-23; the first adapter, the repertoire threshold and
 the WordNet table were made without it, but the second adapter's subject variants were
-suggested by it, docs/text_encoder.md) and FRESH (written 2026-11-24 after that adapter
-shipped, run on nothing before it: other verbs, and subjects none of which is among the
-adapter's WordNet people). Direction, hand, foot and count words are the corpus's own (there
+suggested by it, docs/text_encoder.md), FRESH (written 2026-11-24 after that adapter
+shipped: other verbs, and subjects none of which is among the adapter's WordNet people; the
+nearest-caption step was then chosen on it and on HELD_OUT) and UNSEEN (written before that
+step's settings were chosen and used for no choice: key words in no caption of the text run,
+neither the training captions nor their subject and verb variants, and subjects that are no
+WordNet person). Direction, hand, foot and count words are the corpus's own (there
 is no other way to say "left").
 """
 from __future__ import annotations
@@ -91,6 +94,36 @@ FRESH_KEY = {"walk": ("treks", "meanders", "hikes"), "jog": ("jogger", "unhurrie
              "punch": ("thumps", "hits"), "kick": ("swings", "hard", "fly"),
              "stretch": ("extends", "upward", "loosens"), "jumping_jacks": ("straddle", "shaped"),
              "idle": ("holds", "pauses", "put")}
+UNSEEN_SUBJECTS = ("a skeleton", "the cyborg", "a goblin", "an elf", "a troll",
+                   "a snowman", "the scarecrow", "a gnome")
+UNSEEN_PHRASES = {
+    "walk": ("pads {d}{c}", "sets off on foot {d}{c}"),
+    "jog": ("moves at a steady clip {d}{c}", "goes along at a brisk clip {d}{c}"),
+    "run": ("charges {d}{c}", "darts {d}{c}", "flees {d}{c}"),
+    "turn": ("changes heading by {a} degrees to the {t}",),
+    "spin": ("makes a full rotation to the {sd}", "goes round in one whole loop to the {sd}"),
+    "jump": ("leaves the floor {where} {n}", "pops up off the floor {where} {n}"),
+    "squat": ("lowers the hips to the heels {n}", "goes down on the haunches {n}"),
+    "sit": ("flops onto a sofa", "parks itself on a couch"),
+    "bow": ("salutes by bending the torso", "inclines the upper body respectfully"),
+    "wave": ("wags the {h} hand {n}", "bids farewell with the {h} hand {n}"),
+    "raise_arms": ("hoists the {h} arm", "sticks the {h} arm up"),
+    "clap": ("pats the hands together {n}", "beats the hands together {n}"),
+    "punch": ("socks {n} with the {h} fist", "pummels {n} with the {h} fist",
+              "lands a blow {n} with the {h} fist"),
+    "kick": ("flicks the {f} foot out", "snaps the {f} foot forward"),
+    "stretch": ("warms up with both arms toward the sky", "unfolds both arms toward the sky"),
+    "jumping_jacks": ("does {cnt} spread-eagle hops", "does {cnt} calisthenic hops"),
+    "idle": ("stands like a statue for {secs} seconds", "does nothing for {secs} seconds"),
+}
+UNSEEN_KEY = {"walk": ("pads", "sets"), "jog": ("clip",), "run": ("charges", "darts", "flees"),
+              "turn": ("heading",), "spin": ("rotation", "loop"), "jump": ("leaves", "pops"),
+              "squat": ("heels", "haunches"), "sit": ("flops", "sofa", "parks", "couch"),
+              "bow": ("salutes", "inclines", "respectfully"), "wave": ("wags", "farewell"),
+              "raise_arms": ("hoists", "sticks"), "clap": ("pats", "beats"),
+              "punch": ("socks", "pummels", "blow"), "kick": ("flicks", "snaps"),
+              "stretch": ("warms", "unfolds", "sky"), "jumping_jacks": ("eagle", "calisthenic"),
+              "idle": ("statue", "nothing")}
 
 
 @dataclass(frozen=True)
@@ -104,6 +137,8 @@ class Phrasebook:
 
 HELD_OUT = Phrasebook("held-out paraphrases", SUBJECTS, PHRASES, KEY)
 FRESH = Phrasebook("fresh paraphrases", FRESH_SUBJECTS, FRESH_PHRASES, FRESH_KEY)
+UNSEEN = Phrasebook("unseen paraphrases", UNSEEN_SUBJECTS, UNSEEN_PHRASES, UNSEEN_KEY)
+PHRASEBOOKS = (HELD_OUT, FRESH, UNSEEN)
 
 
 def paraphrase(primitive: str, params: dict, rng: np.random.Generator,

@@ -4,7 +4,7 @@ defaults to the shipped one).
 
 Prints markdown tables:
 - paraphrases from each phrasebook of mogo.bench.quality.paraphrases (key words no training
-  caption uses; HELD_OUT and FRESH) of test-split single-segment items, generated with the
+  caption uses; each of PHRASEBOOKS) of test-split single-segment items, generated with the
   item's real length and judged by the semantic checks (mogo.bench.quality.semantic), without
   and with the rule aligner;
 - the in-vocabulary items themselves (their own test captions), the same way;
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.bench.quality.paraphrases import (FRESH, HELD_OUT, caption_words, paraphrase,
+from mogo.bench.quality.paraphrases import (HELD_OUT, PHRASEBOOKS, caption_words, paraphrase,
                                             unseen_key_words)
 from mogo.bench.quality.semantic import SemanticItem, check, program_items, stratified
 from mogo.export.data.humanml3d import HumanML3DFolder
@@ -82,9 +82,8 @@ def main() -> None:
     trained = caption_words(c.text for clip in folder.ids("train") for c in folder.captions(clip))
     items = stratified(program_items(args.data, folder.ids("test")), args.per_primitive, 0)
     books = {book.name: [paraphrase(item.primitive, item.params, rng, book) for item in items]
-             for book, rng in ((HELD_OUT, np.random.default_rng(0)),
-                               (FRESH, np.random.default_rng(0)))}
-    seen = [w for book in (HELD_OUT, FRESH) for w in unseen_key_words(trained, book)]
+             for book in PHRASEBOOKS for rng in [np.random.default_rng(0)]}
+    seen = [w for book in PHRASEBOOKS for w in unseen_key_words(trained, book)]
     captions = [item.caption for item in items]
     real = [folder.joints(item.clip_id)[item.start:item.end] for item in items]
     bundles = {"before": args.before, "after": args.after}
