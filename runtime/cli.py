@@ -202,7 +202,9 @@ def _cmd_info(args: argparse.Namespace) -> None:
         r = text.repertoire
         lines.append(f"repertoire  similarity threshold {r.threshold:.2f}: accepts "
                      f"{r.held_out_accepted:.0%} of held-out captions, refuses "
-                     f"{r.outside_refused:.0%} of outside prompts")
+                     f"{r.outside_refused:.0%} of outside prompts"
+                     + ("; prompts in other words are played as the caption nearest their "
+                        "adapted embedding" if r.prompts else ""))
     if m.int8 is not None:
         lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
     for part, run in m.training.items():
@@ -215,7 +217,8 @@ def _cmd_info(args: argparse.Namespace) -> None:
                      f"seed {recipe.get('seed')}{tuned}")
     lines.append(f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
                  f"{bundle.open_graphs()} graphs open with the manifest's names")
-    lines += [f"  {name:20s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
+    width = max(map(len, m.files))
+    lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
     print("\n".join(lines))
 
 

@@ -136,12 +136,16 @@ class Repertoire:
     """What the model was trained on, as unit sentence embeddings (the encoder graph's second
     output) of its training captions: a prompt whose nearest caption has a cosine below
     `threshold` is far from everything the model knows. The threshold's error rates, measured
-    when it was set: the share of held-out captions it accepts, of outside prompts it refuses."""
+    when it was set: the share of held-out captions it accepts, of outside prompts it refuses.
+    `prompts`, where present: the same captions' prompt embeddings, by the encoder the level
+    graphs were trained with; a prompt that encoder cannot read is played as the one of them
+    nearest its adapted embedding (mogo.text_side)."""
     embeddings: str  # .npy (N, dim) float16
     captions: str  # .json: the N captions, in order
     threshold: float
     held_out_accepted: float
     outside_refused: float
+    prompts: str | None = None  # .npy (N, text_dim) float16
 
 
 @dataclass(frozen=True)
@@ -295,7 +299,8 @@ class Manifest:
     def referenced_files(self) -> set[str]:
         """Every file the manifest names outside `files`."""
         norm, repertoire = self.motion.normalization, self.text.repertoire
-        extra = () if repertoire is None else (repertoire.embeddings, repertoire.captions)
+        extra = () if repertoire is None else tuple(
+            f for f in (repertoire.embeddings, repertoire.captions, repertoire.prompts) if f)
         if self.text.trained is not None:
             extra += (self.text.trained.tokenizer,)
         return {norm.mean, norm.std, self.text.tokenizer, *extra,

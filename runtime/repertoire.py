@@ -40,7 +40,8 @@ class Familiarity:
 
 
 class KnownCaptions:
-    """The repertoire of a bundle: unit embeddings (N, dim) of N training captions."""
+    """The repertoire of a bundle: unit embeddings (N, dim) of N training captions, and where
+    the bundle has them their prompt embeddings (N, text_dim), else None."""
 
     def __init__(self, bundle: Bundle, repertoire: Repertoire):
         self.threshold = repertoire.threshold
@@ -48,12 +49,25 @@ class KnownCaptions:
         try:
             self.embeddings = np.load(path, allow_pickle=False).astype(np.float32)
             self.captions = json.loads(bundle.path(repertoire.captions).read_text("utf-8"))
+            self.prompts = None if repertoire.prompts is None else np.load(
+                bundle.path(repertoire.prompts), allow_pickle=False).astype(np.float32)
         except (OSError, ValueError) as error:
             raise BundleError(f"{path}: not a repertoire: {error}") from None
         if (self.embeddings.ndim != 2 or not isinstance(self.captions, list)
                 or len(self.captions) != len(self.embeddings)):
             raise BundleError(f"{path}: {self.embeddings.shape} embeddings for "
                               f"{len(self.captions)} captions")
+        if self.prompts is not None and (self.prompts.ndim != 2
+                                         or len(self.prompts) != len(self.captions)):
+            raise BundleError(f"{bundle.path(repertoire.prompts)}: {self.prompts.shape} prompt "
+                              f"embeddings for {len(self.captions)} captions")
+
+    def nearest_prompt(self, prompt: np.ndarray) -> np.ndarray:
+        """The known prompt embedding (1, text_dim) at the highest cosine with `prompt`
+        (1, text_dim): the level graphs play the exact embeddings they were trained on far
+        better than an adapter's approximation of them (docs/text_encoder.md)."""
+        similarity = self.prompts @ prompt[0] / np.linalg.norm(self.prompts, axis=1)
+        return self.prompts[None, int(np.argmax(similarity))]
 
     def familiarity(self, sentence: np.ndarray, count: int = 3) -> Familiarity:
         """`sentence`: a prompt's unit sentence embedding (dim,)."""

@@ -77,7 +77,9 @@ class TextSide:
         the encoder trained with the model where the bundle has it and it reads the whole
         prompt (every word, nothing cut at its length); cached, since a prompt is encoded for
         its repertoire check and again for its tokens. Numbers are read as the captions
-        spell them (mogo.align_words.spoken_numbers)."""
+        spell them (mogo.align_words.spoken_numbers). A prompt the trained encoder cannot read
+        is played as the known caption nearest its adapted embedding, where the repertoire has
+        their prompt embeddings."""
         text = spoken_numbers(text)
         outputs = _run(self._graph, self.tokenizer.encode(text))
         if self._trained is not None:
@@ -85,6 +87,9 @@ class TextSide:
             encoding = tokenizer.encode(text)
             if not encoding.overflowing and word_reading(text, encoding) == (True, []):
                 outputs[0] = _run(graph, encoding)[0]
+                return outputs
+        if self.repertoire is not None and self.repertoire.prompts is not None:
+            outputs[0] = self.repertoire.nearest_prompt(outputs[0])
         return outputs
 
 

@@ -102,14 +102,17 @@ def _reference_cosine(encoder: Path, out: Path, texts: list[str]) -> float:
 def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
     """REPERTOIRE_SIZE training captions that cover the rest (medoids of spherical k-means:
     half of them of the captions of one action, half of those of several, so that a short
-    prompt finds a short caption) and the threshold that best separates the val captions and
-    INSIDE from CALIBRATION (each of the three counted as a third)."""
+    prompt finds a short caption), their prompt embeddings by the bundle's own encoder (the
+    adapter's targets), and the threshold that best separates the val captions and INSIDE
+    from CALIBRATION (each of the three counted as a third)."""
     texts, sentences = own_captions(captions, "train")
     single = np.array([_one_action(str(t)) for t in texts])
     kept = np.sort(np.concatenate([
         np.flatnonzero(group)[medoids(sentences[group], min(REPERTOIRE_SIZE // 2, group.sum()))]
         for group in (single, ~single)]))
     np.save(out / "repertoire.npy", sentences[kept].astype(np.float16))
+    targets = captions["train_target"][~variant_rows(captions, "train")]
+    np.save(out / "repertoire_prompts.npy", targets[kept].astype(np.float16))
     (out / "repertoire.json").write_text(json.dumps([str(texts[k]) for k in kept], indent=0))
     known = sentences[kept].astype(np.float16).astype(np.float32)
     embedder = SentenceEmbedder(encoder)
@@ -118,6 +121,7 @@ def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
     outside = nearest_cosine(embedder.embed(list(CALIBRATION)), known)
     threshold, accepted, refused = calibrate([val, inside], outside)
     return Repertoire(embeddings="repertoire.npy", captions="repertoire.json",
+                      prompts="repertoire_prompts.npy",
                       threshold=threshold, held_out_accepted=accepted, outside_refused=refused)
 
 

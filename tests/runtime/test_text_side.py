@@ -9,6 +9,7 @@ import shutil
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mogo import MotionGenerator, PromptWarning, UnfamiliarPromptWarning, UnknownPromptWarning
@@ -116,6 +117,16 @@ def test_prompts_in_the_training_words_are_read_as_in_training(generator, old_ge
     assert step.prompt == "a person walks forward."  # WordNet: plod -> walk
 
 
+def test_other_words_are_played_as_the_nearest_known_caption(generator):
+    """A prompt the trained encoder cannot read gets the prompt embedding of one of the
+    repertoire's captions (the one nearest its adapted embedding), which the level graphs
+    were trained on exactly."""
+    known = np.load(DEFAULT_BUNDLE / generator.manifest.text.repertoire.prompts).astype(np.float32)
+    embedded = generator.embed(["a dancer curtsies.", "someone bounds in place twice.", "🙂"])
+    for row in embedded:
+        assert (known == row).all(axis=1).sum() >= 1
+
+
 def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_generator):
     """The corpus writes "ninety degrees" and "three times", never digits: a prompt with
     digits is read spelt out, so it stays in the training words (no unknown-word warning from
@@ -148,4 +159,14 @@ def test_a_repertoire_that_does_not_match_its_captions_is_refused(tmp_path):
     manifest = Manifest.from_json(json.loads((tmp_path / "b" / "manifest.json").read_text()))
     write_manifest(tmp_path / "b", manifest)  # the sha256 of the edited file
     with pytest.raises(BundleError, match="embeddings for"):
+        MotionGenerator.load(tmp_path / "b")
+
+
+def test_repertoire_prompt_embeddings_must_match_its_captions(tmp_path):
+    shutil.copytree(DEFAULT_BUNDLE, tmp_path / "b")
+    manifest = Manifest.from_json(json.loads((tmp_path / "b" / "manifest.json").read_text()))
+    prompts = tmp_path / "b" / manifest.text.repertoire.prompts
+    np.save(prompts, np.load(prompts)[:-1])
+    write_manifest(tmp_path / "b", manifest)
+    with pytest.raises(BundleError, match="prompt embeddings for"):
         MotionGenerator.load(tmp_path / "b")
