@@ -125,6 +125,8 @@ def test_other_words_are_played_as_the_nearest_known_caption(generator):
     embedded = generator.embed(["a dancer curtsies.", "someone bounds in place twice.", "🙂"])
     for row in embedded:
         assert (known == row).all(axis=1).sum() >= 1
+    near = 3 * known[[5]] + 0.01  # by cosine: its length does not count
+    assert (generator.text.repertoire.nearest_prompt(near) == known[[5]]).all()
 
 
 def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_generator):
