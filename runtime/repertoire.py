@@ -61,12 +61,14 @@ class KnownCaptions:
                                          or len(self.prompts) != len(self.captions)):
             raise BundleError(f"{bundle.path(repertoire.prompts)}: {self.prompts.shape} prompt "
                               f"embeddings for {len(self.captions)} captions")
+        if self.prompts is not None:  # the cosine's denominators, once
+            self._prompt_norms = np.linalg.norm(self.prompts, axis=1)
 
     def nearest_prompt(self, prompt: np.ndarray) -> np.ndarray:
         """The known prompt embedding (1, text_dim) at the highest cosine with `prompt`
         (1, text_dim): the level graphs play the exact embeddings they were trained on far
         better than an adapter's approximation of them (docs/text_encoder.md)."""
-        similarity = self.prompts @ prompt[0] / np.linalg.norm(self.prompts, axis=1)
+        similarity = self.prompts @ prompt[0] / self._prompt_norms
         return self.prompts[None, int(np.argmax(similarity))]
 
     def familiarity(self, sentence: np.ndarray, count: int = 3) -> Familiarity:
