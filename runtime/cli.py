@@ -133,6 +133,9 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         print(motion.alignment.describe())
         if motion.alignment.note:
             print(f"note: {motion.alignment.note}")
+    elif args.text is not None and (known := generator.known(args.text)) is not None and (
+            known.familiar and known.played is not None):  # a far one is told by its warning
+        print(f"note: played as the known caption {known.played!r}", file=sys.stderr)
     name = args.name or _file_stem(motion.caption)
     written = motion.save_take(folder, name, overwrite=args.overwrite,
                                bone_translations=args.bvh_bone_translations,

@@ -13,6 +13,7 @@ import functools
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from tokenizers import Tokenizer
@@ -49,7 +50,7 @@ class TextSide:
         texts = [checked_prompt(t, f"texts[{k}]") for k, t in enumerate(texts)]
         if not texts:
             raise ValueError("no prompt given")
-        return np.concatenate([self._encoded(text)[0] for text in texts])
+        return np.concatenate([self._encoded(text).prompt for text in texts])
 
     def vocabulary(self) -> set[str]:
         """The whole words of the tokenizer the model was trained with."""
@@ -58,7 +59,8 @@ class TextSide:
 
     def familiarity(self, text: str) -> Familiarity:
         """The repertoire's score of a checked prompt (a bundle with a repertoire)."""
-        return self.repertoire.familiarity(self._encoded(text)[1][0])
+        encoded = self._encoded(text)
+        return self.repertoire.familiarity(encoded.sentence[0], encoded.played)
 
     def read(self, text: object, name: str, stacklevel: int) -> str:
         """A prompt checked where it enters the API (mogo.arguments.read_prompt), with an
@@ -72,25 +74,33 @@ class TextSide:
             warnings.warn(familiarity.describe(), UnfamiliarPromptWarning, stacklevel=stacklevel)
         return text
 
-    def _encode_one(self, text: str) -> list[np.ndarray]:
-        """Every output of the text graph for one prompt (batch of 1), the prompt embedding by
-        the encoder trained with the model where the bundle has it and it reads the whole
-        prompt (every word, nothing cut at its length); cached, since a prompt is encoded for
-        its repertoire check and again for its tokens. Numbers are read as the captions
-        spell them (mogo.align_words.spoken_numbers). A prompt the trained encoder cannot read
-        is played as the known caption nearest its adapted embedding, where the repertoire has
-        their prompt embeddings."""
+    def _encode_one(self, text: str) -> _Encoded:
+        """A prompt's embeddings, the prompt embedding by the encoder trained with the model
+        where the bundle has it and it reads the whole prompt (every word, nothing cut at its
+        length); cached, since a prompt is encoded for its repertoire check and again for its
+        tokens. Numbers are read as the captions spell them (mogo.align_words.spoken_numbers).
+        A prompt the trained encoder cannot read is played as a known caption (the one nearest
+        its adapted embedding, mogo.repertoire), where the repertoire has their prompt
+        embeddings."""
         text = spoken_numbers(text)
         outputs = _run(self._graph, self.tokenizer.encode(text))
+        sentence = outputs[1] if len(outputs) > 1 else None  # a sentence encoder's
         if self._trained is not None:
             tokenizer, graph = self._trained
             encoding = tokenizer.encode(text)
             if not encoding.overflowing and word_reading(text, encoding) == (True, []):
-                outputs[0] = _run(graph, encoding)[0]
-                return outputs
+                return _Encoded(_run(graph, encoding)[0], sentence, None)
         if self.repertoire is not None and self.repertoire.prompts is not None:
-            outputs[0] = self.repertoire.nearest_prompt(outputs[0])
-        return outputs
+            index = self.repertoire.nearest(outputs[0], text)
+            return _Encoded(self.repertoire.prompts[[index]], sentence,
+                            self.repertoire.captions[index])
+        return _Encoded(outputs[0], sentence, None)
+
+
+class _Encoded(NamedTuple):
+    prompt: np.ndarray  # (1, text_dim): what the level graphs get
+    sentence: np.ndarray | None  # (1, dim): a sentence encoder's unit embedding
+    played: str | None  # the known caption played instead of the prompt's own embedding
 
 
 def _run(graph: NamedGraph, encoding) -> list[np.ndarray]:

@@ -76,6 +76,17 @@ def test_the_command_notes_a_far_prompt_and_refuses_it_with_strict(tmp_path, cap
     assert error.count("\n") == 1 and not (tmp_path / "strict").exists()
 
 
+def test_the_command_names_the_known_caption_a_prompt_in_other_words_is_played_as(
+        tmp_path, capsys):
+    assert main(["generate", "someone saunters forward", "--seconds", "0.5", "--seed", "0",
+                 "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().err == ("note: played as the known caption "
+                                       "'a person walks ahead in a straight line'\n")
+    assert main(["generate", "a person walks forward", "--seconds", "0.5", "--seed", "0",
+                 "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_a_prompt_past_128_tokens_is_told_where_it_is_cut(generator):
     prompt = "a person walks forward, " * 30 + "then jumps."
     with warnings.catch_warnings(record=True) as caught:
@@ -120,13 +131,31 @@ def test_prompts_in_the_training_words_are_read_as_in_training(generator, old_ge
 def test_other_words_are_played_as_the_nearest_known_caption(generator):
     """A prompt the trained encoder cannot read gets the prompt embedding of one of the
     repertoire's captions (the one nearest its adapted embedding), which the level graphs
-    were trained on exactly."""
+    were trained on exactly; the API names that caption, the prompts read as written have
+    none."""
+    repertoire = generator.text.repertoire
     known = np.load(DEFAULT_BUNDLE / generator.manifest.text.repertoire.prompts).astype(np.float32)
-    embedded = generator.embed(["a dancer curtsies.", "someone bounds in place twice.", "🙂"])
-    for row in embedded:
-        assert (known == row).all(axis=1).sum() >= 1
+    prompts = ["a dancer curtsies.", "someone bounds in place twice.", "🙂"]
+    for prompt, row in zip(prompts, generator.embed(prompts)):
+        played = generator.known(prompt).played
+        index = [c.strip().rstrip(".") for c in repertoire.captions].index(played)
+        assert (known[index] == row).all()
+    assert generator.known("a person walks forward.").played is None
     near = 3 * known[[5]] + 0.01  # by cosine: its length does not count
-    assert (generator.text.repertoire.nearest_prompt(near) == known[[5]]).all()
+    assert repertoire.nearest(near, "someone moves") == 5
+
+
+def test_the_caption_played_agrees_with_the_sides_ways_and_counts_a_prompt_says(generator):
+    """The adapter blurs counts and sides ("applauds twice" lands near "claps four times");
+    between captions about as near, the one saying what the prompt says is played."""
+    repertoire = generator.text.repertoire
+    four, five = (repertoire.captions.index(f"a person claps their hands {n} times.")
+                   for n in ("four", "five"))
+    unit = repertoire.prompts / np.linalg.norm(repertoire.prompts, axis=1, keepdims=True)
+    between = 0.55 * unit[[four]] + 0.45 * unit[[five]]  # a little nearer "four times"
+    assert repertoire.nearest(between, "someone applauds") == four
+    assert repertoire.nearest(between, "someone applauds 5 times") == five
+    assert repertoire.nearest(between, "someone applauds four times") == four
 
 
 def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_generator):
