@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 from mogo.align_wordnet import WORDNET_VERBS
 from mogo.align_words import (CAUSATIVES, FILLERS, HEDGES, LEFT_ALONE, NOUNS, NUMBERS, PHRASES,
-                              SECONDS, SUBJECTS, VERBS, WORD_SYNONYMS, spoken_number)
+                              SECONDS, SEQUENCE, SUBJECTS, VERBS, WORD_SYNONYMS, spoken_number)
 from mogo.motion.skeleton import MAX_SECONDS
 
 MIN_STEP_SECONDS = 1.0
@@ -72,11 +72,6 @@ class PromptAligner:
 
 _DOUBLED = {"jog", "run", "squat", "sit", "clap", "spin", "hop", "step", "sidestep", "jab",
             "put", "get", "trot", "swivel", "skip", "begin", "hit"}
-_SEQUENCE = re.compile(
-    r",?\s*\b(?:and then|and afterwards|and after that|after that|afterwards|after which|"
-    r"(?:and )?(?:when|once) (?:that'?s |that is |it'?s |it is )?(?:done|finished|over)|"
-    r"and finally|finally|lastly|"
-    r"and next|next|followed by|subsequently|then|before)\b,?\s*")
 _AFTER_FIRST = re.compile(r"^after (.+?),\s*(.+)$")
 _AFTER_LAST = re.compile(r"^(.+?)\s+after\s+(.+)$")
 _LETTER_FIXES = str.maketrans({"ß": "ss", "æ": "ae", "œ": "oe", "ø": "o", "ł": "l", "đ": "d",
@@ -187,7 +182,7 @@ class RuleAligner(PromptAligner):
         sentences = re.split(r"[;:!?\n]+|\.(?:\s+|$)", text)
         clauses = []
         for sentence in sentences:
-            parts = _SEQUENCE.split(" " + sentence + " ")
+            parts = SEQUENCE.split(" " + sentence + " ")
             for part in parts:
                 clauses += self._commas(self._after(part))
         return [c for c in clauses if c]

@@ -52,6 +52,12 @@ WORD_SYNONYMS = {"fwd": "forward", "forwards": "forward", "ahead": "forward",
                  "gently": "slowly", "chairs": "chair"}
 PHRASES = {"star jumps": "jumping jacks", "star jump": "jumping jack",
            "counter clockwise": "counterclockwise", "anti clockwise": "counterclockwise"}
+# The words between the steps of a sequence ("walk, then jump"; "after X, Y" apart).
+SEQUENCE = re.compile(
+    r",?\s*\b(?:and then|and afterwards|and after that|after that|afterwards|after which|"
+    r"(?:and )?(?:when|once) (?:that'?s |that is |it'?s |it is )?(?:done|finished|over)|"
+    r"and finally|finally|lastly|"
+    r"and next|next|followed by|subsequently|then|before)\b,?\s*")
 NUMBERS = ("zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine",
            "ten", "eleven", "twelve", "thirteen", "fourteen", "fifteen", "sixteen", "seventeen",
            "eighteen", "nineteen")

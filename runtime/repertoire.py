@@ -15,16 +15,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mogo.align_words import PHRASES, WORD_SYNONYMS, spoken_number, spoken_numbers
+from mogo.align_words import PHRASES, SEQUENCE, WORD_SYNONYMS, spoken_number, spoken_numbers
 from mogo.bundle import Bundle, BundleError
 from mogo.manifest import Repertoire
 
-# Which side, which way and how many: a prompt says these in the captions' own words
-# ("applauds twice", "to the left"), yet the adapter blurs them ("applauds twice" lands near
-# "claps four times"). Picking the caption a prompt is played as, each kind of these words the
-# prompt and a caption both have adds SAY_WEIGHT to the cosine where they agree and takes it
-# off where they differ (weight chosen on the held-out and fresh phrasebooks,
-# docs/text_encoder.md).
+# How many steps, which side, which way and how many times: a prompt says these in the
+# captions' own words ("then", "to the left", "twice"), yet the adapter blurs them ("applauds
+# twice" lands near "claps its hands twice then raises its left arm"). Picking the caption a
+# prompt is played as, each kind of these the prompt and a caption both name adds SAY_WEIGHT
+# to the cosine where they agree and takes it off where they differ (chosen on the held-out
+# and fresh phrasebooks, docs/text_encoder.md).
 _SIDES = dict(left="left", leftward="left", counterclockwise="left", right="right",
               rightward="right", clockwise="right", both="both")
 _WAYS = dict(forward="forward", backward="backward")
@@ -120,12 +120,14 @@ def _shown(caption: str) -> str:
 
 
 def _what_it_says(text: str) -> dict[str, frozenset]:
-    """The sides, ways and counts a text names, by kind; kinds it does not name are left out."""
+    """The steps, sides, ways and counts a text names, by kind; kinds it does not name (but
+    steps, at least one) are left out."""
     text = spoken_numbers(text.lower())
     for phrase, said in PHRASES.items():  # "counter clockwise"
         text = text.replace(phrase, said)
     words = [WORD_SYNONYMS.get(w, w) for w in re.findall(r"[a-z]+", text)]
-    says = dict(side=frozenset(_SIDES[w] for w in words if w in _SIDES),
+    steps = 1 + len(SEQUENCE.findall(f" {text} ")) + len(re.findall(r"\bafter\b(?! that)", text))
+    says = dict(steps=frozenset({steps}), side=frozenset(_SIDES[w] for w in words if w in _SIDES),
                 way=frozenset(_WAYS[w] for w in words if w in _WAYS),
                 count=frozenset(_COUNTS[n] for n in _COUNT.findall(text)))
     return {kind: values for kind, values in says.items() if values}

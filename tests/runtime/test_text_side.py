@@ -17,6 +17,7 @@ from mogo.bundle import BundleError, write_manifest
 from mogo.cli import main
 from mogo.generator import DEFAULT_BUNDLE
 from mogo.manifest import Manifest
+from mogo.repertoire import _what_it_says
 
 from helpers import OLD_TEXT_SIDE
 
@@ -145,17 +146,26 @@ def test_other_words_are_played_as_the_nearest_known_caption(generator):
     assert repertoire.nearest(near, "someone moves") == 5
 
 
-def test_the_caption_played_agrees_with_the_sides_ways_and_counts_a_prompt_says(generator):
-    """The adapter blurs counts and sides ("applauds twice" lands near "claps four times");
-    between captions about as near, the one saying what the prompt says is played."""
+def test_the_caption_played_agrees_with_the_steps_sides_and_counts_a_prompt_says(generator):
+    """The adapter blurs steps, counts and sides ("applauds twice" lands near "claps twice then
+    raises its left arm"); between captions about as near, the one saying what the prompt
+    says is played."""
     repertoire = generator.text.repertoire
-    four, five = (repertoire.captions.index(f"a person claps their hands {n} times.")
-                   for n in ("four", "five"))
+    captions = repertoire.captions
+    four, five = (captions.index(f"a person claps their hands {n} times.")
+                  for n in ("four", "five"))
+    three_steps = captions.index("a person claps their hands four times and then jogs backwards "
+                                 "straight quickly and then walks to the right quickly straight.")
     unit = repertoire.prompts / np.linalg.norm(repertoire.prompts, axis=1, keepdims=True)
     between = 0.55 * unit[[four]] + 0.45 * unit[[five]]  # a little nearer "four times"
     assert repertoire.nearest(between, "someone applauds") == four
     assert repertoire.nearest(between, "someone applauds 5 times") == five
     assert repertoire.nearest(between, "someone applauds four times") == four
+    between = 0.55 * unit[[three_steps]] + 0.45 * unit[[four]]
+    assert repertoire.nearest(between, "someone applauds four times") == four
+    played = repertoire.nearest(between, "someone applauds four times, then jogs backwards, "
+                                         "then walks right")
+    assert _what_it_says(captions[played])["steps"] == {3}  # the one nearer or one like it
 
 
 def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_generator):
