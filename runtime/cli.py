@@ -133,9 +133,8 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         print(motion.alignment.describe())
         if motion.alignment.note:
             print(f"note: {motion.alignment.note}")
-    elif args.text is not None and (known := generator.known(args.text)) is not None and (
-            known.familiar and known.played is not None):  # a far one is told by its warning
-        print(f"note: played as the known caption {known.played!r}", file=sys.stderr)
+    elif args.text is not None:
+        _note_played(generator, args.text)
     name = args.name or _file_stem(motion.caption)
     written = motion.save_take(folder, name, overwrite=args.overwrite,
                                bone_translations=args.bvh_bone_translations,
@@ -152,12 +151,21 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         print(f"wrote {path}")
 
 
+def _note_played(generator, text: str) -> None:
+    """A `note:` line on stderr naming the known caption a prompt in other words is played as
+    (a prompt far from the repertoire has it in its warning's note already)."""
+    known = generator.known(text)
+    if known is not None and known.familiar and known.played is not None:
+        print(f"note: played as the known caption {known.played!r}", file=sys.stderr)
+
+
 def _cmd_stream(args: argparse.Namespace) -> None:
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be at least 1, got {args.frames}")
     generator = _load_generator(args)
     stream = generator.stream(args.text, seed=args.seed, sampling=_sampling(args, generator),
                               plant_feet=args.plant_feet)
+    _note_played(generator, args.text)
     try:
         for index, frame in enumerate(stream.frames(args.frames)):
             record = dict(frame=index, seconds=round(index / generator.fps, 4),

@@ -86,6 +86,9 @@ def test_the_command_names_the_known_caption_a_prompt_in_other_words_is_played_a
     assert main(["generate", "a person walks forward", "--seconds", "0.5", "--seed", "0",
                  "--out", str(tmp_path)]) == 0
     assert capsys.readouterr().err == ""
+    assert main(["stream", "someone saunters forward", "--frames", "1", "--seed", "0"]) == 0
+    assert capsys.readouterr().err == ("note: played as the known caption "
+                                       "'a person walks ahead in a straight line'\n")
 
 
 def test_a_prompt_past_128_tokens_is_told_where_it_is_cut(generator):
