@@ -153,10 +153,9 @@ def _cmd_generate(args: argparse.Namespace) -> None:
 
 def _note_played(generator, text: str) -> None:
     """A `note:` line on stderr naming the known caption a prompt in other words is played as
-    (a prompt far from the repertoire has it in its warning's note already)."""
-    known = generator.known(text)
-    if known is not None and known.familiar and known.played is not None:
-        print(f"note: played as the known caption {known.played!r}", file=sys.stderr)
+    (mogo.repertoire.Familiarity.played_note)."""
+    if (known := generator.known(text)) is not None and known.played_note:
+        print(f"note: {known.played_note}", file=sys.stderr)
 
 
 def _cmd_stream(args: argparse.Namespace) -> None:

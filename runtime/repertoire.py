@@ -49,6 +49,14 @@ class Familiarity:
     def familiar(self) -> bool:
         return self.score >= self.threshold
 
+    @property
+    def played_note(self) -> str | None:
+        """A line naming the caption a familiar prompt in other words is played as (a far
+        one's description names it already); None where there is nothing to tell."""
+        if self.familiar and self.played is not None:
+            return f"played as the known caption {self.played!r}"
+        return None
+
     def describe(self) -> str:
         """One line for the user."""
         nearest = ", ".join(repr(c) for c in self.nearest)

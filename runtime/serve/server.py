@@ -75,7 +75,8 @@ class Server:
         return await asyncio.get_running_loop().run_in_executor(self.thread, function, *args)
 
     def checked_prompt(self, prompt: str) -> tuple[str, list[str]]:
-        """A prompt the model can read, and notes for words it cannot; ProtocolError else."""
+        """A prompt the model can read, and notes for words it cannot and for the known
+        caption it is played as; ProtocolError else."""
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", PromptWarning)
             warnings.simplefilter("error", UnknownPromptWarning)
@@ -83,7 +84,10 @@ class Server:
                 text = self.generator._prompt(prompt, "prompt")
             except (TypeError, ValueError, UnknownPromptWarning) as error:
                 raise protocol.ProtocolError(str(error)) from None
-        return text, [str(w.message) for w in caught if issubclass(w.category, PromptWarning)]
+        notes = [str(w.message) for w in caught if issubclass(w.category, PromptWarning)]
+        if (known := self.generator.known(text)) is not None and known.played_note:
+            notes.append(known.played_note)
+        return text, notes
 
     def open(self, start: protocol.Start) -> tuple[ServedStream, list[str]]:
         if len(self.engine.streams) >= self.max_streams:

@@ -103,6 +103,9 @@ def test_bad_messages_get_an_error_on_their_socket_and_the_others_go_on(generato
             await far.send_json({"prompt": "qwxz zzyq"})
             await next_of(far, "started")
             assert "far from what this model knows" in (await next_of(far, "note"))["note"]
+            await far.send_json({"prompt": "someone saunters forward"})  # other words
+            assert (await next_of(far, "note"))["note"] == (
+                "played as the known caption 'a person walks ahead in a straight line'")
             await frames(ws, 10)
             await frames(other, 30)
             for socket in (ws, other, far):
