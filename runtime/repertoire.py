@@ -1,11 +1,14 @@
-"""How close a prompt is to what the model was trained on.
+"""How close a prompt is to what the model was trained on, and which known caption a prompt
+in other words is played as.
 
 A bundle with a pretrained sentence encoder reads any words, but its motion model still knows
 only the actions of its training captions: "a person does a backflip" is read perfectly and
 then played as whatever known caption it lands nearest. The bundle carries sentence embeddings
 of its training captions (manifest `text.repertoire`); a prompt's score is the cosine of its
 own sentence embedding with the nearest of them, and the threshold set at export (with its
-error rates in the manifest) tells familiar from far.
+error rates in the manifest) tells familiar from far. Where the repertoire also has the
+captions' prompt embeddings, a prompt the trained encoder cannot read is played as one of them
+(KnownCaptions.nearest).
 """
 from __future__ import annotations
 
@@ -31,6 +34,7 @@ _WAYS = dict(forward="forward", backward="backward")
 _COUNTS = {spoken_number(n): n for n in range(1000)} | {"once": 1, "twice": 2}
 _COUNT = re.compile(r"\b(" + "|".join(sorted(map(re.escape, _COUNTS), key=len, reverse=True))
                     + r")\b")
+_AFTER = re.compile(r"\bafter\b(?! that| which)")  # "after X, Y" (SEQUENCE has the others)
 SAY_WEIGHT = 0.1
 
 
@@ -96,8 +100,8 @@ class KnownCaptions:
 
     def nearest(self, prompt: np.ndarray, text: str) -> int:
         """The index of the known prompt embedding at the highest cosine with `prompt`
-        (1, text_dim), the adapted embedding of `text`, with the sides, ways and counts `text`
-        says agreeing (SAY_WEIGHT): the level graphs play the exact embeddings they were
+        (1, text_dim), the adapted embedding of `text`, with the steps, sides, ways and counts
+        `text` says agreeing (SAY_WEIGHT): the level graphs play the exact embeddings they were
         trained on far better than an adapter's approximation of them (docs/text_encoder.md)."""
         says = _what_it_says(text)
         agreement = [sum(1 if said[kind] == value else -1 for kind, value in says.items()
@@ -134,7 +138,7 @@ def _what_it_says(text: str) -> dict[str, frozenset]:
     for phrase, said in PHRASES.items():  # "counter clockwise"
         text = text.replace(phrase, said)
     words = [WORD_SYNONYMS.get(w, w) for w in re.findall(r"[a-z]+", text)]
-    steps = 1 + len(SEQUENCE.findall(f" {text} ")) + len(re.findall(r"\bafter\b(?! that)", text))
+    steps = 1 + len(SEQUENCE.findall(f" {text} ")) + len(_AFTER.findall(text))
     says = dict(steps=frozenset({steps}), side=frozenset(_SIDES[w] for w in words if w in _SIDES),
                 way=frozenset(_WAYS[w] for w in words if w in _WAYS),
                 count=frozenset(_COUNTS[n] for n in _COUNT.findall(text)))
