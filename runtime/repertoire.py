@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mogo.align_words import PHRASES, SEQUENCE, WORD_SYNONYMS, spoken_number, spoken_numbers
+from mogo.align_words import (NUMBERS, PHRASES, SEQUENCE, TENS, WORD_SYNONYMS, spoken_number,
+                               spoken_numbers)
 from mogo.bundle import Bundle, BundleError
 from mogo.manifest import Repertoire
 
@@ -32,8 +33,10 @@ _SIDES = dict(left="left", leftward="left", counterclockwise="left", right="righ
               rightward="right", clockwise="right", both="both")
 _WAYS = dict(forward="forward", backward="backward")
 _COUNTS = {spoken_number(n): n for n in range(1000)} | {"once": 1, "twice": 2}
-_COUNT = re.compile(r"\b(" + "|".join(sorted(map(re.escape, _COUNTS), key=len, reverse=True))
-                    + r")\b")
+_UNDER_100 = (rf"(?:(?:{'|'.join(TENS[2:])})(?:-(?:{'|'.join(NUMBERS[1:10])}))?"
+              rf"|{'|'.join(sorted(NUMBERS, key=len, reverse=True))})")
+_COUNT = re.compile(rf"\b(?:(?:a|{'|'.join(NUMBERS[2:10])}) hundred(?: and {_UNDER_100})?"
+                    rf"|{_UNDER_100}|once|twice)\b")  # the spellings of _COUNTS
 _AFTER = re.compile(r"\bafter\b(?! that| which)")  # "after X, Y" (SEQUENCE has the others)
 SAY_WEIGHT = 0.1
 
@@ -141,5 +144,5 @@ def _what_it_says(text: str) -> dict[str, frozenset]:
     steps = 1 + len(SEQUENCE.findall(f" {text} ")) + len(_AFTER.findall(text))
     says = dict(steps=frozenset({steps}), side=frozenset(_SIDES[w] for w in words if w in _SIDES),
                 way=frozenset(_WAYS[w] for w in words if w in _WAYS),
-                count=frozenset(_COUNTS[n] for n in _COUNT.findall(text)))
+                count=frozenset(_COUNTS[n] for n in _COUNT.findall(text) if n in _COUNTS))
     return {kind: values for kind, values in says.items() if values}
