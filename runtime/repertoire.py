@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mogo.align_words import (NUMBERS, PHRASES, SEQUENCE, TENS, WORD_SYNONYMS, spoken_number,
-                               spoken_numbers)
+                              spoken_numbers)
 from mogo.bundle import Bundle, BundleError
 from mogo.manifest import Repertoire
 
