@@ -214,7 +214,8 @@ def _cmd_info(args: argparse.Namespace) -> None:
                      f"{r.held_out_accepted:.0%} of held-out captions, refuses "
                      f"{r.outside_refused:.0%} of outside prompts"
                      + ("; prompts in other words are played as the caption nearest their "
-                        "adapted embedding" if r.prompts else ""))
+                        "adapted embedding that says the same steps, sides and counts"
+                        if r.prompts else ""))
     if m.int8 is not None:
         lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
     for part, run in m.training.items():
