@@ -20,8 +20,9 @@ from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 from mogo.align_wordnet import WORDNET_VERBS
-from mogo.align_words import (CAUSATIVES, FILLERS, HEDGES, LEFT_ALONE, NOUNS, NUMBERS, PHRASES,
-                              SECONDS, SEQUENCE, SUBJECTS, VERBS, WORD_SYNONYMS, spoken_number)
+from mogo.align_words import (CAUSATIVES, FILLERS, HEDGES, LEFT_ALONE, NOUNS, NUMBERS, SECONDS,
+                              SEQUENCE, SUBJECTS, VERBS, WORD_SYNONYMS, caption_phrases,
+                              spoken_number)
 from mogo.motion.skeleton import MAX_SECONDS
 
 MIN_STEP_SECONDS = 1.0
@@ -176,8 +177,7 @@ class RuleAligner(PromptAligner):
         text = unicodedata.normalize("NFKD", text.lower().translate(_LETTER_FIXES))
         text = re.sub(r"\b(\d+) ?x\b|\bx ?(\d+)\b", lambda m: f"{m[1] or m[2]} times", text)
         text = re.sub(r"[-_]", " ", text)
-        for phrase, caption_words in PHRASES.items():
-            text = text.replace(phrase, caption_words)
+        text = caption_phrases(text)
         text = re.sub(r"\b(?:" + "|".join(HEDGES) + r")\b", " ", text)
         sentences = re.split(r"[;:!?\n]+|\.(?:\s+|$)", text)
         clauses = []

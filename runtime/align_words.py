@@ -50,6 +50,7 @@ WORD_SYNONYMS = {"fwd": "forward", "forwards": "forward", "ahead": "forward",
                  "palms": "hands", "fists": "fist", "hi": "hello", "bye": "hello",
                  "goodbye": "hello", "rapid": "quick", "rapidly": "quickly",
                  "gently": "slowly", "chairs": "chair"}
+# Phrases the captions write otherwise (caption_phrases).
 PHRASES = {"star jumps": "jumping jacks", "star jump": "jumping jack",
            "counter clockwise": "counterclockwise", "anti clockwise": "counterclockwise"}
 # The words between the steps of a sequence ("walk, then jump"; "after X, Y" apart).
@@ -124,3 +125,13 @@ def spoken_numbers(text: str) -> str:
             return "once" if n == 1 else "twice"
         return spoken_number(n) + (times or "")
     return _NUMBER.sub(spell, text)
+
+
+_PHRASE = re.compile(rf"\b(?:{'|'.join(PHRASES)})\b", re.IGNORECASE)
+
+
+def caption_phrases(text: str) -> str:
+    """A prompt with its PHRASES as the captions write them ("star jumps" -> "jumping jacks"),
+    for the readers of what it says: the rules and the repertoire. (The encoders do not get
+    it: the prompts so rewritten played worse than their own words, docs/text_encoder.md.)"""
+    return _PHRASE.sub(lambda match: PHRASES[match[0].lower()], text)

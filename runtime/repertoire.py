@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mogo.align_words import (NUMBERS, PHRASES, SEQUENCE, TENS, WORD_SYNONYMS, spoken_number,
-                              spoken_numbers)
+from mogo.align_words import (NUMBERS, SEQUENCE, TENS, WORD_SYNONYMS, caption_phrases,
+                              spoken_number, spoken_numbers)
 from mogo.bundle import Bundle, BundleError
 from mogo.manifest import Repertoire
 
@@ -99,14 +99,14 @@ class KnownCaptions:
                               f"embeddings for {len(self.captions)} captions")
         if self.prompts is not None:  # the cosine's denominators and what captions say, once
             self._prompt_norms = np.linalg.norm(self.prompts, axis=1)
-            self._says = [_what_it_says(caption) for caption in self.captions]
+            self._says = [what_it_says(caption) for caption in self.captions]
 
     def nearest(self, prompt: np.ndarray, text: str) -> int:
         """The index of the known prompt embedding at the highest cosine with `prompt`
         (1, text_dim), the adapted embedding of `text`, with the steps, sides, ways and counts
         `text` says agreeing (SAY_WEIGHT): the level graphs play the exact embeddings they were
         trained on far better than an adapter's approximation of them (docs/text_encoder.md)."""
-        says = _what_it_says(text)
+        says = what_it_says(text)
         agreement = [sum(1 if said[kind] == value else -1 for kind, value in says.items()
                          if kind in said) for said in self._says]
         similarity = self.prompts @ prompt[0] / self._prompt_norms / np.linalg.norm(prompt)
@@ -134,12 +134,10 @@ def _shown(caption: str) -> str:
     return caption.strip().rstrip(".")
 
 
-def _what_it_says(text: str) -> dict[str, frozenset]:
+def what_it_says(text: str) -> dict[str, frozenset]:
     """The steps, sides, ways and counts a text names, by kind; kinds it does not name (but
     steps, at least one) are left out."""
-    text = spoken_numbers(text.lower())
-    for phrase, said in PHRASES.items():  # "counter clockwise"
-        text = text.replace(phrase, said)
+    text = caption_phrases(spoken_numbers(text)).lower()
     words = [WORD_SYNONYMS.get(w, w) for w in re.findall(r"[a-z]+", text)]
     steps = 1 + len(SEQUENCE.findall(f" {text} ")) + len(_AFTER.findall(text))
     says = dict(steps=frozenset({steps}), side=frozenset(_SIDES[w] for w in words if w in _SIDES),

@@ -7,7 +7,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import pytest
 
 from mogo.align import AlignedStep, Alignment, RuleAligner, edit_distance, plain_words
-from mogo.align_words import spoken_number, spoken_numbers
+from mogo.align_words import caption_phrases, spoken_number, spoken_numbers
 from mogo.cli import main
 from mogo.generator import MotionGenerator
 from mogo.llm_align import LLMAligner
@@ -339,3 +339,5 @@ def test_numbers_are_spelt_as_the_captions_spell_them():
         "turn ninety degrees, clap twice, wave once, jump three times")
     for kept in ("walk for 2.5 seconds", "jump 12x", "the v2 model", "1,000 steps"):
         assert spoken_numbers(kept) == kept
+    assert caption_phrases("do 4 Star Jumps, then spin counter clockwise") == (
+        "do 4 jumping jacks, then spin counterclockwise")

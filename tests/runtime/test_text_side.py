@@ -17,7 +17,7 @@ from mogo.bundle import BundleError, write_manifest
 from mogo.cli import main
 from mogo.generator import DEFAULT_BUNDLE
 from mogo.manifest import Manifest
-from mogo.repertoire import _what_it_says
+from mogo.repertoire import what_it_says
 
 from helpers import OLD_TEXT_SIDE
 
@@ -168,7 +168,7 @@ def test_the_caption_played_agrees_with_the_steps_sides_and_counts_a_prompt_says
     assert repertoire.nearest(between, "someone applauds four times") == four
     played = repertoire.nearest(between, "someone applauds four times, then jogs backwards, "
                                          "then walks right")
-    assert _what_it_says(captions[played])["steps"] == {3}  # the one nearer or one like it
+    assert what_it_says(captions[played])["steps"] == {3}  # the one nearer or one like it
 
 
 def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_generator):
