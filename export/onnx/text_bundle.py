@@ -8,7 +8,6 @@ is retrained, so OLD's training runs are not needed.
 from __future__ import annotations
 
 import json
-import re
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -17,6 +16,7 @@ import numpy as np
 import torch
 from tokenizers import Tokenizer
 
+from mogo.align import plain_words, primitive_of
 from mogo.bundle import Bundle, write_manifest
 from mogo.export.data.outside_repertoire import CALIBRATION, INSIDE
 from mogo.export.models.runs import load_checkpoint
@@ -26,9 +26,10 @@ from mogo.export.onnx.bundle import _new_folder
 from mogo.export.onnx.text_graph import export_sentence_text_graph
 from mogo.manifest import (SENTENCE_ENCODER, Manifest, Pretrained, Repertoire, Text, TrainedEncoder,
                            TrainingRun)
+from mogo.repertoire import what_it_says
 
 TRAINED, TRAINED_TOKENIZER = "trained_text_encoder.onnx", "trained_tokenizer.json"
-REPERTOIRE_SIZE = 2048  # captions kept (k-means medoids of the training captions' embeddings)
+REPERTOIRE_SIZE = 2048  # training captions kept, about (kept_captions)
 CHECK_CAPTIONS = 256  # val captions the int8 graph is compared with the fp32 reference on
 
 
@@ -100,16 +101,11 @@ def _reference_cosine(encoder: Path, out: Path, texts: list[str]) -> float:
 
 
 def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
-    """REPERTOIRE_SIZE training captions that cover the rest (medoids of spherical k-means:
-    half of them of the captions of one action, half of those of several, so that a short
-    prompt finds a short caption), their prompt embeddings by the bundle's own encoder (the
-    adapter's targets), and the threshold that best separates the val captions and INSIDE
-    from CALIBRATION (each of the three counted as a third)."""
+    """The training captions kept (`kept_captions`), their prompt embeddings by the bundle's
+    own encoder (the adapter's targets), and the threshold that best separates the val
+    captions and INSIDE from CALIBRATION (each of the three counted as a third)."""
     texts, sentences = own_captions(captions, "train")
-    single = np.array([_one_action(str(t)) for t in texts])
-    kept = np.sort(np.concatenate([
-        np.flatnonzero(group)[medoids(sentences[group], min(REPERTOIRE_SIZE // 2, group.sum()))]
-        for group in (single, ~single)]))
+    kept = kept_captions([str(t) for t in texts], sentences)
     np.save(out / "repertoire.npy", sentences[kept].astype(np.float16))
     targets = captions["train_target"][~variant_rows(captions, "train")]
     np.save(out / "repertoire_prompts.npy", targets[kept].astype(np.float16))
@@ -151,10 +147,26 @@ def calibrate(inside: list[np.ndarray], outside: np.ndarray) -> tuple[float, flo
             round(float(rates[best][-1]), 4))
 
 
-def _one_action(caption: str) -> bool:
-    """A caption of one action: no joining words between several."""
-    return not re.search(r"\b(then|after|afterwards|followed|before|while|next)\b|[,;]",
-                         caption.rstrip(". "))
+def kept_captions(texts: list[str], sentences: np.ndarray) -> np.ndarray:
+    """Indices (sorted) of about REPERTOIRE_SIZE of `texts` that cover them all, medoids of
+    their unit `sentences`: half of them captions of one action, half of several, so that a
+    short prompt finds a short caption. The captions of one action are covered group by group
+    of their action (the rule aligner's reading of their verb) and what they say (sides, ways,
+    counts: mogo.repertoire.what_it_says), each group in proportion to its size and by one at
+    least: medoids of the sentence space alone kept "claps four times" and "claps five times"
+    and no other count of claps, and a prompt that says "twice" could not be played as
+    twice."""
+    says = [what_it_says(text) for text in texts]
+    single = np.array([said["steps"] == {1} for said in says])
+    groups: dict[tuple, list[int]] = {}
+    for index in np.flatnonzero(single):
+        action = primitive_of(plain_words(texts[index]))
+        groups.setdefault((action, frozenset(says[index].items())), []).append(index)
+    half = REPERTOIRE_SIZE // 2
+    shares = [(np.flatnonzero(~single), half)] + [
+        (np.array(rows), max(1, round(half * len(rows) / single.sum()))) for rows in groups.values()]
+    return np.sort(np.concatenate([rows[medoids(sentences[rows], min(share, len(rows)))]
+                                   for rows, share in shares if len(rows)]))
 
 
 def medoids(points: np.ndarray, k: int, iterations: int = 8, seed: int = 0) -> np.ndarray:

@@ -14,7 +14,8 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from mogo.export.models.sentence_encoder import Adapter, mean_pool, read_safetensors
-from mogo.export.onnx.text_bundle import calibrate, medoids, own_captions
+from mogo.export.onnx.text_bundle import (REPERTOIRE_SIZE, calibrate, kept_captions, medoids,
+                                          own_captions)
 from mogo.export.onnx.text_graph import export_sentence_text_graph
 
 HIDDEN = 8
@@ -90,11 +91,27 @@ def test_medoids_cover_every_cluster():
     assert sorted(set(kept // 20)) == [0, 1, 2, 3]
 
 
+def test_the_repertoire_keeps_every_action_count_side_and_way_its_captions_say():
+    """Sentence embeddings blur counts and sides: captions that differ in nothing else sit
+    together, and medoids of them all would keep the common count alone."""
+    rng = np.random.default_rng(0)
+    rare = ["a person claps twice.", "a person claps three times.", "a person claps six times.",
+            "a person claps four times to the left.", "a person waves four times."]
+    several = ["a person claps four times, then waves.", "a person waves then claps."]
+    texts = ["a person claps four times."] * 20000 + rare + several
+    sentences = rng.normal(size=(1, 16)) + 0.01 * rng.normal(size=(len(texts), 16))
+    sentences /= np.linalg.norm(sentences, axis=1, keepdims=True)
+    kept = kept_captions(texts, sentences)
+    assert set(rare + several) <= {texts[k] for k in kept}
+    assert len(kept) <= REPERTOIRE_SIZE // 2 + len(rare) + len(several)
+    assert list(kept) == sorted(set(kept))
+
+
 @pytest.mark.skipif(not Path("/usr/share/wordnet/data.verb").is_file(),
                     reason="WordNet (Debian wordnet-base) is not installed")
 def test_the_committed_wordnet_table_is_the_generators_output(tmp_path):
-    from mogo.align_words import VERBS
     from mogo.align_wordnet import WORDNET_VERBS
+    from mogo.align_words import VERBS
     from mogo.export.data.wordnet_synonyms import verb_table
 
     table = verb_table(Path("/usr/share/wordnet"), {v for vs in VERBS.values() for v in vs})

@@ -82,13 +82,13 @@ def test_the_command_names_the_known_caption_a_prompt_in_other_words_is_played_a
     assert main(["generate", "someone saunters forward", "--seconds", "0.5", "--seed", "0",
                  "--out", str(tmp_path)]) == 0
     assert capsys.readouterr().err == ("note: played as the known caption "
-                                       "'a person walks ahead in a straight line'\n")
+                                       "'a person takes three steps forward straight'\n")
     assert main(["generate", "a person walks forward", "--seconds", "0.5", "--seed", "0",
                  "--out", str(tmp_path)]) == 0
     assert capsys.readouterr().err == ""
     assert main(["stream", "someone saunters forward", "--frames", "1", "--seed", "0"]) == 0
     assert capsys.readouterr().err == ("note: played as the known caption "
-                                       "'a person walks ahead in a straight line'\n")
+                                       "'a person takes three steps forward straight'\n")
 
 
 def test_a_prompt_past_128_tokens_is_told_where_it_is_cut(generator):
@@ -160,15 +160,18 @@ def test_the_caption_played_agrees_with_the_steps_sides_and_counts_a_prompt_says
     three_steps = captions.index("a person claps their hands four times and then jogs backwards "
                                  "straight quickly and then walks to the right quickly straight.")
     unit = repertoire.prompts / np.linalg.norm(repertoire.prompts, axis=1, keepdims=True)
-    between = 0.55 * unit[[four]] + 0.45 * unit[[five]]  # a little nearer "four times"
-    assert repertoire.nearest(between, "someone applauds") == four
-    assert repertoire.nearest(between, "someone applauds 5 times") == five
-    assert repertoire.nearest(between, "someone applauds four times") == four
-    between = 0.55 * unit[[three_steps]] + 0.45 * unit[[four]]
-    assert repertoire.nearest(between, "someone applauds four times") == four
-    played = repertoire.nearest(between, "someone applauds four times, then jogs backwards, "
-                                         "then walks right")
-    assert what_it_says(captions[played])["steps"] == {3}  # the one nearer or one like it
+
+    def says(embedding, text, kind):  # what the caption `text` is played as says
+        return what_it_says(captions[repertoire.nearest(embedding, text)])[kind]
+
+    four_or_five = 0.55 * unit[[four]] + 0.45 * unit[[five]]  # a little nearer "four times"
+    assert says(four_or_five, "someone applauds", "count") == {4}  # the nearer, or one as near
+    assert says(four_or_five, "someone applauds 5 times", "count") == {5}
+    assert says(four_or_five, "someone applauds four times", "count") == {4}
+    steps_or_four = 0.55 * unit[[three_steps]] + 0.45 * unit[[four]]
+    assert says(steps_or_four, "someone applauds four times", "steps") == {1}
+    assert says(steps_or_four, "someone applauds four times, then jogs backwards, then walks "
+                               "right", "steps") == {3}
 
 
 def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_generator):

@@ -105,7 +105,7 @@ def test_bad_messages_get_an_error_on_their_socket_and_the_others_go_on(generato
             assert "far from what this model knows" in (await next_of(far, "note"))["note"]
             await far.send_json({"prompt": "someone saunters forward"})  # other words
             assert (await next_of(far, "note"))["note"] == (
-                "played as the known caption 'a person walks ahead in a straight line'")
+                "played as the known caption 'a person takes three steps forward straight'")
             await frames(ws, 10)
             await frames(other, 30)
             for socket in (ws, other, far):
