@@ -8,6 +8,9 @@ Prints markdown tables:
   item's real length and judged by the semantic checks (mogo.bench.quality.semantic), without
   and with the rule aligner;
 - the in-vocabulary items themselves (their own test captions), the same way;
+- which known caption each bundle plays the paraphrases and own captions as (where it plays
+  one): the share that is a training caption of the item's own action, and of its action and
+  the parameters it says (`played_rates`), no motion generated;
 - the repertoire check of a bundle that has one: the share of test captions and of the
   paraphrases it accepts, and of the outside prompts (mogo.export.data.outside_repertoire.TEST,
   never used to set the threshold) it refuses;
@@ -17,6 +20,7 @@ Prints markdown tables:
 from __future__ import annotations
 
 import argparse
+import collections
 import time
 import warnings
 from pathlib import Path
@@ -52,6 +56,37 @@ def pass_rate(generator: MotionGenerator, items: list[SemanticItem], prompts: li
             counts[0] += passed
             counts[1] += 1
     return sum(c[0] for c in per.values()) / (seeds * len(items)), per
+
+
+# What a phrasebook says of an item besides its action (mogo.bench.quality.paraphrases)
+SAID = ("direction", "hand", "foot", "count", "angle")
+
+
+def said(item: SemanticItem) -> tuple:
+    return (item.primitive,) + tuple((k, item.params[k]) for k in SAID if k in item.params)
+
+
+def known_captions(items: list[SemanticItem]) -> dict[str, tuple]:
+    """Training caption (without its final full stop, as Familiarity.played names it) ->
+    what it says (`said`) of the segment it most often covers."""
+    counts: dict[str, collections.Counter] = {}
+    for item in items:
+        counts.setdefault(item.caption.strip().rstrip("."), collections.Counter())[said(item)] += 1
+    return {caption: c.most_common(1)[0][0] for caption, c in counts.items()}
+
+
+def played_rates(generator: MotionGenerator, items: list[SemanticItem], prompts: list[str],
+                 known: dict[str, tuple]) -> tuple[int, float, float]:
+    """Of the prompts played as a known caption (`generator.known(p).played`): how many, the
+    share of them whose caption is of their item's action, and of its action and what it says
+    (a caption of several actions is neither)."""
+    played = [(item, generator.known(p).played) for item, p in zip(items, prompts)]
+    played = [(said(item), known.get(caption)) for item, caption in played if caption is not None]
+    if not played:
+        return 0, float("nan"), float("nan")
+    return (len(played), float(np.mean([got is not None and got[0] == want[0]
+                                        for want, got in played])),
+            float(np.mean([got == want for want, got in played])))
 
 
 def encoder_ms(generator: MotionGenerator, prompts: list[str]) -> float:
@@ -110,6 +145,17 @@ def main() -> None:
     for primitive in detail["after", HELD_OUT.name]:
         cells = " | ".join(f"{d[primitive][0]}/{d[primitive][1]}" for d in detail.values())
         print(f"| {primitive} | {cells} |")
+    known = known_captions(program_items(args.data, folder.ids("train")))
+    print("\nCaption played (where a bundle plays a prompt as a known caption): share of its "
+          "own action / of its action and the " + ", ".join(SAID) + " it says\n\n| bundle | "
+          + " | ".join([*books, "own captions"]) + " |\n|---|" + "---|" * (len(books) + 1))
+    for name, generator in generators.items():
+        if generator.repertoire is None or generator.repertoire.prompts is None:
+            continue
+        cells = [played_rates(generator, items, prompts, known)
+                 for prompts in [*books.values(), captions]]
+        print(f"| {name} | " + " | ".join(f"{action:.0%} / {both:.0%} (n {n})"
+                                          for n, action, both in cells) + " |")
     _repertoire_table(generators["after"], folder, books)
     print("\n| bundle | text encoder ms per prompt (median) | bundle MB |\n|---|---|---|")
     probe = [f"{p} ({k})" for k, p in enumerate(books[HELD_OUT.name][:60])]  # nothing cached
