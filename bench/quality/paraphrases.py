@@ -10,8 +10,9 @@ shipped: other verbs, and subjects none of which is among the adapter's WordNet 
 nearest-caption step was then chosen on it and on HELD_OUT) and UNSEEN (written before that
 step's settings were chosen and used for no choice: key words in no caption of the text run,
 neither the training captions nor their subject and verb variants, and subjects that are no
-WordNet person). Direction, hand, foot and count words are the corpus's own (there
-is no other way to say "left").
+WordNet person; its failed claps, with the other books', later showed the repertoire lacking
+their counts, docs/text_encoder.md). Direction, hand, foot and count words are the corpus's
+own (there is no other way to say "left").
 """
 from __future__ import annotations
 
