@@ -2,7 +2,7 @@
 never use for its action ("a dancer plods to the left", "someone applauds three times").
 
 The key word of each phrase (marked KEY below: the verb or noun that names the action) must
-not occur in any training caption (`unseen_key_words` checks it against the corpus). Three
+not occur in any training caption (`unseen_key_words` checks it against the corpus). Four
 phrasebooks: HELD_OUT (written 2026-11-23; the first adapter, the repertoire threshold and
 the WordNet table were made without it, but the second adapter's subject variants were
 suggested by it, docs/text_encoder.md), FRESH (written 2026-11-24 after that adapter
@@ -11,8 +11,9 @@ nearest-caption step was then chosen on it and on HELD_OUT) and UNSEEN (written 
 step's settings were chosen and used for no choice: key words in no caption of the text run,
 neither the training captions nor their subject and verb variants, and subjects that are no
 WordNet person; its failed claps, with the other books', later showed the repertoire lacking
-their counts, docs/text_encoder.md). Direction, hand, foot and count words are the corpus's
-own (there is no other way to say "left").
+their counts, docs/text_encoder.md), and LATE (written 2026-11-24 after that, as UNSEEN was,
+no key word an earlier book's: measured once, used for no choice). Direction, hand, foot and
+count words are the corpus's own (there is no other way to say "left").
 """
 from __future__ import annotations
 
@@ -126,6 +127,40 @@ UNSEEN_KEY = {"walk": ("pads", "sets"), "jog": ("clip",), "run": ("charges", "da
               "stretch": ("warms", "unfolds", "sky"), "jumping_jacks": ("eagle", "calisthenic"),
               "idle": ("statue", "nothing")}
 
+LATE_SUBJECTS = ("a marionette", "the penguin", "a plush toy", "the mascot", "a clay figurine",
+                 "the automaton", "a paper cutout", "the chess piece")
+LATE_PHRASES = {
+    "walk": ("wends its way {d}{c}", "picks its way {d}{c}"),
+    "jog": ("moves in an easy gallop {d}{c}", "goes at a relaxed jogging tempo {d}{c}"),
+    "run": ("careers {d}{c}", "streaks {d}{c}", "barrels {d}{c}"),
+    "turn": ("revolves {a} degrees to the {t}", "re-aims the body {a} degrees to the {t}"),
+    "spin": ("whizzes round a full circle to the {sd}",
+             "goes all the way around like a top to the {sd}"),
+    "jump": ("launches into the air {where} {n}", "catapults upward {where} {n}"),
+    "squat": ("drops into a deep knee flex {n}", "does {cnt} low knee flexes"),
+    "sit": ("sinks into a recliner", "takes a pew", "seats itself on an ottoman"),
+    "bow": ("doffs an imaginary hat and bends low", "gives an obeisance",
+            "bends courteously at the hips"),
+    "wave": ("waggles the {h} hand {n}", "hails someone with the {h} hand {n}"),
+    "raise_arms": ("hefts the {h} arm up high", "points the {h} arm at the clouds"),
+    "clap": ("cracks the palms together {n}", "knocks the hands together {n}"),
+    "punch": ("throws a haymaker {n} with the {h} fist", "clobbers the air {n} with the {h} fist"),
+    "kick": ("drives the {f} shin forward", "lets the {f} foot fly out"),
+    "stretch": ("reaches tall and lengthens the whole body",
+                "unkinks the back with both arms overhead"),
+    "jumping_jacks": ("does {cnt} open-and-shut jumps", "does {cnt} starfish jumps"),
+    "idle": ("keeps stock-still for {secs} seconds", "loiters in place for {secs} seconds"),
+}
+LATE_KEY = {"walk": ("wends", "way"), "jog": ("gallop", "tempo"),
+            "run": ("careers", "streaks", "barrels"), "turn": ("revolves", "aims"),
+            "spin": ("whizzes", "top"), "jump": ("launches", "catapults"),
+            "squat": ("flex", "flexes"), "sit": ("recliner", "pew", "ottoman"),
+            "bow": ("doffs", "obeisance", "courteously"), "wave": ("waggles", "hails"),
+            "raise_arms": ("hefts", "clouds"), "clap": ("cracks", "knocks"),
+            "punch": ("haymaker", "clobbers"), "kick": ("shin", "fly"),
+            "stretch": ("lengthens", "unkinks"), "jumping_jacks": ("shut", "starfish"),
+            "idle": ("stock", "loiters")}
+
 
 @dataclass(frozen=True)
 class Phrasebook:
@@ -139,7 +174,8 @@ class Phrasebook:
 HELD_OUT = Phrasebook("held-out paraphrases", SUBJECTS, PHRASES, KEY)
 FRESH = Phrasebook("fresh paraphrases", FRESH_SUBJECTS, FRESH_PHRASES, FRESH_KEY)
 UNSEEN = Phrasebook("unseen paraphrases", UNSEEN_SUBJECTS, UNSEEN_PHRASES, UNSEEN_KEY)
-PHRASEBOOKS = (HELD_OUT, FRESH, UNSEEN)
+LATE = Phrasebook("late paraphrases", LATE_SUBJECTS, LATE_PHRASES, LATE_KEY)
+PHRASEBOOKS = (HELD_OUT, FRESH, UNSEEN, LATE)
 
 
 def paraphrase(primitive: str, params: dict, rng: np.random.Generator,
