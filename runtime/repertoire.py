@@ -120,16 +120,16 @@ class KnownCaptions:
         order = np.argsort(-similarity, kind="stable")
         nearest = []
         for index in order:  # distinct captions, without the final full stop
-            caption = _shown(self.captions[index])
+            caption = shown_caption(self.captions[index])
             if caption not in nearest:
                 nearest.append(caption)
             if len(nearest) == count:
                 break
         return Familiarity(round(float(similarity[order[0]]), 4), self.threshold, tuple(nearest),
-                           None if played is None else _shown(played))
+                           None if played is None else shown_caption(played))
 
 
-def _shown(caption: str) -> str:
+def shown_caption(caption: str) -> str:
     """A caption as the user sees it: without its final full stop."""
     return caption.strip().rstrip(".")
 

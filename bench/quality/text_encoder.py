@@ -33,6 +33,7 @@ from mogo.bench.quality.semantic import SemanticItem, check, program_items, stra
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.data.outside_repertoire import TEST
 from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
+from mogo.repertoire import shown_caption
 
 
 def pass_rate(generator: MotionGenerator, items: list[SemanticItem], prompts: list[str],
@@ -67,11 +68,11 @@ def said(item: SemanticItem) -> tuple:
 
 
 def known_captions(items: list[SemanticItem]) -> dict[str, tuple]:
-    """Training caption (without its final full stop, as Familiarity.played names it) ->
+    """Training caption, as Familiarity.played names it (mogo.repertoire.shown_caption) ->
     what it says (`said`) of the segment it most often covers."""
     counts: dict[str, collections.Counter] = {}
     for item in items:
-        counts.setdefault(item.caption.strip().rstrip("."), collections.Counter())[said(item)] += 1
+        counts.setdefault(shown_caption(item.caption), collections.Counter())[said(item)] += 1
     return {caption: c.most_common(1)[0][0] for caption, c in counts.items()}
 
 

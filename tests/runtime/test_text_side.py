@@ -17,7 +17,7 @@ from mogo.bundle import BundleError, write_manifest
 from mogo.cli import main
 from mogo.generator import DEFAULT_BUNDLE
 from mogo.manifest import Manifest
-from mogo.repertoire import what_it_says
+from mogo.repertoire import shown_caption, what_it_says
 
 from helpers import OLD_TEXT_SIDE
 
@@ -142,7 +142,7 @@ def test_other_words_are_played_as_the_nearest_known_caption(generator):
     prompts = ["a dancer curtsies.", "someone bounds in place twice.", "🙂"]
     for prompt, row in zip(prompts, generator.embed(prompts)):
         played = generator.known(prompt).played
-        index = [c.strip().rstrip(".") for c in repertoire.captions].index(played)
+        index = [shown_caption(c) for c in repertoire.captions].index(played)
         assert (known[index] == row).all()
     assert generator.known("a person walks forward.").played is None
     near = 3 * known[[5]] + 0.01  # by cosine: its length does not count
