@@ -2,18 +2,20 @@
 never use for its action ("a dancer plods to the left", "someone applauds three times").
 
 The key word of each phrase (marked KEY below: the verb or noun that names the action) must
-not occur in any training caption (`unseen_key_words` checks it against the corpus). Four
+not occur in any training caption (`unseen_key_words` checks it against the corpus). Five
 phrasebooks: HELD_OUT (written 2026-11-23; the first adapter, the repertoire threshold and
 the WordNet table were made without it, but the second adapter's subject variants were
 suggested by it, docs/text_encoder.md), FRESH (written 2026-11-24 after that adapter
 shipped: other verbs, and subjects none of which is among the adapter's WordNet people; the
-nearest-caption step was then chosen on it and on HELD_OUT) and UNSEEN (written before that
+nearest-caption step was then chosen on it and on HELD_OUT), UNSEEN (written before that
 step's settings were chosen and used for no choice: key words in no caption of the text run,
 neither the training captions nor their subject and verb variants, and subjects that are no
 WordNet person; its failed claps, with the other books', later showed the repertoire lacking
-their counts, docs/text_encoder.md), and LATE (written 2026-11-24 after that, as UNSEEN was,
-no key word an earlier book's: measured once, used for no choice). Direction, hand, foot and
-count words are the corpus's own (there is no other way to say "left").
+their counts, docs/text_encoder.md), LATE (written 2026-11-24 after that, as UNSEEN was,
+no key word an earlier book's: measured once, used for no choice), and BLIND (written
+2026-11-24 evening, the same way, before the experiments of that session: measured once, at
+their end, and used for no choice). Direction, hand, foot and count words are the
+corpus's own (there is no other way to say "left").
 """
 from __future__ import annotations
 
@@ -161,6 +163,40 @@ LATE_KEY = {"walk": ("wends", "way"), "jog": ("gallop", "tempo"),
             "stretch": ("lengthens", "unkinks"), "jumping_jacks": ("shut", "starfish"),
             "idle": ("stock", "loiters")}
 
+BLIND_SUBJECTS = ("the koala", "a cartoon hedgehog", "a stickman", "the hologram",
+                  "a wind-up toy", "the kangaroo", "an owl", "a snow leopard")
+BLIND_PHRASES = {
+    "walk": ("promenades {d}{c}", "traipses {d}{c}", "moseys {d}{c}"),
+    "jog": ("moves along at a comfortable dogtrot {d}{c}",
+            "keeps up a gentle running rhythm {d}{c}"),
+    "run": ("hightails it {d}{c}", "goes flat out {d}{c}", "belts {d}{c}"),
+    "turn": ("shifts orientation {a} degrees to the {t}", "angles itself {a} degrees to the {t}"),
+    "spin": ("gyrates a whole turn to the {sd}",
+             "goes round in a complete circle like a dreidel to the {sd}"),
+    "jump": ("hurls itself upward {where} {n}", "clears the ground {where} {n}"),
+    "squat": ("bobs down {n}", "sinks the backside toward the floor {n}"),
+    "sit": ("lowers itself onto a pouf", "rests its bottom on a crate"),
+    "bow": ("makes a salaam", "lowers the head and chest in deference"),
+    "wave": ("gestures howdy with the {h} hand {n}", "flutters the {h} hand {n}"),
+    "raise_arms": ("hoicks the {h} arm up", "shoots the {h} arm toward the rafters"),
+    "clap": ("smites the palms together {n}", "bangs the hands together {n}"),
+    "punch": ("wallops {n} with the {h} fist", "throws a hook {n} with the {h} fist"),
+    "kick": ("hoofs out with the {f} foot", "fires the {f} foot forward"),
+    "stretch": ("uncoils the spine with both arms high",
+                "draws itself out tall with arms above the head"),
+    "jumping_jacks": ("does {cnt} arms-and-legs-apart jumps", "does {cnt} snow-angel jumps"),
+    "idle": ("bides its time for {secs} seconds", "is inert for {secs} seconds"),
+}
+BLIND_KEY = {"walk": ("promenades", "traipses", "moseys"), "jog": ("dogtrot", "rhythm"),
+             "run": ("hightails", "flat", "belts"), "turn": ("orientation", "angles"),
+             "spin": ("gyrates", "dreidel"), "jump": ("hurls", "clears"),
+             "squat": ("bobs", "backside"), "sit": ("pouf", "bottom", "crate"),
+             "bow": ("salaam", "deference"), "wave": ("howdy", "flutters"),
+             "raise_arms": ("hoicks", "rafters"), "clap": ("smites", "bangs"),
+             "punch": ("wallops", "hook"), "kick": ("hoofs", "fires"),
+             "stretch": ("uncoils", "draws"), "jumping_jacks": ("apart", "angel"),
+             "idle": ("bides", "inert")}
+
 
 @dataclass(frozen=True)
 class Phrasebook:
@@ -175,7 +211,8 @@ HELD_OUT = Phrasebook("held-out paraphrases", SUBJECTS, PHRASES, KEY)
 FRESH = Phrasebook("fresh paraphrases", FRESH_SUBJECTS, FRESH_PHRASES, FRESH_KEY)
 UNSEEN = Phrasebook("unseen paraphrases", UNSEEN_SUBJECTS, UNSEEN_PHRASES, UNSEEN_KEY)
 LATE = Phrasebook("late paraphrases", LATE_SUBJECTS, LATE_PHRASES, LATE_KEY)
-PHRASEBOOKS = (HELD_OUT, FRESH, UNSEEN, LATE)
+BLIND = Phrasebook("blind paraphrases", BLIND_SUBJECTS, BLIND_PHRASES, BLIND_KEY)
+PHRASEBOOKS = (HELD_OUT, FRESH, UNSEEN, LATE, BLIND)
 
 
 def paraphrase(primitive: str, params: dict, rng: np.random.Generator,

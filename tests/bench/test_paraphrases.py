@@ -6,8 +6,8 @@ import re
 import numpy as np
 import pytest
 
-from mogo.bench.quality.paraphrases import (FRESH, LATE, PHRASEBOOKS, UNSEEN, caption_words,
-                                            paraphrase, unseen_key_words)
+from mogo.bench.quality.paraphrases import (BLIND, FRESH, LATE, PHRASEBOOKS, UNSEEN,
+                                            caption_words, paraphrase, unseen_key_words)
 from mogo.bench.quality.semantic import CHECKS
 from mogo.generator import MotionGenerator
 
@@ -39,7 +39,7 @@ def test_key_words_are_checked_against_training_words():
         ["applauds"]
 
 
-@pytest.mark.parametrize("book", [FRESH, UNSEEN, LATE], ids=lambda b: b.name)
+@pytest.mark.parametrize("book", [FRESH, UNSEEN, LATE, BLIND], ids=lambda b: b.name)
 def test_the_later_subjects_are_not_among_the_adapters_people(book):
     from mogo.export.data.wordnet_people import PEOPLE
 
