@@ -238,6 +238,13 @@ def paraphrase(primitive: str, params: dict, rng: np.random.Generator,
     return f"{pick(book.subjects)} {text}."
 
 
+def in_every_book(items) -> dict[str, list[str]]:
+    """Each phrasebook's name -> its paraphrase of each item (anything with `primitive` and
+    `params`, as mogo.bench.quality.semantic.SemanticItem), one generator (seed 0) a book."""
+    return {book.name: [paraphrase(item.primitive, item.params, rng, book) for item in items]
+            for book in PHRASEBOOKS for rng in [np.random.default_rng(0)]}
+
+
 def unseen_key_words(training_words: set[str], book: Phrasebook = HELD_OUT) -> list[str]:
     """Key words that DO occur in the training captions (should be none)."""
     return sorted({w for keys in book.keys.values() for w in keys if w in training_words})

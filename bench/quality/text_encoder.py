@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.bench.quality.paraphrases import (HELD_OUT, PHRASEBOOKS, caption_words, paraphrase,
+from mogo.bench.quality.paraphrases import (HELD_OUT, PHRASEBOOKS, caption_words, in_every_book,
                                             unseen_key_words)
 from mogo.bench.quality.semantic import SemanticItem, check, program_items, stratified
 from mogo.export.data.humanml3d import HumanML3DFolder
@@ -117,8 +117,7 @@ def main() -> None:
     folder = HumanML3DFolder(args.data, splits=("train", "test"))
     trained = caption_words(c.text for clip in folder.ids("train") for c in folder.captions(clip))
     items = stratified(program_items(args.data, folder.ids("test")), args.per_primitive, 0)
-    books = {book.name: [paraphrase(item.primitive, item.params, rng, book) for item in items]
-             for book in PHRASEBOOKS for rng in [np.random.default_rng(0)]}
+    books = in_every_book(items)
     seen = [w for book in PHRASEBOOKS for w in unseen_key_words(trained, book)]
     captions = [item.caption for item in items]
     real = [folder.joints(item.clip_id)[item.start:item.end] for item in items]
