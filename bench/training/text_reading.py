@@ -28,7 +28,7 @@ from mogo.align_words import spoken_numbers
 from mogo.bench.quality.paraphrases import in_every_book
 from mogo.bench.quality.semantic import program_items, stratified
 from mogo.bench.quality.text_encoder import known_captions, played_rates
-from mogo.export.data.humanml3d import HumanML3DFolder
+from mogo.export.data.humanml3d import DatasetError, HumanML3DFolder
 from mogo.export.models.sentence_encoder import CAPTIONS, ENCODER, SentenceEmbedder
 from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
 from mogo.repertoire import shown_caption
@@ -96,9 +96,14 @@ def main() -> None:
     args = parser.parse_args()
     if not (args.run / CAPTIONS).is_file():
         parser.error(f"{args.run}: no {CAPTIONS} (not a `mogo train text` run)")
-    folder = HumanML3DFolder(args.data, splits=("train", "test"))
-    known = known_captions(program_items(args.data, folder.ids("train")))
-    items = stratified(program_items(args.data, folder.ids("test")), args.per_primitive, 0)
+    if args.per_primitive < 1:
+        parser.error(f"--per-primitive must be at least 1, got {args.per_primitive}")
+    try:
+        folder = HumanML3DFolder(args.data, splits=("train", "test"))
+        known = known_captions(program_items(args.data, folder.ids("train")))
+        items = stratified(program_items(args.data, folder.ids("test")), args.per_primitive, 0)
+    except (DatasetError, FileNotFoundError) as error:  # no corpus, or one without programs
+        parser.error(str(error))
     prompts = {**in_every_book(items), "own captions": [item.caption for item in items]}
     x, y = labelled_texts(args.run, known)
     actions = sorted(set(y))
