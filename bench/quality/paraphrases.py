@@ -13,8 +13,8 @@ neither the training captions nor their subject and verb variants, and subjects 
 WordNet person; its failed claps, with the other books', later showed the repertoire lacking
 their counts, docs/text_encoder.md), LATE (written 2026-11-24 after that, as UNSEEN was,
 no key word an earlier book's: measured once, used for no choice), and BLIND (written
-2026-11-24 evening, the same way, before the experiments of that session: measured once, at
-their end, and used for no choice). Direction, hand, foot and count words are the
+2026-11-24 evening the same way, before that session's experiments, and committed before any
+run on it: measured once, used for no choice). Direction, hand, foot and count words are the
 corpus's own (there is no other way to say "left").
 """
 from __future__ import annotations
