@@ -1,11 +1,11 @@
-"""docs/layout.md stays true: every module of the code folders has its line
+"""docs/layout.md stays true: every module of the code folders and examples/ has its line
 (tests/ is listed by folder), and every file it lists exists."""
 
 import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-LISTED_BY_FILE = ("runtime", "export", "bench")
+LISTED_BY_FILE = ("runtime", "export", "bench", "examples")
 DESCRIPTION_COLUMN = 25  # the tree's names stay left of it; longer descriptions wrap to it
 
 
