@@ -23,7 +23,7 @@ import numpy as np
 
 from mogo.sampling import Sampling
 
-MAX_MESSAGE_CHARS = 4096  # longer client messages get an error (a prompt is 64 tokens at most)
+MAX_MESSAGE_CHARS = 4096  # longer messages get an error (a prompt: text.max_length tokens, 128)
 START_FIELDS = {"prompt", "seed", "binary", "plant_feet", *Sampling.__dataclass_fields__}
 LATER_FIELDS = {"prompt", "stop"}
 
