@@ -89,7 +89,7 @@ def clip(message: dict) -> Clip:
     """A POST /v1/generate body."""
     known(message, CLIP_FIELDS)
     fmt = message.get("format", "bvh")
-    if fmt not in CLIP_FORMATS:
+    if not isinstance(fmt, str) or fmt not in CLIP_FORMATS:
         raise ProtocolError(f'"format" must be one of {", ".join(CLIP_FORMATS)}, got {fmt!r}')
     return Clip(message.get("prompt"), message.get("seconds"), message.get("seed"), fmt)
 
