@@ -216,7 +216,7 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
     await ws.prepare(request)
     server.sockets.add(ws)
     stream, sender = None, None
-    switches = Rate(SWITCHES_PER_SECOND, SWITCH_BURST)  # each costs the engine ~50 ms
+    switches = Rate(SWITCHES_PER_SECOND, SWITCH_BURST)  # each: a prompt check, engine thread
     try:
         async for message in ws:
             if message.type in (WSMsgType.ERROR, WSMsgType.CLOSE):
