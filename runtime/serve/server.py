@@ -33,7 +33,7 @@ QUEUED_BURSTS = 8  # per client: ~3 s of motion; beyond, the oldest burst is dro
 MAX_WIRE_MESSAGE = 1 << 20  # aiohttp closes the socket (1009) past this; smaller ones get
 SWITCHES_PER_SECOND, SWITCH_BURST = 2, 4  # per socket; more get an error, not a switch
 QUEUED_CLIPS = 8  # clip requests waiting beyond the running ones; more get 503
-HEADER_SECONDS = 10.0  # a connection's request headers must be complete within this
+REQUEST_SECONDS = 10.0  # a request's headers, and a clip request's body, come within this
 KEEPALIVE_SECONDS = 15.0  # an idle keep-alive connection is closed after this
 SHUTDOWN_SECONDS = 2.0  # on SIGINT/SIGTERM, what a request in flight gets to finish
 SPARE_CONNECTIONS = 64  # connections beyond --max-streams (clips, health, the viewer)
@@ -287,13 +287,21 @@ async def generate(request: web.Request) -> web.Response:
     if request.content_type != "application/json":  # a web page's form post cannot send it
         return _refused(415, "POST /v1/generate takes Content-Type: application/json, got "
                              f"{request.content_type!r}")
+    try:  # read before it takes a place in the queue: a body dripped slowly holds none
+        body = await asyncio.wait_for(request.read(), REQUEST_SECONDS)
+        clip = protocol.clip(protocol.body(body, request.charset))
+    except asyncio.TimeoutError:
+        late = _refused(408, f"the body did not come within {REQUEST_SECONDS:g} s")
+        late.force_close()  # what is left of it would be read as the next request
+        return late
+    except protocol.ProtocolError as error:
+        return _refused(400, str(error))
     if server.clip_jobs >= server.clip_workers + QUEUED_CLIPS:
         return _refused(503, f"busy: {server.clip_jobs} clips are being made or wait; "
                              "try again later", {"Retry-After": "5"})
     server.clip_jobs += 1
     stop = threading.Event()
     try:
-        clip = protocol.clip(protocol.body(await request.read(), request.charset))
         prompt, _ = await server.call(server.checked_prompt, clip.prompt)
         data = await asyncio.get_running_loop().run_in_executor(
             server.clips, _clip_file, server.generator, prompt, clip, stop)
@@ -386,7 +394,7 @@ _log = logging.getLogger("mogo.serve")
 class _Guarded(asyncio.Protocol):
     """aiohttp's protocol for one connection, behind two checks of its own (slowloris): past
     the cap a new connection is closed at once, and one whose request headers are not
-    complete within HEADER_SECONDS is closed. Everything else passes through."""
+    complete within REQUEST_SECONDS is closed. Everything else passes through."""
 
     def __init__(self, inner: asyncio.Protocol, open_: set, cap: int):
         self.inner, self.open, self.cap = inner, open_, cap
@@ -400,7 +408,7 @@ class _Guarded(asyncio.Protocol):
             return
         self.transport = transport
         self.open.add(self)
-        self.timer = asyncio.get_running_loop().call_later(HEADER_SECONDS, transport.abort)
+        self.timer = asyncio.get_running_loop().call_later(REQUEST_SECONDS, transport.abort)
         self.inner.connection_made(transport)
 
     def data_received(self, data: bytes) -> None:

@@ -214,7 +214,7 @@ def test_clips_are_made_side_by_side(generator, engine_parts, monkeypatch):
 
 def test_half_sent_requests_are_closed_and_connections_capped(generator, engine_parts,
                                                               monkeypatch):
-    monkeypatch.setattr(server_module, "HEADER_SECONDS", 0.5)
+    monkeypatch.setattr(server_module, "REQUEST_SECONDS", 0.5)
 
     async def test(url, server):
         port = port_of(url)
@@ -244,3 +244,20 @@ def test_log_lines_of_one_kind_are_rate_limited():
     assert quiet.filter(record("another kind"))
     now[0] = server_module.LOG_EVERY_SECONDS
     assert quiet.filter(record("Error handling request"))
+
+
+def test_a_clip_body_that_does_not_come_is_408_and_holds_no_place(generator, engine_parts,
+                                                                  monkeypatch):
+    monkeypatch.setattr(server_module, "REQUEST_SECONDS", 0.5)
+
+    async def test(url, server):
+        reader, writer = await asyncio.open_connection("127.0.0.1", port_of(url))
+        writer.write(b"POST /v1/generate HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
+                     b"application/json\r\nContent-Length: 100\r\n\r\n{\"prompt\"")
+        await asyncio.sleep(0.2)  # the handler waits for the body: no place in the queue
+        assert server.clip_jobs == 0
+        answer = await asyncio.wait_for(reader.readuntil(b"}"), 10)  # the JSON's end
+        assert answer.startswith(b"HTTP/1.1 408 ") and b"Connection: close" in answer
+        assert b"the body did not come within 0.5 s" in answer
+        writer.close()
+    serving(generator, engine_parts, test)
