@@ -77,8 +77,10 @@ async def _serve(app, host: str, port: int, connections: int) -> None:
     _quiet_logs(server.QuietLog())
     stopping = asyncio.Event()
     for number in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)):
-        if number is not None:
+        try:
             asyncio.get_running_loop().add_signal_handler(number, stopping.set)
+        except (NotImplementedError, TypeError):  # Windows, or no SIGHUP: Ctrl-C cancels
+            pass
     print(f"mogo serve: http://{address}/ (viewer), ws://{address}/v1/stream; Ctrl-C stops",
           file=sys.stderr, flush=True)
     try:
