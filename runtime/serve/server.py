@@ -33,7 +33,7 @@ QUEUED_BURSTS = 8  # per client: ~3 s of motion; beyond, the oldest burst is dro
 MAX_WIRE_MESSAGE = 1 << 20  # aiohttp closes the socket (1009) past this; smaller ones get
 SWITCHES_PER_SECOND, SWITCH_BURST = 2, 4  # per socket; more get an error, not a switch
 QUEUED_CLIPS = 8  # clip requests waiting beyond the running ones; more get 503
-REQUEST_SECONDS = 10.0  # a request's headers, and a clip request's body, come within this
+REQUEST_SECONDS = 10.0  # for a request's headers, a clip's body, a socket's first stream
 KEEPALIVE_SECONDS = 15.0  # an idle keep-alive connection is closed after this
 SHUTDOWN_SECONDS = 2.0  # on SIGINT/SIGTERM, what a request in flight gets to finish
 SPARE_CONNECTIONS = 64  # connections beyond --max-streams (clips, health, the viewer)
@@ -217,9 +217,18 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
     server.sockets.add(ws)
     stream, sender = None, None
     switches = Rate(SWITCHES_PER_SECOND, SWITCH_BURST)  # each: a prompt check, engine thread
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + REQUEST_SECONDS  # to start a stream
     try:
-        async for message in ws:
-            if message.type in (WSMsgType.ERROR, WSMsgType.CLOSE):
+        while True:
+            try:  # a socket that starts nothing would hold a connection for ever
+                left = None if stream else max(deadline - loop.time(), 1e-3)  # 0: no timeout
+                message = await ws.receive(timeout=left)
+            except asyncio.TimeoutError:
+                await ws.send_str(protocol.error(f"no stream started within "
+                                                 f"{REQUEST_SECONDS:g} s"))
+                break
+            if message.type not in (WSMsgType.TEXT, WSMsgType.BINARY):  # closing, an error
                 break
             try:
                 body = protocol.read(message.data if message.type == WSMsgType.TEXT else b"")

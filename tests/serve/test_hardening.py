@@ -261,3 +261,28 @@ def test_a_clip_body_that_does_not_come_is_408_and_holds_no_place(generator, eng
         assert b"the body did not come within 0.5 s" in answer
         writer.close()
     serving(generator, engine_parts, test)
+
+
+def test_a_socket_that_starts_no_stream_is_closed(generator, engine_parts, monkeypatch):
+    monkeypatch.setattr(server_module, "REQUEST_SECONDS", 0.5)
+
+    async def test(url, server):
+        async with ClientSession() as session:
+            idle = await session.ws_connect(url + "/v1/stream")
+            chatty = await session.ws_connect(url + "/v1/stream")
+            for _ in range(10):  # bad messages do not extend the time to start
+                await chatty.send_str("{")
+                await asyncio.sleep(0.1)
+            for ws in (idle, chatty):
+                error = await next_of(ws, "error")
+                while error["error"].startswith("not JSON"):
+                    error = await next_of(ws, "error")
+                assert error["error"] == "no stream started within 0.5 s"
+                assert (await ws.receive()).type in (WSMsgType.CLOSE, WSMsgType.CLOSED)
+            streaming = await session.ws_connect(url + "/v1/stream")
+            await streaming.send_json({"prompt": "a person walks forward"})
+            await next_of(streaming, "started")
+            await asyncio.sleep(1.0)  # past the time to start: a stream is not cut
+            await next_of(streaming, "frames")
+            await streaming.close()
+    serving(generator, engine_parts, test)
