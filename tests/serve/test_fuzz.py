@@ -74,6 +74,7 @@ def test_an_http_body_gives_a_clip_request_or_a_protocol_error(generator, data, 
             generator._prompt(clip.prompt, "prompt")
         if clip.seconds is not None:
             generator._seconds(clip.seconds)
-        _seed(clip.seed) if clip.seed is not None else None
+        if clip.seed is not None:
+            _seed(clip.seed)
     except (TypeError, ValueError) as error:
         assert str(error)
