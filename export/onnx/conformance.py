@@ -1,0 +1,186 @@
+"""Conformance vectors: cases made by our runtime on the portable bundle, which a port of the
+token loop (docs/spec.md) checks itself against, and the one rule it checks them by.
+
+    python -m mogo.export.onnx.conformance      # rewrites runtime/web/conformance.json
+
+Three kinds of case, in one JSON file (no pickle, ~200 KB):
+- "random": a seed's first uniforms from numpy's PCG64 (the port's random stream);
+- "sampler": one level's logits, the options and a uniform -> the token (float64 rules of
+  mogo.sampling, exact);
+- "generate": a prompt embedding, seed, sampling, window and step count -> the uniforms of
+  every step, the tokens, each token's margin, and the joints (feet not planted).
+Tokens must match exactly, except from the first step where ours had a near tie (its margin
+below `tolerances`): there a port may pick the other token, and the case stops comparing.
+Joints are compared only for a case whose tokens all matched, within `tolerances.joints_m`.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from mogo import MotionGenerator
+from mogo.generator import DEFAULT_BUNDLE
+from mogo.sampling import Sampling, _descending, choose_tokens, make_rng
+
+VECTORS = Path(__file__).resolve().parents[2] / "runtime" / "web" / "conformance.json"
+FORMAT = "mogo-conformance"
+TOLERANCES = dict(  # float graphs on other CPUs move logits by ~1e-5 (docs/portable.md)
+    tie_logit=1e-3,  # greedy: the two best guided logits closer than this are a near tie
+    tie_mass=1e-5,  # sampled: the draw (or the top-p cut) this close to an edge of the chosen
+    # token's share, as a share of the kept probability, is a near tie
+    joints_m=1e-3,  # joints: largest difference, metres
+    prompt_embedding=1e-3)  # the text encoder's output, largest difference
+GENERATE = (  # name, prompt, seconds, seed, sampling options over the defaults, window
+    ("walk_5s", "a person walks forward", 5.0, 0, {}, None),
+    ("jump_greedy", "a person jumps", 2.0, 1, dict(temperature=0.0), None),
+    ("wave_guided_window8", "a person waves with the right hand", 2.0, 2,
+     dict(temperature=0.8, top_k=50, guidance=2.0), 8),
+)
+SEEDS = (0, 1, 12345, 2 ** 40 + 7)
+DRAWS = 12
+
+
+def margins(cond: np.ndarray, uncond: np.ndarray | None, uniform: float, sampling: Sampling,
+            forbid: int | None) -> float:
+    """How far one level's draw is from picking another token: greedy, the gap between the
+    two best logits; sampled, the distance of the draw (and of the top-p cut) from the edges
+    of the chosen token's share, over the kept total. The arithmetic of mogo.sampling."""
+    z = np.asarray(cond, np.float64)
+    if sampling.guided:
+        u = np.asarray(uncond, np.float64)
+        z = np.where(np.isneginf(z) & np.isneginf(u), -np.inf, u + sampling.guidance * (z - u))
+    if forbid is not None:
+        z = z.copy()
+        z[forbid] = -np.inf
+    if sampling.temperature == 0:
+        best = np.sort(z[np.isfinite(z)])[::-1]
+        return float(best[0] - best[1]) if len(best) > 1 else math.inf
+    _, z = _descending(z[None] / sampling.temperature)
+    z = z[0]
+    keep = np.count_nonzero(np.isfinite(z))
+    if sampling.top_k:
+        keep = min(keep, sampling.top_k)
+    p = np.where(np.arange(len(z)) < keep, np.exp(z - z[0]), 0.0)
+    c = np.cumsum(p)
+    edge = math.inf
+    if sampling.top_p < 1:
+        cut = sampling.top_p * c[keep - 1]
+        edge = float(np.min(np.abs((c - p)[1:keep] - cut)) / c[keep - 1]) if keep > 1 else edge
+        keep = int(np.count_nonzero((c - p)[:keep] < cut))
+    total = c[keep - 1]
+    target = uniform * total
+    index = int(np.count_nonzero(c[:keep] <= target))
+    low = c[index - 1] if index else 0.0
+    return min(edge, float(min(target - low, c[index] - target) / total))
+
+
+def make_vectors(bundle_dir: Path) -> dict:
+    """Every case, made by our runtime on the (portable) bundle at `bundle_dir`."""
+    generator = MotionGenerator.load(bundle_dir)
+    manifest = generator.manifest
+    return dict(
+        format=FORMAT, version=1,
+        bundle=dict(made_by="mogo export --portable --bundle <the default bundle>",
+                    graphs={g.file: manifest.files[g.file].sha256 for g in manifest.graphs()}),
+        tolerances=TOLERANCES,
+        random=[dict(seed=seed, uniforms=make_rng(seed).random(DRAWS).tolist())
+                for seed in SEEDS],
+        sampler=_sampler_cases(manifest.end_token + 1),
+        generate=[_generate_case(generator, *case) for case in GENERATE])
+
+
+def _sampler_cases(classes: int) -> list[dict]:
+    rng = np.random.default_rng(7)
+    cases = []
+    options = [dict(temperature=0.0), {}, dict(top_p=0.9), dict(top_k=5), dict(temperature=0.5),
+               dict(temperature=2.0, top_p=0.5, top_k=100), dict(guidance=3.0, top_p=0.9),
+               dict(guidance=0.0), dict(temperature=0.0, guidance=2.0)]
+    for k, option in enumerate(options):
+        sampling = Sampling(**option)
+        cond = (rng.normal(size=classes) * 3).astype(np.float32)
+        uncond = (rng.normal(size=classes) * 3).astype(np.float32) if sampling.guided else None
+        if k == 1:  # ties: the lower id first
+            cond[[3, 9, 40]] = cond.max() + 1
+        forbid = classes - 1 if k % 2 else None
+        uniform = float(rng.random())
+        token = choose_tokens(cond[None], None if uncond is None else uncond[None],
+                              np.array([uniform]), sampling, [forbid])[0]
+        cases.append(dict(sampling=vars(sampling), uniform=uniform, forbid=forbid,
+                          cond=cond.tolist(), uncond=None if uncond is None else uncond.tolist(),
+                          token=int(token)))
+    return cases
+
+
+def _generate_case(generator: MotionGenerator, name: str, prompt: str, seconds: float,
+                   seed: int, options: dict, window: int | None) -> dict:
+    """`generate`'s token loop and decode, as MotionGenerator.generate runs them for a clip of
+    `seconds` (the lookahead's steps drawn beyond it), the feet not planted; each level's
+    logits caught on their way to the sampler to measure the margins."""
+    sampling = generator.sampling(**options)
+    frames = round(seconds * generator.fps)
+    steps = generator._steps(seconds) + generator._decoder.lookahead
+    embedding = generator.embed([prompt])[0]
+    tokens_gen = generator.tokens.with_level_workers(1)
+    caught: list[np.ndarray] = []
+    run = tokens_gen.run
+
+    def catching(level, *args):
+        logits, presents = run(level, *args)
+        caught.append(logits)
+        return logits, presents
+
+    tokens_gen.run = catching
+    stream = tokens_gen.start(embedding, seed, sampling, window, allow_end=False)
+    rows, uniforms, case_margins = [], make_rng(seed).random((steps, tokens_gen.num_levels)), []
+    for n in range(steps):
+        caught.clear()
+        rows.append(stream.step())
+        case_margins.append([
+            margins(logits[0], logits[1] if sampling.guided else None, uniforms[n, level],
+                    sampling, tokens_gen.end_token if level == 0 else None)
+            for level, logits in enumerate(caught)])
+    tokens = np.array(rows)
+    motion = generator.decode(tokens, [(0, prompt)], frames, seed, plant_feet=False)
+    return dict(name=name, prompt=prompt, prompt_embedding=embedding.tolist(), seed=seed,
+                sampling=vars(sampling), window=window, steps=steps, frames=frames,
+                uniforms=uniforms.tolist(), tokens=tokens.tolist(),
+                margins=[[float(f"{m:.3g}") for m in row] for row in case_margins],
+                joints=np.round(motion.joints.astype(np.float64), 6).tolist())
+
+
+def compare_tokens(case: dict, tokens: np.ndarray, tolerances: dict) -> tuple[int, str | None]:
+    """(steps that agree, the problem or None). Steps agree until the first difference; a
+    difference where our token had a near tie ends the comparison without a problem."""
+    expected = np.asarray(case["tokens"])
+    tokens = np.asarray(tokens)
+    if tokens.shape != expected.shape:
+        return 0, f"{case['name']}: tokens of shape {tokens.shape}, expected {expected.shape}"
+    greedy = case["sampling"]["temperature"] == 0
+    tie = tolerances["tie_logit"] if greedy else tolerances["tie_mass"]
+    for n, (row, want) in enumerate(zip(tokens, expected)):
+        for level in np.flatnonzero(row != want):
+            if case["margins"][n][level] < tie:
+                return n, None
+            return n, (f"{case['name']}: step {n} level {level}: token {row[level]}, expected "
+                       f"{want[level]} (margin {case['margins'][n][level]:g}, no tie)")
+    return len(expected), None
+
+
+def main(argv: list[str]) -> None:
+    from mogo.export.onnx.portable import export_portable
+
+    out = Path(argv[0]) if argv else VECTORS
+    with tempfile.TemporaryDirectory() as folder:
+        export_portable(DEFAULT_BUNDLE, Path(folder) / "bundle")
+        vectors = make_vectors(Path(folder) / "bundle")
+    out.write_text(json.dumps(vectors, separators=(",", ":")) + "\n")
+    print(f"wrote {out}: {out.stat().st_size / 1e3:.0f} KB")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

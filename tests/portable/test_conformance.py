@@ -1,0 +1,57 @@
+"""Our runtime passes the conformance vectors it wrote (runtime/web/conformance.json), by the
+rule every port uses (mogo.export.onnx.conformance.compare_tokens); and that rule can fail."""
+import json
+
+import numpy as np
+import pytest
+
+from mogo.export.onnx.conformance import VECTORS, compare_tokens
+from mogo.sampling import Sampling, choose_token, make_rng
+
+VECTORS_DATA = json.loads(VECTORS.read_text())
+TOLERANCES = VECTORS_DATA["tolerances"]
+
+
+def test_the_file_is_small_and_plain_json():
+    assert VECTORS.stat().st_size < 400_000
+    assert VECTORS_DATA["format"] == "mogo-conformance"
+
+
+@pytest.mark.parametrize("case", VECTORS_DATA["random"], ids=lambda c: str(c["seed"]))
+def test_the_random_stream(case):
+    assert make_rng(case["seed"]).random(len(case["uniforms"])).tolist() == case["uniforms"]
+
+
+@pytest.mark.parametrize("case", VECTORS_DATA["sampler"], ids=lambda c: str(c["sampling"]))
+def test_the_sampler(case):
+    uncond = None if case["uncond"] is None else np.float32(case["uncond"])
+    assert choose_token(np.float32(case["cond"]), uncond, case["uniform"],
+                        Sampling(**case["sampling"]), case["forbid"]) == case["token"]
+
+
+@pytest.mark.parametrize("case", VECTORS_DATA["generate"], ids=lambda c: c["name"])
+def test_generate(case, portable_generator):
+    g = portable_generator
+    embedding = np.float32(case["prompt_embedding"])
+    assert np.abs(g.embed([case["prompt"]])[0] - embedding).max() < TOLERANCES["prompt_embedding"]
+    tokens = g.tokens.generate(embedding, case["steps"], sampling=Sampling(**case["sampling"]),
+                               seed=case["seed"], window=case["window"])
+    agreed, problem = compare_tokens(case, tokens, TOLERANCES)
+    assert problem is None
+    if agreed == case["steps"]:
+        motion = g.decode(tokens, [(0, case["prompt"])], case["frames"], plant_feet=False)
+        assert np.abs(motion.joints - np.array(case["joints"])).max() < TOLERANCES["joints_m"]
+
+
+def test_a_wrong_token_is_caught_and_a_near_tie_forgiven():
+    case = VECTORS_DATA["generate"][0]
+    margins = np.array(case["margins"])
+    sure = tuple(np.argwhere(margins > 0.01)[0])
+    tokens = np.array(case["tokens"])
+    tokens[sure] = (tokens[sure] + 1) % 512
+    agreed, problem = compare_tokens(case, tokens, TOLERANCES)
+    assert agreed == sure[0] and f"step {sure[0]} level {sure[1]}" in problem
+    tie = tuple(np.argwhere(margins < TOLERANCES["tie_mass"])[0])
+    tokens = np.array(case["tokens"])
+    tokens[tie] = (tokens[tie] + 1) % 512
+    assert compare_tokens(case, tokens, TOLERANCES) == (tie[0], None)
