@@ -271,7 +271,8 @@ export class Bundle {
   }
 
   // prompt text -> embedding by the encoder trained with the model (manifest text.trained),
-  // for a prompt whose every word its tokenizer knows (spec §1); null otherwise
+  // for a prompt it reads whole: every word one token of its vocabulary, nothing cut at its
+  // length (spec §1); null otherwise. Digits are not spelt out as mogo does ("2" -> "two").
   async embedTrained(Tokenizer, text) {
     const trained = this.manifest.text.trained;
     if (!this._trained) {
@@ -279,13 +280,15 @@ export class Bundle {
       this._trained = {
         tokenizer: new Tokenizer(json, {}),
         unknown: json.model.unk_token,
+        maxLength: json.truncation ? json.truncation.max_length : Infinity,
         session: await this.ort.InferenceSession.create(await this.read(trained.encoder.file),
           { executionProviders: ["wasm"] }),
       };
     }
-    const { tokenizer, unknown, session } = this._trained;
+    const { tokenizer, unknown, maxLength, session } = this._trained;
     const encoded = tokenizer.encode(text);
-    if (encoded.tokens.includes(unknown)) return null;
+    const pieces = encoded.tokens.some((t) => t === unknown || t.startsWith("##"));
+    if (pieces || encoded.ids.length > maxLength) return null;
     const ids = new this.ort.Tensor("int64", BigInt64Array.from(encoded.ids.map(BigInt)), [1, encoded.ids.length]);
     const mask = new this.ort.Tensor("int64", BigInt64Array.from(encoded.attention_mask.map(BigInt)), [1, encoded.ids.length]);
     const [idsName, maskName] = trained.encoder.inputs;
