@@ -7,8 +7,9 @@ Three kinds of case, in one JSON file (no pickle, ~200 KB):
 - "random": a seed's first uniforms from numpy's PCG64 (the port's random stream);
 - "sampler": one level's logits, the options and a uniform -> the token (float64 rules of
   mogo.sampling, exact);
-- "generate": a prompt embedding, seed, sampling, window and step count -> the uniforms of
-  every step, the tokens, each token's margin, and the joints (feet not planted).
+- "generate": a schedule of prompts (text, embedding, steps; one for `generate`, several
+  for `play`), seed, sampling, window and step count -> the uniforms of every step, the
+  tokens, each token's margin, and the joints (feet not planted).
 Tokens must match exactly, except from the first step where ours had a near tie (its margin
 below `tolerances`): there a port may pick the other token, and the case stops comparing.
 Joints are compared only for a case whose tokens all matched, within `tolerances.joints_m`.
@@ -35,11 +36,13 @@ TOLERANCES = dict(  # other CPUs move the logits by ~5e-6 (docs/portable.md)
     # token's share, as a share of the kept probability, is a near tie
     joints_m=1e-3,  # joints: largest difference, metres
     prompt_embedding=1e-3)  # the text encoder's output, largest difference
-GENERATE = (  # name, prompt, seconds, seed, sampling options over the defaults, window
-    ("walk_5s", "a person walks forward", 5.0, 0, {}, None),
-    ("jump_greedy", "a person jumps", 2.0, 1, dict(temperature=0.0), None),
-    ("wave_guided_window8", "a person waves with the right hand", 2.0, 2,
+GENERATE = (  # name, [(prompt, seconds), ...], seed, sampling options, window (None: the
+    # bundle's, 128 steps: the 5-s walk's 131 steps go past it)
+    ("walk_5s", [("a person walks forward", 5.0)], 0, {}, None),
+    ("jump_greedy", [("a person jumps", 2.0)], 1, dict(temperature=0.0), None),
+    ("wave_guided_window8", [("a person waves with the right hand", 2.0)], 2,
      dict(temperature=0.8, top_k=50, guidance=2.0), 8),
+    ("walk_then_jump", [("a person walks forward", 3.0), ("a person jumps", 2.0)], 4, {}, None),
 )
 SEEDS = (0, 1, 12345, 2 ** 40 + 7)
 DRAWS = 12
@@ -116,15 +119,12 @@ def _sampler_cases(classes: int) -> list[dict]:
     return cases
 
 
-def _generate_case(generator: MotionGenerator, name: str, prompt: str, seconds: float,
+def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[str, float]],
                    seed: int, options: dict, window: int | None) -> dict:
-    """`generate`'s token loop and decode, as MotionGenerator.generate runs them for a clip of
-    `seconds` (the lookahead's steps drawn beyond it), the feet not planted; each level's
+    """`generate` (one prompt) or `play` (several, switched between) of clips of the given
+    seconds, the lookahead's steps drawn beyond them, the feet not planted; each level's
     logits caught on their way to the sampler to measure the margins."""
     sampling = generator.sampling(**options)
-    frames = round(seconds * generator.fps)
-    steps = generator._steps(seconds) + generator._decoder.lookahead
-    embedding = generator.embed([prompt])[0]
     tokens_gen = generator.tokens.with_level_workers(1)
     caught: list[np.ndarray] = []
     run = tokens_gen.run
@@ -135,22 +135,48 @@ def _generate_case(generator: MotionGenerator, name: str, prompt: str, seconds: 
         return logits, presents
 
     tokens_gen.run = catching
-    stream = tokens_gen.start(embedding, seed, sampling, window, allow_end=False)
-    rows, uniforms, case_margins = [], make_rng(seed).random((steps, tokens_gen.num_levels)), []
-    for n in range(steps):
-        caught.clear()
-        rows.append(stream.step())
+    entries = [dict(prompt=prompt, prompt_embedding=generator.embed([prompt])[0].tolist(),
+                    steps=generator._steps(seconds)) for prompt, seconds in schedule]
+    frames = sum(entry["steps"] for entry in entries) * generator.down_factor
+    window = generator.defaults.window if window is None else window
+    case = dict(name=name, schedule=entries, seed=seed, sampling=vars(sampling), window=window,
+                steps=frames // generator.down_factor + generator._decoder.lookahead,
+                frames=frames)
+    uniforms = make_rng(seed).random((case["steps"], tokens_gen.num_levels))
+    case_margins = []
+
+    def measured(row: np.ndarray) -> np.ndarray:
+        n = len(case_margins)
         case_margins.append([
             margins(logits[0], logits[1] if sampling.guided else None, uniforms[n, level],
                     sampling, tokens_gen.end_token if level == 0 else None)
-            for level, logits in enumerate(caught)])
-    tokens = np.array(rows)
-    motion = generator.decode(tokens, [(0, prompt)], frames, seed, plant_feet=False)
-    return dict(name=name, prompt=prompt, prompt_embedding=embedding.tolist(), seed=seed,
-                sampling=vars(sampling), window=window, steps=steps, frames=frames,
-                uniforms=uniforms.tolist(), tokens=tokens.tolist(),
+            for level, logits in enumerate(caught[-tokens_gen.num_levels:])])
+        return row
+
+    tokens = run_tokens(tokens_gen, case, measured)
+    if len(schedule) == 1:
+        motion = generator.decode(tokens, [(0, schedule[0][0])], frames, seed, plant_feet=False)
+    else:
+        motion = generator.play(schedule, seed, sampling, plant_feet=False)
+        assert np.array_equal(motion.tokens, tokens[:len(motion.tokens)])
+    return dict(case, uniforms=uniforms.tolist(), tokens=tokens.tolist(),
                 margins=[[float(f"{m:.3g}") for m in row] for row in case_margins],
-                joints=np.round(motion.joints.astype(np.float64), 6).tolist())
+                joints=np.round(motion.joints.astype(np.float64), 5).tolist())
+
+
+def run_tokens(tokens_gen, case: dict, each=lambda row: row) -> np.ndarray:
+    """A case's token loop: the first prompt, each next one switched to (set_prompt) before
+    its steps, the remaining steps under the last; `each` sees every row as it is drawn."""
+    schedule = case["schedule"]
+    stream = tokens_gen.start(np.float32(schedule[0]["prompt_embedding"]), case["seed"],
+                              Sampling(**case["sampling"]), case["window"], allow_end=False)
+    rows = []
+    for k, entry in enumerate(schedule):
+        if k:
+            stream.set_prompt(np.float32(entry["prompt_embedding"]))
+        rows += [each(stream.step()) for _ in range(entry["steps"])]
+    rows += [each(stream.step()) for _ in range(case["steps"] - len(rows))]
+    return np.array(rows)
 
 
 def compare_tokens(case: dict, tokens: np.ndarray, tolerances: dict) -> tuple[int, str | None]:

@@ -121,28 +121,35 @@ function qrot(w, ux, uy, uz, v) {
   return [v[0] + 2 * (w * cx + dx), v[1] + 2 * (w * cy + dy), v[2] + 2 * (w * cz + dz)];
 }
 
-export function featuresToJoints(features, frames, dim, joints) {
-  // features: Float64Array (frames * dim); returns Float32Array (frames * joints * 3)
-  const out = new Float32Array(frames * joints * 3);
-  let half = 0, x = 0, z = 0;
-  for (let t = 0; t < frames; t++) {
-    const f = (i) => features[t * dim + i];
-    if (t > 0) {
-      half += features[(t - 1) * dim];
-      const step = qrot(Math.cos(half), 0, -Math.sin(half), 0,
-        [features[(t - 1) * dim + 1], 0, features[(t - 1) * dim + 2]]);
-      x += step[0];
-      z += step[2];
-    }
-    const w = Math.cos(half), uy = -Math.sin(half);
-    const base = t * joints * 3;
-    out[base] = x; out[base + 1] = f(3); out[base + 2] = z;
-    for (let j = 1; j < joints; j++) {
-      const r = qrot(w, 0, uy, 0, [f(4 + 3 * (j - 1)), f(5 + 3 * (j - 1)), f(6 + 3 * (j - 1))]);
-      out[base + 3 * j] = r[0] + x; out[base + 3 * j + 1] = r[1]; out[base + 3 * j + 2] = r[2] + z;
-    }
+export class JointStream {
+  // features (n x D, Float64Array) in any chunks -> joints (n x J x 3, Float32Array), the
+  // root's yaw half-angle and XZ carried from chunk to chunk (mogo.motion.features.JointStream)
+  constructor(dim, joints) {
+    this.dim = dim; this.joints = joints;
+    this.half = 0; this.x = 0; this.z = 0; this.previous = null;
   }
-  return out;
+  push(features, frames) {
+    const D = this.dim, J = this.joints, out = new Float32Array(frames * J * 3);
+    for (let t = 0; t < frames; t++) {
+      const f = (i) => features[t * D + i];
+      if (this.previous) {
+        const p = this.previous;
+        this.half += p[0];
+        const step = qrot(Math.cos(this.half), 0, -Math.sin(this.half), 0, [p[1], 0, p[2]]);
+        this.x += step[0];
+        this.z += step[2];
+      }
+      this.previous = [f(0), f(1), f(2)];
+      const w = Math.cos(this.half), uy = -Math.sin(this.half), base = t * J * 3;
+      out[base] = this.x; out[base + 1] = f(3); out[base + 2] = this.z;
+      for (let j = 1; j < J; j++) {
+        const r = qrot(w, 0, uy, 0, [f(1 + 3 * j), f(2 + 3 * j), f(3 + 3 * j)]);
+        out[base + 3 * j] = r[0] + this.x; out[base + 3 * j + 1] = r[1];
+        out[base + 3 * j + 2] = r[2] + this.z;
+      }
+    }
+    return out;
+  }
 }
 
 // -- .npy (float32, little-endian) ----------------------------------------------------------
@@ -155,11 +162,12 @@ export function readNpy(bytes) {
   return new Float32Array(bytes.buffer.slice(start, bytes.byteOffset + bytes.byteLength));
 }
 
-// -- the bundle and the token loop (spec §3, §5, §6) ---------------------------------------
+// -- the bundle (spec §3, §6) ---------------------------------------------------------------
 export class Bundle {
   static async load(ort, read) {
     const b = new Bundle();
     b.ort = ort;
+    b.read = read;
     b.manifest = JSON.parse(new TextDecoder().decode(await read("manifest.json")));
     const m = b.manifest;
     const options = { executionProviders: ["wasm"], graphOptimizationLevel: "all" };
@@ -170,17 +178,14 @@ export class Bundle {
     b.mean = readNpy(await read(m.motion.normalization.mean));
     b.std = readNpy(await read(m.motion.normalization.std));
     b.endToken = m.vq.config.codebook_size;
-    b.read = read;
+    b.numJoints = m.motion.skeleton.joint_names.length;
     return b;
   }
 
   cacheShape(level) {
-    // (layers, heads, head_dim) from the session's past inputs: the manifest names them;
-    // heads and head_dim are the graph's fixed sizes, read from the config here
-    const graph = this.levels[level].graph;
-    const pasts = graph.inputs.length - 5;
+    // (layers, heads, head_dim): the manifest names the past inputs, the config their sizes
     const c = this.manifest.t2m.config;
-    return [pasts / 2, c.heads[level], c.head_dim];
+    return [(this.levels[level].graph.inputs.length - 5) / 2, c.heads[level], c.head_dim];
   }
 
   async runLevel(level, feed) {
@@ -191,82 +196,46 @@ export class Bundle {
     return graph.outputs.map((name) => out[name]);
   }
 
-  // prompt embedding (Float32Array) -> token ids (steps x L) as arrays, `generate` §5
-  async generateTokens(embedding, steps, sampling, seed, window, onStep) {
-    const ort = this.ort, L = this.levels.length, guided = sampling.guidance !== 1;
-    const B = guided ? 2 : 1;
-    const rng = new PCG64(seed);
-    const prompt = new ort.Tensor("float32", Float32Array.from({ length: B * embedding.length },
-      (_, i) => embedding[i % embedding.length]), [B, embedding.length]);
-    const uncond = new ort.Tensor("bool", Uint8Array.from([0, 1].slice(0, B)), [B]);
-    let caches = this.levels.map((_, level) => {
-      const [layers, heads, dim] = this.cacheShape(level);
-      return Array.from({ length: 2 * layers },
-        () => new ort.Tensor("float32", new Float32Array(0), [B, heads, 0, dim]));
-    });
-    let positions = [];
-    let last = new Array(L).fill(0);
-    let oldest = 1;
-    const rows = [];
-    for (let n = 0; n < steps; n++) {
-      const uniforms = Array.from({ length: L }, () => rng.random());
-      const ids = new ort.Tensor("int64", BigInt64Array.from(
-        { length: B * L }, (_, i) => BigInt(last[i % L])), [B, 1, L]);
-      const position = new ort.Tensor("int64", BigInt64Array.from([BigInt(n)]), [1]);
-      const past = new ort.Tensor("int64", BigInt64Array.from(positions.map(BigInt)), [positions.length]);
-      const outputs = [];
-      for (let level = 0; level < L; level++)
-        outputs.push(await this.runLevel(level, [prompt, uncond, ids, position, past, ...caches[level]]));
-      const row = outputs.map(([logits], level) => {
-        const K = logits.dims[1], data = logits.data;
-        return chooseToken(data.subarray(0, K), guided ? data.subarray(K, 2 * K) : null,
-          uniforms[level], sampling, level === 0 ? this.endToken : null);
-      });
-      const presents = outputs.map(([, ...p]) => p);
-      if (window !== null && positions.length === 1 + window) {
-        const slot = oldest;
-        presents.forEach((levelPresents, level) => levelPresents.forEach((present, k) => {
-          const held = caches[level][k];
-          const [b, h, p, d] = held.dims;
-          for (let i = 0; i < b * h; i++)
-            held.data.set(present.data.subarray((i * (p + 1) + p) * d, (i * (p + 1) + p + 1) * d),
-              (i * p + slot) * d);
-        }));
-        positions[slot] = n;
-        oldest = (slot % window) + 1;
-      } else {
-        caches = presents;
-        positions.push(n);
-      }
-      last = row;
-      rows.push(row);
-      if (onStep) onStep(n, row);
-    }
-    return rows;
+  // token rows (n x L) -> denormalised features (Float64Array, frames x D), float32 arithmetic
+  async decodeFeatures(rows) {
+    const L = this.levels.length, dec = this.manifest.vq.decoder;
+    const ids = new this.ort.Tensor("int64", BigInt64Array.from(rows.flat().map(BigInt)), [1, rows.length, L]);
+    const normalised = (await this.decoder.run({ [dec.inputs[0]]: ids }))[dec.outputs[0]];
+    const D = normalised.dims[2], features = new Float64Array(normalised.data.length);
+    for (let i = 0; i < features.length; i++)
+      features[i] = Math.fround(Math.fround(normalised.data[i] * this.std[i % D]) + this.mean[i % D]);
+    return features;
   }
 
-  // token ids (steps x L) -> joints of the first `frames` frames (spec §6, §7)
+  // token rows -> joints of the first `frames` frames, offline (spec §6, §7)
   async decode(rows, frames) {
-    const ort = this.ort, L = this.levels.length;
-    const dec = this.manifest.vq.decoder;
-    const ids = new ort.Tensor("int64", BigInt64Array.from(rows.flat().map(BigInt)), [1, rows.length, L]);
-    const out = await this.decoder.run({ [dec.inputs[0]]: ids });
-    const normalised = out[dec.outputs[0]];
-    const D = normalised.dims[2];
-    const n = Math.min(frames, normalised.dims[1]);
-    const features = new Float64Array(n * D);
-    for (let i = 0; i < n * D; i++)
-      features[i] = Math.fround(Math.fround(normalised.data[i] * this.std[i % D]) + this.mean[i % D]);
-    return featuresToJoints(features, n, D, this.manifest.motion.skeleton.joint_names.length);
+    const D = this.mean.length, features = await this.decodeFeatures(rows);
+    const n = Math.min(frames, features.length / D);
+    return new JointStream(D, this.numJoints).push(features, n);
+  }
+
+  steps(seconds) {
+    const m = this.manifest;
+    return Math.max(1, Math.ceil(Math.round(seconds * m.motion.fps) / m.vq.config.down_factor));
   }
 
   // `generate` of a clip of `seconds` (spec §5): the lookahead's steps drawn beyond it
-  async generate(embedding, seconds, seed, sampling, window, onStep) {
-    const m = this.manifest, fps = m.motion.fps;
-    const frames = Math.round(seconds * fps);
-    const steps = Math.max(1, Math.ceil(frames / m.vq.config.down_factor)) + m.vq.decoder.lookahead;
-    const rows = await this.generateTokens(embedding, steps, sampling, seed,
-      window === undefined ? m.defaults.window : window, onStep);
+  async generate(embedding, seconds, seed, sampling, window) {
+    return this.play([[embedding, seconds]], seed, sampling, window);
+  }
+
+  // `play`: [[embedding, seconds], ...] as one stream, the prompt switched between entries
+  // (spec §8), cut after the last with the lookahead's steps as its right context
+  async play(schedule, seed, sampling, window) {
+    const stream = new TokenStream(this, schedule[0][0], seed, sampling,
+      window === undefined ? this.manifest.defaults.window : window);
+    const rows = [];
+    for (const [k, [embedding, seconds]] of schedule.entries()) {
+      if (k) await stream.setPrompt(embedding);
+      for (let n = this.steps(seconds); n > 0; n--) rows.push(await stream.step());
+    }
+    const frames = rows.length * this.manifest.vq.config.down_factor;
+    for (let n = this.manifest.vq.decoder.lookahead; n > 0; n--) rows.push(await stream.step());
     return { rows, frames, joints: await this.decode(rows, frames) };
   }
 
@@ -294,6 +263,132 @@ export class Bundle {
     const [idsName, maskName] = trained.encoder.inputs;
     const out = await session.run({ [idsName]: ids, [maskName]: mask });
     return out[trained.encoder.outputs[0]].data;
+  }
+}
+
+// -- the token loop: one stream's prompt, random state and KV cache (spec §5, §8) -----------
+export class TokenStream {
+  constructor(bundle, embedding, seed, sampling, window) {
+    const ort = bundle.ort;
+    this.bundle = bundle; this.sampling = sampling; this.window = window;
+    this.L = bundle.levels.length;
+    this.B = sampling.guidance !== 1 ? 2 : 1;
+    this.rng = new PCG64(seed);
+    this.uncond = new ort.Tensor("bool", Uint8Array.from([0, 1].slice(0, this.B)), [this.B]);
+    this.prompt = this.batch(embedding);
+    this.caches = bundle.levels.map((_, level) => this.emptyCache(level));
+    this.positions = [];  // the position of every cache slot
+    this.slotTokens = [];  // the tokens each slot holds (the prefix: zeros)
+    this.last = new Array(this.L).fill(0);
+    this.steps = 0;
+    this.oldest = 1;
+  }
+
+  batch(embedding) {
+    return new this.bundle.ort.Tensor("float32", Float32Array.from(
+      { length: this.B * embedding.length }, (_, i) => embedding[i % embedding.length]),
+      [this.B, embedding.length]);
+  }
+
+  emptyCache(level) {
+    const [layers, heads, dim] = this.bundle.cacheShape(level);
+    return Array.from({ length: 2 * layers },
+      () => new this.bundle.ort.Tensor("float32", new Float32Array(0), [this.B, heads, 0, dim]));
+  }
+
+  int64(values, dims) {
+    return new this.bundle.ort.Tensor("int64", BigInt64Array.from(values.map(BigInt)), dims);
+  }
+
+  // the tokens (L) of the next step; the length is forced (level 0 never draws the end)
+  async step() {
+    const b = this.bundle, L = this.L, n = this.steps;
+    const uniforms = Array.from({ length: L }, () => this.rng.random());
+    const ids = this.int64(Array.from({ length: this.B * L }, (_, i) => this.last[i % L]), [this.B, 1, L]);
+    const position = this.int64([n], [1]);
+    const past = this.int64(this.positions, [this.positions.length]);
+    const outputs = [];
+    for (let level = 0; level < L; level++)
+      outputs.push(await b.runLevel(level, [this.prompt, this.uncond, ids, position, past, ...this.caches[level]]));
+    const row = outputs.map(([logits], level) => {
+      const K = logits.dims[1], data = logits.data;
+      return chooseToken(data.subarray(0, K), this.B === 2 ? data.subarray(K, 2 * K) : null,
+        uniforms[level], this.sampling, level === 0 ? b.endToken : null);
+    });
+    const presents = outputs.map(([, ...p]) => p);
+    if (this.window !== null && this.positions.length === 1 + this.window) {
+      const slot = this.oldest;  // the new slot overwrites the oldest step's in place
+      presents.forEach((levelPresents, level) => levelPresents.forEach((present, k) => {
+        const held = this.caches[level][k];
+        const [bh, h, p, d] = held.dims;
+        for (let i = 0; i < bh * h; i++)
+          held.data.set(present.data.subarray((i * (p + 1) + p) * d, (i * (p + 1) + p + 1) * d),
+            (i * p + slot) * d);
+      }));
+      this.positions[slot] = n;
+      this.slotTokens[slot] = this.last;
+      this.oldest = (slot % this.window) + 1;
+    } else {
+      this.caches = presents;
+      this.positions.push(n);
+      this.slotTokens.push(this.last);
+    }
+    this.last = row;
+    this.steps = n + 1;
+    return row;
+  }
+
+  // a new prompt from the next step on: every held slot recomputed under it in one call of
+  // each level (the prefix and the held steps with their tokens)
+  async setPrompt(embedding) {
+    this.prompt = this.batch(embedding);
+    if (!this.positions.length) return;
+    const P = this.positions.length, L = this.L;
+    const ids = this.int64(Array.from({ length: this.B }, () => this.slotTokens.flat()).flat(), [this.B, P, L]);
+    const positions = this.int64(this.positions, [P]);
+    const none = this.int64([], [0]);
+    for (let level = 0; level < L; level++) {
+      const [, ...presents] = await this.bundle.runLevel(level,
+        [this.prompt, this.uncond, ids, positions, none, ...this.emptyCache(level)]);
+      this.caches[level] = presents;
+    }
+  }
+}
+
+// -- the streaming decoder: mogo.stream_decoder's window arithmetic (spec §8) ---------------
+export class StreamingDecoder {
+  constructor(bundle, every = 8) {
+    const d = bundle.manifest.vq.decoder;
+    this.bundle = bundle; this.left = d.left_context; this.lookahead = d.lookahead;
+    this.every = every; this.tokens = []; this.start = 0; this.pushed = 0; this.emitted = 0;
+  }
+
+  // rows (n x L) in; the features (Float64Array, frames x D) that became final out
+  async push(rows) {
+    this.tokens.push(...rows);
+    this.pushed += rows.length;
+    const ready = this.pushed - this.lookahead;
+    if (ready <= this.emitted || (this.emitted && ready - this.emitted < this.every))
+      return new Float64Array(0);
+    return this.take(ready, this.tokens);
+  }
+
+  // the stream's end: `context` rows after it are the right context of its last frames
+  async flush(context) {
+    return this.take(this.pushed, [...this.tokens, ...context]);
+  }
+
+  async take(ready, window) {
+    const D = this.bundle.mean.length;
+    const features = await this.bundle.decodeFeatures(window);
+    const perToken = features.length / D / window.length;
+    const first = (this.emitted - this.start) * perToken * D;
+    const frames = features.slice(first, first + (ready - this.emitted) * perToken * D);
+    this.emitted = ready;
+    const keepFrom = Math.max(0, ready - this.left);
+    this.tokens = this.tokens.slice(keepFrom - this.start);
+    this.start = keepFrom;
+    return frames;
   }
 }
 
@@ -326,8 +421,15 @@ export async function checkConformance(bundle, vectors, log = () => {}) {
   });
   for (const c of vectors.generate) {
     const start = performance.now();
-    const rows = await bundle.generateTokens(Float32Array.from(c.prompt_embedding), c.steps,
-      c.sampling, c.seed, c.window);
+    const schedule = c.schedule;
+    const stream = new TokenStream(bundle, Float32Array.from(schedule[0].prompt_embedding),
+      c.seed, c.sampling, c.window);
+    const rows = [];
+    for (const [k, entry] of schedule.entries()) {
+      if (k) await stream.setPrompt(Float32Array.from(entry.prompt_embedding));
+      for (let n = 0; n < entry.steps; n++) rows.push(await stream.step());
+    }
+    while (rows.length < c.steps) rows.push(await stream.step());
     const seconds = (performance.now() - start) / 1000;
     const { agreed, problem } = compareTokens(c, rows, vectors.tolerances);
     if (problem) problems.push(problem);

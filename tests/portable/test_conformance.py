@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from mogo.export.onnx.conformance import VECTORS, compare_tokens
+from mogo.export.onnx.conformance import VECTORS, compare_tokens, run_tokens
 from mogo.sampling import Sampling, choose_token, make_rng
 
 VECTORS_DATA = json.loads(VECTORS.read_text())
@@ -32,15 +32,22 @@ def test_the_sampler(case):
 @pytest.mark.parametrize("case", VECTORS_DATA["generate"], ids=lambda c: c["name"])
 def test_generate(case, portable_generator):
     g = portable_generator
-    embedding = np.float32(case["prompt_embedding"])
-    assert np.abs(g.embed([case["prompt"]])[0] - embedding).max() < TOLERANCES["prompt_embedding"]
-    tokens = g.tokens.generate(embedding, case["steps"], sampling=Sampling(**case["sampling"]),
-                               seed=case["seed"], window=case["window"])
+    for entry in case["schedule"]:
+        embedding = g.embed([entry["prompt"]])[0]
+        assert np.abs(embedding - entry["prompt_embedding"]).max() < TOLERANCES["prompt_embedding"]
+    tokens = run_tokens(g.tokens, case)
     agreed, problem = compare_tokens(case, tokens, TOLERANCES)
     assert problem is None
-    if agreed == case["steps"]:
-        motion = g.decode(tokens, [(0, case["prompt"])], case["frames"], plant_feet=False)
-        assert np.abs(motion.joints - np.array(case["joints"])).max() < TOLERANCES["joints_m"]
+    if agreed < case["steps"]:
+        return
+    prompts = [entry["prompt"] for entry in case["schedule"]]
+    if len(prompts) == 1:
+        motion = g.decode(tokens, [(0, prompts[0])], case["frames"], plant_feet=False)
+    else:  # as `play` makes it: a stream, switched, its frames decoded as they became final
+        seconds = [entry["steps"] * g.down_factor / g.fps for entry in case["schedule"]]
+        motion = g.play(list(zip(prompts, seconds)), case["seed"],
+                        Sampling(**case["sampling"]), plant_feet=False)
+    assert np.abs(motion.joints - np.array(case["joints"])).max() < TOLERANCES["joints_m"]
 
 
 def test_a_wrong_token_is_caught_and_a_near_tie_forgiven():
