@@ -392,6 +392,31 @@ export class StreamingDecoder {
   }
 }
 
+// -- an endless stream: tokens in, final frames out (spec §8, without re-anchoring or feet) --
+export class MotionStream {
+  constructor(bundle, embedding, seed, sampling, window) {
+    this.bundle = bundle;
+    this.tokens = new TokenStream(bundle, embedding, seed, sampling,
+      window === undefined ? bundle.manifest.defaults.window : window);
+    this.decoder = new StreamingDecoder(bundle);
+    this.joints = new JointStream(bundle.mean.length, bundle.numJoints);
+    this.rows = [];
+  }
+
+  // one token step; the joints (frames x J x 3, Float32Array) that became final, maybe none
+  async step() {
+    const row = await this.tokens.step();
+    this.rows.push(row);
+    const features = await this.decoder.push([row]);
+    return this.joints.push(features, features.length / this.bundle.mean.length);
+  }
+
+  // from the next step on (exact: every held cache slot recomputed under the new prompt)
+  async setPrompt(embedding) {
+    await this.tokens.setPrompt(embedding);
+  }
+}
+
 // -- the conformance rule (mogo.export.onnx.conformance.compare_tokens) --------------------
 export function compareTokens(c, rows, tolerances) {
   const tie = c.sampling.temperature === 0 ? tolerances.tie_logit : tolerances.tie_mass;

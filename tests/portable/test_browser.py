@@ -59,3 +59,25 @@ def test_a_prompt_the_trained_encoder_cannot_read_is_one_line(site, browser):
         assert time.monotonic() < deadline, status
         time.sleep(0.5)
     assert "does not know" in status and browser.execute_script("return window.mogoResult") is None
+
+
+def test_a_page_streams_and_switches_prompt_as_our_runtime_does(site, browser,
+                                                                portable_generator):
+    browser.get(page_url(site, stream=1, prompt="a person walks forward", seed=5,
+                         then="a person jumps", after=60, steps=120))
+    deadline = time.monotonic() + 300
+    while not (state := browser.execute_script("return window.mogoStream || {}")).get("done"):
+        assert browser.execute_script("return window.mogoError || null") is None
+        assert time.monotonic() < deadline, state.get("frames")
+        time.sleep(0.5)
+    assert state["switches"] == [[60, "a person jumps"]]
+    stream = portable_generator.stream("a person walks forward", seed=5, anchoring=False,
+                                       plant_feet=False)
+    ours = [stream.step() for _ in range(60)]
+    stream.set_prompt("a person jumps")
+    ours = np.concatenate(ours + [stream.step() for _ in range(60)])
+    page = np.array(state["joints"]).reshape(-1, 22, 3)
+    assert page.shape == ours.shape and len(page) > 80  # the frames final after 120 steps
+    assert np.abs(page - ours).max() < 1e-3
+    if SCREENSHOT:
+        Path(SCREENSHOT).with_suffix(".stream.png").write_bytes(browser.get_screenshot_as_png())
