@@ -9,7 +9,8 @@ Three kinds of case, in one JSON file (no pickle, ~200 KB):
   mogo.sampling, exact);
 - "generate": a schedule of prompts (text, embedding, steps; one for `generate`, several
   for `play`), seed, sampling, window and step count -> the uniforms of every step, the
-  tokens, each token's margin, and the joints (feet not planted).
+  tokens, each token's margin, and the joints (feet not planted; some cases also with them
+  planted, `joints_planted`).
 Tokens must match exactly, except from the first step where ours had a near tie (its margin
 below `tolerances`): there a port may pick the other token, and the case stops comparing.
 Joints are compared only for a case whose tokens all matched, within `tolerances.joints_m`.
@@ -44,6 +45,9 @@ GENERATE = (  # name, [(prompt, seconds), ...], seed, sampling options, window (
      dict(temperature=0.8, top_k=50, guidance=2.0), 8),
     ("walk_then_jump", [("a person walks forward", 3.0), ("a person jumps", 2.0)], 4, {}, None),
 )
+PLANTED = ("jump_greedy", "wave_guided_window8")  # cases that also hold their joints with the
+# feet planted (two short ones: the file's size)
+SAMPLER_CLASSES = 64  # logits of a sampler case: the rule is the same for any number
 SEEDS = (0, 1, 12345, 2 ** 40 + 7)
 DRAWS = 12
 
@@ -93,7 +97,7 @@ def make_vectors(bundle_dir: Path) -> dict:
         tolerances=TOLERANCES,
         random=[dict(seed=seed, uniforms=make_rng(seed).random(DRAWS).tolist())
                 for seed in SEEDS],
-        sampler=_sampler_cases(manifest.end_token + 1),
+        sampler=_sampler_cases(SAMPLER_CLASSES),
         generate=[_generate_case(generator, *case) for case in GENERATE])
 
 
@@ -159,9 +163,16 @@ def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[s
     else:
         motion = generator.play(schedule, seed, sampling, plant_feet=False)
         assert np.array_equal(motion.tokens, tokens[:len(motion.tokens)])
+    if name in PLANTED:
+        planted = generator.decode(tokens, [(0, schedule[0][0])], frames, seed).joints
+        case["joints_planted"] = _rounded(planted)
     return dict(case, uniforms=uniforms.tolist(), tokens=tokens.tolist(),
                 margins=[[float(f"{m:.3g}") for m in row] for row in case_margins],
-                joints=np.round(motion.joints.astype(np.float64), 5).tolist())
+                joints=_rounded(motion.joints))
+
+
+def _rounded(joints: np.ndarray) -> list:
+    return np.round(joints.astype(np.float64), 5).tolist()
 
 
 def run_tokens(tokens_gen, case: dict, each=lambda row: row) -> np.ndarray:

@@ -1,7 +1,8 @@
-// The reference port of mogo's `generate` (docs/spec.md) on onnxruntime-web: a portable
-// bundle (`mogo export --portable`) in, joint positions out, in a browser or Node. Feet are
-// not planted (mogo.motion.feet is not ported). The caller passes the onnxruntime module
-// (`ort`) and a `read(name)` that returns a bundle file's bytes (fetch or fs).
+// The reference port of mogo's `generate`, `play` and streams (docs/spec.md) on
+// onnxruntime-web: a portable bundle (`mogo export --portable`) in, joint positions out, in a
+// browser or Node. Clips have their feet planted; streams do not, nor are they re-anchored
+// (spec §11). The caller passes the onnxruntime module (`ort`) and a `read(name)` that
+// returns a bundle file's bytes (fetch or fs).
 
 // -- the random stream: numpy's PCG64 seeded by SeedSequence (spec §2) ---------------------
 const M32 = 0xffffffff;
@@ -152,6 +153,125 @@ export class JointStream {
   }
 }
 
+// -- feet: mogo.motion.feet.planted, a whole clip at once (spec §7) ------------------------
+const CONTACT = 0.5, HOLD_STEP2 = Math.pow(Math.pow(0.002, 0.5), 2), BLEND_IN = 3;
+const BLEND_OUT = 8, PIN_FRAMES = 6, MAX_REACH = 0.9995, KNEE_FORWARD = 0.1;
+const ease = (x) => { x = Math.min(1, Math.max(0, x)); return x * x * (3 - 2 * x); };
+const norm = (v) => Math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+const add3 = (a, b, s = 1) => [a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2]];
+
+function twoBoneIK(hip, target, pole, upper, lower) {
+  const reach = add3(target, hip, -1);
+  let distance = norm(reach);
+  const axis = reach.map((c) => c / Math.max(distance, 1e-9));
+  distance = Math.min(Math.max(distance, Math.abs(upper - lower) + 1e-6), MAX_REACH * (upper + lower));
+  let side = add3(pole, hip, -1);
+  const along = side[0] * axis[0] + side[1] * axis[1] + side[2] * axis[2];
+  side = add3(side, axis, -along);
+  const sideNorm = norm(side);
+  if (sideNorm > 1e-6) side = side.map((c) => c / Math.max(sideNorm, 1e-9));
+  else {
+    const fallback = [0, axis[2], -axis[1]], n = Math.max(norm(fallback), 1e-9);
+    side = fallback.map((c) => c / n);
+  }
+  const cos = (upper * upper + distance * distance - lower * lower) / (2 * upper * distance);
+  const sin = Math.sqrt(Math.min(Math.max(1 - cos * cos, 0), 1));
+  const knee = hip.map((h, i) => h + upper * (cos * axis[i] + sin * side[i]));
+  return [knee, hip.map((h, i) => h + distance * axis[i])];
+}
+
+export class FootPlanter {
+  constructor(manifest) {
+    const sk = manifest.motion.skeleton, names = sk.joint_names, parents = sk.parents;
+    this.legs = [sk.left_foot, sk.right_foot].map(([ankle, toe]) => {
+      const knee = parents[ankle];
+      return [parents[knee], knee, ankle, toe];
+    });
+    this.contacts = this.legs.flatMap((leg) => leg.slice(2));  // left ankle, toe, right ...
+    const velocity = manifest.motion.features.find((b) => b.name === "joint_velocities").start;
+    this.velocity = this.contacts.map((j) => velocity + 3 * j);
+    this.hips = sk.face_joints.slice(0, 2);  // right hip, left hip
+    const mirror = (j) => names.indexOf(names[j].startsWith("left_") ? names[j].replace("left_", "right_")
+      : names[j].startsWith("right_") ? names[j].replace("right_", "left_") : names[j]);
+    const length = (j) => {  // the rig's symmetric rest bone (mogo.motion.rig.rest_offsets)
+      const a = sk.rest_offsets[j], b = sk.rest_offsets[mirror(j)];
+      return norm([(a[0] - b[0]) / 2, (a[1] + b[1]) / 2, (a[2] + b[2]) / 2]);
+    };
+    this.lengths = this.legs[0].slice(1).map(length);  // thigh, shin, foot
+  }
+
+  // features (Float64Array n x D), joints (Float32Array n x J x 3) -> joints, feet planted
+  plant(features, joints, n, D, J) {
+    const K = 4, at = (i, j) => [joints[(i * J + j) * 3], joints[(i * J + j) * 3 + 1], joints[(i * J + j) * 3 + 2]];
+    const flags = [], held = [], paths = [];
+    for (let i = 0; i < n; i++) {
+      flags.push(this.contacts.map((_, k) => {
+        let speed = 0;
+        for (let c = 0; c < 3; c++) speed += features[i * D + this.velocity[k] + c] ** 2;
+        return features[i * D + D - 4 + k] > CONTACT && speed < HOLD_STEP2;
+      }));
+      paths.push(this.contacts.map((j) => at(i, j)));
+    }
+    for (let i = 0; i < n; i++) held.push(flags[i].map((f, k) => f || (i > 0 && flags[i - 1][k])));
+    const targets = [], weights = [];
+    for (let k = 0; k < K; k++) {
+      let pin = [0, 0, 0], last = -1, since0 = 2 ** 30;
+      const offsets = [];
+      for (let i = 0; i < n; i++) {
+        if (held[i][k] && !(i > 0 && held[i - 1][k])) {  // a contact starts: its pin
+          let length = 0;
+          while (length < PIN_FRAMES && i + length < n && held[i + length][k]) length++;
+          pin = [0, 0, 0];
+          for (let f = i; f < i + length; f++) pin = add3(pin, paths[f][k]);
+          pin = pin.map((c) => c / length);
+        }
+        const o = add3(pin, paths[i][k], -1);
+        o[1] = Math.max(o[1], 0);
+        offsets.push(o);
+      }
+      for (let i = 0; i < n; i++) {
+        const since = last >= 0 ? i - last : since0 + i + 1;
+        const released = last >= 0 ? offsets[last] : [0, 0, 0];
+        const out = ease(1 - since / (BLEND_OUT + 1));
+        let following = n;
+        for (let f = i + 1; f < n; f++) if (flags[f][k]) { following = f; break; }
+        const into = following < n ? ease(1 - (following - i) / (BLEND_IN + 1)) : 0;
+        const start = offsets[Math.min(following, n - 1)];
+        let offset = released.map((r, c) => out * r + into * start[c]);
+        let weight = out + into;
+        offset = offset.map((c) => c / Math.max(weight, 1));
+        if (held[i][k]) { offset = offsets[i]; weight = 1; } else weight = Math.min(weight, 1);
+        (targets[i] ||= [])[k] = add3(paths[i][k], offset);
+        (weights[i] ||= [])[k] = weight;
+        if (held[i][k]) last = i;
+      }
+    }
+    const result = Float32Array.from(joints.subarray(0, n * J * 3));
+    const [thigh, shin, foot] = this.lengths;
+    for (let i = 0; i < n; i++) {
+      const across = add3(at(i, this.hips[0]), at(i, this.hips[1]), -1);
+      let forward = [across[2], 0, -across[0]];
+      const fn = KNEE_FORWARD / Math.max(norm(forward), 1e-9);
+      forward = forward.map((c) => c * fn);
+      this.legs.forEach(([hip, knee, ankle, toe], leg) => {
+        let a = targets[i][2 * leg];
+        const t = targets[i][2 * leg + 1], wa = weights[i][2 * leg], wt = weights[i][2 * leg + 1];
+        let along = add3(t, a, -1);
+        const span = norm(along);
+        along = along.map((c) => c / Math.max(span, 1e-9));
+        const total = wa + wt, toeShare = total > 0 ? wt / Math.max(total, 1e-9) : 0.5;
+        a = add3(a, along, toeShare * (span - foot));
+        a[1] += Math.max(0, -Math.min(a[1], a[1] + foot * along[1]));
+        const [k, an] = twoBoneIK(at(i, hip), a, add3(at(i, knee), forward), thigh, shin);
+        const tip = add3(an, along, foot);
+        for (const [j, v] of [[knee, k], [ankle, an], [toe, tip]])
+          for (let c = 0; c < 3; c++) result[(i * J + j) * 3 + c] = v[c];
+      });
+    }
+    return result;
+  }
+}
+
 // -- .npy (float32, little-endian) ----------------------------------------------------------
 export function readNpy(bytes) {
   const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
@@ -179,6 +299,7 @@ export class Bundle {
     b.std = readNpy(await read(m.motion.normalization.std));
     b.endToken = m.vq.config.codebook_size;
     b.numJoints = m.motion.skeleton.joint_names.length;
+    b.feet = new FootPlanter(m);
     return b;
   }
 
@@ -207,11 +328,13 @@ export class Bundle {
     return features;
   }
 
-  // token rows -> joints of the first `frames` frames, offline (spec §6, §7)
-  async decode(rows, frames) {
-    const D = this.mean.length, features = await this.decodeFeatures(rows);
+  // token rows -> joints of the first `frames` frames, offline, the feet planted unless
+  // plantFeet is false (spec §6, §7)
+  async decode(rows, frames, plantFeet = true) {
+    const D = this.mean.length, J = this.numJoints, features = await this.decodeFeatures(rows);
     const n = Math.min(frames, features.length / D);
-    return new JointStream(D, this.numJoints).push(features, n);
+    const joints = new JointStream(D, J).push(features, n);
+    return plantFeet ? this.feet.plant(features, joints, n, D, J) : joints;
   }
 
   steps(seconds) {
@@ -220,13 +343,13 @@ export class Bundle {
   }
 
   // `generate` of a clip of `seconds` (spec §5): the lookahead's steps drawn beyond it
-  async generate(embedding, seconds, seed, sampling, window) {
-    return this.play([[embedding, seconds]], seed, sampling, window);
+  async generate(embedding, seconds, seed, sampling, window, plantFeet = true) {
+    return this.play([[embedding, seconds]], seed, sampling, window, plantFeet);
   }
 
   // `play`: [[embedding, seconds], ...] as one stream, the prompt switched between entries
   // (spec §8), cut after the last with the lookahead's steps as its right context
-  async play(schedule, seed, sampling, window) {
+  async play(schedule, seed, sampling, window, plantFeet = true) {
     const stream = new TokenStream(this, schedule[0][0], seed, sampling,
       window === undefined ? this.manifest.defaults.window : window);
     const rows = [];
@@ -236,7 +359,7 @@ export class Bundle {
     }
     const frames = rows.length * this.manifest.vq.config.down_factor;
     for (let n = this.manifest.vq.decoder.lookahead; n > 0; n--) rows.push(await stream.step());
-    return { rows, frames, joints: await this.decode(rows, frames) };
+    return { rows, frames, joints: await this.decode(rows, frames, plantFeet) };
   }
 
   // prompt text -> embedding by the encoder trained with the model (manifest text.trained),
@@ -460,12 +583,16 @@ export async function checkConformance(bundle, vectors, log = () => {}) {
     if (problem) problems.push(problem);
     let jointsDifference = null;
     if (agreed === c.steps) {
-      const joints = await bundle.decode(rows, c.frames);
-      const expected = c.joints.flat(2);
       jointsDifference = 0;
-      expected.forEach((v, i) => { jointsDifference = Math.max(jointsDifference, Math.abs(joints[i] - v)); });
-      if (!(jointsDifference < vectors.tolerances.joints_m))
-        problems.push(`${c.name}: joints differ by ${jointsDifference} m`);
+      for (const [key, plant] of [["joints", false], ["joints_planted", true]]) {
+        if (!c[key]) continue;
+        const joints = await bundle.decode(rows, c.frames, plant), expected = c[key].flat(2);
+        let largest = 0;
+        expected.forEach((v, i) => { largest = Math.max(largest, Math.abs(joints[i] - v)); });
+        if (!(largest < vectors.tolerances.joints_m))
+          problems.push(`${c.name}: ${key} differ by ${largest} m`);
+        jointsDifference = Math.max(jointsDifference, largest);
+      }
     }
     report.cases.push({ name: c.name, steps: c.steps, agreed, jointsDifference, tokenSeconds: seconds });
     log(`${c.name}: ${agreed}/${c.steps} steps agree, joints ${jointsDifference}, ${seconds.toFixed(2)} s`);

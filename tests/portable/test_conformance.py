@@ -48,6 +48,10 @@ def test_generate(case, portable_generator):
         motion = g.play(list(zip(prompts, seconds)), case["seed"],
                         Sampling(**case["sampling"]), plant_feet=False)
     assert np.abs(motion.joints - np.array(case["joints"])).max() < TOLERANCES["joints_m"]
+    if "joints_planted" in case:
+        planted = g.decode(tokens, [(0, prompts[0])], case["frames"]).joints
+        assert np.abs(planted - np.array(case["joints_planted"])).max() < TOLERANCES["joints_m"]
+        assert np.abs(planted - motion.joints).max() > 0.01  # the feet did move
 
 
 def test_a_wrong_token_is_caught_and_a_near_tie_forgiven():
