@@ -251,9 +251,10 @@ def _node(bundle: Path, generator: MotionGenerator) -> str:
     s = float(np.median(result["times"]))
     return (f"The JavaScript port under Node {_version(['node', '--version'])} "
             f"(onnxruntime-web, WebAssembly, 1 thread): a 5-s clip (131 token steps, the decode "
-            f"and the feet, the embedding given) in {s:.2f} s, {round(SECONDS * 20) / s:.0f} frames/s "
-            f"(median of 3). Largest logit difference from our runtime over the 6 levels after "
-            f"40 teacher-forced positions: {largest:.1e}.\n")
+            f"and the feet, the embedding given) in {s:.2f} s, "
+            f"{round(SECONDS * 20) / s:.0f} frames/s (median of 3). Largest logit difference "
+            f"from our runtime over the 6 levels after 40 teacher-forced positions: "
+            f"{largest:.1e}.\n")
 
 
 def _browser(bundle: Path) -> str:

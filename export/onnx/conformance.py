@@ -199,7 +199,7 @@ def compare_tokens(case: dict, tokens: np.ndarray, tolerances: dict) -> tuple[in
         return 0, f"{case['name']}: tokens of shape {tokens.shape}, expected {expected.shape}"
     greedy = case["sampling"]["temperature"] == 0
     tie = tolerances["tie_logit"] if greedy else tolerances["tie_mass"]
-    for n, (row, want) in enumerate(zip(tokens, expected)):
+    for n, (row, want) in enumerate(zip(tokens, expected, strict=True)):
         for level in np.flatnonzero(row != want):
             if case["margins"][n][level] < tie:
                 return n, None

@@ -45,7 +45,7 @@ def test_generate(case, portable_generator):
         motion = g.decode(tokens, [(0, prompts[0])], case["frames"], plant_feet=False)
     else:  # as `play` makes it: a stream, switched, its frames decoded as they became final
         seconds = [entry["steps"] * g.down_factor / g.fps for entry in case["schedule"]]
-        motion = g.play(list(zip(prompts, seconds)), case["seed"],
+        motion = g.play(list(zip(prompts, seconds, strict=True)), case["seed"],
                         Sampling(**case["sampling"]), plant_feet=False)
     assert np.abs(motion.joints - np.array(case["joints"])).max() < TOLERANCES["joints_m"]
     if "joints_planted" in case:
