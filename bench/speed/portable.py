@@ -47,8 +47,8 @@ class _QuietFiles(http.server.SimpleHTTPRequestHandler):
 @contextlib.contextmanager
 def page_site(bundle: Path) -> Iterator[str]:
     """http://127.0.0.1:PORT with /web/ (the package's web folder) and /bundle/ (`bundle`),
-    served by a thread of this process: files only. (Chromium refuses fetch and WebAssembly
-    from file://, which onnxruntime-web needs.)"""
+    served by a thread of this process: files only. (From file:// Chromium blocks the page's
+    module scripts: an origin of null.)"""
     with tempfile.TemporaryDirectory() as folder:
         root = Path(folder)
         (root / "web").symlink_to(WEB)

@@ -1,6 +1,6 @@
 """The JavaScript port in headless Chromium: the conformance vectors, and a page that
 generates a 5-s walk with no mogo process running, only a static file server this test starts
-(onnxruntime-web fetches its .wasm and the graphs, which Chromium refuses from file://)."""
+(from file:// Chromium blocks the page's module scripts: an origin of null)."""
 import os
 import time
 from pathlib import Path
