@@ -399,12 +399,29 @@ export class TokenStream {
     this.rng = new PCG64(seed);
     this.uncond = new ort.Tensor("bool", Uint8Array.from([0, 1].slice(0, this.B)), [this.B]);
     this.prompt = this.batch(embedding);
-    this.caches = bundle.levels.map((_, level) => this.emptyCache(level));
+    this.allowEnd = false;  // level 0 may draw the end token (from step 1 on): step() -> null
+    this.restart();
+  }
+
+  // forget every step drawn (not the random state): the next step is step 0 of a fresh clip
+  restart() {
+    this.caches = this.bundle.levels.map((_, level) => this.emptyCache(level));
     this.positions = [];  // the position of every cache slot
     this.slotTokens = [];  // the tokens each slot holds (the prefix: zeros)
     this.last = new Array(this.L).fill(0);
     this.steps = 0;
     this.oldest = 1;
+  }
+
+  // `rows` (n x L) as the steps drawn so far, in place of anything drawn before (n <= 1 + W)
+  async continueFrom(rows) {
+    const n = rows.length;
+    this.positions = Array.from({ length: n }, (_, i) => i);
+    this.slotTokens = [new Array(this.L).fill(0), ...rows.slice(0, -1)];
+    this.last = rows[n - 1];
+    this.steps = n;
+    this.oldest = 1;
+    await this.prefill();
   }
 
   batch(embedding) {
@@ -423,7 +440,7 @@ export class TokenStream {
     return new this.bundle.ort.Tensor("int64", BigInt64Array.from(values.map(BigInt)), dims);
   }
 
-  // the tokens (L) of the next step; the length is forced (level 0 never draws the end)
+  // the tokens (L) of the next step, or null where level 0 drew the end token (allowEnd)
   async step() {
     const b = this.bundle, L = this.L, n = this.steps;
     const uniforms = Array.from({ length: L }, () => this.rng.random());
@@ -433,11 +450,13 @@ export class TokenStream {
     const outputs = [];
     for (let level = 0; level < L; level++)
       outputs.push(await b.runLevel(level, [this.prompt, this.uncond, ids, position, past, ...this.caches[level]]));
+    const endAllowed = this.allowEnd && n > 0;
     const row = outputs.map(([logits], level) => {
       const K = logits.dims[1], data = logits.data;
       return chooseToken(data.subarray(0, K), this.B === 2 ? data.subarray(K, 2 * K) : null,
-        uniforms[level], this.sampling, level === 0 ? b.endToken : null);
+        uniforms[level], this.sampling, level === 0 && !endAllowed ? b.endToken : null);
     });
+    if (row[0] === b.endToken) return null;
     const presents = outputs.map(([, ...p]) => p);
     if (this.window !== null && this.positions.length === 1 + this.window) {
       const slot = this.oldest;  // the new slot overwrites the oldest step's in place
@@ -465,7 +484,10 @@ export class TokenStream {
   // each level (the prefix and the held steps with their tokens)
   async setPrompt(embedding) {
     this.prompt = this.batch(embedding);
-    if (!this.positions.length) return;
+    if (this.positions.length) await this.prefill();
+  }
+
+  async prefill() {
     const P = this.positions.length, L = this.L;
     const ids = this.int64(Array.from({ length: this.B }, () => this.slotTokens.flat()).flat(), [this.B, P, L]);
     const positions = this.int64(this.positions, [P]);
@@ -515,12 +537,20 @@ export class StreamingDecoder {
   }
 }
 
-// -- an endless stream: tokens in, final frames out (spec §8, without re-anchoring or feet) --
+// -- an endless stream: tokens in, final frames out (spec §8; no feet) ---------------------
+// Re-anchored as mogo.anchoring re-anchors a prompt that goes on (walk, jog, wave, ...): where
+// the model ends its clip a fresh one starts, after `span` steps it goes on from its last
+// `keep`, a switch from its last `switchKeep`. Prompts that settle (sit down, jump three
+// times) or stand still are not told apart (the word lists are not ported): they go on too.
+export const ANCHORING = { span: 80, keep: 10, switchKeep: 1 };
+
 export class MotionStream {
-  constructor(bundle, embedding, seed, sampling, window) {
+  constructor(bundle, embedding, seed, sampling, window, anchoring = ANCHORING) {
     this.bundle = bundle;
     this.tokens = new TokenStream(bundle, embedding, seed, sampling,
       window === undefined ? bundle.manifest.defaults.window : window);
+    this.tokens.allowEnd = anchoring !== null;
+    this.anchoring = anchoring;
     this.decoder = new StreamingDecoder(bundle);
     this.joints = new JointStream(bundle.mean.length, bundle.numJoints);
     this.rows = [];
@@ -528,8 +558,14 @@ export class MotionStream {
 
   // one token step; the joints (frames x J x 3, Float32Array) that became final, maybe none
   async step() {
-    const row = await this.tokens.step();
+    let row = await this.tokens.step();
+    if (row === null) {  // the model ended its clip: a fresh one
+      this.tokens.restart();
+      row = await this.tokens.step();
+    }
     this.rows.push(row);
+    if (this.anchoring && this.tokens.steps >= this.anchoring.span)
+      await this.tokens.continueFrom(this.rows.slice(-this.anchoring.keep));
     const features = await this.decoder.push([row]);
     return this.joints.push(features, features.length / this.bundle.mean.length);
   }
@@ -537,6 +573,8 @@ export class MotionStream {
   // from the next step on (exact: every held cache slot recomputed under the new prompt)
   async setPrompt(embedding) {
     await this.tokens.setPrompt(embedding);
+    if (this.anchoring && this.rows.length)
+      await this.tokens.continueFrom(this.rows.slice(-this.anchoring.switchKeep));
   }
 }
 

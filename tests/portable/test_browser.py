@@ -62,23 +62,45 @@ def test_a_prompt_the_trained_encoder_cannot_read_is_one_line(site, browser):
     assert browser.execute_script("return window.mogoResult") is None
 
 
-def test_a_page_streams_and_switches_prompt_as_our_runtime_does(site, browser,
-                                                                portable_generator):
-    browser.get(page_url(site, stream=1, prompt="a person walks forward", seed=5,
-                         then="a person jumps", after=60, steps=120))
+def _page_stream(browser, site, **query) -> dict:
+    browser.get(page_url(site, stream=1, **query))
     deadline = time.monotonic() + 300
     while not (state := browser.execute_script("return window.mogoStream || {}")).get("done"):
         assert browser.execute_script("return window.mogoError || null") is None
         assert time.monotonic() < deadline, state.get("frames")
         time.sleep(0.5)
+    return state
+
+
+def _our_stream(generator, first, then, after, steps, seed, anchoring):
+    stream = generator.stream(first, seed=seed, anchoring=anchoring, plant_feet=False)
+    frames = [stream.step() for _ in range(after)]
+    stream.set_prompt(then)
+    return np.concatenate(frames + [stream.step() for _ in range(steps - after)])
+
+
+def test_a_page_streams_and_switches_prompt_as_our_runtime_does(site, browser,
+                                                                portable_generator):
+    """Not re-anchored: the prompt switch alone (one prefill under the new prompt)."""
+    state = _page_stream(browser, site, prompt="a person walks forward", seed=5,
+                         then="a person jumps", after=60, steps=120, anchoring=0)
     assert state["switches"] == [[60, "a person jumps"]]
-    stream = portable_generator.stream("a person walks forward", seed=5, anchoring=False,
-                                       plant_feet=False)
-    ours = [stream.step() for _ in range(60)]
-    stream.set_prompt("a person jumps")
-    ours = np.concatenate(ours + [stream.step() for _ in range(60)])
+    ours = _our_stream(portable_generator, "a person walks forward", "a person jumps", 60, 120,
+                       5, anchoring=False)
     page = np.array(state["joints"]).reshape(-1, 22, 3)
     assert page.shape == ours.shape and len(page) > 80  # the frames final after 120 steps
     assert np.abs(page - ours).max() < 1e-3
     if SCREENSHOT:
         Path(SCREENSHOT).with_suffix(".stream.png").write_bytes(browser.get_screenshot_as_png())
+
+
+def test_a_page_stream_is_re_anchored_as_our_runtime_does(site, browser, portable_generator):
+    """Re-anchored (by default), walking then jogging: prompts that go on, the rules the port
+    has (a fresh clip where the model ends one, re-anchors after 80 steps and at a switch)."""
+    state = _page_stream(browser, site, prompt="a person walks forward", seed=6,
+                         then="a person jogs", after=100, steps=200)
+    ours = _our_stream(portable_generator, "a person walks forward", "a person jogs", 100, 200,
+                       6, anchoring=True)
+    page = np.array(state["joints"]).reshape(-1, 22, 3)
+    assert page.shape == ours.shape and len(page) > 160
+    assert np.abs(page - ours).max() < 1e-3
