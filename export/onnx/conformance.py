@@ -3,7 +3,7 @@ token loop (docs/spec.md) checks itself against, and the one rule it checks them
 
     python -m mogo.export.onnx.conformance      # rewrites runtime/web/conformance.json
 
-Three kinds of case, in one JSON file (no pickle, ~200 KB):
+Three kinds of case, in one JSON file (no pickle, ~320 KB):
 - "random": a seed's first uniforms from numpy's PCG64 (the port's random stream);
 - "sampler": one level's logits, the options and a uniform -> the token (float64 rules of
   mogo.sampling, exact);
