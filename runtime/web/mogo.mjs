@@ -1,7 +1,7 @@
 // The reference port of mogo's `generate`, `play` and streams (docs/spec.md) on
 // onnxruntime-web: a portable bundle (`mogo export --portable`) in, joint positions out, in a
-// browser or Node. Clips have their feet planted; streams do not, nor are they re-anchored
-// (spec §11). The caller passes the onnxruntime module (`ort`) and a `read(name)` that
+// browser or Node, the feet planted. Streams are re-anchored as ongoing prompts are; the
+// hold after one-off prompts is not ported (spec §11). The caller passes the onnxruntime module (`ort`) and a `read(name)` that
 // returns a bundle file's bytes (fetch or fs).
 
 // -- the random stream: numpy's PCG64 seeded by SeedSequence (spec §2) ---------------------
@@ -153,9 +153,10 @@ export class JointStream {
   }
 }
 
-// -- feet: mogo.motion.feet.planted, a whole clip at once (spec §7) ------------------------
+// -- feet: mogo.motion.feet.FootPlanter, for clips (plant) and streams (push) (spec §7) ----
 const CONTACT = 0.5, HOLD_STEP2 = Math.pow(Math.pow(0.002, 0.5), 2), BLEND_IN = 3;
 const BLEND_OUT = 8, PIN_FRAMES = 6, MAX_REACH = 0.9995, KNEE_FORWARD = 0.1;
+const LOOKAHEAD = BLEND_IN + PIN_FRAMES - 1;  // frames read ahead (8)
 const ease = (x) => { x = Math.min(1, Math.max(0, x)); return x * x * (3 - 2 * x); };
 const norm = (v) => Math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
 const add3 = (a, b, s = 1) => [a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2]];
@@ -198,40 +199,82 @@ export class FootPlanter {
       return norm([(a[0] - b[0]) / 2, (a[1] + b[1]) / 2, (a[2] + b[2]) / 2]);
     };
     this.lengths = this.legs[0].slice(1).map(length);  // thigh, shin, foot
+    this.D = manifest.motion.features.at(-1).stop;
+    this.J = names.length;
+    this.reset();
   }
 
-  // features (Float64Array n x D), joints (Float32Array n x J x 3) -> joints, feet planted
-  plant(features, joints, n, D, J) {
-    const K = 4, at = (i, j) => [joints[(i * J + j) * 3], joints[(i * J + j) * 3 + 1], joints[(i * J + j) * 3 + 2]];
+  // a whole clip: features (Float64Array n x D), joints (Float32Array n x J x 3) -> joints
+  plant(features, joints, n) {
+    this.reset();
+    const first = this.push(features, joints, n), rest = this.flush();
+    const all = new Float32Array(first.length + rest.length);
+    all.set(first); all.set(rest, first.length);
+    return all;
+  }
+
+  reset() {
+    this.state = this.contacts.map(() => ({ flag: false, held: false, pin: [0, 0, 0],
+                                           released: [0, 0, 0], since: 2 ** 30 }));
+    this.features = []; this.joints = [];  // the buffered rows
+  }
+
+  // rows in, the rows now final out (joints), LOOKAHEAD frames held back for the pins ahead
+  push(features, joints, n) {
+    if (!n) return new Float32Array(0);
+    for (let i = 0; i < n; i++) {
+      this.features.push(features.subarray(i * this.D, (i + 1) * this.D));
+      this.joints.push(joints.subarray(i * this.J * 3, (i + 1) * this.J * 3));
+    }
+    return this.clean(Math.max(0, this.features.length - LOOKAHEAD));
+  }
+
+  // the stream's end: the rows held back
+  flush() {
+    return this.clean(this.features.length);
+  }
+
+  clean(ready) {
+    const n = this.features.length, K = this.contacts.length, D = this.D, J = this.J;
+    const at = (i, j) => Array.from(this.joints[i].subarray(3 * j, 3 * j + 3));
     const flags = [], held = [], paths = [];
     for (let i = 0; i < n; i++) {
+      const f = this.features[i];
       flags.push(this.contacts.map((_, k) => {
         let speed = 0;
-        for (let c = 0; c < 3; c++) speed += features[i * D + this.velocity[k] + c] ** 2;
-        return features[i * D + D - 4 + k] > CONTACT && speed < HOLD_STEP2;
+        for (let c = 0; c < 3; c++) speed += f[this.velocity[k] + c] ** 2;
+        return f[D - 4 + k] > CONTACT && speed < HOLD_STEP2;
       }));
       paths.push(this.contacts.map((j) => at(i, j)));
     }
-    for (let i = 0; i < n; i++) held.push(flags[i].map((f, k) => f || (i > 0 && flags[i - 1][k])));
+    for (let i = 0; i < n; i++)
+      held.push(flags[i].map((f, k) => f || (i > 0 ? flags[i - 1][k] : this.state[k].flag)));
     const targets = [], weights = [];
     for (let k = 0; k < K; k++) {
-      let pin = [0, 0, 0], last = -1, since0 = 2 ** 30;
-      const offsets = [];
+      const state = this.state[k];
+      let pin = state.pin, last = -1;
+      const offsets = [], pins = [];
       for (let i = 0; i < n; i++) {
-        if (held[i][k] && !(i > 0 && held[i - 1][k])) {  // a contact starts: its pin
-          let length = 0;
-          while (length < PIN_FRAMES && i + length < n && held[i + length][k]) length++;
-          pin = [0, 0, 0];
-          for (let f = i; f < i + length; f++) pin = add3(pin, paths[f][k]);
-          pin = pin.map((c) => c / length);
+        const before = i > 0 ? held[i - 1][k] : state.held;
+        if (held[i][k] && !before) {  // a contact starts: its pin (where frames out need it)
+          pin = state.pin;
+          if (i < ready + BLEND_IN) {
+            let length = 0;
+            while (length < PIN_FRAMES && i + length < n && held[i + length][k]) length++;
+            pin = [0, 0, 0];
+            for (let f = i; f < i + length; f++) pin = add3(pin, paths[f][k]);
+            pin = pin.map((c) => c / length);
+          }
         }
+        pins.push(pin);
         const o = add3(pin, paths[i][k], -1);
         o[1] = Math.max(o[1], 0);
         offsets.push(o);
       }
-      for (let i = 0; i < n; i++) {
-        const since = last >= 0 ? i - last : since0 + i + 1;
-        const released = last >= 0 ? offsets[last] : [0, 0, 0];
+      let since, released;
+      for (let i = 0; i < ready; i++) {
+        since = last >= 0 ? i - last : state.since + i + 1;
+        released = last >= 0 ? offsets[last] : state.released;
         const out = ease(1 - since / (BLEND_OUT + 1));
         let following = n;
         for (let f = i + 1; f < n; f++) if (flags[f][k]) { following = f; break; }
@@ -245,10 +288,17 @@ export class FootPlanter {
         (weights[i] ||= [])[k] = weight;
         if (held[i][k]) last = i;
       }
+      if (ready) {  // the state after the last frame out
+        const end = ready - 1;
+        this.state[k] = { flag: flags[end][k], held: held[end][k], pin: pins[end],
+                          released: held[end][k] ? offsets[end] : released,
+                          since: held[end][k] ? 0 : since };
+      }
     }
-    const result = Float32Array.from(joints.subarray(0, n * J * 3));
+    const result = new Float32Array(ready * J * 3);
+    for (let i = 0; i < ready; i++) result.set(this.joints[i], i * J * 3);
     const [thigh, shin, foot] = this.lengths;
-    for (let i = 0; i < n; i++) {
+    for (let i = 0; i < ready; i++) {
       const across = add3(at(i, this.hips[0]), at(i, this.hips[1]), -1);
       let forward = [across[2], 0, -across[0]];
       const fn = KNEE_FORWARD / Math.max(norm(forward), 1e-9);
@@ -268,6 +318,8 @@ export class FootPlanter {
           for (let c = 0; c < 3; c++) result[(i * J + j) * 3 + c] = v[c];
       });
     }
+    this.features = this.features.slice(ready);
+    this.joints = this.joints.slice(ready);
     return result;
   }
 }
@@ -299,7 +351,6 @@ export class Bundle {
     b.std = readNpy(await read(m.motion.normalization.std));
     b.endToken = m.vq.config.codebook_size;
     b.numJoints = m.motion.skeleton.joint_names.length;
-    b.feet = new FootPlanter(m);
     return b;
   }
 
@@ -334,7 +385,7 @@ export class Bundle {
     const D = this.mean.length, J = this.numJoints, features = await this.decodeFeatures(rows);
     const n = Math.min(frames, features.length / D);
     const joints = new JointStream(D, J).push(features, n);
-    return plantFeet ? this.feet.plant(features, joints, n, D, J) : joints;
+    return plantFeet ? new FootPlanter(this.manifest).plant(features, joints, n) : joints;
   }
 
   steps(seconds) {
@@ -537,7 +588,7 @@ export class StreamingDecoder {
   }
 }
 
-// -- an endless stream: tokens in, final frames out (spec §8; no feet) ---------------------
+// -- an endless stream: tokens in, final frames out (spec §8) ------------------------------
 // Re-anchored as mogo.anchoring re-anchors a prompt that goes on (walk, jog, wave, ...): where
 // the model ends its clip a fresh one starts, after `span` steps it goes on from its last
 // `keep`, a switch from its last `switchKeep`. Prompts that settle (sit down, jump three
@@ -545,7 +596,8 @@ export class StreamingDecoder {
 export const ANCHORING = { span: 80, keep: 10, switchKeep: 1 };
 
 export class MotionStream {
-  constructor(bundle, embedding, seed, sampling, window, anchoring = ANCHORING) {
+  constructor(bundle, embedding, seed, sampling, window, anchoring = ANCHORING,
+              plantFeet = true) {
     this.bundle = bundle;
     this.tokens = new TokenStream(bundle, embedding, seed, sampling,
       window === undefined ? bundle.manifest.defaults.window : window);
@@ -553,6 +605,7 @@ export class MotionStream {
     this.anchoring = anchoring;
     this.decoder = new StreamingDecoder(bundle);
     this.joints = new JointStream(bundle.mean.length, bundle.numJoints);
+    this.feet = plantFeet ? new FootPlanter(bundle.manifest) : null;  // frames 8 frames late
     this.rows = [];
   }
 
@@ -567,7 +620,8 @@ export class MotionStream {
     if (this.anchoring && this.tokens.steps >= this.anchoring.span)
       await this.tokens.continueFrom(this.rows.slice(-this.anchoring.keep));
     const features = await this.decoder.push([row]);
-    return this.joints.push(features, features.length / this.bundle.mean.length);
+    const n = features.length / this.bundle.mean.length, joints = this.joints.push(features, n);
+    return this.feet ? this.feet.push(features, joints, n) : joints;
   }
 
   // from the next step on (exact: every held cache slot recomputed under the new prompt)

@@ -72,8 +72,8 @@ def _page_stream(browser, site, **query) -> dict:
     return state
 
 
-def _our_stream(generator, first, then, after, steps, seed, anchoring):
-    stream = generator.stream(first, seed=seed, anchoring=anchoring, plant_feet=False)
+def _our_stream(generator, first, then, after, steps, seed, anchoring, plant_feet):
+    stream = generator.stream(first, seed=seed, anchoring=anchoring, plant_feet=plant_feet)
     frames = [stream.step() for _ in range(after)]
     stream.set_prompt(then)
     return np.concatenate(frames + [stream.step() for _ in range(steps - after)])
@@ -81,12 +81,13 @@ def _our_stream(generator, first, then, after, steps, seed, anchoring):
 
 def test_a_page_streams_and_switches_prompt_as_our_runtime_does(site, browser,
                                                                 portable_generator):
-    """Not re-anchored: the prompt switch alone (one prefill under the new prompt)."""
+    """Not re-anchored, the feet as decoded: the prompt switch alone (one prefill under the
+    new prompt) and the streaming decoder."""
     state = _page_stream(browser, site, prompt="a person walks forward", seed=5,
-                         then="a person jumps", after=60, steps=120, anchoring=0)
+                         then="a person jumps", after=60, steps=120, anchoring=0, feet=0)
     assert state["switches"] == [[60, "a person jumps"]]
     ours = _our_stream(portable_generator, "a person walks forward", "a person jumps", 60, 120,
-                       5, anchoring=False)
+                       5, anchoring=False, plant_feet=False)
     page = np.array(state["joints"]).reshape(-1, 22, 3)
     assert page.shape == ours.shape and len(page) > 80  # the frames final after 120 steps
     assert np.abs(page - ours).max() < 1e-3
@@ -95,12 +96,13 @@ def test_a_page_streams_and_switches_prompt_as_our_runtime_does(site, browser,
 
 
 def test_a_page_stream_is_re_anchored_as_our_runtime_does(site, browser, portable_generator):
-    """Re-anchored (by default), walking then jogging: prompts that go on, the rules the port
-    has (a fresh clip where the model ends one, re-anchors after 80 steps and at a switch)."""
+    """As a stream is by default: re-anchored, the feet planted as frames come (8 frames
+    late). Walking then jogging: prompts that go on, the rules the port has (a fresh clip
+    where the model ends one, re-anchors after 80 steps and at a switch)."""
     state = _page_stream(browser, site, prompt="a person walks forward", seed=6,
                          then="a person jogs", after=100, steps=200)
     ours = _our_stream(portable_generator, "a person walks forward", "a person jogs", 100, 200,
-                       6, anchoring=True)
+                       6, anchoring=True, plant_feet=True)
     page = np.array(state["joints"]).reshape(-1, 22, 3)
     assert page.shape == ours.shape and len(page) > 160
     assert np.abs(page - ours).max() < 1e-3
