@@ -2,6 +2,7 @@
 token loop (docs/spec.md) checks itself against, and the one rule it checks them by.
 
     python -m mogo.export.onnx.conformance      # rewrites runtime/web/conformance.json
+                                                # and runtime/web/words.json
 
 Three kinds of case, in one JSON file (no pickle, ~320 KB):
 - "random": a seed's first uniforms from numpy's PCG64 (the port's random stream);
@@ -9,7 +10,7 @@ Three kinds of case, in one JSON file (no pickle, ~320 KB):
   mogo.sampling, exact);
 - "generate": a schedule of prompts (text, embedding, steps; one for `generate`, several
   for `play`), seed, sampling, window and step count -> the uniforms of every step, the
-  tokens, each token's margin, and the joints (feet not planted; some cases also with them
+  tokens, each token's margin and gap, and the joints (feet not planted; some cases also with them
   planted, `joints_planted`).
 Tokens must match exactly, except from the first step where ours had a near tie (its margin
 below `tolerances`): there a port may pick the other token, and the case stops comparing.
@@ -30,11 +31,12 @@ from mogo.generator import DEFAULT_BUNDLE
 from mogo.sampling import Sampling, _descending, choose_tokens, make_rng
 
 VECTORS = Path(__file__).resolve().parents[2] / "runtime" / "web" / "conformance.json"
+WORDS = VECTORS.with_name("words.json")  # what the port needs of mogo.anchoring's words
 FORMAT = "mogo-conformance"
 TOLERANCES = dict(  # other CPUs move the logits by ~5e-6 (docs/portable.md)
-    tie_logit=1e-3,  # greedy: the two best guided logits closer than this are a near tie
+    tie_logit=1e-3,  # the chosen token's guided logit this close to a neighbour's: a near tie
     tie_mass=1e-5,  # sampled: the draw (or the top-p cut) this close to an edge of the chosen
-    # token's share, as a share of the kept probability, is a near tie
+    # token's share, as a share of the kept probability, is a near tie (greedy: margin = gap)
     joints_m=1e-3,  # joints: largest difference, metres
     prompt_embedding=1e-3)  # the text encoder's output, largest difference
 GENERATE = (  # name, [(prompt, seconds), ...], seed, sampling options, window (None: the
@@ -53,10 +55,12 @@ DRAWS = 12
 
 
 def margins(cond: np.ndarray, uncond: np.ndarray | None, uniform: float, sampling: Sampling,
-            forbid: int | None) -> float:
-    """How far one level's draw is from picking another token: greedy, the gap between the
-    two best logits; sampled, the distance of the draw (and of the top-p cut) from the edges
-    of the chosen token's share, over the kept total. The arithmetic of mogo.sampling."""
+            forbid: int | None) -> tuple[float, float]:
+    """How far one level's draw is from picking another token, as (margin, gap). `gap`: the
+    logits (guided) of the chosen token and of its nearest neighbour in the sorted order, a
+    difference that float noise can reverse (codes with twin logits are common). `margin`:
+    greedy, the same gap; sampled, the distance of the draw (and of the top-p cut) from the
+    edges of the chosen token's share, over the kept total. The arithmetic of mogo.sampling."""
     z = np.asarray(cond, np.float64)
     if sampling.guided:
         u = np.asarray(uncond, np.float64)
@@ -64,14 +68,13 @@ def margins(cond: np.ndarray, uncond: np.ndarray | None, uniform: float, samplin
     if forbid is not None:
         z = z.copy()
         z[forbid] = -np.inf
+    _, logits = _descending(z[None])
+    logits = logits[0][np.isfinite(logits[0])]
     if sampling.temperature == 0:
-        best = np.sort(z[np.isfinite(z)])[::-1]
-        return float(best[0] - best[1]) if len(best) > 1 else math.inf
-    _, z = _descending(z[None] / sampling.temperature)
-    z = z[0]
-    keep = np.count_nonzero(np.isfinite(z))
-    if sampling.top_k:
-        keep = min(keep, sampling.top_k)
+        gap = float(logits[0] - logits[1]) if len(logits) > 1 else math.inf
+        return gap, gap
+    z = logits / sampling.temperature
+    keep = len(z) if not sampling.top_k else min(len(z), sampling.top_k)
     p = np.where(np.arange(len(z)) < keep, np.exp(z - z[0]), 0.0)
     c = np.cumsum(p)
     edge = math.inf
@@ -83,7 +86,9 @@ def margins(cond: np.ndarray, uncond: np.ndarray | None, uniform: float, samplin
     target = uniform * total
     index = int(np.count_nonzero(c[:keep] <= target))
     low = c[index - 1] if index else 0.0
-    return min(edge, float(min(target - low, c[index] - target) / total))
+    neighbours = [logits[i] for i in (index - 1, index + 1) if 0 <= i < len(logits)]
+    gap = min((abs(logits[index] - n) for n in neighbours), default=math.inf)
+    return min(edge, float(min(target - low, c[index] - target) / total)), float(gap)
 
 
 def make_vectors(bundle_dir: Path) -> dict:
@@ -167,7 +172,8 @@ def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[s
         planted = generator.decode(tokens, [(0, schedule[0][0])], frames, seed).joints
         case["joints_planted"] = _rounded(planted)
     return dict(case, uniforms=uniforms.tolist(), tokens=tokens.tolist(),
-                margins=[[float(f"{m:.3g}") for m in row] for row in case_margins],
+                margins=[[float(f"{m:.3g}") for m, _ in row] for row in case_margins],
+                gaps=[[float(f"{g:.3g}") for _, g in row] for row in case_margins],
                 joints=_rounded(motion.joints))
 
 
@@ -192,20 +198,35 @@ def run_tokens(tokens_gen, case: dict, each=lambda row: row) -> np.ndarray:
 
 def compare_tokens(case: dict, tokens: np.ndarray, tolerances: dict) -> tuple[int, str | None]:
     """(steps that agree, the problem or None). Steps agree until the first difference; a
-    difference where our token had a near tie ends the comparison without a problem."""
+    difference where our token had a near tie (its gap below tie_logit, or sampled, its
+    margin below tie_mass) ends the comparison without a problem."""
     expected = np.asarray(case["tokens"])
     tokens = np.asarray(tokens)
     if tokens.shape != expected.shape:
         return 0, f"{case['name']}: tokens of shape {tokens.shape}, expected {expected.shape}"
-    greedy = case["sampling"]["temperature"] == 0
-    tie = tolerances["tie_logit"] if greedy else tolerances["tie_mass"]
     for n, (row, want) in enumerate(zip(tokens, expected, strict=True)):
         for level in np.flatnonzero(row != want):
-            if case["margins"][n][level] < tie:
+            margin, gap = case["margins"][n][level], case["gaps"][n][level]
+            if gap < tolerances["tie_logit"] or margin < tolerances["tie_mass"]:
                 return n, None
             return n, (f"{case['name']}: step {n} level {level}: token {row[level]}, expected "
-                       f"{want[level]} (margin {case['margins'][n][level]:g}, no tie)")
+                       f"{want[level]} (margin {margin:g}, gap {gap:g}: no tie)")
     return len(expected), None
+
+
+def anchoring_words() -> dict:
+    """mogo.anchoring's rules as data, for a port's re-anchoring: which primitive a word asks
+    for (mogo.align.primitive_of's tables), which primitives happen once, the count words,
+    standing still, and the Anchoring defaults (its hold prompt included)."""
+    from dataclasses import asdict
+
+    from mogo import align, anchoring  # their tables are private: this is their one export
+
+    verbs = {word: align._PRIMITIVE_OF[base] for word, base in sorted(align._BASE_OF.items())
+             if align._PRIMITIVE_OF[base] is not None}
+    return dict(verbs=verbs, nouns=dict(sorted(align.NOUNS.items())),
+                one_off=sorted(anchoring.ONE_OFF), counts=sorted(anchoring._COUNTS),
+                still=anchoring.STILL, anchoring=asdict(anchoring.Anchoring()))
 
 
 def main(argv: list[str]) -> None:
@@ -217,6 +238,8 @@ def main(argv: list[str]) -> None:
         vectors = make_vectors(Path(folder) / "bundle")
     out.write_text(json.dumps(vectors, separators=(",", ":")) + "\n")
     print(f"wrote {out}: {out.stat().st_size / 1e3:.0f} KB")
+    WORDS.write_text(json.dumps(anchoring_words(), indent=0) + "\n")
+    print(f"wrote {WORDS}")
 
 
 if __name__ == "__main__":
