@@ -6,7 +6,6 @@
 // file's bytes (fetch or fs).
 
 // -- the random stream: numpy's PCG64 seeded by SeedSequence (spec §2) ---------------------
-const M32 = 0xffffffff;
 const mul32 = (a, b) => Math.imul(a, b) >>> 0;
 
 function seedWords(seed) {

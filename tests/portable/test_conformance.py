@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from mogo.export.onnx.conformance import VECTORS, compare_tokens, run_tokens
+from mogo.export.onnx.conformance import (VECTORS, WORDS, anchoring_words, compare_tokens,
+                                         run_tokens)
 from mogo.sampling import Sampling, choose_token, make_rng
 
 VECTORS_DATA = json.loads(VECTORS.read_text())
@@ -67,3 +68,9 @@ def test_a_wrong_token_is_caught_and_a_near_tie_forgiven():
         tokens = np.array(case["tokens"])
         tokens[tie] = (tokens[tie] + 1) % 512
         assert compare_tokens(case, tokens, TOLERANCES) == (tie[0], None)
+
+
+def test_the_ports_anchoring_words_are_our_runtimes():
+    """runtime/web/words.json is what mogo.align and mogo.anchoring say now (rewritten by
+    `python -m mogo.export.onnx.conformance` when they change)."""
+    assert json.loads(WORDS.read_text()) == anchoring_words()
