@@ -28,7 +28,7 @@ import numpy as np
 
 from mogo import MotionGenerator
 from mogo.generator import DEFAULT_BUNDLE
-from mogo.sampling import Sampling, _descending, choose_tokens, make_rng
+from mogo.sampling import Sampling, choose_tokens, make_rng
 
 VECTORS = Path(__file__).resolve().parents[2] / "runtime" / "web" / "conformance.json"
 WORDS = VECTORS.with_name("words.json")  # what the port needs of mogo.anchoring's words
@@ -39,13 +39,13 @@ TOLERANCES = dict(  # other CPUs move the logits by ~5e-6 (docs/portable.md)
     # token's share, as a share of the kept probability, is a near tie (greedy: margin = gap)
     joints_m=1e-3,  # joints: largest difference, metres
     prompt_embedding=1e-3)  # the text encoder's output, largest difference
-GENERATE = (  # name, [(prompt, seconds), ...], seed, sampling options, window (None: the
-    # bundle's, 128 steps: the 5-s walk's 131 steps go past it)
-    ("walk_5s", [("a person walks forward", 5.0)], 0, {}, None),
-    ("jump_greedy", [("a person jumps", 2.0)], 1, dict(temperature=0.0), None),
-    ("wave_guided_window8", [("a person waves with the right hand", 2.0)], 2,
+GENERATE = (  # name, [(prompt, token steps), ...], seed, sampling options, window (None: the
+    # bundle's, 128 steps: the 5-s walk's 100 + 31 steps go past it); 20 steps a second
+    ("walk_5s", [("a person walks forward", 100)], 0, {}, None),
+    ("jump_greedy", [("a person jumps", 40)], 1, dict(temperature=0.0), None),
+    ("wave_guided_window8", [("a person waves with the right hand", 40)], 2,
      dict(temperature=0.8, top_k=50, guidance=2.0), 8),
-    ("walk_then_jump", [("a person walks forward", 3.0), ("a person jumps", 2.0)], 4, {}, None),
+    ("walk_then_jump", [("a person walks forward", 60), ("a person jumps", 40)], 4, {}, None),
 )
 PLANTED = ("jump_greedy", "wave_guided_window8")  # cases that also hold their joints with the
 # feet planted (two short ones: the file's size)
@@ -68,8 +68,7 @@ def margins(cond: np.ndarray, uncond: np.ndarray | None, uniform: float, samplin
     if forbid is not None:
         z = z.copy()
         z[forbid] = -np.inf
-    _, logits = _descending(z[None])
-    logits = logits[0][np.isfinite(logits[0])]
+    logits = np.sort(z[np.isfinite(z)])[::-1]
     if sampling.temperature == 0:
         gap = float(logits[0] - logits[1]) if len(logits) > 1 else math.inf
         return gap, gap
@@ -128,10 +127,10 @@ def _sampler_cases(classes: int) -> list[dict]:
     return cases
 
 
-def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[str, float]],
+def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[str, int]],
                    seed: int, options: dict, window: int | None) -> dict:
-    """`generate` (one prompt) or `play` (several, switched between) of clips of the given
-    seconds, the lookahead's steps drawn beyond them, the feet not planted; each level's
+    """`generate` (one prompt) or `play` (several, switched between) of the given token
+    steps, the lookahead's steps drawn beyond them, the feet not planted; each level's
     logits caught on their way to the sampler to measure the margins."""
     sampling = generator.sampling(**options)
     tokens_gen = generator.tokens.with_level_workers(1)
@@ -145,12 +144,12 @@ def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[s
 
     tokens_gen.run = catching
     entries = [dict(prompt=prompt, prompt_embedding=generator.embed([prompt])[0].tolist(),
-                    steps=generator._steps(seconds)) for prompt, seconds in schedule]
-    frames = sum(entry["steps"] for entry in entries) * generator.down_factor
+                    steps=steps) for prompt, steps in schedule]
+    frames = sum(steps for _, steps in schedule) * generator.down_factor
     window = generator.defaults.window if window is None else window
+    lookahead = generator.manifest.vq.decoder.lookahead
     case = dict(name=name, schedule=entries, seed=seed, sampling=vars(sampling), window=window,
-                steps=frames // generator.down_factor + generator._decoder.lookahead,
-                frames=frames)
+                steps=frames // generator.down_factor + lookahead, frames=frames)
     uniforms = make_rng(seed).random((case["steps"], tokens_gen.num_levels))
     case_margins = []
 
@@ -166,7 +165,9 @@ def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[s
     if len(schedule) == 1:
         motion = generator.decode(tokens, [(0, schedule[0][0])], frames, seed, plant_feet=False)
     else:
-        motion = generator.play(schedule, seed, sampling, plant_feet=False)
+        seconds = [(prompt, steps * generator.down_factor / generator.fps)
+                   for prompt, steps in schedule]
+        motion = generator.play(seconds, seed, sampling, plant_feet=False)
         assert np.array_equal(motion.tokens, tokens[:len(motion.tokens)])
     if name in PLANTED:
         planted = generator.decode(tokens, [(0, schedule[0][0])], frames, seed).joints
@@ -214,19 +215,27 @@ def compare_tokens(case: dict, tokens: np.ndarray, tolerances: dict) -> tuple[in
     return len(expected), None
 
 
-def anchoring_words() -> dict:
-    """mogo.anchoring's rules as data, for a port's re-anchoring: which primitive a word asks
-    for (mogo.align.primitive_of's tables), which primitives happen once, the count words,
-    standing still, and the Anchoring defaults (its hold prompt included)."""
+def anchoring_words(generator: MotionGenerator) -> dict:
+    """mogo.anchoring's rules as data, for a port's re-anchoring: which primitive each verb
+    form asks for (mogo.align.primitive_of on the verb tables), the nouns, the primitives
+    that happen once, the words that count (those `settles` alone, among every word the
+    bundle's vocabulary, the verb tables and the numbers hold), standing still, and the
+    Anchoring defaults (its hold prompt included)."""
     from dataclasses import asdict
 
-    from mogo import align, anchoring  # their tables are private: this is their one export
+    from mogo.align import conjugate, primitive_of
+    from mogo.align_wordnet import WORDNET_VERBS
+    from mogo.align_words import NOUNS, NUMBERS
+    from mogo.align_words import VERBS as HAND_VERBS
+    from mogo.anchoring import ONE_OFF, STILL, Anchoring, settles
 
-    verbs = {word: align._PRIMITIVE_OF[base] for word, base in sorted(align._BASE_OF.items())
-             if align._PRIMITIVE_OF[base] is not None}
-    return dict(verbs=verbs, nouns=dict(sorted(align.NOUNS.items())),
-                one_off=sorted(anchoring.ONE_OFF), counts=sorted(anchoring._COUNTS),
-                still=anchoring.STILL, anchoring=asdict(anchoring.Anchoring()))
+    forms = {form for table in (WORDNET_VERBS, HAND_VERBS) for verbs in table.values()
+             for verb in verbs for form in (verb, conjugate(verb, "s"), conjugate(verb, "ing"))}
+    verbs = {w: p for w in sorted(forms) if (p := primitive_of([w])) is not None}
+    words = generator.vocabulary() | forms | set(NOUNS) | set(NUMBERS)
+    counts = sorted(w for w in words if settles(w) and primitive_of([w]) not in ONE_OFF)
+    return dict(verbs=verbs, nouns=dict(sorted(NOUNS.items())), one_off=sorted(ONE_OFF),
+                counts=counts, still=STILL, anchoring=asdict(Anchoring()))
 
 
 def main(argv: list[str]) -> None:
@@ -238,7 +247,7 @@ def main(argv: list[str]) -> None:
         vectors = make_vectors(Path(folder) / "bundle")
     out.write_text(json.dumps(vectors, separators=(",", ":")) + "\n")
     print(f"wrote {out}: {out.stat().st_size / 1e3:.0f} KB")
-    WORDS.write_text(json.dumps(anchoring_words(), indent=0) + "\n")
+    WORDS.write_text(json.dumps(anchoring_words(MotionGenerator.load()), indent=0) + "\n")
     print(f"wrote {WORDS}")
 
 

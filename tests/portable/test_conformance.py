@@ -70,7 +70,14 @@ def test_a_wrong_token_is_caught_and_a_near_tie_forgiven():
         assert compare_tokens(case, tokens, TOLERANCES) == (tie[0], None)
 
 
-def test_the_ports_anchoring_words_are_our_runtimes():
+def test_the_ports_anchoring_words_are_our_runtimes(portable_generator):
     """runtime/web/words.json is what mogo.align and mogo.anchoring say now (rewritten by
-    `python -m mogo.export.onnx.conformance` when they change)."""
-    assert json.loads(WORDS.read_text()) == anchoring_words()
+    `python -m mogo.export.onnx.conformance` when they change), and its tables, made from
+    their public names, are their private ones."""
+    from mogo import align, anchoring
+
+    words = json.loads(WORDS.read_text())
+    assert words == anchoring_words(portable_generator)
+    assert words["verbs"] == {w: align._PRIMITIVE_OF[base] for w, base in align._BASE_OF.items()
+                              if align._PRIMITIVE_OF[base] is not None}
+    assert set(words["counts"]) == anchoring._COUNTS
