@@ -5,6 +5,7 @@ under Node and in headless Chromium (those two skipped where absent).
 
 Also the static file server and the headless Chromium that tests/portable uses: one page
 server, no mogo process."""
+
 from __future__ import annotations
 
 import collections
@@ -31,14 +32,22 @@ from mogo.generator import DEFAULT_BUNDLE
 WEB = Path(mogo.__file__).parent / "web"
 CHROMIUM = "/usr/bin/chromium"
 PROMPT, SECONDS, SEED = "a person walks forward", 5.0, 0
-AGREEMENT_PROMPTS = ("a person walks forward", "a person jumps", "a person waves",
-                     "a person jogs in a circle", "a person sits down")
+AGREEMENT_PROMPTS = (
+    "a person walks forward",
+    "a person jumps",
+    "a person waves",
+    "a person jogs in a circle",
+    "a person sits down",
+)
 AGREEMENT_STEPS = 30
 
 
 class _QuietFiles(http.server.SimpleHTTPRequestHandler):
-    extensions_map = {**http.server.SimpleHTTPRequestHandler.extensions_map,
-                      ".mjs": "text/javascript", ".wasm": "application/wasm"}
+    extensions_map = {
+        **http.server.SimpleHTTPRequestHandler.extensions_map,
+        ".mjs": "text/javascript",
+        ".wasm": "application/wasm",
+    }
 
     def log_message(self, *args):
         pass
@@ -54,7 +63,8 @@ def page_site(bundle: Path) -> Iterator[str]:
         (root / "web").symlink_to(WEB)
         (root / "bundle").symlink_to(Path(bundle).resolve())
         server = http.server.ThreadingHTTPServer(
-            ("127.0.0.1", 0), functools.partial(_QuietFiles, directory=str(root)))
+            ("127.0.0.1", 0), functools.partial(_QuietFiles, directory=str(root))
+        )
         threading.Thread(target=server.serve_forever, daemon=True).start()
         try:
             yield f"http://127.0.0.1:{server.server_address[1]}"
@@ -76,12 +86,21 @@ def headless_chromium(window: str = "960,720"):
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
     with tempfile.TemporaryDirectory() as profile:
-        for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-                     "--disable-background-networking", "--disable-component-update",
-                     "--disable-sync", f"--window-size={window}", f"--user-data-dir={profile}"):
+        for flag in (
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            f"--window-size={window}",
+            f"--user-data-dir={profile}",
+        ):
             options.add_argument(flag)
-        browser = webdriver.Chrome(options=options, service=webdriver.ChromeService(
-            executable_path=chromium_driver()))
+        browser = webdriver.Chrome(
+            options=options, service=webdriver.ChromeService(executable_path=chromium_driver())
+        )
         browser.set_page_load_timeout(60)
         try:
             yield browser
@@ -136,16 +155,26 @@ def _sizes(bundles: dict[str, Path]) -> str:
         rows.append(f"| {name} | {len(manifest.files)} | {manifest.total_bytes / 1e6:.1f} |")
     manifest = MotionGenerator.load(bundles["portable fp16"]).manifest
     page = [g.file for g in manifest.t2m.levels] + [
-        manifest.vq.decoder.file, manifest.text.trained.encoder.file,
-        manifest.text.trained.tokenizer, "mean.npy", "std.npy", "manifest.json"]
+        manifest.vq.decoder.file,
+        manifest.text.trained.encoder.file,
+        manifest.text.trained.tokenizer,
+        "mean.npy",
+        "std.npy",
+        "manifest.json",
+    ]
     page_bytes = sum((bundles["portable fp16"] / f).stat().st_size for f in page)
     vendor = {p.name: p.stat().st_size for p in sorted((WEB / "vendor").iterdir())}
     return "\n".join(rows) + (
         f"\n\nThe page fetches {len(page)} files of the portable fp16 bundle, "
         f"{page_bytes / 1e6:.1f} MB (the level graphs, the decoder, the trained text "
         "encoder and its tokenizer, mean, std, manifest), and the vendored scripts: "
-        + ", ".join(f"{name} {size / 1e6:.2f} MB" for name, size in vendor.items()
-                    if not name.startswith("LICENSE")) + ".\n")
+        + ", ".join(
+            f"{name} {size / 1e6:.2f} MB"
+            for name, size in vendor.items()
+            if not name.startswith("LICENSE")
+        )
+        + ".\n"
+    )
 
 
 def _ops(bundle: Path) -> str:
@@ -157,8 +186,11 @@ def _ops(bundle: Path) -> str:
         counts = collections.Counter(node.op_type for node in model.graph.node)
         union |= set(counts)
         opsets = ", ".join(f"{o.domain or 'ai.onnx'} {o.version}" for o in model.opset_import)
-        rows.append(f"| {graph.file} | {opsets} | "
-                    + ", ".join(f"{op} {n}" for op, n in sorted(counts.items())) + " |")
+        rows.append(
+            f"| {graph.file} | {opsets} | "
+            + ", ".join(f"{op} {n}" for op, n in sorted(counts.items()))
+            + " |"
+        )
     return "\n".join(rows) + f"\n\nEvery op used ({len(union)}): {', '.join(sorted(union))}.\n"
 
 
@@ -175,23 +207,30 @@ def _agreement(int8: MotionGenerator, portable: MotionGenerator) -> str:
                 stream.continue_from(reference[:n])
             same += int(np.sum(stream.step() == reference[n]))
             total += reference.shape[1]
-    return (f"Greedy tokens, teacher-forced on the int8 bundle's stream ({len(AGREEMENT_PROMPTS)}"
-            f" prompts x {AGREEMENT_STEPS} steps x 6 levels): the portable bundle picks the "
-            f"same token {same / total:.1%} of the time ({same}/{total}).\n")
+    return (
+        f"Greedy tokens, teacher-forced on the int8 bundle's stream ({len(AGREEMENT_PROMPTS)}"
+        f" prompts x {AGREEMENT_STEPS} steps x 6 levels): the portable bundle picks the "
+        f"same token {same / total:.1%} of the time ({same}/{total}).\n"
+    )
 
 
 def _runtime_speed(generators: dict[str, MotionGenerator]) -> str:
-    calls = {name: functools.partial(g.generate, PROMPT, seconds=SECONDS, seed=SEED)
-             for name, g in generators.items()}
+    calls = {
+        name: functools.partial(g.generate, PROMPT, seconds=SECONDS, seed=SEED)
+        for name, g in generators.items()
+    }
     log("timing our runtime")
     seconds = interleaved(calls, rounds=7, budget_s=60.0)
     frames = round(SECONDS * 20)
     base = seconds["int8 (shipped)"]
     rows = ["| bundle | s per 5-s clip | frames/s | time vs int8 |", "|---|---|---|---|"]
-    rows += [f"| {name} | {s:.2f} | {frames / s:.0f} | {s / base:.2f}x |"
-             for name, s in seconds.items()]
-    return ("Our runtime, `generate` of a 5-s walk (feet planted), 1 thread, medians of "
-            "interleaved rounds:\n\n" + "\n".join(rows) + "\n")
+    rows += [
+        f"| {name} | {s:.2f} | {frames / s:.0f} | {s / base:.2f}x |" for name, s in seconds.items()
+    ]
+    return (
+        "Our runtime, `generate` of a 5-s walk (feet planted), 1 thread, medians of "
+        "interleaved rounds:\n\n" + "\n".join(rows) + "\n"
+    )
 
 
 _NODE_SCRIPT = """
@@ -238,23 +277,38 @@ def _node(bundle: Path, generator: MotionGenerator) -> str:
     query = dict(embedding=embedding.tolist(), seconds=SECONDS, seed=SEED, tokens=tokens.tolist())
     script = _NODE_SCRIPT % dict(web=WEB, bundle=json.dumps(str(bundle)), query=json.dumps(query))
     log("timing the port under Node")
-    result = json.loads(subprocess.run(
-        ["node", "--input-type=module"], input=script, capture_output=True, text=True,
-        check=True, timeout=600).stdout)
+    result = json.loads(
+        subprocess.run(
+            ["node", "--input-type=module"],
+            input=script,
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=600,
+        ).stdout
+    )
     rows = np.concatenate([np.zeros((1, 6), np.int64), tokens])
     largest = 0.0
     for level in range(6):
         ours, _ = generator.tokens.run(
-            level, embedding[None], np.array([False]), rows[None], np.arange(len(rows)),
-            np.zeros(0, np.int64), generator.tokens.empty_cache(level, 1))
+            level,
+            embedding[None],
+            np.array([False]),
+            rows[None],
+            np.arange(len(rows)),
+            np.zeros(0, np.int64),
+            generator.tokens.empty_cache(level, 1),
+        )
         largest = max(largest, float(np.abs(ours[0] - np.array(result["logits"][level])).max()))
     s = float(np.median(result["times"]))
-    return (f"The JavaScript port under Node {_version(['node', '--version'])} "
-            f"(onnxruntime-web, WebAssembly, 1 thread): a 5-s clip (131 token steps, the decode "
-            f"and the feet, the embedding given) in {s:.2f} s, "
-            f"{round(SECONDS * 20) / s:.0f} frames/s (median of 3). Largest logit difference "
-            f"from our runtime over the 6 levels after 40 teacher-forced positions: "
-            f"{largest:.1e}.\n")
+    return (
+        f"The JavaScript port under Node {_version(['node', '--version'])} "
+        f"(onnxruntime-web, WebAssembly, 1 thread): a 5-s clip (131 token steps, the decode "
+        f"and the feet, the embedding given) in {s:.2f} s, "
+        f"{round(SECONDS * 20) / s:.0f} frames/s (median of 3). Largest logit difference "
+        f"from our runtime over the 6 levels after 40 teacher-forced positions: "
+        f"{largest:.1e}.\n"
+    )
 
 
 def _browser(bundle: Path) -> str:
@@ -266,10 +320,12 @@ def _browser(bundle: Path) -> str:
             results.append(wait_for(browser, "mogoResult"))
     s = float(np.median([r["totalSeconds"] for r in results]))
     load = float(np.median([r["loadSeconds"] for r in results]))
-    return (f"The page in headless Chromium {_version([CHROMIUM, '--version'])}: the bundle "
-            f"loaded in {load:.1f} s, then a 5-s clip from prompt text (tokenizer, trained "
-            f"encoder, 131 token steps, decode, feet) in {s:.2f} s, {round(SECONDS * 20) / s:.0f} "
-            "frames/s (median of 3 page loads).\n")
+    return (
+        f"The page in headless Chromium {_version([CHROMIUM, '--version'])}: the bundle "
+        f"loaded in {load:.1f} s, then a 5-s clip from prompt text (tokenizer, trained "
+        f"encoder, 131 token steps, decode, feet) in {s:.2f} s, {round(SECONDS * 20) / s:.0f} "
+        "frames/s (median of 3 page loads).\n"
+    )
 
 
 def _version(command: list[str]) -> str:

@@ -16,6 +16,7 @@ Tokens must match exactly, except from the first step where ours had a near tie 
 below `tolerances`): there a port may pick the other token, and the case stops comparing.
 Joints are compared only for a case whose tokens all matched, within `tolerances.joints_m`.
 """
+
 from __future__ import annotations
 
 import json
@@ -38,24 +39,35 @@ TOLERANCES = dict(  # other CPUs move the logits by ~5e-6 (docs/portable.md)
     tie_mass=1e-5,  # sampled: the draw (or the top-p cut) this close to an edge of the chosen
     # token's share, as a share of the kept probability, is a near tie (greedy: margin = gap)
     joints_m=1e-3,  # joints: largest difference, metres
-    prompt_embedding=1e-3)  # the text encoder's output, largest difference
+    prompt_embedding=1e-3,
+)  # the text encoder's output, largest difference
 GENERATE = (  # name, [(prompt, token steps), ...], seed, sampling options, window (None: the
     # bundle's, 128 steps: the 5-s walk's 100 + 31 steps go past it); 20 steps a second
     ("walk_5s", [("a person walks forward", 100)], 0, {}, None),
     ("jump_greedy", [("a person jumps", 40)], 1, dict(temperature=0.0), None),
-    ("wave_guided_window8", [("a person waves with the right hand", 40)], 2,
-     dict(temperature=0.8, top_k=50, guidance=2.0), 8),
+    (
+        "wave_guided_window8",
+        [("a person waves with the right hand", 40)],
+        2,
+        dict(temperature=0.8, top_k=50, guidance=2.0),
+        8,
+    ),
     ("walk_then_jump", [("a person walks forward", 60), ("a person jumps", 40)], 4, {}, None),
 )
 PLANTED = ("jump_greedy", "wave_guided_window8")  # cases that also hold their joints with the
 # feet planted (two short ones: the file's size)
 SAMPLER_CLASSES = 64  # logits of a sampler case: the rule is the same for any number
-SEEDS = (0, 1, 12345, 2 ** 40 + 7)
+SEEDS = (0, 1, 12345, 2**40 + 7)
 DRAWS = 12
 
 
-def margins(cond: np.ndarray, uncond: np.ndarray | None, uniform: float, sampling: Sampling,
-            forbid: int | None) -> tuple[float, float]:
+def margins(
+    cond: np.ndarray,
+    uncond: np.ndarray | None,
+    uniform: float,
+    sampling: Sampling,
+    forbid: int | None,
+) -> tuple[float, float]:
     """How far one level's draw is from picking another token, as (margin, gap). `gap`: the
     logits (guided) of the chosen token and of its nearest neighbour in the sorted order, a
     difference that float noise can reverse (codes with twin logits are common). `margin`:
@@ -95,22 +107,33 @@ def make_vectors(bundle_dir: Path) -> dict:
     generator = MotionGenerator.load(bundle_dir)
     manifest = generator.manifest
     return dict(
-        format=FORMAT, version=1,
-        bundle=dict(made_by="mogo export --portable --bundle <the default bundle>",
-                    graphs={g.file: manifest.files[g.file].sha256 for g in manifest.graphs()}),
+        format=FORMAT,
+        version=1,
+        bundle=dict(
+            made_by="mogo export --portable --bundle <the default bundle>",
+            graphs={g.file: manifest.files[g.file].sha256 for g in manifest.graphs()},
+        ),
         tolerances=TOLERANCES,
-        random=[dict(seed=seed, uniforms=make_rng(seed).random(DRAWS).tolist())
-                for seed in SEEDS],
+        random=[dict(seed=seed, uniforms=make_rng(seed).random(DRAWS).tolist()) for seed in SEEDS],
         sampler=_sampler_cases(SAMPLER_CLASSES),
-        generate=[_generate_case(generator, *case) for case in GENERATE])
+        generate=[_generate_case(generator, *case) for case in GENERATE],
+    )
 
 
 def _sampler_cases(classes: int) -> list[dict]:
     rng = np.random.default_rng(7)
     cases = []
-    options = [dict(temperature=0.0), {}, dict(top_p=0.9), dict(top_k=5), dict(temperature=0.5),
-               dict(temperature=2.0, top_p=0.5, top_k=100), dict(guidance=3.0, top_p=0.9),
-               dict(guidance=0.0), dict(temperature=0.0, guidance=2.0)]
+    options = [
+        dict(temperature=0.0),
+        {},
+        dict(top_p=0.9),
+        dict(top_k=5),
+        dict(temperature=0.5),
+        dict(temperature=2.0, top_p=0.5, top_k=100),
+        dict(guidance=3.0, top_p=0.9),
+        dict(guidance=0.0),
+        dict(temperature=0.0, guidance=2.0),
+    ]
     for k, option in enumerate(options):
         sampling = Sampling(**option)
         cond = (rng.normal(size=classes) * 3).astype(np.float32)
@@ -119,16 +142,34 @@ def _sampler_cases(classes: int) -> list[dict]:
             cond[[3, 9, 40]] = cond.max() + 1
         forbid = classes - 1 if k % 2 else None
         uniform = float(rng.random())
-        token = choose_tokens(cond[None], None if uncond is None else uncond[None],
-                              np.array([uniform]), sampling, [forbid])[0]
-        cases.append(dict(sampling=vars(sampling), uniform=uniform, forbid=forbid,
-                          cond=cond.tolist(), uncond=None if uncond is None else uncond.tolist(),
-                          token=int(token)))
+        token = choose_tokens(
+            cond[None],
+            None if uncond is None else uncond[None],
+            np.array([uniform]),
+            sampling,
+            [forbid],
+        )[0]
+        cases.append(
+            dict(
+                sampling=vars(sampling),
+                uniform=uniform,
+                forbid=forbid,
+                cond=cond.tolist(),
+                uncond=None if uncond is None else uncond.tolist(),
+                token=int(token),
+            )
+        )
     return cases
 
 
-def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[str, int]],
-                   seed: int, options: dict, window: int | None) -> dict:
+def _generate_case(
+    generator: MotionGenerator,
+    name: str,
+    schedule: list[tuple[str, int]],
+    seed: int,
+    options: dict,
+    window: int | None,
+) -> dict:
     """`generate` (one prompt) or `play` (several, switched between) of the given token
     steps, the lookahead's steps drawn beyond them, the feet not planted; each level's
     logits caught on their way to the sampler to measure the margins."""
@@ -143,39 +184,61 @@ def _generate_case(generator: MotionGenerator, name: str, schedule: list[tuple[s
         return logits, presents
 
     tokens_gen.run = catching
-    entries = [dict(prompt=prompt, prompt_embedding=generator.embed([prompt])[0].tolist(),
-                    steps=steps) for prompt, steps in schedule]
+    entries = [
+        dict(prompt=prompt, prompt_embedding=generator.embed([prompt])[0].tolist(), steps=steps)
+        for prompt, steps in schedule
+    ]
     frames = sum(steps for _, steps in schedule) * generator.down_factor
     window = generator.defaults.window if window is None else window
     lookahead = generator.manifest.vq.decoder.lookahead
-    case = dict(name=name, schedule=entries, seed=seed, sampling=vars(sampling), window=window,
-                steps=frames // generator.down_factor + lookahead, frames=frames)
+    case = dict(
+        name=name,
+        schedule=entries,
+        seed=seed,
+        sampling=vars(sampling),
+        window=window,
+        steps=frames // generator.down_factor + lookahead,
+        frames=frames,
+    )
     uniforms = make_rng(seed).random((case["steps"], tokens_gen.num_levels))
     case_margins = []
 
     def measured(row: np.ndarray) -> np.ndarray:
         n = len(case_margins)
-        case_margins.append([
-            margins(logits[0], logits[1] if sampling.guided else None, uniforms[n, level],
-                    sampling, tokens_gen.end_token if level == 0 else None)
-            for level, logits in enumerate(caught[-tokens_gen.num_levels:])])
+        case_margins.append(
+            [
+                margins(
+                    logits[0],
+                    logits[1] if sampling.guided else None,
+                    uniforms[n, level],
+                    sampling,
+                    tokens_gen.end_token if level == 0 else None,
+                )
+                for level, logits in enumerate(caught[-tokens_gen.num_levels :])
+            ]
+        )
         return row
 
     tokens = run_tokens(tokens_gen, case, measured)
     if len(schedule) == 1:
         motion = generator.decode(tokens, [(0, schedule[0][0])], frames, seed, plant_feet=False)
     else:
-        seconds = [(prompt, steps * generator.down_factor / generator.fps)
-                   for prompt, steps in schedule]
+        seconds = [
+            (prompt, steps * generator.down_factor / generator.fps) for prompt, steps in schedule
+        ]
         motion = generator.play(seconds, seed, sampling, plant_feet=False)
-        assert np.array_equal(motion.tokens, tokens[:len(motion.tokens)])
+        assert np.array_equal(motion.tokens, tokens[: len(motion.tokens)])
     if name in PLANTED:
         planted = generator.decode(tokens, [(0, schedule[0][0])], frames, seed).joints
         case["joints_planted"] = _rounded(planted)
-    return dict(case, uniforms=uniforms.tolist(), tokens=tokens.tolist(),
-                margins=[[float(f"{m:.3g}") for m, _ in row] for row in case_margins],
-                gaps=[[float(f"{g:.3g}") for _, g in row] for row in case_margins],
-                joints=_rounded(motion.joints))
+    return dict(
+        case,
+        uniforms=uniforms.tolist(),
+        tokens=tokens.tolist(),
+        margins=[[float(f"{m:.3g}") for m, _ in row] for row in case_margins],
+        gaps=[[float(f"{g:.3g}") for _, g in row] for row in case_margins],
+        joints=_rounded(motion.joints),
+    )
 
 
 def _rounded(joints: np.ndarray) -> list:
@@ -186,8 +249,13 @@ def run_tokens(tokens_gen, case: dict, each=lambda row: row) -> np.ndarray:
     """A case's token loop: the first prompt, each next one switched to (set_prompt) before
     its steps, the remaining steps under the last; `each` sees every row as it is drawn."""
     schedule = case["schedule"]
-    stream = tokens_gen.start(np.float32(schedule[0]["prompt_embedding"]), case["seed"],
-                              Sampling(**case["sampling"]), case["window"], allow_end=False)
+    stream = tokens_gen.start(
+        np.float32(schedule[0]["prompt_embedding"]),
+        case["seed"],
+        Sampling(**case["sampling"]),
+        case["window"],
+        allow_end=False,
+    )
     rows = []
     for k, entry in enumerate(schedule):
         if k:
@@ -210,8 +278,10 @@ def compare_tokens(case: dict, tokens: np.ndarray, tolerances: dict) -> tuple[in
             margin, gap = case["margins"][n][level], case["gaps"][n][level]
             if gap < tolerances["tie_logit"] or margin < tolerances["tie_mass"]:
                 return n, None
-            return n, (f"{case['name']}: step {n} level {level}: token {row[level]}, expected "
-                       f"{want[level]} (margin {margin:g}, gap {gap:g}: no tie)")
+            return n, (
+                f"{case['name']}: step {n} level {level}: token {row[level]}, expected "
+                f"{want[level]} (margin {margin:g}, gap {gap:g}: no tie)"
+            )
     return len(expected), None
 
 
@@ -229,13 +299,24 @@ def anchoring_words(generator: MotionGenerator) -> dict:
     from mogo.align_words import VERBS as HAND_VERBS
     from mogo.anchoring import ONE_OFF, STILL, Anchoring, settles
 
-    forms = {form for table in (WORDNET_VERBS, HAND_VERBS) for verbs in table.values()
-             for verb in verbs for form in (verb, conjugate(verb, "s"), conjugate(verb, "ing"))}
+    forms = {
+        form
+        for table in (WORDNET_VERBS, HAND_VERBS)
+        for verbs in table.values()
+        for verb in verbs
+        for form in (verb, conjugate(verb, "s"), conjugate(verb, "ing"))
+    }
     verbs = {w: p for w in sorted(forms) if (p := primitive_of([w])) is not None}
     words = generator.vocabulary() | forms | set(NOUNS) | set(NUMBERS)
     counts = sorted(w for w in words if settles(w) and primitive_of([w]) not in ONE_OFF)
-    return dict(verbs=verbs, nouns=dict(sorted(NOUNS.items())), one_off=sorted(ONE_OFF),
-                counts=counts, still=STILL, anchoring=asdict(Anchoring()))
+    return dict(
+        verbs=verbs,
+        nouns=dict(sorted(NOUNS.items())),
+        one_off=sorted(ONE_OFF),
+        counts=counts,
+        still=STILL,
+        anchoring=asdict(Anchoring()),
+    )
 
 
 def main(argv: list[str]) -> None:

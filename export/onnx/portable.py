@@ -9,6 +9,7 @@ float weights; the ops newer than opset 15 become their definitions in older ops
 opset 15. The weights are stored fp16 (a Cast to fp32 each, computed in fp32) or fp32. The
 manifest is IN's, less its int8 record; docs/portable.md measures what the rewrite costs.
 """
+
 from __future__ import annotations
 
 import math
@@ -78,9 +79,16 @@ def _fold_constants(graph: onnx.GraphProto) -> None:
     kept = []
     for node in graph.node:
         if node.op_type in ("Cast", "DequantizeLinear") and all(i in weights for i in node.input):
-            single = helper.make_model(helper.make_graph(
-                [node], "fold", [], [helper.make_tensor_value_info(node.output[0], 0, None)],
-                [weights[i] for i in node.input]), opset_imports=[helper.make_opsetid("", 20)])
+            single = helper.make_model(
+                helper.make_graph(
+                    [node],
+                    "fold",
+                    [],
+                    [helper.make_tensor_value_info(node.output[0], 0, None)],
+                    [weights[i] for i in node.input],
+                ),
+                opset_imports=[helper.make_opsetid("", 20)],
+            )
             (value,) = ReferenceEvaluator(single).run(None, {})
             folded = numpy_helper.from_array(np.asarray(value), node.output[0])
             graph.initializer.append(folded)
@@ -97,8 +105,9 @@ def _weight(graph: onnx.GraphProto, name: str) -> np.ndarray:
 
 def _dequantised(graph: onnx.GraphProto, data: str, scale: str, zero_point: str) -> np.ndarray:
     q = _weight(graph, data).astype(np.float32)
-    return ((q - _weight(graph, zero_point).astype(np.float32)) * _weight(graph, scale)
-            ).astype(np.float32)
+    return ((q - _weight(graph, zero_point).astype(np.float32)) * _weight(graph, scale)).astype(
+        np.float32
+    )
 
 
 def _float_matmuls(graph: onnx.GraphProto) -> None:
@@ -117,11 +126,15 @@ def _float_matmuls(graph: onnx.GraphProto) -> None:
         (cast,) = users[node.output[0]]
         (rescale,) = users[cast.output[0]]
         weight = numpy_helper.from_array(
-            _dequantised(graph, node.input[1], _weight_scale(graph, producer, rescale, cast),
-                         node.input[3]), f"{node.input[1]}_float")
+            _dequantised(
+                graph, node.input[1], _weight_scale(graph, producer, rescale, cast), node.input[3]
+            ),
+            f"{node.input[1]}_float",
+        )
         graph.initializer.append(weight)
-        replaced[id(rescale)] = helper.make_node("MatMul", [quantise.input[0], weight.name],
-                                                 list(rescale.output), name=node.name)
+        replaced[id(rescale)] = helper.make_node(
+            "MatMul", [quantise.input[0], weight.name], list(rescale.output), name=node.name
+        )
         replaced[id(node)] = replaced[id(cast)] = None
     _replace(graph, replaced)
 
@@ -142,12 +155,17 @@ def _float_gathers(graph: onnx.GraphProto) -> None:
         gather = producer.get(node.input[0]) if node.op_type == "DequantizeLinear" else None
         if gather is None or gather.op_type != "Gather" or gather.input[0] not in weights:
             continue
-        table = numpy_helper.from_array(_dequantised(graph, gather.input[0], *node.input[1:]),
-                                        f"{gather.input[0]}_float")
+        table = numpy_helper.from_array(
+            _dequantised(graph, gather.input[0], *node.input[1:]), f"{gather.input[0]}_float"
+        )
         graph.initializer.append(table)
-        replaced[id(node)] = helper.make_node("Gather", [table.name, gather.input[1]],
-                                              list(node.output), name=node.name,
-                                              axis=_attribute(gather, "axis", 0))
+        replaced[id(node)] = helper.make_node(
+            "Gather",
+            [table.name, gather.input[1]],
+            list(node.output),
+            name=node.name,
+            axis=_attribute(gather, "axis", 0),
+        )
         replaced[id(gather)] = None
     _replace(graph, replaced)
 
@@ -163,20 +181,24 @@ def _layer_norm(node: onnx.NodeProto, graph: onnx.GraphProto) -> list[onnx.NodeP
     if _attribute(node, "axis", -1) != -1:
         raise ValueError(f"{node.name}: LayerNormalization over axis {_attribute(node, 'axis')}")
     x, scale, *bias = node.input
-    t = _names(node, "mean", "centred", "square", "variance", "var_eps", "std", "normed",
-               "eps", "scaled")
-    graph.initializer.append(numpy_helper.from_array(
-        np.array(_attribute(node, "epsilon", 1e-5), np.float32), t.eps))
+    t = _names(
+        node, "mean", "centred", "square", "variance", "var_eps", "std", "normed", "eps", "scaled"
+    )
+    graph.initializer.append(
+        numpy_helper.from_array(np.array(_attribute(node, "epsilon", 1e-5), np.float32), t.eps)
+    )
     out = node.output[0]
-    return [helper.make_node("ReduceMean", [x], [t.mean], axes=[-1]),
-            helper.make_node("Sub", [x, t.mean], [t.centred]),
-            helper.make_node("Mul", [t.centred, t.centred], [t.square]),
-            helper.make_node("ReduceMean", [t.square], [t.variance], axes=[-1]),
-            helper.make_node("Add", [t.variance, t.eps], [t.var_eps]),
-            helper.make_node("Sqrt", [t.var_eps], [t.std]),
-            helper.make_node("Div", [t.centred, t.std], [t.normed]),
-            helper.make_node("Mul", [t.normed, scale], [t.scaled if bias else out]),
-            *([helper.make_node("Add", [t.scaled, bias[0]], [out])] if bias else [])]
+    return [
+        helper.make_node("ReduceMean", [x], [t.mean], axes=[-1]),
+        helper.make_node("Sub", [x, t.mean], [t.centred]),
+        helper.make_node("Mul", [t.centred, t.centred], [t.square]),
+        helper.make_node("ReduceMean", [t.square], [t.variance], axes=[-1]),
+        helper.make_node("Add", [t.variance, t.eps], [t.var_eps]),
+        helper.make_node("Sqrt", [t.var_eps], [t.std]),
+        helper.make_node("Div", [t.centred, t.std], [t.normed]),
+        helper.make_node("Mul", [t.normed, scale], [t.scaled if bias else out]),
+        *([helper.make_node("Add", [t.scaled, bias[0]], [out])] if bias else []),
+    ]
 
 
 def _gelu(node: onnx.NodeProto, graph: onnx.GraphProto) -> list[onnx.NodeProto]:
@@ -187,11 +209,13 @@ def _gelu(node: onnx.NodeProto, graph: onnx.GraphProto) -> list[onnx.NodeProto]:
     for name, value in ((t.sqrt2, math.sqrt(2)), (t.one, 1.0), (t.half, 0.5)):
         graph.initializer.append(numpy_helper.from_array(np.array(value, np.float32), name))
     x = node.input[0]
-    return [helper.make_node("Div", [x, t.sqrt2], [t.scaled]),
-            helper.make_node("Erf", [t.scaled], [t.erf]),
-            helper.make_node("Add", [t.erf, t.one], [t.plus_one]),
-            helper.make_node("Mul", [x, t.plus_one], [t.times_x]),
-            helper.make_node("Mul", [t.times_x, t.half], [node.output[0]])]
+    return [
+        helper.make_node("Div", [x, t.sqrt2], [t.scaled]),
+        helper.make_node("Erf", [t.scaled], [t.erf]),
+        helper.make_node("Add", [t.erf, t.one], [t.plus_one]),
+        helper.make_node("Mul", [x, t.plus_one], [t.times_x]),
+        helper.make_node("Mul", [t.times_x, t.half], [node.output[0]]),
+    ]
 
 
 def _axes_attribute(node: onnx.NodeProto, graph: onnx.GraphProto) -> list[onnx.NodeProto]:
@@ -201,13 +225,21 @@ def _axes_attribute(node: onnx.NodeProto, graph: onnx.GraphProto) -> list[onnx.N
     if len(node.input) > 1 and node.input[1]:
         attributes["axes"] = [int(a) for a in _weight(graph, node.input[1])]
     attributes.pop("noop_with_empty_axes", None)  # 0 is the only behaviour before 18
-    return [helper.make_node(node.op_type, [node.input[0]], list(node.output), name=node.name,
-                             **attributes)]
+    return [
+        helper.make_node(
+            node.op_type, [node.input[0]], list(node.output), name=node.name, **attributes
+        )
+    ]
 
 
-_REWRITES = {"LayerNormalization": _layer_norm, "Gelu": _gelu,
-             **{op: _axes_attribute for op in ("ReduceL2", "ReduceMean", "ReduceMax",
-                                               "ReduceMin", "ReduceProd", "ReduceL1")}}
+_REWRITES = {
+    "LayerNormalization": _layer_norm,
+    "Gelu": _gelu,
+    **{
+        op: _axes_attribute
+        for op in ("ReduceL2", "ReduceMean", "ReduceMax", "ReduceMin", "ReduceProd", "ReduceL1")
+    },
+}
 
 
 def _names(node: onnx.NodeProto, *parts: str):
@@ -216,8 +248,7 @@ def _names(node: onnx.NodeProto, *parts: str):
 
 
 def _attribute(node: onnx.NodeProto, name: str, default=None):
-    return next((helper.get_attribute_value(a) for a in node.attribute if a.name == name),
-                default)
+    return next((helper.get_attribute_value(a) for a in node.attribute if a.name == name), default)
 
 
 def _drop_unused(graph: onnx.GraphProto) -> None:

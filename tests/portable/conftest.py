@@ -1,4 +1,5 @@
 """The portable bundle, built once from the default bundle (it is not committed: 86 MB)."""
+
 import pytest
 
 from mogo import MotionGenerator

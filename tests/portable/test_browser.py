@@ -1,6 +1,7 @@
 """The JavaScript port in headless Chromium: the conformance vectors, and a page that
 generates a 5-s walk with no mogo process running, only a static file server this test starts
 (from file:// Chromium blocks the page's module scripts: an origin of null)."""
+
 import os
 import time
 from pathlib import Path
@@ -8,12 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mogo.bench.speed.portable import (chromium_driver, headless_chromium, page_site, page_url,
-                                       wait_for)
+from mogo.bench.speed.portable import (
+    chromium_driver,
+    headless_chromium,
+    page_site,
+    page_url,
+    wait_for,
+)
 
 pytestmark = pytest.mark.skipif(
     chromium_driver() is None,
-    reason="needs Chromium (apt-get update && apt-get install -y chromium chromium-driver)")
+    reason="needs Chromium (apt-get update && apt-get install -y chromium chromium-driver)",
+)
 pytest.importorskip("selenium.webdriver")
 SCREENSHOT = os.environ.get("MOGO_WEB_SCREENSHOT")  # where to keep the picture, if anywhere
 
@@ -79,15 +86,31 @@ def _our_stream(generator, first, then, after, steps, seed, anchoring, plant_fee
     return np.concatenate(frames + [stream.step() for _ in range(steps - after)])
 
 
-def test_a_page_streams_and_switches_prompt_as_our_runtime_does(site, browser,
-                                                                portable_generator):
+def test_a_page_streams_and_switches_prompt_as_our_runtime_does(site, browser, portable_generator):
     """Not re-anchored, the feet as decoded: the prompt switch alone (one prefill under the
     new prompt) and the streaming decoder."""
-    state = _page_stream(browser, site, prompt="a person walks forward", seed=5,
-                         then="a person jumps", after=60, steps=120, anchoring=0, feet=0)
+    state = _page_stream(
+        browser,
+        site,
+        prompt="a person walks forward",
+        seed=5,
+        then="a person jumps",
+        after=60,
+        steps=120,
+        anchoring=0,
+        feet=0,
+    )
     assert state["switches"] == [[60, "a person jumps"]]
-    ours = _our_stream(portable_generator, "a person walks forward", "a person jumps", 60, 120,
-                       5, anchoring=False, plant_feet=False)
+    ours = _our_stream(
+        portable_generator,
+        "a person walks forward",
+        "a person jumps",
+        60,
+        120,
+        5,
+        anchoring=False,
+        plant_feet=False,
+    )
     page = np.array(state["joints"]).reshape(-1, 22, 3)
     assert page.shape == ours.shape and len(page) > 80  # the frames final after 120 steps
     assert np.abs(page - ours).max() < 1e-3
@@ -99,10 +122,25 @@ def test_a_page_stream_is_re_anchored_as_our_runtime_does(site, browser, portabl
     """As a stream is by default: re-anchored, the feet planted as frames come (8 frames
     late). Walking then jogging: prompts that go on, the rules the port has (a fresh clip
     where the model ends one, re-anchors after 80 steps and at a switch)."""
-    state = _page_stream(browser, site, prompt="a person walks forward", seed=6,
-                         then="a person jogs", after=100, steps=200)
-    ours = _our_stream(portable_generator, "a person walks forward", "a person jogs", 100, 200,
-                       6, anchoring=True, plant_feet=True)
+    state = _page_stream(
+        browser,
+        site,
+        prompt="a person walks forward",
+        seed=6,
+        then="a person jogs",
+        after=100,
+        steps=200,
+    )
+    ours = _our_stream(
+        portable_generator,
+        "a person walks forward",
+        "a person jogs",
+        100,
+        200,
+        6,
+        anchoring=True,
+        plant_feet=True,
+    )
     page = np.array(state["joints"]).reshape(-1, 22, 3)
     assert page.shape == ours.shape and len(page) > 160
     assert np.abs(page - ours).max() < 1e-3

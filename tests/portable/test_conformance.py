@@ -1,12 +1,12 @@
 """Our runtime passes the conformance vectors it wrote (runtime/web/conformance.json), by the
 rule every port uses (mogo.export.onnx.conformance.compare_tokens); and that rule can fail."""
+
 import json
 
 import numpy as np
 import pytest
 
-from mogo.export.onnx.conformance import (VECTORS, WORDS, anchoring_words, compare_tokens,
-                                         run_tokens)
+from mogo.export.onnx.conformance import VECTORS, WORDS, anchoring_words, compare_tokens, run_tokens
 from mogo.sampling import Sampling, choose_token, make_rng
 
 VECTORS_DATA = json.loads(VECTORS.read_text())
@@ -26,8 +26,16 @@ def test_the_random_stream(case):
 @pytest.mark.parametrize("case", VECTORS_DATA["sampler"], ids=lambda c: str(c["sampling"]))
 def test_the_sampler(case):
     uncond = None if case["uncond"] is None else np.float32(case["uncond"])
-    assert choose_token(np.float32(case["cond"]), uncond, case["uniform"],
-                        Sampling(**case["sampling"]), case["forbid"]) == case["token"]
+    assert (
+        choose_token(
+            np.float32(case["cond"]),
+            uncond,
+            case["uniform"],
+            Sampling(**case["sampling"]),
+            case["forbid"],
+        )
+        == case["token"]
+    )
 
 
 @pytest.mark.parametrize("case", VECTORS_DATA["generate"], ids=lambda c: c["name"])
@@ -46,8 +54,12 @@ def test_generate(case, portable_generator):
         motion = g.decode(tokens, [(0, prompts[0])], case["frames"], plant_feet=False)
     else:  # as `play` makes it: a stream, switched, its frames decoded as they became final
         seconds = [entry["steps"] * g.down_factor / g.fps for entry in case["schedule"]]
-        motion = g.play(list(zip(prompts, seconds, strict=True)), case["seed"],
-                        Sampling(**case["sampling"]), plant_feet=False)
+        motion = g.play(
+            list(zip(prompts, seconds, strict=True)),
+            case["seed"],
+            Sampling(**case["sampling"]),
+            plant_feet=False,
+        )
     assert np.abs(motion.joints - np.array(case["joints"])).max() < TOLERANCES["joints_m"]
     if "joints_planted" in case:
         planted = g.decode(tokens, [(0, prompts[0])], case["frames"]).joints
@@ -78,6 +90,9 @@ def test_the_ports_anchoring_words_are_our_runtimes(portable_generator):
 
     words = json.loads(WORDS.read_text())
     assert words == anchoring_words(portable_generator)
-    assert words["verbs"] == {w: align._PRIMITIVE_OF[base] for w, base in align._BASE_OF.items()
-                              if align._PRIMITIVE_OF[base] is not None}
+    assert words["verbs"] == {
+        w: align._PRIMITIVE_OF[base]
+        for w, base in align._BASE_OF.items()
+        if align._PRIMITIVE_OF[base] is not None
+    }
     assert set(words["counts"]) == anchoring._COUNTS
