@@ -4,13 +4,16 @@ themselves through the "mogo.commands" entry points, so this module never import
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import importlib.util
 import json
 import math
 import os
 import re
+import signal
 import sys
+import threading
 import warnings
 from collections.abc import Callable
 from dataclasses import fields
@@ -386,7 +389,8 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace) -> int:
     stdout, sys.stdout = sys.stdout, _Stdout(sys.stdout)
     try:
-        args.run(args)
+        with _exit_on_termination():
+            args.run(args)
         sys.stdout.flush()  # a closed pipe or a full disk shows here, not at Python's exit
     except CliError as error:
         print(f"mogo: error: {error}", file=sys.stderr)
@@ -399,6 +403,27 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         sys.stdout = stdout if isinstance(sys.stdout, _Stdout) else sys.stdout
     return 0
+
+
+@contextlib.contextmanager
+def _exit_on_termination():
+    """SIGTERM and SIGHUP as an exit (status 128 + the signal) that runs every cleanup on the
+    way out, as Ctrl-C does: temporaries and half-built folders removed (mogo.files holds all
+    three signals while a set of files is renamed into place)."""
+    def leave(number: int, _frame) -> None:
+        raise SystemExit(128 + number)
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in ("SIGTERM", "SIGHUP"):
+            number = getattr(signal, name, None)
+            if number is not None and signal.getsignal(number) is signal.SIG_DFL:
+                previous[number] = signal.signal(number, leave)
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 class _Stdout:
