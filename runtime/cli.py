@@ -20,11 +20,12 @@ from dataclasses import fields
 from importlib.metadata import PackageNotFoundError, entry_points, version
 from pathlib import Path
 
-from mogo.arguments import (PromptWarning, UnfamiliarPromptWarning, UnknownPromptWarning,
-                            plural)
+from mogo.arguments import (MAX_SCHEDULE_ENTRIES, PromptWarning, ScheduleError,
+                            UnfamiliarPromptWarning, UnknownPromptWarning, plural, shown)
 from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
+PROMPTS_FILE_BYTES = 2**20  # a --prompts-file read past this is refused
 
 
 class CliError(Exception):
@@ -57,20 +58,25 @@ def _sampling(args: argparse.Namespace, generator):
         raise CliError(f"--{error.option.replace('_', '-')} {error.problem}") from None
 
 
-def _read_schedule(path: Path) -> list[tuple[str, float]]:
-    """Lines "SECONDS PROMPT", any whitespace between (blank lines and # comments skipped);
-    what is wrong in the file is named by file:line."""
+def _read_schedule(path: Path) -> tuple[list[tuple[str, float]], list[int]]:
+    """Lines "SECONDS PROMPT", any whitespace between (blank lines and # comments skipped),
+    and the line number of each; what is wrong in the file is named by file:line. At most
+    PROMPTS_FILE_BYTES are read (/dev/zero is no prompts file)."""
     try:
-        data = path.read_bytes()
+        with open(path, "rb") as handle:
+            data = handle.read(PROMPTS_FILE_BYTES + 1)
     except OSError as error:
         raise CliError(f"cannot read the prompts file {path}: {error.strerror}") from None
+    if len(data) > PROMPTS_FILE_BYTES:
+        raise CliError(f"{path}: larger than {PROMPTS_FILE_BYTES // 1024} KiB; a prompts file "
+                       f"holds at most {MAX_SCHEDULE_ENTRIES} lines 'SECONDS PROMPT'")
     try:
         lines = data.decode("utf-8-sig").splitlines()
     except UnicodeDecodeError as error:
         line = data[:error.start].count(b"\n") + 1
         raise CliError(f"{path}:{line}: not UTF-8 text (byte 0x{data[error.start]:02x}); save "
                        "the prompts file as UTF-8") from None
-    schedule = []
+    schedule, numbers = [], []
     for number, line in enumerate(lines, 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
@@ -86,9 +92,10 @@ def _read_schedule(path: Path) -> list[tuple[str, float]]:
         if not prompt.strip():
             raise CliError(f"{path}:{number}: no prompt after the seconds")
         schedule.append((prompt.strip(), length))
+        numbers.append(number)
     if not schedule:
         raise CliError(f"{path}: no 'SECONDS PROMPT' lines")
-    return schedule
+    return schedule, numbers
 
 
 def _file_stem(text: str) -> str:
@@ -117,7 +124,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
             raise CliError("give either a prompt (with --seconds) or --prompts-file, not both")
         if args.align:
             raise CliError("--align rewrites one prompt; a --prompts-file is played as written")
-        schedule = _read_schedule(Path(args.prompts_file))
+        schedule, lines = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
     folder = check_take(args.out, args.name, args.overwrite, what="--name",
@@ -126,16 +133,20 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
     sampling = _sampling(args, generator)
     if args.prompts_file:
-        motion = generator.play(schedule, seed=args.seed, sampling=sampling,
-                                plant_feet=args.plant_feet)
+        try:
+            motion = generator.play(schedule, seed=args.seed, sampling=sampling,
+                                    plant_feet=args.plant_feet)
+        except ScheduleError as error:  # named by the file's line
+            where = "" if error.index is None else f":{lines[error.index]}"
+            raise CliError(f"{args.prompts_file}{where}: {error.problem}") from None
     else:
         motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
                                     sampling=sampling, align=_aligner(args, generator),
                                     plant_feet=args.plant_feet)
     if motion.alignment is not None:
-        print(motion.alignment.describe())
+        print(shown(motion.alignment.describe(), keep="\n"))
         if motion.alignment.note:
-            print(f"note: {motion.alignment.note}")
+            print(f"note: {shown(motion.alignment.note)}")
     elif args.text is not None:
         _note_played(generator, args.text)
     name = args.name or _file_stem(motion.caption)
@@ -145,20 +156,20 @@ def _cmd_generate(args: argparse.Namespace) -> None:
                                animation=args.format)
     frames = plural(len(motion.joints), "frame")
     print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
-          f"for: {motion.caption}")
+          f"for: {shown(motion.caption)}")
     taken = written[0].name.removesuffix(written[0].suffix)
     if taken != name:
-        print(f"note: {folder / name}.* is an earlier take, kept; this one is {taken} "
+        print(f"note: {shown(folder / name)}.* is an earlier take, kept; this one is {taken} "
               f"(--overwrite replaces)")
     for path in written:
-        print(f"wrote {path}")
+        print(f"wrote {shown(path)}")
 
 
 def _note_played(generator, text: str) -> None:
     """A `note:` line on stderr naming the known caption a prompt in other words is played as
     (mogo.repertoire.Familiarity.played_note)."""
     if (known := generator.known(text)) is not None and known.played_note:
-        print(f"note: {known.played_note}", file=sys.stderr)
+        print(f"note: {shown(known.played_note)}", file=sys.stderr)
 
 
 def _cmd_stream(args: argparse.Namespace) -> None:
@@ -181,7 +192,7 @@ def _cmd_stream(args: argparse.Namespace) -> None:
 def _cmd_blender_addon(args: argparse.Namespace) -> None:
     from mogo.addon_zip import write_addon
 
-    print(f"wrote {write_addon(args.out, overwrite=args.overwrite)} (Blender: Edit > "
+    print(f"wrote {shown(write_addon(args.out, overwrite=args.overwrite))} (Blender: Edit > "
           "Preferences > Add-ons > Install, then enable 'MOGO motion'; docs/blender.md)")
 
 
@@ -259,7 +270,7 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
                         args.strict and issubclass(category, UnfamiliarPromptWarning)):
                     raise CliError(str(message))
                 if issubclass(category, PromptWarning):
-                    print(f"note: {message}", file=sys.stderr)
+                    print(f"note: {shown(message)}", file=sys.stderr)
                 else:
                     show(message, category, *where, **options)
 
@@ -376,6 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    for stream in (sys.stdout, sys.stderr):  # a terminal that cannot show a character: escaped
+        with contextlib.suppress(AttributeError, ValueError):
+            stream.reconfigure(errors="backslashreplace")
     try:
         args = build_parser().parse_args(argv)
     except KeyboardInterrupt:  # Ctrl-C while the verbs load: a quiet stop, as during a run
@@ -393,10 +407,10 @@ def _run(args: argparse.Namespace) -> int:
             args.run(args)
         sys.stdout.flush()  # a closed pipe or a full disk shows here, not at Python's exit
     except CliError as error:
-        print(f"mogo: error: {error}", file=sys.stderr)
+        print(f"mogo: error: {shown(error)}", file=sys.stderr)
         return 2
     except (ValueError, OSError) as error:
-        print(f"mogo: error: {_describe(error)}", file=sys.stderr)
+        print(f"mogo: error: {shown(_describe(error))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

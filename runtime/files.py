@@ -52,6 +52,9 @@ def check_name(name: str, folder: Path, suffixes: Sequence[str], what: str = "na
     if name in ("", ".", "..") or any(c in name for c in {"/", os.sep, os.altsep or "/", "\0"}):
         raise ValueError(f"{what} must be a file name, without a folder: not empty, '.', '..' "
                          f"nor with '/' in it, got {name!r}")
+    if not name.isprintable():  # controls, bidi overrides, zero-width, lone surrogates
+        raise ValueError(f"{what} must be a file name without control, invisible or "
+                         f"bidirectional characters (they hide what a name says), got {name!r}")
     room = _name_max(folder) - max(len(s) for s in suffixes) - NUMBERING_ROOM
     size = len(os.fsencode(name))
     if size > room:

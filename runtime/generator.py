@@ -26,8 +26,8 @@ import onnxruntime as ort
 from mogo._session import NamedGraph, graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.anchoring import Anchor, Anchoring
-from mogo.arguments import (checked_bool, checked_int, checked_prompt, checked_schedule,
-                            checked_seconds, plural)
+from mogo.arguments import (ScheduleError, checked_bool, checked_int, checked_prompt,
+                            checked_schedule, checked_seconds, plural)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.motion.features import JointStream
@@ -177,18 +177,34 @@ class MotionGenerator:
     def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
              sampling: Sampling | None = None, plant_feet: bool = True, **options) -> Motion:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
-        fly: the same stream, so every switch is a smooth continuation."""
+        fly: the same stream, so every switch is a smooth continuation. At most
+        MAX_SCHEDULE_ENTRIES prompts and MAX_GENERATE_SECONDS in all; an entry's problem is a
+        ScheduleError naming it."""
         sampling = self.sampling(sampling, **options)
         seed = _seed(seed)
         plant_feet = checked_bool(plant_feet, "plant_feet")
-        entries = []
-        for k, entry in enumerate(checked_schedule(schedule)):
+        entries = checked_schedule(schedule)
+        lengths = []
+        for k, entry in enumerate(entries):
             try:
-                seconds = self._seconds(entry[1])
-                entries.append((self._prompt(entry[0], "prompt"), seconds))
-            except (TypeError, ValueError) as error:  # which entry, for a long schedule
-                raise type(error)(f"schedule[{k}]: {error}") from None
-        return self._play(entries, seed, sampling, plant_feet)
+                lengths.append(self._seconds(entry[1]))
+            except TypeError as error:  # which entry, for a long schedule
+                raise TypeError(f"schedule[{k}]: {error}") from None
+            except ValueError as error:
+                raise ScheduleError(k, str(error)) from None
+        if sum(lengths) > MAX_GENERATE_SECONDS:
+            raise ScheduleError(None, f"the schedule's lengths add up to {sum(lengths):g} s; at "
+                                f"most {MAX_GENERATE_SECONDS:g} in one call (use a stream for "
+                                "longer motion)")
+        prompts = []
+        for k, entry in enumerate(entries):
+            try:
+                prompts.append(self._prompt(entry[0], "prompt"))
+            except TypeError as error:
+                raise TypeError(f"schedule[{k}]: {error}") from None
+            except ValueError as error:
+                raise ScheduleError(k, str(error)) from None
+        return self._play(list(zip(prompts, lengths)), seed, sampling, plant_feet)
 
     def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
               plant_feet: bool) -> Motion:
