@@ -18,7 +18,7 @@ import numpy as np
 
 from mogo.motion import untrusted
 from mogo._session import graph_session
-from mogo.manifest import MANIFEST, BundleError, FileEntry, Manifest
+from mogo.manifest import MANIFEST, BundleError, FileEntry, Manifest, io_types
 
 
 @dataclass(frozen=True)
@@ -54,10 +54,11 @@ class Bundle:
 
     def open_graphs(self) -> int:
         """Opens every graph as the runtime does (onnxruntime parses it; its input and output
-        names are checked against the manifest), which a matching sha256 does not vouch for:
+        names, types and fixed sizes are checked against the manifest), which a matching sha256
+        does not vouch for:
         the manifest may have been written after a graph was damaged. Returns how many."""
         for graph in self.manifest.graphs():
-            graph_session(self.path(graph.file), graph)
+            graph_session(self.path(graph.file), graph, types=io_types(self.manifest, graph))
         return len(self.manifest.graphs())
 
 

@@ -199,8 +199,10 @@ def _cmd_blender_addon(args: argparse.Namespace) -> None:
 def _cmd_info(args: argparse.Namespace) -> None:
     from mogo.bundle import Bundle
     from mogo.generator import DEFAULT_BUNDLE
+    from mogo.text_side import check_text_files
 
     bundle = Bundle.load(args.bundle or DEFAULT_BUNDLE)
+    check_text_files(bundle)  # all that generate reads, not only the checksums
     m = bundle.manifest
     t2m, vq, text, decoder = m.t2m.config, m.vq, m.text, m.vq.decoder
     lines = [
@@ -241,7 +243,8 @@ def _cmd_info(args: argparse.Namespace) -> None:
                      f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
                      f"seed {recipe.get('seed')}{tuned}")
     lines.append(f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
-                 f"{bundle.open_graphs()} graphs open with the manifest's names")
+                 f"{bundle.open_graphs()} graphs open with the manifest's names and types; "
+                 "tokenizers and repertoire read")
     width = max(map(len, m.files))
     lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
     print("\n".join(lines))

@@ -23,13 +23,14 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from mogo._session import NamedGraph, graph_session
+from mogo._session import NamedGraph, check_types, graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.anchoring import Anchor, Anchoring
 from mogo.arguments import (ScheduleError, checked_bool, checked_int, checked_prompt,
                             checked_schedule, checked_seconds, plural)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
+from mogo.manifest import io_types
 from mogo.motion.features import JointStream
 from mogo.motion.feet import FootPlanter, planted
 from mogo.repertoire import Familiarity
@@ -65,10 +66,12 @@ class MotionGenerator:
         self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
                                      manifest.end_token, intra_op_threads=1,
                                      level_workers=threads)
+        for graph, session in zip(levels, self.tokens.sessions):
+            check_types(bundle.path(graph.file), session, io_types(manifest, graph))
         self.down_factor = manifest.vq.down_factor
         self._decoder = manifest.vq.decoder
         self._decoder_session = graph_session(bundle.path(self._decoder.file), self._decoder,
-                                              threads)
+                                              threads, io_types(manifest, self._decoder))
         self._vq_encoder = NamedGraph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
 

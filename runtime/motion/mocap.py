@@ -8,8 +8,8 @@ pose in every rig) and said in MocapClip.description: the length unit, from the 
 farthest along from the ankles. DeepMimic files: mogo.motion.deepmimic.
 
 Files may be hostile (docs/security.md): every size is bounded before anything is allocated
-(MAX_SECONDS of motion, MAX_FRAMES frames, mogo.motion.untrusted's limit on a file's bytes), and each
-problem is one ValueError line naming the file.
+(MAX_SECONDS of motion, MAX_FRAMES frames, mogo.motion.untrusted's limit on a file's bytes),
+and each problem is one ValueError line naming the file.
 """
 from __future__ import annotations
 

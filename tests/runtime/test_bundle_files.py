@@ -28,7 +28,8 @@ def small_manifest() -> Manifest:
         text=Text(tokenizer="tokenizer.json", max_length=8, kind="SmallTextEncoder",
                   encoder=Graph("text_encoder.onnx", ("token_ids", "attention_mask"),
                                 ("prompt_embedding",))),
-        t2m=T2M(config=dict(dim=16), levels=(Graph("level_0.onnx", ("prompt",), ("logits",)),)),
+        t2m=T2M(config=dict(dim=16, text_dim=16, max_relative_distance=8),
+                levels=(Graph("level_0.onnx", ("prompt",), ("logits",)),)),
         vq=VQ(config=dict(feature_dim=263, levels=1, codebook_size=8, down_factor=1),
               encoder=Graph("vq_encoder.onnx", ("features",), ("ids",)),
               decoder=DecoderGraph("vq_decoder.onnx", ("ids",), ("features",), 2, 2)),
@@ -234,7 +235,8 @@ def test_a_damaged_graph_with_a_matching_sha256_is_one_line_naming_it(shipped_co
     graph = shipped_copy / "level_0.onnx"
     graph.write_bytes(graph.read_bytes()[:100_000])
     write_manifest(shipped_copy, read_manifest(shipped_copy))
-    message = f"{graph}: not a valid ONNX graph: Protobuf parsing failed."
+    message = (f"{graph}: not a valid ONNX graph: Failed to load model because protobuf "
+               "parsing failed.")
     with pytest.raises(BundleError, match=re.escape(message)):
         MotionGenerator.load(shipped_copy)
     assert main(["info", str(shipped_copy)]) == 2  # info opens the graphs it calls verified
@@ -259,7 +261,7 @@ def test_a_damaged_tokenizer_is_one_line_naming_it(shipped_copy):
     (shipped_copy / "tokenizer.json").write_text("{not a tokenizer")
     write_manifest(shipped_copy, read_manifest(shipped_copy))
     with pytest.raises(BundleError, match=re.escape(
-            f"{shipped_copy / 'tokenizer.json'}: not a tokenizer file: ")):
+            f"{shipped_copy / 'tokenizer.json'}: not valid JSON (line 1, column 2: ")):
         MotionGenerator.load(shipped_copy)
 
 
