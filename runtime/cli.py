@@ -155,14 +155,22 @@ def _cmd_generate(args: argparse.Namespace) -> None:
                                scale=bvh.UNITS[args.bvh_units], naming=args.bvh_names,
                                animation=args.format)
     frames = plural(len(motion.joints), "frame")
-    print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
-          f"for: {shown(motion.caption)}")
-    taken = written[0].name.removesuffix(written[0].suffix)
-    if taken != name:
-        print(f"note: {shown(folder / name)}.* is an earlier take, kept; this one is {taken} "
-              f"(--overwrite replaces)")
-    for path in written:
-        print(f"wrote {shown(path)}")
+    try:  # the take is written: a stdout that fails (a closed pipe, a full disk) is no error
+        print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
+              f"for: {shown(motion.caption)}")
+        taken = written[0].name.removesuffix(written[0].suffix)
+        if taken != name:
+            print(f"note: {shown(folder / name)}.* is an earlier take, kept; this one is "
+                  f"{taken} (--overwrite replaces)")
+        for path in written:
+            print(f"wrote {shown(path)}")
+        sys.stdout.flush()
+    except OSError as error:
+        if error.filename != _Stdout.NAME:
+            raise
+        _silence_stdout()
+        print(f"note: cannot write to standard output ({error.strerror}); the take was "
+              f"written: {', '.join(shown(path) for path in written)}", file=sys.stderr)
 
 
 def _note_played(generator, text: str) -> None:

@@ -37,10 +37,18 @@ def check_folder(folder: str | os.PathLike) -> Path:
     folder = Path(folder)
     existing = _nearest_existing(folder)
     made = "" if existing == folder else f" (so {folder} cannot be made in it)"
+    if os.path.islink(existing) and not existing.exists():
+        raise FileNotFoundError(errno.ENOENT, "a symbolic link that leads nowhere (a loop or a "
+                                f"missing target){made}", str(existing))
     if not existing.is_dir():
         raise NotADirectoryError(errno.ENOTDIR, f"not a folder{made}", str(existing))
     if not os.access(existing, os.W_OK | os.X_OK):
         raise PermissionError(errno.EACCES, f"the folder is not writable{made}", str(existing))
+    longest = _name_max(existing)
+    for part in folder.relative_to(existing).parts if existing != folder else ():
+        if len(os.fsencode(part)) > longest:
+            raise OSError(errno.ENAMETOOLONG, f"a folder name longer than {longest} bytes",
+                          str(folder))
     return folder
 
 
@@ -239,7 +247,8 @@ def _fsync(path: Path) -> None:
 
 
 def _nearest_existing(path: Path) -> Path:
-    while not path.exists() and path != path.parent:
+    """The path itself or its nearest parent that is there (a link that leads nowhere too)."""
+    while not os.path.lexists(path) and path != path.parent:
         path = path.parent
     return path
 

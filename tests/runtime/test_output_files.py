@@ -246,10 +246,22 @@ def run_mogo(*args, stdout=subprocess.PIPE, close_stdout=False):
 
 
 def test_a_closed_or_full_standard_output_is_one_line(tmp_path):
+    """`mogo generate`'s product is its take: a standard output that fails once the take is
+    written is a note naming the files, status 0 (it was exit 2 and an error after the work);
+    `mogo stream`'s product is its standard output: an error, or a normal end for a reader
+    that stopped."""
+    written = ", ".join(str(tmp_path / f"a_person_walks{suffix}") for suffix in
+                        (".bvh", ".gif", ".npy", ".json"))
     code, error = run_mogo("generate", "a person walks.", "--seconds", "1", "--out", str(tmp_path),
                            close_stdout=True)
-    assert (code, error) == (2, "mogo: error: cannot write to standard output: Broken pipe\n")
-    assert len(list(tmp_path.iterdir())) == 4  # the take itself was written
+    assert (code, error) == (0, "note: cannot write to standard output (Broken pipe); the take "
+                                f"was written: {written}\n")
+    with open("/dev/full", "w") as full:
+        code, error = run_mogo("generate", "a person walks.", "--seconds", "1", "--out",
+                               str(tmp_path), "--name", "again", stdout=full)
+    assert code == 0 and error.startswith("note: cannot write to standard output (No space "
+                                          "left on device); the take was written: ")
+    assert len(list(tmp_path.iterdir())) == 8
     with open("/dev/full", "w") as full:
         code, error = run_mogo("stream", "a person walks.", "--frames", "500", stdout=full)
     assert (code, error) == (2, "mogo: error: cannot write to standard output: No space left "
@@ -468,3 +480,22 @@ def _is_take(folder, seed):
         return True
     except AssertionError:
         return False
+
+
+def test_odd_output_folders_are_refused_before_generating(tmp_path, monkeypatch, capsys):
+    """Old: a link loop, a link to nowhere and a folder name too long for the file system
+    were found only when the take was written, after the work."""
+    monkeypatch.setattr("mogo.cli._load_generator", lambda args: pytest.fail("generated"))
+    os.symlink("loop", tmp_path / "loop")
+    os.symlink(tmp_path / "missing" / "x", tmp_path / "nowhere")
+    nowhere = "a symbolic link that leads nowhere (a loop or a missing target)"
+    for out, message in (
+            (tmp_path / "loop", f"{tmp_path / 'loop'}: {nowhere}"),
+            (tmp_path / "loop" / "sub", f"{tmp_path / 'loop'}: {nowhere} (so "
+                                        f"{tmp_path / 'loop' / 'sub'} cannot be made in it)"),
+            (tmp_path / "nowhere", f"{tmp_path / 'nowhere'}: {nowhere}"),
+            (tmp_path / "a" / ("y" * 300) / "b", f"{tmp_path / 'a' / ('y' * 300) / 'b'}: a "
+                                                  "folder name longer than 255 bytes")):
+        assert main(["generate", "a person walks.", "--out", str(out)]) == 2
+        assert capsys.readouterr().err == f"mogo: error: {message}\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["loop", "nowhere"]
