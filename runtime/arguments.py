@@ -148,9 +148,10 @@ def checked_seconds(seconds: object, minimum: float, fps: float, maximum: float)
     if isinstance(seconds, bool) or not isinstance(seconds, Real):
         raise TypeError(f"seconds must be a number, got {type(seconds).__name__}")
     if not seconds > 0:
-        raise ValueError(f"seconds must be a positive number, got {seconds!r}")
+        raise ValueError(f"seconds must be a positive number, got {number_text(seconds)}")
     if seconds > maximum:
-        raise ValueError(f"seconds must be at most {maximum:.0f} in one call, got {seconds}; "
+        raise ValueError(f"seconds must be at most {maximum:.0f} in one call, got "
+                         f"{number_text(seconds)}; "
                          "use a stream for longer motion")
     if float(seconds) < minimum:
         raise ValueError(f"seconds must be at least {minimum:g} (one token step, "
@@ -164,9 +165,9 @@ def checked_int(value: object, name: str, minimum: int, maximum: int | None = No
     if isinstance(value, bool) or not isinstance(value, Integral):
         raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
     if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+        raise ValueError(f"{name} must be >= {minimum}, got {number_text(value)}")
     if maximum is not None and value > maximum:
-        raise ValueError(f"{name} must be at most {maximum}, got {value}")
+        raise ValueError(f"{name} must be at most {maximum}, got {number_text(value)}")
     return int(value)
 
 
@@ -195,6 +196,15 @@ def checked_schedule(schedule: object) -> list:
             raise TypeError(f"schedule[{k}] must be a (prompt, seconds) pair, got "
                             f"{reprlib.repr(entry)}")
     return entries
+
+
+def number_text(value: object) -> str:
+    """A number for a message: an integer too long for Python to print (past 4300 digits) by
+    its size instead of an error about the error."""
+    try:
+        return repr(value)
+    except ValueError:
+        return f"an integer of {value.bit_length()} bits"
 
 
 def short(text: str, limit: int = 60) -> str:

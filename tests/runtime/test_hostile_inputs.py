@@ -109,3 +109,19 @@ def test_an_ascii_only_terminal_gets_escapes_not_an_error_after_the_work(tmp_pat
     assert (status, error) == (0, "") or status == 0 and error.startswith("note: "), error
     assert "for: a person walks to the caf\\xe9" in printed
     assert len(list(tmp_path.iterdir())) == 4
+
+
+def test_a_number_too_long_to_print_is_named_by_its_size():
+    """Old: "Exceeds the limit (4300 digits) for integer string conversion" from inside the
+    message that was to name the number."""
+    generator = MotionGenerator.load()
+    huge = 10 ** 5000
+    for call, message in (
+            (lambda: generator.generate("a person walks.", seconds=huge),
+             "seconds must be at most 600 in one call, got an integer of 16610 bits"),
+            (lambda: generator.generate("a person walks.", seconds=1, top_k=-huge),
+             r"top_k must be >= 0 \(0 = off\), got an integer of 16610 bits"),
+            (lambda: generator.stream("a person walks.").advance(-huge),
+             "steps must be >= 0, got an integer of 16610 bits")):
+        with pytest.raises(ValueError, match=message):
+            call()
