@@ -255,7 +255,7 @@ def _cmd_info(args: argparse.Namespace) -> None:
                  "tokenizers and repertoire read")
     width = max(map(len, m.files))
     lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
-    print("\n".join(lines))
+    print(shown("\n".join(lines), keep="\n"))  # a bundle's own text may hold escapes
 
 
 def _built_path(path: object) -> str:

@@ -201,3 +201,16 @@ def test_info_says_what_it_verified():
     assert status == 0, error
     assert ("sha256 verified; 10 graphs open with the manifest's names and types; tokenizers and "
             "repertoire read") in printed
+
+
+def test_info_shows_a_bundles_own_text_escaped(copy):
+    """The manifest's free text (a trainer's recipe) may hold terminal escapes: shown as
+    escapes, never sent to the terminal raw."""
+    def recipe(manifest):
+        part = next(iter(manifest["training"]))
+        manifest["training"][part]["recipe"]["lr"] = "\x1b[2J\x1b]0;owned\x07"
+    edit_manifest(copy, recipe)
+    status, printed, error = info(copy)
+    assert status == 0, error
+    assert "\x1b" not in printed and "\x07" not in printed
+    assert "lr \\x1b[2J\\x1b]0;owned\\x07" in printed
