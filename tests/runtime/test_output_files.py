@@ -499,3 +499,22 @@ def test_odd_output_folders_are_refused_before_generating(tmp_path, monkeypatch,
         assert main(["generate", "a person walks.", "--out", str(out)]) == 2
         assert capsys.readouterr().err == f"mogo: error: {message}\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["loop", "nowhere"]
+
+
+@pytest.mark.parametrize("options, error, message", [
+    (dict(naming=["mixamo"]), ValueError, r"naming must be one of mixamo, smpl, got \['mixamo'\]"),
+    (dict(scale=[1, 2]), TypeError, "scale must be a number, got list"),
+    (dict(scale=np.array([1.0, 2.0])), TypeError, "scale must be a number, got ndarray"),
+    (dict(scale=math.nan), ValueError, "scale must be a positive number up to 10000, got nan"),
+    (dict(scale=1e308), ValueError, "scale must be a positive number up to 10000"),
+    (dict(bone_translations=[1]), TypeError, "bone_translations must be True or False"),
+    (dict(overwrite="no"), TypeError, "overwrite must be True or False, got str"),
+])
+def test_a_takes_options_are_checked_before_any_file(tmp_path, options, error, message):
+    """Old: "unhashable type: 'list'", numpy's "truth value of an array ... is ambiguous", a
+    BVH of NaN offsets, and overwrite="no" taken for True (replacing the earlier take)."""
+    motion(0).save_take(tmp_path, "walk")
+    before = contents(tmp_path)
+    with pytest.raises(error, match=message):
+        motion(1).save_take(tmp_path, "walk", **options)
+    assert contents(tmp_path) == before
