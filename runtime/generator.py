@@ -30,7 +30,7 @@ from mogo.arguments import (ScheduleError, checked_bool, checked_int, checked_pr
                             checked_schedule, checked_seconds, plural)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
-from mogo.manifest import io_types
+from mogo.manifest import MAX_GENERATE_SECONDS, io_types
 from mogo.motion.features import JointStream
 from mogo.motion.feet import FootPlanter, planted
 from mogo.repertoire import Familiarity
@@ -40,7 +40,6 @@ from mogo.text_side import TextSide
 from mogo.token_generator import TokenGenerator, TokenStream
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
-MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
 STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
 

@@ -368,6 +368,7 @@ CONFIG_KEYS = dict(feature_dim=int, levels=int, codebook_size=int, down_factor=i
 T2M_CONFIG_KEYS = dict(text_dim=int, max_relative_distance=int)  # of t2m.config
 MAX_SIZE = 2**20  # any size of the manifest: larger ones are a damaged or hostile manifest
 MAX_FPS = 1000.0
+MAX_GENERATE_SECONDS = 600.0  # of motion in one generate or play call; streams have no limit
 MAX_DECODER_CONTEXT = 1024  # token steps back or ahead the decoder may need
 
 
@@ -402,7 +403,7 @@ def _check_ranges(manifest: Manifest) -> None:
         except (TypeError, ValueError) as error:  # Sampling refuses text or bool as a number
             raise KeyProblem(f"defaults.{name}", str(error)) from None
     positive = {"motion.fps": (manifest.fps, MAX_FPS),
-                "defaults.max_seconds": (d.max_seconds, MAX_SIZE),
+                "defaults.max_seconds": (d.max_seconds, MAX_GENERATE_SECONDS),
                 "text.max_length": (manifest.text.max_length, MAX_SIZE),
                 "defaults.window": (1 if d.window is None else d.window, MAX_SIZE)}
     at_least_zero = {"vq.decoder.left_context": manifest.vq.decoder.left_context,
