@@ -56,13 +56,11 @@ def checked_prompt(text: object, name: str = "text") -> str:
     overrides, terminal escapes' ESC) removed; empty once cleaned is refused."""
     if not isinstance(text, str):
         raise TypeError(f"{name} must be a string (the prompt), got {type(text).__name__}")
-    try:
+    try:  # JSON's "\ud800" or a Latin-1 terminal's bytes: a lone surrogate is no text
         text.encode("utf-8")
     except UnicodeEncodeError as error:
-        raise ValueError(f"the prompt{'' if name == 'text' else f' ({name})'} is not valid "
-                         "Unicode text: a lone surrogate "
-                         f"(U+{ord(text[error.start]):04X}) at character {error.start}; is the "
-                         "terminal's encoding UTF-8?") from None
+        raise ValueError(f"{name} is not valid Unicode: a lone surrogate "
+                         f"{text[error.start]!r} at character {error.start}") from None
     cleaned = " ".join("".join(" " if c.isspace() else c for c in text
                                if c.isspace() or not _invisible(c)).split())
     if not cleaned:

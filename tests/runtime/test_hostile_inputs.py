@@ -61,8 +61,8 @@ def test_a_prompts_file_that_never_ends_is_refused(tmp_path):
 
 @pytest.mark.parametrize("prompt, message", [
     ("\u200b\u200b\u200b", "the prompt is empty (only invisible characters)"),
-    (b"a person walks caf\xe9", "the prompt is not valid Unicode text: a lone surrogate "
-                                "(U+DCE9) at character 18; is the terminal's encoding UTF-8?"),
+    (b"a person walks caf\xe9", "text is not valid Unicode: a lone surrogate '\\udce9' at "
+                                "character 18"),
 ])
 def test_an_invisible_or_undecodable_prompt_is_one_line(tmp_path, prompt, message):
     """Old: zero-width spaces were a prompt; a Latin-1 byte was a 27-line traceback."""
@@ -74,7 +74,7 @@ def test_the_api_refuses_a_lone_surrogate_in_its_own_words():
     for call in (lambda: generator.generate("a person walks caf\udce9", seconds=1),
                  lambda: generator.stream("caf\udce9 walks"),
                  lambda: generator.play([("a person walks", 1), ("\udce9", 1)])):
-        with pytest.raises(ValueError, match="not valid Unicode text: a lone surrogate"):
+        with pytest.raises(ValueError, match="not valid Unicode: a lone surrogate"):
             call()
 
 
