@@ -3,8 +3,10 @@ value a ValueError, each naming the argument, raised where it enters the API rat
 deep inside numpy or onnxruntime. (Sampling options check themselves: mogo.sampling.)"""
 from __future__ import annotations
 
+import itertools
 import reprlib
 import string
+import unicodedata
 import warnings
 from collections.abc import Iterable, Sequence
 from numbers import Integral, Real
@@ -16,6 +18,17 @@ if TYPE_CHECKING:  # the `mogo` command imports this module for PromptWarning al
     from tokenizers import Tokenizer
 
 UNKNOWN, SPECIAL_TOKENS = "[UNK]", ("[PAD]", "[UNK]", "[CLS]")  # a bundle tokenizer's
+MAX_SCHEDULE_ENTRIES = 100  # prompts in one play(): each switch costs about a token step's work
+
+
+class ScheduleError(ValueError):
+    """An entry of a schedule that cannot be played (`index`; None: the schedule as a whole)
+    and the `problem`, for a caller that names entries its own way (the `mogo` command: by
+    FILE:LINE)."""
+
+    def __init__(self, index: int | None, problem: str):
+        super().__init__(problem if index is None else f"schedule[{index}]: {problem}")
+        self.index, self.problem = index, problem
 
 
 class PromptWarning(UserWarning):
@@ -37,16 +50,38 @@ class UnknownPromptWarning(PromptWarning):
 
 
 def checked_prompt(text: object, name: str = "text") -> str:
+    """A prompt as the model, the files and the terminal get it: valid Unicode (a lone
+    surrogate is what a terminal in another encoding than UTF-8 leaves), each run of
+    whitespace one space, control and invisible format characters (zero-width spaces, bidi
+    overrides, terminal escapes' ESC) removed; empty once cleaned is refused."""
     if not isinstance(text, str):
         raise TypeError(f"{name} must be a string (the prompt), got {type(text).__name__}")
-    if not text.strip():
-        raise ValueError("the prompt is empty")
     try:  # JSON's "\ud800" or a Latin-1 terminal's bytes: a lone surrogate is no text
         text.encode("utf-8")
     except UnicodeEncodeError as error:
         raise ValueError(f"{name} is not valid Unicode: a lone surrogate "
                          f"{text[error.start]!r} at character {error.start}") from None
-    return text.strip()
+    cleaned = " ".join("".join(" " if c.isspace() else c for c in text
+                               if c.isspace() or not _invisible(c)).split())
+    if not cleaned:
+        raise ValueError("the prompt is empty" + (" (only invisible characters)" if text.strip()
+                                                  else ""))
+    return cleaned
+
+
+def _invisible(character: str) -> bool:
+    """A control or format character (C0/C1 controls, zero-width spaces and joiners, bidi
+    marks and overrides): nothing a prompt or a file name shows."""
+    return unicodedata.category(character) in ("Cc", "Cf", "Zl", "Zp")
+
+
+def shown(text: object, keep: str = "") -> str:
+    """`text` (a path, a message) for a terminal: control and invisible characters but those
+    in `keep` written as escapes (\\n, \\x1b, \\u202e), lone surrogates too, so that what
+    the user reads is what it is, on the lines it says."""
+    return "".join(c.encode("unicode_escape", "backslashreplace").decode("ascii")
+                   if c not in keep and (_invisible(c) or unicodedata.category(c) == "Cs")
+                   else c for c in str(text))
 
 
 def read_prompt(text: object, tokenizer: Tokenizer, max_length: int,
@@ -111,9 +146,10 @@ def checked_seconds(seconds: object, minimum: float, fps: float, maximum: float)
     if isinstance(seconds, bool) or not isinstance(seconds, Real):
         raise TypeError(f"seconds must be a number, got {type(seconds).__name__}")
     if not seconds > 0:
-        raise ValueError(f"seconds must be a positive number, got {seconds!r}")
+        raise ValueError(f"seconds must be a positive number, got {number_text(seconds)}")
     if seconds > maximum:
-        raise ValueError(f"seconds must be at most {maximum:.0f} in one call, got {seconds}; "
+        raise ValueError(f"seconds must be at most {maximum:.0f} in one call, got "
+                         f"{number_text(seconds)}; "
                          "use a stream for longer motion")
     if float(seconds) < minimum:
         raise ValueError(f"seconds must be at least {minimum:g} (one token step, "
@@ -127,9 +163,9 @@ def checked_int(value: object, name: str, minimum: int, maximum: int | None = No
     if isinstance(value, bool) or not isinstance(value, Integral):
         raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
     if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+        raise ValueError(f"{name} must be >= {minimum}, got {number_text(value)}")
     if maximum is not None and value > maximum:
-        raise ValueError(f"{name} must be at most {maximum}, got {value}")
+        raise ValueError(f"{name} must be at most {maximum}, got {number_text(value)}")
     return int(value)
 
 
@@ -142,19 +178,31 @@ def checked_bool(value: object, name: str) -> bool:
 
 
 def checked_schedule(schedule: object) -> list:
-    """A schedule's shape: a non-empty list of (prompt, seconds) pairs (their values are the
-    generator's to check)."""
+    """A schedule's shape: a non-empty list of at most MAX_SCHEDULE_ENTRIES (prompt, seconds)
+    pairs (their values are the generator's to check)."""
     if isinstance(schedule, (str, bytes)) or not isinstance(schedule, Iterable):
         raise TypeError(f"schedule must be a list of (prompt, seconds) pairs, got "
                         f"{type(schedule).__name__}")
-    entries = list(schedule)
+    entries = list(itertools.islice(schedule, MAX_SCHEDULE_ENTRIES + 1))
     if not entries:
         raise ValueError("the schedule is empty")
+    if len(entries) > MAX_SCHEDULE_ENTRIES:
+        raise ScheduleError(MAX_SCHEDULE_ENTRIES, f"more than {MAX_SCHEDULE_ENTRIES} prompts in "
+                            "one schedule; use a stream (MotionStream) for more")
     for k, entry in enumerate(entries):
         if isinstance(entry, (str, bytes)) or not isinstance(entry, Sequence) or len(entry) != 2:
             raise TypeError(f"schedule[{k}] must be a (prompt, seconds) pair, got "
                             f"{reprlib.repr(entry)}")
     return entries
+
+
+def number_text(value: object) -> str:
+    """A number for a message: an integer too long for Python to print (past 4300 digits) by
+    its size instead of an error about the error."""
+    try:
+        return repr(value)
+    except ValueError:
+        return f"an integer of {value.bit_length()} bits"
 
 
 def short(text: str, limit: int = 60) -> str:

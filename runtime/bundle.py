@@ -10,15 +10,15 @@ mogo.manifest), never from code.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from mogo.motion import untrusted
 from mogo._session import graph_session
-from mogo.manifest import MANIFEST, BundleError, FileEntry, Manifest
+from mogo.manifest import MANIFEST, BundleError, FileEntry, Manifest, io_types
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class Bundle:
         manifest = read_manifest(root)
         verify_files(root, manifest)
         norm = manifest.motion.normalization
-        mean, std = _array(root, norm.mean), _array(root, norm.std)
+        mean, std = read_array(root / norm.mean), read_array(root / norm.std)
         for name, array in ((norm.mean, mean), (norm.std, std)):
             if array.shape != (manifest.feature_dim,):
                 raise BundleError(f"{root / name}: shape {array.shape}, expected "
@@ -54,10 +54,11 @@ class Bundle:
 
     def open_graphs(self) -> int:
         """Opens every graph as the runtime does (onnxruntime parses it; its input and output
-        names are checked against the manifest), which a matching sha256 does not vouch for:
+        names, types and fixed sizes are checked against the manifest), which a matching sha256
+        does not vouch for:
         the manifest may have been written after a graph was damaged. Returns how many."""
         for graph in self.manifest.graphs():
-            graph_session(self.path(graph.file), graph)
+            graph_session(self.path(graph.file), graph, types=io_types(self.manifest, graph))
         return len(self.manifest.graphs())
 
 
@@ -68,14 +69,13 @@ def read_manifest(root: Path) -> Manifest:
             raise BundleError(f"{root}: an empty folder; a bundle folder holds a {MANIFEST} "
                               "and the files it lists")
         raise BundleError(f"{path}: missing; a bundle folder holds a {MANIFEST}")
+    if path.is_symlink():  # what vouches for every other file must itself be in the folder
+        raise BundleError(f"{path}: a symbolic link (to {os.path.realpath(path)}); the "
+                          "manifest must be a file of the bundle folder")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise BundleError(f"{path}: not valid JSON ({error})") from None
-    except RecursionError:
-        raise BundleError(f"{path}: not a manifest (nested too deeply)") from None
-    except OSError as error:
-        raise BundleError(f"{path}: cannot read it ({error.strerror})") from None
+        data = untrusted.read_json(path, "manifest")
+    except ValueError as error:
+        raise BundleError(str(error)) from None
     return Manifest.from_json(data, str(path))
 
 
@@ -121,17 +121,13 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def _array(root: Path, name: str) -> np.ndarray:
-    """A normalisation array as float32; BundleError unless it is a .npy array of finite
-    numbers there."""
-    path = root / name
-    with path.open("rb") as handle:
-        if handle.read(len(np.lib.format.MAGIC_PREFIX)) != np.lib.format.MAGIC_PREFIX:
-            raise BundleError(f"{path}: not a .npy array file")
+def read_array(path: Path) -> np.ndarray:
+    """A .npy array of the bundle as float32; BundleError unless it is an array of finite real
+    numbers (read by mogo.motion.untrusted.read_npy: sizes checked, no pickle)."""
     try:
-        array = np.load(path, allow_pickle=False)
-    except (ValueError, EOFError, OSError) as error:
-        raise BundleError(f"{path}: not a plain .npy array ({error})") from None
+        array = untrusted.read_npy(path)
+    except ValueError as error:
+        raise BundleError(str(error)) from None
     if not np.issubdtype(array.dtype, np.number) or np.issubdtype(array.dtype, np.complexfloating):
         raise BundleError(f"{path}: holds {array.dtype} values, expected real numbers")
     with np.errstate(over="ignore"):

@@ -4,24 +4,28 @@ themselves through the "mogo.commands" entry points, so this module never import
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import importlib.util
 import json
 import math
 import os
 import re
+import signal
 import sys
+import threading
 import warnings
 from collections.abc import Callable
 from dataclasses import fields
 from importlib.metadata import PackageNotFoundError, entry_points, version
 from pathlib import Path
 
-from mogo.arguments import (PromptWarning, UnfamiliarPromptWarning, UnknownPromptWarning,
-                            plural)
+from mogo.arguments import (MAX_SCHEDULE_ENTRIES, PromptWarning, ScheduleError,
+                            UnfamiliarPromptWarning, UnknownPromptWarning, plural, shown)
 from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
+PROMPTS_FILE_BYTES = 2**20  # a --prompts-file read past this is refused
 
 
 class CliError(Exception):
@@ -54,20 +58,25 @@ def _sampling(args: argparse.Namespace, generator):
         raise CliError(f"--{error.option.replace('_', '-')} {error.problem}") from None
 
 
-def _read_schedule(path: Path) -> list[tuple[str, float]]:
-    """Lines "SECONDS PROMPT", any whitespace between (blank lines and # comments skipped);
-    what is wrong in the file is named by file:line."""
+def _read_schedule(path: Path) -> tuple[list[tuple[str, float]], list[int]]:
+    """Lines "SECONDS PROMPT", any whitespace between (blank lines and # comments skipped),
+    and the line number of each; what is wrong in the file is named by file:line. At most
+    PROMPTS_FILE_BYTES are read (/dev/zero is no prompts file)."""
     try:
-        data = path.read_bytes()
+        with open(path, "rb") as handle:
+            data = handle.read(PROMPTS_FILE_BYTES + 1)
     except OSError as error:
         raise CliError(f"cannot read the prompts file {path}: {error.strerror}") from None
+    if len(data) > PROMPTS_FILE_BYTES:
+        raise CliError(f"{path}: larger than {PROMPTS_FILE_BYTES // 1024} KiB; a prompts file "
+                       f"holds at most {MAX_SCHEDULE_ENTRIES} lines 'SECONDS PROMPT'")
     try:
         lines = data.decode("utf-8-sig").splitlines()
     except UnicodeDecodeError as error:
         line = data[:error.start].count(b"\n") + 1
         raise CliError(f"{path}:{line}: not UTF-8 text (byte 0x{data[error.start]:02x}); save "
                        "the prompts file as UTF-8") from None
-    schedule = []
+    schedule, numbers = [], []
     for number, line in enumerate(lines, 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
@@ -83,9 +92,10 @@ def _read_schedule(path: Path) -> list[tuple[str, float]]:
         if not prompt.strip():
             raise CliError(f"{path}:{number}: no prompt after the seconds")
         schedule.append((prompt.strip(), length))
+        numbers.append(number)
     if not schedule:
         raise CliError(f"{path}: no 'SECONDS PROMPT' lines")
-    return schedule
+    return schedule, numbers
 
 
 def _file_stem(text: str) -> str:
@@ -114,7 +124,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
             raise CliError("give either a prompt (with --seconds) or --prompts-file, not both")
         if args.align:
             raise CliError("--align rewrites one prompt; a --prompts-file is played as written")
-        schedule = _read_schedule(Path(args.prompts_file))
+        schedule, lines = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
     folder = check_take(args.out, args.name, args.overwrite, what="--name",
@@ -123,16 +133,20 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
     sampling = _sampling(args, generator)
     if args.prompts_file:
-        motion = generator.play(schedule, seed=args.seed, sampling=sampling,
-                                plant_feet=args.plant_feet)
+        try:
+            motion = generator.play(schedule, seed=args.seed, sampling=sampling,
+                                    plant_feet=args.plant_feet)
+        except ScheduleError as error:  # named by the file's line
+            where = "" if error.index is None else f":{lines[error.index]}"
+            raise CliError(f"{args.prompts_file}{where}: {error.problem}") from None
     else:
         motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
                                     sampling=sampling, align=_aligner(args, generator),
                                     plant_feet=args.plant_feet)
     if motion.alignment is not None:
-        print(motion.alignment.describe())
+        print(shown(motion.alignment.describe(), keep="\n"))
         if motion.alignment.note:
-            print(f"note: {motion.alignment.note}")
+            print(f"note: {shown(motion.alignment.note)}")
     elif args.text is not None:
         _note_played(generator, args.text)
     name = args.name or _file_stem(motion.caption)
@@ -141,21 +155,29 @@ def _cmd_generate(args: argparse.Namespace) -> None:
                                scale=bvh.UNITS[args.bvh_units], naming=args.bvh_names,
                                animation=args.format)
     frames = plural(len(motion.joints), "frame")
-    print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
-          f"for: {motion.caption}")
-    taken = written[0].name.removesuffix(written[0].suffix)
-    if taken != name:
-        print(f"note: {folder / name}.* is an earlier take, kept; this one is {taken} "
-              f"(--overwrite replaces)")
-    for path in written:
-        print(f"wrote {path}")
+    try:  # the take is written: a stdout that fails (a closed pipe, a full disk) is no error
+        print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
+              f"for: {shown(motion.caption)}")
+        taken = written[0].name.removesuffix(written[0].suffix)
+        if taken != name:
+            print(f"note: {shown(folder / name)}.* is an earlier take, kept; this one is "
+                  f"{taken} (--overwrite replaces)")
+        for path in written:
+            print(f"wrote {shown(path)}")
+        sys.stdout.flush()
+    except OSError as error:
+        if error.filename != _Stdout.NAME:
+            raise
+        _silence_stdout()
+        print(f"note: cannot write to standard output ({error.strerror}); the take was "
+              f"written: {', '.join(shown(path) for path in written)}", file=sys.stderr)
 
 
 def _note_played(generator, text: str) -> None:
     """A `note:` line on stderr naming the known caption a prompt in other words is played as
     (mogo.repertoire.Familiarity.played_note)."""
     if (known := generator.known(text)) is not None and known.played_note:
-        print(f"note: {known.played_note}", file=sys.stderr)
+        print(f"note: {shown(known.played_note)}", file=sys.stderr)
 
 
 def _cmd_stream(args: argparse.Namespace) -> None:
@@ -178,15 +200,17 @@ def _cmd_stream(args: argparse.Namespace) -> None:
 def _cmd_blender_addon(args: argparse.Namespace) -> None:
     from mogo.addon_zip import write_addon
 
-    print(f"wrote {write_addon(args.out, overwrite=args.overwrite)} (Blender: Edit > "
+    print(f"wrote {shown(write_addon(args.out, overwrite=args.overwrite))} (Blender: Edit > "
           "Preferences > Add-ons > Install, then enable 'MOGO motion'; docs/blender.md)")
 
 
 def _cmd_info(args: argparse.Namespace) -> None:
     from mogo.bundle import Bundle
     from mogo.generator import DEFAULT_BUNDLE
+    from mogo.text_side import check_text_files
 
     bundle = Bundle.load(args.bundle or DEFAULT_BUNDLE)
+    check_text_files(bundle)  # all that generate reads, not only the checksums
     m = bundle.manifest
     t2m, vq, text, decoder = m.t2m.config, m.vq, m.text, m.vq.decoder
     lines = [
@@ -227,10 +251,11 @@ def _cmd_info(args: argparse.Namespace) -> None:
                      f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
                      f"seed {recipe.get('seed')}{tuned}")
     lines.append(f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
-                 f"{bundle.open_graphs()} graphs open with the manifest's names")
+                 f"{bundle.open_graphs()} graphs open with the manifest's names and types; "
+                 "tokenizers and repertoire read")
     width = max(map(len, m.files))
     lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
-    print("\n".join(lines))
+    print(shown("\n".join(lines), keep="\n"))  # a bundle's own text may hold escapes
 
 
 def _built_path(path: object) -> str:
@@ -256,7 +281,7 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
                         args.strict and issubclass(category, UnfamiliarPromptWarning)):
                     raise CliError(str(message))
                 if issubclass(category, PromptWarning):
-                    print(f"note: {message}", file=sys.stderr)
+                    print(f"note: {shown(message)}", file=sys.stderr)
                 else:
                     show(message, category, *where, **options)
 
@@ -373,6 +398,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    for stream in (sys.stdout, sys.stderr):  # a terminal that cannot show a character: escaped
+        with contextlib.suppress(AttributeError, ValueError):
+            stream.reconfigure(errors="backslashreplace")
     try:
         args = build_parser().parse_args(argv)
     except KeyboardInterrupt:  # Ctrl-C while the verbs load: a quiet stop, as during a run
@@ -386,19 +414,41 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace) -> int:
     stdout, sys.stdout = sys.stdout, _Stdout(sys.stdout)
     try:
-        args.run(args)
+        with _exit_on_termination():
+            args.run(args)
         sys.stdout.flush()  # a closed pipe or a full disk shows here, not at Python's exit
     except CliError as error:
-        print(f"mogo: error: {error}", file=sys.stderr)
+        print(f"mogo: error: {shown(error)}", file=sys.stderr)
         return 2
     except (ValueError, OSError) as error:
-        print(f"mogo: error: {_describe(error)}", file=sys.stderr)
+        print(f"mogo: error: {shown(_describe(error))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
     finally:
         sys.stdout = stdout if isinstance(sys.stdout, _Stdout) else sys.stdout
     return 0
+
+
+@contextlib.contextmanager
+def _exit_on_termination():
+    """SIGTERM and SIGHUP as an exit (status 128 + the signal) that runs every cleanup on the
+    way out, as Ctrl-C does: temporaries and half-built folders removed (mogo.files holds all
+    three signals while a set of files is renamed into place)."""
+    def leave(number: int, _frame) -> None:
+        raise SystemExit(128 + number)
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in ("SIGTERM", "SIGHUP"):
+            number = getattr(signal, name, None)
+            if number is not None and signal.getsignal(number) is signal.SIG_DFL:
+                previous[number] = signal.signal(number, leave)
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 class _Stdout:

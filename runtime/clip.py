@@ -13,6 +13,7 @@ import numpy as np
 
 from mogo import files
 from mogo.align import Alignment
+from mogo.arguments import checked_bool
 from mogo.motion import bvh, glb, mocap, render, rigs
 from mogo.motion.features import joints_to_features
 from mogo.motion.skeleton import SMPL_22, Skeleton
@@ -96,6 +97,8 @@ class Motion:
         name-3, ...: the first free), unless overwrite=True replaces it. Returns the four
         paths written. The other options are save_bvh's (naming: save_glb's too)."""
         suffixes = take_suffixes(animation)
+        overwrite = checked_bool(overwrite, "overwrite")
+        bvh.check_options(scale, bone_translations, naming)  # before any file is written
         folder = check_take(folder, name, overwrite, animation=animation)
         first = (partial(self._write_glb, naming=naming) if animation == "glb" else
                  partial(self._write_bvh, scale=scale, bone_translations=bone_translations,

@@ -1,6 +1,9 @@
 """Files written whole: each to a temporary file beside it, then renamed into place, and a set
-of files (the .bvh .gif .npy .json of one take) renamed together. A crash, a full disk or
-Ctrl-C thus leaves the old files or the new ones, never half a file nor a mix of two sets.
+of files (the .bvh .gif .npy .json of one take) renamed together. A crash, a full disk,
+Ctrl-C, SIGTERM or SIGHUP thus leaves the old files or the new ones, never half a file nor a mix
+of two sets; writers of one folder take turns at the renames (a lock on the folder), so two
+takes written at once over the same name never mix either. Only regular files are replaced:
+never a symbolic link, a device, a FIFO or a socket (docs/security.md, "Files").
 
 A writer is a function that writes one file's content to the path it is given (a temporary
 name, so it must not go by the name's suffix)."""
@@ -12,12 +15,20 @@ import itertools
 import os
 import secrets
 import signal
+import stat
 import threading
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
+try:
+    import fcntl
+except ImportError:  # Windows: no folder lock (its renames never replace an open file anyway)
+    fcntl = None
+
 Writer = Callable[[Path], None]
 NUMBERING_ROOM = len("-999")  # the bytes a name keeps free for numbered takes
+HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")
+                     if hasattr(signal, name))  # delivered after the renames, not inside
 
 
 def check_folder(folder: str | os.PathLike) -> Path:
@@ -26,10 +37,18 @@ def check_folder(folder: str | os.PathLike) -> Path:
     folder = Path(folder)
     existing = _nearest_existing(folder)
     made = "" if existing == folder else f" (so {folder} cannot be made in it)"
+    if os.path.islink(existing) and not existing.exists():
+        raise FileNotFoundError(errno.ENOENT, "a symbolic link that leads nowhere (a loop or a "
+                                f"missing target){made}", str(existing))
     if not existing.is_dir():
         raise NotADirectoryError(errno.ENOTDIR, f"not a folder{made}", str(existing))
     if not os.access(existing, os.W_OK | os.X_OK):
         raise PermissionError(errno.EACCES, f"the folder is not writable{made}", str(existing))
+    longest = _name_max(existing)
+    for part in folder.relative_to(existing).parts if existing != folder else ():
+        if len(os.fsencode(part)) > longest:
+            raise OSError(errno.ENAMETOOLONG, f"a folder name longer than {longest} bytes",
+                          str(folder))
     return folder
 
 
@@ -41,6 +60,9 @@ def check_name(name: str, folder: Path, suffixes: Sequence[str], what: str = "na
     if name in ("", ".", "..") or any(c in name for c in {"/", os.sep, os.altsep or "/", "\0"}):
         raise ValueError(f"{what} must be a file name, without a folder: not empty, '.', '..' "
                          f"nor with '/' in it, got {name!r}")
+    if not name.isprintable():  # controls, bidi overrides, zero-width, lone surrogates
+        raise ValueError(f"{what} must be a file name without control, invisible or "
+                         f"bidirectional characters (they hide what a name says), got {name!r}")
     room = _name_max(folder) - max(len(s) for s in suffixes) - NUMBERING_ROOM
     size = len(os.fsencode(name))
     if size > room:
@@ -48,11 +70,25 @@ def check_name(name: str, folder: Path, suffixes: Sequence[str], what: str = "na
 
 
 def check_replaceable(paths: Iterable[Path]) -> None:
-    """An IsADirectoryError where a folder has the name a file is to replace."""
+    """An OSError naming the path where something other than a regular file has the name a
+    file is to replace: a folder (IsADirectoryError), a symbolic link, a device, a FIFO or a
+    socket (FileExistsError). Renaming over them would replace the link or the node itself."""
     for path in paths:
-        if path.is_dir() and not path.is_symlink():
+        try:
+            mode = os.lstat(path).st_mode
+        except FileNotFoundError:
+            continue
+        if stat.S_ISDIR(mode):
             raise IsADirectoryError(errno.EISDIR, "a folder is in the way of this file",
                                     str(path))
+        if not stat.S_ISREG(mode):
+            raise FileExistsError(errno.EEXIST, f"{_KINDS.get(stat.S_IFMT(mode), 'not a file')} "
+                                  "is in the way of this file; only regular files are replaced",
+                                  str(path))
+
+
+_KINDS = {stat.S_IFLNK: "a symbolic link", stat.S_IFCHR: "a device", stat.S_IFBLK: "a device",
+          stat.S_IFIFO: "a FIFO", stat.S_IFSOCK: "a socket"}
 
 
 def numbered(folder: Path, name: str, suffixes: Sequence[str]) -> Iterator[list[Path]]:
@@ -72,6 +108,8 @@ def write_all(writers: Sequence[Writer], candidates: Iterable[Sequence[Path]],
     candidates = iter(candidates)
     paths = list(next(candidates))
     folder = check_folder(paths[0].parent)
+    if replace:
+        check_replaceable(paths)  # before the work, and again as the files are replaced
     folder.mkdir(parents=True, exist_ok=True)
     with _temporaries(folder, len(writers)) as temporaries:
         for write, temporary, path in zip(writers, temporaries, paths):
@@ -81,38 +119,40 @@ def write_all(writers: Sequence[Writer], candidates: Iterable[Sequence[Path]],
             except OSError as error:  # named by the file the user asked for
                 raise (OSError(error.errno, error.strerror, str(path)) if error.errno else error
                        ) from None
-        while True:
-            try:
-                _rename_all(temporaries, paths, replace)
-                return paths
-            except FileExistsError:
-                if replace:
-                    raise
-                paths = list(next(candidates))
+        with _folder_lock(folder), _interrupts_held():  # the temporaries gone before a signal
+            while True:
+                try:
+                    _rename_all(temporaries, paths, replace)
+                    break
+                except FileExistsError:
+                    if replace:
+                        raise
+                    paths = list(next(candidates))
+            _remove(temporaries)
+        return paths
 
 
 def _rename_all(temporaries: Sequence[Path], paths: Sequence[Path], replace: bool) -> None:
     """Each temporary renamed onto its path, all or none: with replace, the old files are
-    moved aside first and put back should a rename fail. Ctrl-C waits until it is done."""
-    with _interrupts_held():
-        if replace:
-            check_replaceable(paths)
-        aside, placed = [], []
-        try:
-            for temporary, path in zip(temporaries, paths):
-                if replace and os.path.lexists(path):
-                    aside.append((_new_name(path.parent, ".old"), path))
-                    os.replace(path, aside[-1][0])
-                _place(temporary, path)
-                placed.append((temporary, path))
-        except BaseException:
-            for temporary, path in reversed(placed):
-                os.replace(path, temporary)
-            for old, path in reversed(aside):
-                os.replace(old, path)
-            raise
-        for old, _ in aside:
-            os.unlink(old)
+    moved aside first and put back should a rename fail (signals are held by the caller)."""
+    if replace:
+        check_replaceable(paths)
+    aside, placed = [], []
+    try:
+        for temporary, path in zip(temporaries, paths):
+            if replace and os.path.lexists(path):
+                aside.append((_new_name(path.parent, ".old"), path))
+                os.replace(path, aside[-1][0])
+            _place(temporary, path)
+            placed.append((temporary, path))
+    except BaseException:
+        for temporary, path in reversed(placed):
+            os.replace(path, temporary)
+        for old, path in reversed(aside):
+            os.replace(old, path)
+        raise
+    for old, _ in aside:
+        os.unlink(old)
 
 
 def _place(temporary: Path, path: Path) -> None:
@@ -141,26 +181,56 @@ def _temporaries(folder: Path, count: int) -> Iterator[list[Path]]:
         yield temporaries
     finally:
         with _interrupts_held():
-            for temporary in temporaries:
-                with contextlib.suppress(OSError):
-                    temporary.unlink()
+            _remove(temporaries)
+
+
+def _remove(temporaries: Sequence[Path]) -> None:
+    for temporary in temporaries:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: Path) -> Iterator[None]:
+    """An exclusive lock on the folder itself (flock on its descriptor: no lock file to leave
+    behind), so that the renames of two writers never interleave. Where the file system has
+    no such locks (some network ones), the renames go on unlocked."""
+    if fcntl is None:
+        yield
+        return
+    descriptor = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX)
+        except OSError as error:
+            if error.errno not in (errno.ENOLCK, errno.EBADF, errno.EOPNOTSUPP, errno.EINVAL):
+                raise
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock
 
 
 @contextlib.contextmanager
 def _interrupts_held() -> Iterator[None]:
-    """Ctrl-C (SIGINT) delivered after the block rather than inside it (main thread only)."""
-    previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or previous is None:
+    """SIGINT, SIGTERM and SIGHUP delivered after the block rather than inside it (main
+    thread only). The `mogo` command turns SIGTERM and SIGHUP into an exit that runs every
+    cleanup (mogo.cli), so temporaries are removed then too."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    received = []
-    signal.signal(signal.SIGINT, lambda *_: received.append(True))
+    received: list[int] = []
+    previous = {}
+    for number in HELD_SIGNALS:
+        handler = signal.getsignal(number)
+        if handler is not None and handler is not signal.SIG_IGN:
+            previous[number] = signal.signal(number, lambda n, _: received.append(n))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-        if received:
-            signal.raise_signal(signal.SIGINT)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        for number in dict.fromkeys(received):
+            signal.raise_signal(number)
 
 
 def _new_name(folder: Path, suffix: str) -> Path:
@@ -177,7 +247,8 @@ def _fsync(path: Path) -> None:
 
 
 def _nearest_existing(path: Path) -> Path:
-    while not path.exists() and path != path.parent:
+    """The path itself or its nearest parent that is there (a link that leads nowhere too)."""
+    while not os.path.lexists(path) and path != path.parent:
         path = path.parent
     return path
 

@@ -23,13 +23,14 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from mogo._session import NamedGraph, graph_session
+from mogo._session import NamedGraph, check_types, graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.anchoring import Anchor, Anchoring
-from mogo.arguments import (checked_bool, checked_int, checked_prompt, checked_schedule,
-                            checked_seconds, plural)
+from mogo.arguments import (ScheduleError, checked_bool, checked_int, checked_prompt,
+                            checked_schedule, checked_seconds, plural)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
+from mogo.manifest import MAX_GENERATE_SECONDS, io_types
 from mogo.motion.features import JointStream
 from mogo.motion.feet import FootPlanter, planted
 from mogo.repertoire import Familiarity
@@ -39,7 +40,6 @@ from mogo.text_side import TextSide
 from mogo.token_generator import TokenGenerator, TokenStream
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
-MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
 STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
 
@@ -65,10 +65,12 @@ class MotionGenerator:
         self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
                                      manifest.end_token, intra_op_threads=1,
                                      level_workers=threads)
+        for graph, session in zip(levels, self.tokens.sessions):
+            check_types(bundle.path(graph.file), session, io_types(manifest, graph))
         self.down_factor = manifest.vq.down_factor
         self._decoder = manifest.vq.decoder
         self._decoder_session = graph_session(bundle.path(self._decoder.file), self._decoder,
-                                              threads)
+                                              threads, io_types(manifest, self._decoder))
         self._vq_encoder = NamedGraph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
 
@@ -179,18 +181,34 @@ class MotionGenerator:
     def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
              sampling: Sampling | None = None, plant_feet: bool = True, **options) -> Motion:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
-        fly: the same stream, so every switch is a smooth continuation."""
+        fly: the same stream, so every switch is a smooth continuation. At most
+        MAX_SCHEDULE_ENTRIES prompts and MAX_GENERATE_SECONDS in all; an entry's problem is a
+        ScheduleError naming it."""
         sampling = self.sampling(sampling, **options)
         seed = _seed(seed)
         plant_feet = checked_bool(plant_feet, "plant_feet")
-        entries = []
-        for k, entry in enumerate(checked_schedule(schedule)):
+        entries = checked_schedule(schedule)
+        lengths = []
+        for k, entry in enumerate(entries):
             try:
-                seconds = self._seconds(entry[1])
-                entries.append((self._prompt(entry[0], "prompt"), seconds))
-            except (TypeError, ValueError) as error:  # which entry, for a long schedule
-                raise type(error)(f"schedule[{k}]: {error}") from None
-        return self._play(entries, seed, sampling, plant_feet)
+                lengths.append(self._seconds(entry[1]))
+            except TypeError as error:  # which entry, for a long schedule
+                raise TypeError(f"schedule[{k}]: {error}") from None
+            except ValueError as error:
+                raise ScheduleError(k, str(error)) from None
+        if sum(lengths) > MAX_GENERATE_SECONDS:
+            raise ScheduleError(None, f"the schedule's lengths add up to {sum(lengths):g} s; at "
+                                f"most {MAX_GENERATE_SECONDS:g} in one call (use a stream for "
+                                "longer motion)")
+        prompts = []
+        for k, entry in enumerate(entries):
+            try:
+                prompts.append(self._prompt(entry[0], "prompt"))
+            except TypeError as error:
+                raise TypeError(f"schedule[{k}]: {error}") from None
+            except ValueError as error:
+                raise ScheduleError(k, str(error)) from None
+        return self._play(list(zip(prompts, lengths)), seed, sampling, plant_feet)
 
     def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
               plant_feet: bool) -> Motion:

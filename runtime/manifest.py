@@ -340,10 +340,12 @@ class Manifest:
 
     def _check(self) -> None:
         """What the types alone do not say: sizes that must agree."""
-        for name, kind in CONFIG_KEYS.items():
-            value = self.vq.config.get(name)
-            if type(value) is not kind or value < 1:
-                raise KeyProblem(f"vq.config.{name}", "missing or not a positive integer")
+        for part, keys in (("vq", CONFIG_KEYS), ("t2m", T2M_CONFIG_KEYS)):
+            for name, kind in keys.items():
+                value = getattr(self, part).config.get(name)
+                if type(value) is not kind or not 1 <= value <= MAX_SIZE:
+                    raise KeyProblem(f"{part}.config.{name}", "missing or not a positive "
+                                     f"integer (at most {MAX_SIZE})")
         if self.vq.config["feature_dim"] != self.feature_dim:
             raise KeyProblem("vq.config.feature_dim", f"{self.vq.config['feature_dim']}, the "
                               f"feature layout (motion.features) has {self.feature_dim}")
@@ -363,6 +365,33 @@ class Manifest:
 
 
 CONFIG_KEYS = dict(feature_dim=int, levels=int, codebook_size=int, down_factor=int)  # of vq.config
+T2M_CONFIG_KEYS = dict(text_dim=int, max_relative_distance=int)  # of t2m.config
+MAX_SIZE = 2**20  # any size of the manifest: larger ones are a damaged or hostile manifest
+MAX_FPS = 1000.0
+MAX_GENERATE_SECONDS = 600.0  # of motion in one generate or play call; streams have no limit
+MAX_DECODER_CONTEXT = 1024  # token steps back or ahead the decoder may need
+
+
+def io_types(manifest: Manifest, graph: Graph) -> tuple[list[tuple[str, int | None]], ...]:
+    """What the runtime feeds `graph` (one of the manifest's) and reads from it: for each input
+    and output, its ONNX element type and the size of its last axis where the manifest fixes
+    it (None: any). A graph that differs would crash or mislead the runtime far from here."""
+    text_dim, levels = manifest.t2m.config["text_dim"], manifest.vq.levels
+    floats = [("tensor(float)", None)] * max(len(graph.inputs), len(graph.outputs))
+    trained = manifest.text.trained
+    if graph is manifest.text.encoder or (trained is not None and graph is trained.encoder):
+        return ([("tensor(int64)", None)] * len(graph.inputs),
+                [("tensor(float)", text_dim)] + floats[:len(graph.outputs) - 1])
+    if graph is manifest.vq.encoder:
+        return [("tensor(float)", manifest.feature_dim)], [("tensor(int64)", levels)]
+    if graph is manifest.vq.decoder:
+        return [("tensor(int64)", levels)], [("tensor(float)", manifest.feature_dim)]
+    level = next(k for k, g in enumerate(manifest.t2m.levels) if g is graph)
+    classes = manifest.vq.codebook_size + (1 if level == 0 else 0)  # level 0: and the end
+    inputs = [("tensor(float)", text_dim), ("tensor(bool)", None), ("tensor(int64)", levels),
+              ("tensor(int64)", None), ("tensor(int64)", None)]
+    return (inputs[:len(graph.inputs)] + floats[:max(0, len(graph.inputs) - len(inputs))],
+            [("tensor(float)", classes)] + floats[:len(graph.outputs) - 1])
 
 
 def _check_ranges(manifest: Manifest) -> None:
@@ -373,17 +402,23 @@ def _check_ranges(manifest: Manifest) -> None:
             Sampling.from_defaults({name: value})
         except (TypeError, ValueError) as error:  # Sampling refuses text or bool as a number
             raise KeyProblem(f"defaults.{name}", str(error)) from None
-    positive = {"motion.fps": manifest.fps, "defaults.max_seconds": d.max_seconds,
-                "text.max_length": manifest.text.max_length,
-                "defaults.window": 1 if d.window is None else d.window}
+    positive = {"motion.fps": (manifest.fps, MAX_FPS),
+                "defaults.max_seconds": (d.max_seconds, MAX_GENERATE_SECONDS),
+                "text.max_length": (manifest.text.max_length, MAX_SIZE),
+                "defaults.window": (1 if d.window is None else d.window, MAX_SIZE)}
     at_least_zero = {"vq.decoder.left_context": manifest.vq.decoder.left_context,
                      "vq.decoder.lookahead": manifest.vq.decoder.lookahead}
-    for path, value in positive.items():
+    for path, (value, most) in positive.items():
         if not value > 0:
             raise KeyProblem(path, f"{value!r}, must be > 0")
+        if value > most:
+            raise KeyProblem(path, f"{value!r}, must be at most {most:g}")
     for path, value in at_least_zero.items():
         if value < 0:
             raise KeyProblem(path, f"{value!r}, must be >= 0")
+        if value > MAX_DECODER_CONTEXT:
+            raise KeyProblem(path, f"{value!r} token steps, must be at most "
+                             f"{MAX_DECODER_CONTEXT}")
 
 
 def _check_text(text: Text) -> None:

@@ -12,15 +12,15 @@ captions' prompt embeddings, a prompt the trained encoder cannot read is played 
 """
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 
 import numpy as np
 
+from mogo.motion import untrusted
 from mogo.align_words import (NUMBERS, SEQUENCE, TENS, WORD_SYNONYMS, caption_phrases,
                               spoken_number, spoken_numbers)
-from mogo.bundle import Bundle, BundleError
+from mogo.bundle import Bundle, BundleError, read_array
 from mogo.manifest import Repertoire
 
 # How many steps, which side, which way and how many times: a prompt says these in the
@@ -81,16 +81,18 @@ class KnownCaptions:
 
     def __init__(self, bundle: Bundle, repertoire: Repertoire):
         self.threshold = repertoire.threshold
-        path = bundle.path(repertoire.embeddings)
+        path, captions = bundle.path(repertoire.embeddings), bundle.path(repertoire.captions)
         try:
-            self.embeddings = np.load(path, allow_pickle=False).astype(np.float32)
-            self.captions = json.loads(bundle.path(repertoire.captions).read_text("utf-8"))
-            self.prompts = None if repertoire.prompts is None else np.load(
-                bundle.path(repertoire.prompts), allow_pickle=False).astype(np.float32)
-        except (OSError, ValueError) as error:
-            raise BundleError(f"{path}: not a repertoire: {error}") from None
-        if (self.embeddings.ndim != 2 or not isinstance(self.captions, list)
-                or len(self.captions) != len(self.embeddings)):
+            self.captions = untrusted.read_json(captions, "repertoire's captions")
+        except ValueError as error:
+            raise BundleError(str(error)) from None
+        self.embeddings = read_array(path)
+        self.prompts = None if repertoire.prompts is None else read_array(
+            bundle.path(repertoire.prompts))
+        if not isinstance(self.captions, list) or not all(
+                isinstance(caption, str) for caption in self.captions):
+            raise BundleError(f"{captions}: not a list of captions (strings)")
+        if self.embeddings.ndim != 2 or len(self.captions) != len(self.embeddings):
             raise BundleError(f"{path}: {self.embeddings.shape} embeddings for "
                               f"{len(self.captions)} captions")
         if self.prompts is not None and (self.prompts.ndim != 2

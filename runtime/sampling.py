@@ -31,6 +31,8 @@ from numbers import Integral, Real
 
 import numpy as np
 
+from mogo.arguments import number_text
+
 MIN_TEMPERATURE = 1e-6  # below it (but above 0) logits / temperature can overflow float64
 MAX_GUIDANCE = 1e6  # beyond it uncond + s * (cond - uncond) can
 
@@ -72,7 +74,7 @@ class Sampling:
             raise SamplingError("temperature", f"must be 0 (greedy) or at least "
                                                f"{MIN_TEMPERATURE:g}, got {self.temperature:g}")
         if self.top_k < 0:
-            raise SamplingError("top_k", f"must be >= 0 (0 = off), got {self.top_k}")
+            raise SamplingError("top_k", f"must be >= 0 (0 = off), got {number_text(self.top_k)}")
         if not 0 < self.top_p <= 1:
             raise SamplingError("top_p", f"must be in (0, 1] (1 = off), got {self.top_p}")
         if abs(self.guidance) > MAX_GUIDANCE:

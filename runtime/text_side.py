@@ -20,8 +20,10 @@ from tokenizers import Tokenizer
 
 from mogo._session import NamedGraph
 from mogo.align_words import spoken_numbers
-from mogo.arguments import UnfamiliarPromptWarning, checked_prompt, read_prompt, word_reading
+from mogo.arguments import (UnfamiliarPromptWarning, checked_prompt, read_prompt, short,
+                            word_reading)
 from mogo.bundle import Bundle, BundleError
+from mogo.motion.untrusted import parse_json, read_text
 from mogo.repertoire import Familiarity, KnownCaptions
 
 ENCODED_PROMPTS = 256  # prompts whose text-graph outputs are kept
@@ -106,12 +108,42 @@ class _Encoded(NamedTuple):
 def _run(graph: NamedGraph, encoding) -> list[np.ndarray]:
     """Every output of a text graph for one encoded prompt."""
     ids, mask = (np.array([v], np.int64) for v in (encoding.ids, encoding.attention_mask))
-    return graph.session.run(graph.outputs, dict(zip(graph.inputs, (ids, mask))))
+    return graph.run_all(ids, mask)
+
+
+def check_text_files(bundle: Bundle) -> None:
+    """The tokenizers and the repertoire a TextSide reads, read and checked without opening
+    its graphs (what `mogo info` verifies beside the graphs)."""
+    text = bundle.manifest.text
+    _tokenizer(bundle.path(text.tokenizer))
+    if text.trained is not None:
+        _tokenizer(bundle.path(text.trained.tokenizer))
+    if text.repertoire is not None:
+        KnownCaptions(bundle, text.repertoire)
 
 
 def _tokenizer(path: Path) -> Tokenizer:
+    """A bundle's tokenizer; BundleError for one that is not, or that holds a regular
+    expression: a pattern such as (.+)+\\d takes exponential time on a long prompt, and the
+    tokenizers `mogo export` writes (WordPiece, BERT's pre-tokenizer) use none."""
     try:
-        return Tokenizer.from_file(str(path))
+        text = read_text(path, "tokenizer")
+        document = parse_json(text, str(path))
+    except ValueError as error:
+        raise BundleError(str(error)) from None
+    pending = [document]
+    while pending:
+        value = pending.pop()
+        if isinstance(value, dict):
+            if "Regex" in value:
+                raise BundleError(f"{path}: a tokenizer with a regular expression "
+                                  f"({short(str(value['Regex']))}), which may take exponential "
+                                  "time on a prompt; bundles' tokenizers use none")
+            pending.extend(value.values())
+        elif isinstance(value, list):
+            pending.extend(value)
+    try:
+        return Tokenizer.from_str(text)
     except Exception as error:  # tokenizers raises a bare Exception
         cause = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise BundleError(f"{path}: not a tokenizer file: {cause}") from None

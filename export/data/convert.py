@@ -14,10 +14,12 @@ import numpy as np
 from mogo.export.data.normalization import feature_statistics
 from mogo.motion.deepmimic import is_deepmimic
 from mogo.motion.features import joints_to_features
-from mogo.motion.mocap import BODY_LENGTH_RANGE, UNITS, body_length, read_mocap, resample
+from mogo.motion.mocap import (BODY_LENGTH_RANGE, UNITS, body_length, check_coordinates,
+                               check_length, read_mocap, resample)
 from mogo.motion.rigs import Source
 from mogo.motion.skeleton import SKELETONS, SMPL_22, Skeleton
 from mogo.progress import Progress
+from mogo.motion.untrusted import read_npy
 
 SPLIT_FRACTIONS = (("train", 0.80), ("val", 0.05), ("test", 0.15))
 
@@ -50,6 +52,7 @@ class ClipReader:
         if path.suffix.lower() == ".npy":
             joints = read_clip(path, self.skeleton)
             fps, description = self.source_fps or self.skeleton.fps, None
+            check_length(path, len(joints), fps)
         else:
             if self.skeleton is not SMPL_22:
                 raise ValueError(f"{path}: motion capture converts onto the humanml3d "
@@ -155,22 +158,10 @@ def _convert_clip(path: Path, out_dir: Path, reader: ClipReader) -> None:
         shutil.copyfile(caption, out_dir / "texts" / f"{path.stem}.txt")
 
 
-MAX_COORDINATE = 1e4  # metres; beyond, float32 features lose the millimetre
-
-
 def read_clip(path: Path, skeleton: Skeleton) -> np.ndarray:
     """A clip file's joints (T, J, 3) float64, or ValueError naming the file: not a .npy array,
     the wrong shape, not finite numbers, or not in metres (judged by the body's size)."""
-    try:
-        with path.open("rb") as handle:
-            is_npy = handle.read(len(np.lib.format.MAGIC_PREFIX)) == np.lib.format.MAGIC_PREFIX
-        joints = np.load(path, allow_pickle=False) if is_npy else None
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read it ({error.strerror or error})") from None
-    except (ValueError, EOFError) as error:
-        raise ValueError(f"{path}: not a plain .npy array ({error})") from None
-    if joints is None:
-        raise ValueError(f"{path}: not a .npy array file")
+    joints = read_npy(path)  # its size checked against the file's before reading
     if not (np.issubdtype(joints.dtype, np.floating) or np.issubdtype(joints.dtype, np.integer)):
         raise ValueError(f"{path}: holds {joints.dtype} values, expected joint positions "
                          "(numbers)")
@@ -186,11 +177,7 @@ def read_clip(path: Path, skeleton: Skeleton) -> np.ndarray:
 
 
 def _check_joints(path: Path, joints: np.ndarray, skeleton: Skeleton) -> None:
-    if not np.all(np.isfinite(joints)):
-        raise ValueError(f"{path}: holds NaN or infinite coordinates")
-    if np.abs(joints).max() > MAX_COORDINATE:
-        raise ValueError(f"{path}: coordinates up to {np.abs(joints).max():.3g}; joints are "
-                         f"metres, within {MAX_COORDINATE:g} m of the origin")
+    check_coordinates(path, joints)
     _check_metres(path, joints, skeleton)
 
 

@@ -15,7 +15,10 @@ triple past X = 90 degrees), so a spin or a somersault interpolates cleanly.
 """
 from __future__ import annotations
 
+import math
 import os
+import reprlib
+from numbers import Real
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +29,7 @@ from mogo.motion.skeleton import SMPL_22, Skeleton
 EULER_ORDER = "ZXY"  # channel order in the file: R = Rz @ Rx @ Ry
 _GIMBAL = 1e-6
 UNITS = {"m": 1.0, "cm": 100.0}  # the file's length unit -> its scale from metres
+MAX_SCALE = 1e4  # beyond, a person's offsets lose their precision in the file's digits
 # Joint names in the file: each SMPL_22 joint named for the bone it moves (Mixamo/Unity), or
 # its SMPL name. The first is the default.
 NAMINGS = {
@@ -42,8 +46,7 @@ def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fp
     UNITS); `bone_translations`: position channels on every joint too (see the module doc);
     `naming`: a key of NAMINGS."""
     joints = rig.checked_joints(joints, skeleton, fps)
-    if scale <= 0:
-        raise ValueError(f"scale must be positive, got {scale}")
+    check_options(scale, bone_translations, naming)
     names = joint_names(naming)
     offsets = rig.rest_offsets(skeleton)
     world = rig.world_rotations(joints, skeleton, offsets)
@@ -68,10 +71,24 @@ def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fp
     Path(path).write_text("\n".join(lines) + "\n")
 
 
-def joint_names(naming: str) -> tuple[str, ...]:
+def check_options(scale: object, bone_translations: object, naming: object) -> None:
+    """save_bvh's options, each a TypeError or ValueError naming it (Motion.save_take checks
+    them before any file is written)."""
+    if isinstance(scale, bool) or not isinstance(scale, Real):
+        raise TypeError(f"scale must be a number, got {type(scale).__name__}")
+    if not (math.isfinite(scale) and 0 < scale <= MAX_SCALE):
+        raise ValueError(f"scale must be a positive number up to {MAX_SCALE:g}, got {scale!r}")
+    if not isinstance(bone_translations, (bool, np.bool_)):
+        raise TypeError(f"bone_translations must be True or False, got "
+                        f"{type(bone_translations).__name__}")
+    joint_names(naming)
+
+
+def joint_names(naming: object) -> tuple[str, ...]:
     """The joint names of a naming (a key of NAMINGS), or a ValueError naming the choices."""
-    if naming not in NAMINGS:
-        raise ValueError(f"naming must be one of {', '.join(NAMINGS)}, got {naming!r}")
+    if not isinstance(naming, str) or naming not in NAMINGS:
+        raise ValueError(f"naming must be one of {', '.join(NAMINGS)}, got "
+                         f"{reprlib.repr(naming)}")
     return NAMINGS[naming]
 
 

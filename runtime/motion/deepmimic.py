@@ -22,13 +22,14 @@ No wrist, head or toe rotation exists in the file: those points move rigidly wit
 """
 from __future__ import annotations
 
-import json
+import math
 from pathlib import Path
 
 import numpy as np
 
 from mogo.motion.quaternion import qnormalize, qto_matrix
 from mogo.motion.skeleton import SMPL_22
+from mogo.motion.untrusted import parse_json
 
 VALUES_PER_FRAME = 44
 # the humanoid's joints: parent and offset in the parent's frame (metres), parents first
@@ -74,14 +75,15 @@ def read_deepmimic(text: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Joints (T, 22, 3) in metres, Y up, and the times (T,) of the frames of a DeepMimic
     file's text (not always evenly spaced: frames last as long as their first number says);
     ValueError, one line naming the file, for what is not such a file."""
-    try:
-        frames = np.array(json.loads(text)["Frames"], dtype=np.float64)
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
-        raise ValueError(f"{path}: not a DeepMimic motion file ({type(error).__name__}: "
-                         f"{error})") from None
-    if frames.ndim != 2 or frames.shape[1] != VALUES_PER_FRAME or len(frames) < 2:
-        raise ValueError(f"{path}: DeepMimic frames must be at least 2 rows of "
-                         f"{VALUES_PER_FRAME} numbers (humanoid3d), got shape {frames.shape}")
+    document = parse_json(text, str(path))
+    rows = document.get("Frames") if isinstance(document, dict) else None
+    if not isinstance(rows, list) or len(rows) < 2 or not all(
+            isinstance(row, list) and len(row) == VALUES_PER_FRAME and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+            for row in rows):
+        raise ValueError(f"{path}: not a DeepMimic motion file: \"Frames\" must be a list of at "
+                         f"least 2 rows of {VALUES_PER_FRAME} numbers (humanoid3d)")
+    frames = np.array([[_finite_or_inf(v) for v in row] for row in rows], dtype=np.float64)
     if not np.all(np.isfinite(frames)):
         raise ValueError(f"{path}: holds NaN or infinite values")
     durations = frames[:-1, 0]  # the last frame's duration is often 0: nothing follows it
@@ -93,6 +95,14 @@ def read_deepmimic(text: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
         part, offset = _POINTS.get(name, (name, (0, 0, 0)))
         joints[:, k] = positions[part] + rotations[part] @ np.array(offset, dtype=np.float64)
     return joints, np.concatenate([[0.0], np.cumsum(durations)])
+
+
+def _finite_or_inf(value: int | float) -> float:
+    """A JSON number as a float; an integer too large for one as infinity (refused)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
 
 
 def _forward_kinematics(frames: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:

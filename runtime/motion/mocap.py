@@ -6,6 +6,10 @@ What a BVH does not state is detected from its rest pose (the hierarchy's offset
 pose in every rig) and said in MocapClip.description: the length unit, from the body's size
 (ankle to head along the bones, about 1.5 m for an adult), and the up axis, the one the head is
 farthest along from the ankles. DeepMimic files: mogo.motion.deepmimic.
+
+Files may be hostile (docs/security.md): every size is bounded before anything is allocated
+(MAX_SECONDS of motion, MAX_FRAMES frames, mogo.motion.untrusted's limit on a file's bytes),
+and each problem is one ValueError line naming the file.
 """
 from __future__ import annotations
 
@@ -16,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mogo.motion import untrusted
 from mogo.motion import rigs
 from mogo.motion.deepmimic import is_deepmimic, read_deepmimic
 from mogo.motion.skeleton import SMPL_22, Skeleton
@@ -27,6 +32,11 @@ UNITS = (("metres", 1.0), ("centimetres", 100.0), ("millimetres", 1000.0),
          ("inches", 1 / 0.0254), ("feet", 1 / 0.3048),
          ("CMU units (1/0.45 inch)", 0.45 / 0.0254))  # the CMU database's BVH conversions
 _AXES = ("X", "Y", "Z")
+MAX_SECONDS = 3600.0  # of motion in a clip read in
+MAX_FRAMES = 500_000  # in a clip file, and after resampling (about an hour at 120 fps)
+MIN_FRAME_TIME = 1e-4  # seconds: 10,000 fps
+MAX_COORDINATE = 1e4  # metres; beyond, float32 features lose the millimetre
+_CHANNEL_NAMES = {f"{axis}{kind}" for axis in _AXES for kind in ("position", "rotation")}
 
 
 @dataclass(frozen=True)
@@ -55,30 +65,54 @@ def read_mocap(path: str | os.PathLike, mapping: dict[str, rigs.Source] | None =
     map (mogo.motion.rigs.read_mapping) for BVH joint names no built-in map knows.
     ValueError, one line naming the file, for what cannot be read or mapped."""
     path = Path(path)
-    text = _text(path)
-    if is_deepmimic(text):
-        joints, times = read_deepmimic(text, path)
-        steps = np.diff(times)
-        fps = 1.0 / float(np.median(steps))
-        rate = f"{fps:.4g} fps"
-        if np.ptp(steps) > 0.01 * steps.min():  # keyframes unevenly spaced: evened out
-            joints = _interpolate(joints, times, np.arange(0.0, times[-1] + 1e-9, 1.0 / fps))
-            rate = f"uneven frame times ({steps.min():.4g} to {steps.max():.4g} s), {rate}"
-        return MocapClip(joints, fps, f"DeepMimic humanoid, metres, Y up, {rate}")
-    clip = _parse_bvh(text, path)
-    naming, sources = rigs.resolve(clip.names, mapping, str(path))
-    rest = _points(_rest_positions(clip)[None], sources)[0]
-    unit, factor = _unit(rest, path)
-    up, turn = _up_axis(rest)
-    joints = _points(clip.positions, sources) @ turn.T / factor
-    return MocapClip(joints, clip.fps, f"BVH, {naming} naming, {unit}, {up} up, "
-                                       f"{clip.fps:.4g} fps")
+    text = untrusted.read_text(path, "motion-capture file")
+    with np.errstate(all="ignore"):  # huge values: refused below as not finite, not warned
+        if is_deepmimic(text):
+            joints, times = read_deepmimic(text, path)
+            steps = np.diff(times)
+            fps = 1.0 / float(np.median(steps))
+            rate = f"{fps:.4g} fps"
+            check_length(path, int(times[-1] * fps) + 1, fps)
+            if np.ptp(steps) > 0.01 * steps.min():  # keyframes unevenly spaced: evened out
+                joints = _interpolate(joints, times, np.arange(0.0, times[-1] + 1e-9, 1.0 / fps))
+                rate = f"uneven frame times ({steps.min():.4g} to {steps.max():.4g} s), {rate}"
+            clip = MocapClip(joints, fps, f"DeepMimic humanoid, metres, Y up, {rate}")
+        else:
+            bvh = _parse_bvh(text, path)
+            naming, sources = rigs.resolve(bvh.names, mapping, str(path))
+            rest = _points(_rest_positions(bvh)[None], sources)[0]
+            unit, factor = _unit(rest, path)
+            up, turn = _up_axis(rest)
+            clip = MocapClip(_points(bvh.positions, sources) @ turn.T / factor, bvh.fps,
+                             f"BVH, {naming} naming, {unit}, {up} up, {bvh.fps:.4g} fps")
+    check_coordinates(path, clip.joints)
+    return clip
+
+
+def check_coordinates(path: str | os.PathLike, joints: np.ndarray) -> None:
+    """A ValueError naming the file unless joints (metres) are finite and within
+    MAX_COORDINATE of the origin."""
+    if not np.all(np.isfinite(joints)):
+        raise ValueError(f"{path}: holds NaN or infinite coordinates (numbers too large, or a "
+                         "rotation of all zeros)")
+    if np.abs(joints).max() > MAX_COORDINATE:
+        raise ValueError(f"{path}: coordinates up to {np.abs(joints).max():.3g}; joints are "
+                         f"metres, within {MAX_COORDINATE:g} m of the origin")
+
+
+def check_length(path: str | os.PathLike, frames: int, fps: float) -> None:
+    """A ValueError naming the file where a clip of `frames` at `fps` is longer than
+    MAX_SECONDS or MAX_FRAMES, or would be at 20 fps: checked before its arrays are made."""
+    seconds = frames / fps
+    if frames > MAX_FRAMES or seconds > MAX_SECONDS or seconds * SMPL_22.fps > MAX_FRAMES:
+        raise ValueError(f"{path}: {frames} frames at {fps:.4g} fps ({seconds:.4g} s); clips "
+                         f"read in are at most {MAX_SECONDS:g} s and {MAX_FRAMES} frames")
 
 
 def read_bvh(path: str | os.PathLike) -> BvhClip:
     """Read a BVH (any channel order) and run forward kinematics: joint positions per frame."""
     path = Path(path)
-    return _parse_bvh(_text(path), path)
+    return _parse_bvh(untrusted.read_text(path, "BVH file"), path)
 
 
 def body_length(joints: np.ndarray, skeleton: Skeleton = SMPL_22) -> float:
@@ -109,13 +143,6 @@ def _interpolate(joints: np.ndarray, source_times: np.ndarray, times: np.ndarray
     flat = joints.reshape(joints.shape[0], -1)
     columns = [np.interp(times, source_times, flat[:, k]) for k in range(flat.shape[1])]
     return np.stack(columns, axis=-1).reshape((len(times),) + joints.shape[1:])
-
-
-def _text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8", errors="replace")
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read it ({error.strerror or error})") from None
 
 
 def _points(positions: np.ndarray, sources: list[tuple[int, int, float]]) -> np.ndarray:
@@ -172,62 +199,124 @@ def _parse_bvh(text: str, path: Path) -> BvhClip:
     try:
         names, parents, offsets, channels, i = _hierarchy(tokens)
         if tokens[i:i + 2] != ["MOTION", "Frames:"] or tokens[i + 3:i + 5] != ["Frame", "Time:"]:
-            raise ValueError("no MOTION section with Frames: and Frame Time:")
-        frames, frame_time = int(tokens[i + 2]), float(tokens[i + 5])
-        values = np.array(tokens[i + 6:], dtype=np.float64)
-    except (IndexError, ValueError) as error:  # list.index's ValueError: a missing brace
-        reason = str(error) if isinstance(error, ValueError) else "the file ends too early"
-        raise ValueError(f"{path}: not a readable BVH ({reason})") from None
-    width = sum(len(c) for c in channels)
-    if frames < 1 or values.size != frames * width:
-        raise ValueError(f"{path}: {values.size} motion values, expected {frames} frames x "
-                         f"{width} channels")
-    if not (frame_time > 0 and np.all(np.isfinite(values))):
-        raise ValueError(f"{path}: the frame time must be positive and the values finite")
+            raise _Unreadable("no MOTION section with Frames: and Frame Time:")
+        frames, frame_time = _count(tokens[i + 2], "Frames:"), _number(tokens[i + 5])
+        width = sum(len(c) for c in channels)
+        if width == 0:
+            raise _Unreadable("no joint has CHANNELS")
+        if not frame_time >= MIN_FRAME_TIME:
+            raise _Unreadable(f"Frame Time: must be at least {MIN_FRAME_TIME:g} s, got "
+                              f"{tokens[i + 5][:20]}")
+        check_length(path, frames, 1.0 / frame_time)
+        if frames < 1 or len(tokens) - (i + 6) != frames * width:
+            raise ValueError(f"{path}: {len(tokens) - (i + 6)} motion values, expected "
+                             f"{frames} frames x {width} channels")
+        try:
+            values = np.array(tokens[i + 6:], dtype=np.float64)
+        except ValueError:
+            values = np.array([_number(value) for value in tokens[i + 6:]])  # names the word
+        if not np.all(np.isfinite(values)):
+            raise _Unreadable("the motion values must be finite numbers")
+    except IndexError:
+        raise ValueError(f"{path}: not a readable BVH (the file ends too early)") from None
+    except _Unreadable as error:
+        raise ValueError(f"{path}: not a readable BVH ({error})") from None
     positions = _forward_kinematics(values.reshape(frames, width), parents,
                                     np.array(offsets), channels)
     return BvhClip(tuple(names), tuple(parents), np.array(offsets), positions, 1.0 / frame_time)
 
 
+class _Unreadable(Exception):
+    """What makes a BVH unreadable, said in a few words (the reader adds the file)."""
+
+
 def _hierarchy(tokens: list[str]):
     """Names, parents, offsets, channels per joint, and the index of "MOTION"."""
     names, parents, offsets, channels = [], [], [], []
-    stack: list[int] = []
-    i, end_site = 1, False
+    stack: list[int] = []  # the joint of each open brace, _END_SITE for an End Site's
+    i = 1
     while tokens[i] != "MOTION":
         word = tokens[i]
+        inside = stack[-1] if stack else None
         if word in ("ROOT", "JOINT"):  # a name may hold spaces ("Bip01 L Thigh"): up to {
-            brace = tokens.index("{", i + 1)
+            if inside == _END_SITE or (word == "JOINT") != (inside is not None):
+                raise _Unreadable(f"{word} {tokens[i + 1]} "
+                                  + ("inside an End Site" if inside == _END_SITE else
+                                     "outside any joint" if word == "JOINT" else
+                                     "inside a joint"))
+            brace = i + 1
+            while tokens[brace] not in ("{", "}", "MOTION"):
+                brace += 1
+            if tokens[brace] != "{" or brace == i + 1:
+                raise _Unreadable(f"{word} without a name and a '{{'")
             names.append(" ".join(tokens[i + 1:brace]))
-            parents.append(stack[-1] if stack else -1)
+            parents.append(-1 if inside is None else inside)
             offsets.append([0.0, 0.0, 0.0])
             channels.append([])
-            i = brace
+            stack.append(len(names) - 1)
+            i = brace + 1
         elif word == "End":
-            end_site, i = True, i + 2
-        elif word == "{":
-            stack.append(-2 if end_site else len(names) - 1)
-            i += 1
+            if inside in (None, _END_SITE) or tokens[i + 1:i + 3] != ["Site", "{"]:
+                raise _Unreadable("an End Site outside a joint or without its '{'")
+            stack.append(_END_SITE)
+            i += 3
         elif word == "}":
-            end_site = False
+            if not stack:
+                raise _Unreadable("a '}' closes no joint")
             stack.pop()
             i += 1
         elif word == "OFFSET":
-            if stack[-1] != -2:
-                offsets[-1] = [float(v) for v in tokens[i + 1:i + 4]]
+            if inside is None:
+                raise _Unreadable("an OFFSET outside any joint")
+            offset = [_number(v) for v in tokens[i + 1:i + 4]]
+            if len(offset) != 3:
+                raise IndexError
+            if inside != _END_SITE:
+                offsets[inside] = offset
             i += 4
         elif word == "CHANNELS":
-            count = int(tokens[i + 1])
-            channels[stack[-1]] = tokens[i + 2:i + 2 + count]
-            if any(c[1:] not in ("position", "rotation") or c[0] not in "XYZ"
-                   for c in channels[stack[-1]]):
-                raise ValueError(f"unknown channel in {' '.join(channels[stack[-1]])}")
+            if inside in (None, _END_SITE):
+                raise _Unreadable("CHANNELS in an End Site" if inside == _END_SITE else
+                                  "CHANNELS outside any joint")
+            if channels[inside]:
+                raise _Unreadable(f"two CHANNELS lines in joint {names[inside]}")
+            count = _count(tokens[i + 1], "CHANNELS")
+            joint_channels = tokens[i + 2:i + 2 + count]
+            if not 1 <= count <= len(_CHANNEL_NAMES) or len(set(joint_channels)) != count:
+                raise _Unreadable(f"CHANNELS {count} in joint {names[inside]}: from 1 to "
+                                  f"{len(_CHANNEL_NAMES)} different channels")
+            if not set(joint_channels) <= _CHANNEL_NAMES:
+                raise _Unreadable(f"unknown channel in {' '.join(joint_channels)}")
+            channels[inside] = joint_channels
             i += 2 + count
         else:
-            raise ValueError(f"unexpected word {word!r} in the hierarchy")
+            raise _Unreadable(f"unexpected word {word[:40]!r} in the hierarchy")
     if not names:
-        raise ValueError("no joints")
+        raise _Unreadable("no joints")
+    if stack:
+        raise _Unreadable("a joint's '{' is never closed")
     return names, parents, offsets, channels, i
+
+
+_END_SITE = -2
+
+
+def _count(token: str, what: str) -> int:
+    """A count of the file (`what`: its keyword): digits only, so never Python's own limit."""
+    if not token.isascii() or not token.isdigit() or len(token) > 12:
+        raise _Unreadable(f"{what} must be followed by a count, got {token[:20]!r}")
+    return int(token)
+
+
+def _number(token: str) -> float:
+    """A finite number of the file."""
+    try:
+        value = float(token)
+    except ValueError:
+        raise _Unreadable(f"{token[:20]!r} is not a number") from None
+    if not math.isfinite(value):
+        raise _Unreadable(f"{token[:20]!r}: values must be finite numbers")
+    return value
 
 
 def _forward_kinematics(values: np.ndarray, parents: list[int], offsets: np.ndarray,

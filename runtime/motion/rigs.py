@@ -9,12 +9,13 @@ two of its joints: [a, b, f] is a + f (b - a).
 """
 from __future__ import annotations
 
-import json
 import os
 import re
+import reprlib
 from pathlib import Path
 
 from mogo.motion.skeleton import SMPL_22
+from mogo.motion.untrusted import read_json
 
 Source = str | tuple[str, str, float]  # a joint's name, or a point between two joints
 
@@ -99,17 +100,17 @@ def _lookup(table: dict[str, Source], index: dict[str, int]
     return found, missing
 
 
+def _fraction(value: object) -> bool:
+    """Whether a mapping file's value is a fraction along a segment (a finite number)."""
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and -1e6 <= value <= 1e6)
+
+
 def read_mapping(path: str | os.PathLike) -> dict[str, Source]:
     """A mapping file: a JSON object from each of our 22 joint names to the rig's joint name,
     or to [a, b, f] for a point between two of its joints. ValueError naming what is wrong."""
     path = Path(path)
-    try:
-        table = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read the mapping file ({error.strerror or error})"
-                         ) from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: the mapping file is not JSON ({error})") from None
+    table = read_json(path, "mapping file")
     if not isinstance(table, dict):
         raise ValueError(f"{path}: the mapping file must be a JSON object, joint -> name")
     unknown = sorted(set(table) - set(SMPL_22.joint_names))
@@ -119,11 +120,11 @@ def read_mapping(path: str | os.PathLike) -> dict[str, Source]:
     mapping: dict[str, Source] = {}
     for ours, source in table.items():
         if isinstance(source, list) and len(source) == 3 and all(
-                isinstance(v, str) for v in source[:2]) and isinstance(source[2], (int, float)):
+                isinstance(v, str) for v in source[:2]) and _fraction(source[2]):
             mapping[ours] = (source[0], source[1], float(source[2]))
         elif isinstance(source, str):
             mapping[ours] = source
         else:
             raise ValueError(f"{path}: {ours}: expected a joint name or [name, name, fraction], "
-                             f"got {source!r}")
+                             f"got {reprlib.repr(source)}")
     return mapping

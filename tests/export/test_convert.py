@@ -69,7 +69,7 @@ def _with_glitch(value):
     (lambda p: p.write_text("hello"), "not a .npy array file"),
     (lambda p: np.savez(p.open("wb"), a=_clip()), "not a .npy array file"),
     (lambda p: (np.save(p, _clip()), p.write_bytes(p.read_bytes()[:500])),
-     "not a plain .npy array (Failed to read all data"),
+     "its header claims an array of shape (50, 22, 3) (26400 bytes), the file holds 372 bytes"),
     (lambda p: np.save(p, _clip() * 100), "from ankle to head along the bones, a person 0.5 "
                                           "to 2.5 m; in centimetres? divide by 100"),
     (lambda p: np.save(p, _clip() * 1000), "in millimetres? divide by 1000"),
@@ -206,3 +206,43 @@ def test_convert_refuses_an_unmappable_bvh_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("mogo: error: ") and "map.json: pelvis: expected a joint name" in err
     assert not (tmp_path / "o").exists()
+
+
+SLOW_CONVERT = """
+import sys, time
+from mogo.export.data import convert
+from mogo.cli import main
+
+convert_clip = convert._convert_clip
+
+def slow(*args):
+    convert_clip(*args)
+    print("converted", file=sys.stderr, flush=True)
+    time.sleep(30)
+convert._convert_clip = slow
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGHUP"])
+def test_sigterm_while_converting_leaves_no_partial_folder(tmp_path, signal_name):
+    """Old: SIGTERM left `.OUT.partial-*` behind for ever (only Ctrl-C cleaned up)."""
+    import signal
+    import subprocess
+    import sys
+
+    (tmp_path / "in").mkdir()
+    np.save(tmp_path / "in" / "a.npy", _clip())
+    script = tmp_path / "slow.py"
+    script.write_text(SLOW_CONVERT)
+    process = subprocess.Popen([sys.executable, str(script), "data", "convert", "--joints",
+                                str(tmp_path / "in"), "--out", str(tmp_path / "out")],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    while "converted" not in process.stderr.readline():
+        assert process.poll() is None, process.stderr.read()
+    assert [p.name.startswith(".out.partial-") for p in tmp_path.iterdir()].count(True) == 1
+    number = getattr(signal, signal_name)
+    process.send_signal(number)
+    _, error = process.communicate(timeout=60)
+    assert process.returncode == 128 + number and "Traceback" not in error, error
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in", "slow.py"]

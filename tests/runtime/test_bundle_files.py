@@ -28,7 +28,8 @@ def small_manifest() -> Manifest:
         text=Text(tokenizer="tokenizer.json", max_length=8, kind="SmallTextEncoder",
                   encoder=Graph("text_encoder.onnx", ("token_ids", "attention_mask"),
                                 ("prompt_embedding",))),
-        t2m=T2M(config=dict(dim=16), levels=(Graph("level_0.onnx", ("prompt",), ("logits",)),)),
+        t2m=T2M(config=dict(dim=16, text_dim=16, max_relative_distance=8),
+                levels=(Graph("level_0.onnx", ("prompt",), ("logits",)),)),
         vq=VQ(config=dict(feature_dim=263, levels=1, codebook_size=8, down_factor=1),
               encoder=Graph("vq_encoder.onnx", ("features",), ("ids",)),
               decoder=DecoderGraph("vq_decoder.onnx", ("ids",), ("features",), 2, 2)),
@@ -159,7 +160,7 @@ def test_arrays_are_checked(bundle):
         Bundle.load(bundle)
     np.save(bundle / "std.npy", np.array([object()], dtype=object), allow_pickle=True)
     write_manifest(bundle, read_manifest(bundle))
-    with pytest.raises(BundleError, match="std.npy: not a plain .npy array"):
+    with pytest.raises(BundleError, match="std.npy: holds Python objects, not numbers"):
         Bundle.load(bundle)
 
 
@@ -213,10 +214,10 @@ def test_an_unreadable_bundle_folder_is_refused_naming_it(bundle, monkeypatch, d
 
 
 def test_a_manifest_that_cannot_be_read_is_one_line_naming_it(bundle, monkeypatch):
-    """Permission denied on manifest.json; read_text stands in (root reads any file)."""
+    """Permission denied on manifest.json; _open_file stands in (root reads any file)."""
     def denied(path, *args, **kwargs):
         raise PermissionError(13, "Permission denied", str(path))
-    monkeypatch.setattr("mogo.bundle.Path.read_text", denied)
+    monkeypatch.setattr("mogo.motion.untrusted._open_file", denied)
     with pytest.raises(BundleError, match=re.escape(f"{bundle / MANIFEST}: cannot read it "
                                                     "(Permission denied)")):
         Bundle.load(bundle)
@@ -234,7 +235,8 @@ def test_a_damaged_graph_with_a_matching_sha256_is_one_line_naming_it(shipped_co
     graph = shipped_copy / "level_0.onnx"
     graph.write_bytes(graph.read_bytes()[:100_000])
     write_manifest(shipped_copy, read_manifest(shipped_copy))
-    message = f"{graph}: not a valid ONNX graph: Protobuf parsing failed."
+    message = (f"{graph}: not a valid ONNX graph: Failed to load model because protobuf "
+               "parsing failed.")
     with pytest.raises(BundleError, match=re.escape(message)):
         MotionGenerator.load(shipped_copy)
     assert main(["info", str(shipped_copy)]) == 2  # info opens the graphs it calls verified
@@ -259,7 +261,7 @@ def test_a_damaged_tokenizer_is_one_line_naming_it(shipped_copy):
     (shipped_copy / "tokenizer.json").write_text("{not a tokenizer")
     write_manifest(shipped_copy, read_manifest(shipped_copy))
     with pytest.raises(BundleError, match=re.escape(
-            f"{shipped_copy / 'tokenizer.json'}: not a tokenizer file: ")):
+            f"{shipped_copy / 'tokenizer.json'}: not valid JSON (line 1, column 2: ")):
         MotionGenerator.load(shipped_copy)
 
 
@@ -271,7 +273,9 @@ def test_info_says_what_it_checked(capsys):
 @pytest.mark.parametrize("write,message", [
     (lambda p: p.write_text("hello"), "mean.npy: not a .npy array file"),
     (lambda p: p.write_bytes(b"\xff" * 300), "mean.npy: not a .npy array file"),
-    (lambda p: p.write_bytes(p.read_bytes()[:200]), "mean.npy: not a plain .npy array (Failed"),
+    (lambda p: p.write_bytes(p.read_bytes()[:200]),
+     "mean.npy: its header claims an array of shape (263,) (1052 bytes), the file holds 72 "
+     "bytes"),
     (lambda p: np.save(p, np.full(263, "a")), "mean.npy: holds <U1 values, expected real numbers"),
     (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: contains NaN or infinite values"),
 ])
@@ -284,7 +288,7 @@ def test_a_bad_normalisation_array_is_one_line_naming_it(bundle, write, message)
 
 def test_a_manifest_nested_too_deeply_is_one_line(bundle):
     (bundle / MANIFEST).write_text("[" * 100_000 + "]" * 100_000)
-    with pytest.raises(BundleError, match="manifest.json: not a manifest \\(nested too deeply"):
+    with pytest.raises(BundleError, match="manifest.json: JSON nested too deeply"):
         Bundle.load(bundle)
 
 

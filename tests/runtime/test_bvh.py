@@ -100,7 +100,7 @@ def test_bad_input_is_refused(tmp_path):
     with pytest.raises(ValueError, match="fps"):
         save_bvh(tmp_path / "a.bvh", joints, SMPL_22, fps=0.0)
     for scale in (0.0, -0.5, -100.0):
-        with pytest.raises(ValueError, match=f"scale must be positive, got {scale}"):
+        with pytest.raises(ValueError, match=f"scale must be a positive number up to 10000, got {scale}"):
             save_bvh(tmp_path / "a.bvh", joints, SMPL_22, fps=20.0, scale=scale)
     assert not (tmp_path / "a.bvh").exists()
     (tmp_path / "b.bvh").write_text("not a bvh")

@@ -277,7 +277,7 @@ def test_a_mapping_file_maps_other_names(tmp_path):
 
 @pytest.mark.parametrize("table, message", [
     ("[1, 2]", "must be a JSON object"), ('{"pelvis": 3}', "pelvis: expected a joint name"),
-    ('{"hips": "Hips"}', "unknown joint.* hips"), ("{", "not JSON")])
+    ('{"hips": "Hips"}', "unknown joint.* hips"), ("{", "not valid JSON")])
 def test_a_bad_mapping_file_is_one_clear_error(tmp_path, table, message):
     (tmp_path / "map.json").write_text(table)
     with pytest.raises(ValueError, match=message):
