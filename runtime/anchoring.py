@@ -108,7 +108,11 @@ class Anchor:
 
     def step(self) -> np.ndarray:
         """The next token step, starting a fresh clip, re-anchoring or settling where due."""
-        row = self._tokens.step()
+        return self.after(self._tokens.step())
+
+    def after(self, row: np.ndarray | None) -> np.ndarray:
+        """`step` once the token stream has drawn `row` (None: the model ended its clip; the
+        server draws the rows of many streams in shared calls)."""
         if row is None:  # the model ended its clip (never at step 0: the row comes)
             if self.one_off:
                 self._hold()

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 import os
+import threading
+from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
@@ -42,6 +44,7 @@ DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_GENERATE_SECONDS = 600.0  # one call; streams have no limit
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
 STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
+EMBEDDINGS_KEPT = 256  # prompt embeddings kept for streams (a switch back encodes no text)
 
 
 class MotionGenerator:
@@ -71,6 +74,8 @@ class MotionGenerator:
                                               threads)
         self._vq_encoder = NamedGraph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
+        self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
+        self._embeddings_lock = threading.Lock()
 
     @classmethod
     def load(cls, bundle_dir: str | os.PathLike | None = None, threads: int = 1) -> MotionGenerator:
@@ -86,6 +91,22 @@ class MotionGenerator:
     def embed(self, texts: Sequence[str]) -> np.ndarray:
         """Prompt embeddings (B, text_dim) float32."""
         return self.text.embed(texts)
+
+    def _embedding(self, text: str) -> np.ndarray:
+        """One prompt's embedding (text_dim,), read-only, the last EMBEDDINGS_KEPT kept:
+        streams switch back and forth between few prompts, and every stream of a server
+        starts from one."""
+        with self._embeddings_lock:
+            if text in self._embeddings:
+                self._embeddings.move_to_end(text)
+                return self._embeddings[text]
+        embedding = self.embed([text])[0]
+        embedding.flags.writeable = False
+        with self._embeddings_lock:
+            self._embeddings[text] = embedding
+            if len(self._embeddings) > EMBEDDINGS_KEPT:
+                self._embeddings.popitem(last=False)
+        return embedding
 
     def vocabulary(self) -> set[str]:
         """The whole words of the tokenizer the model was trained with (what prompt alignment
@@ -297,14 +318,18 @@ class MotionStream:
 
     def __init__(self, generator: MotionGenerator, text: str, seed: int, sampling: Sampling,
                  window: int | None, plant_feet: bool = True,
-                 anchoring: Anchoring | None = None):
+                 anchoring: Anchoring | None = None, *, tokens: TokenGenerator | None = None,
+                 decoder_session: ort.InferenceSession | None = None):
+        """`tokens`, `decoder_session`: other sessions of the bundle's graphs (the server's,
+        mogo.serve.engine); None: the generator's."""
         self.generator = generator
         self.seed = seed
         self.prompts: list[tuple[int, str]] = [(0, text)]  # checked by the generator
-        embedding = generator.embed([text])[0]
-        self._tokens: TokenStream = generator.tokens.start(embedding, seed, sampling, window,
-                                                           allow_end=False)
-        self._decoder = generator.streaming_decoder()
+        self.steps = 0  # token steps drawn
+        self._lock = threading.RLock()  # set_prompt from another thread waits for a step
+        self._tokens: TokenStream = (tokens or generator.tokens).start(
+            generator._embedding(text), seed, sampling, window, allow_end=False)
+        self._decoder = generator.streaming_decoder(decoder_session)
         self._joints = JointStream(generator.skeleton)
         self._feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
         self.frames_emitted = 0
@@ -312,14 +337,15 @@ class MotionStream:
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
         self._record: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
         self.anchor = (None if anchoring is None else
-                       Anchor(anchoring, self._tokens, lambda t: generator.embed([t])[0], text))
+                       Anchor(anchoring, self._tokens, generator._embedding, text))
 
     def step(self) -> np.ndarray:
-        row = self._next_tokens()
-        frames = self._emit(row[None], self._decoder.push(row[None]))
-        if len(self._unread):
-            frames, self._unread = np.concatenate([self._unread, frames]), self._unread[:0]
-        return frames
+        with self._lock:
+            row = self._next_tokens()
+            frames = self._emit(row[None], self._decoder.push(row[None]))
+            if len(self._unread):
+                frames, self._unread = np.concatenate([self._unread, frames]), self._unread[:0]
+            return frames
 
     def frames(self, limit: int | None = None) -> Iterator[np.ndarray]:
         """Frames (J, 3) one by one, forever or `limit` of them. Frames decoded but not yet
@@ -335,29 +361,32 @@ class MotionStream:
                 yield frame
 
     def set_prompt(self, text: str) -> None:
-        """Switch the prompt from the next step on (exact: the cache is re-prefilled)."""
+        """Switch the prompt from the next step on (exact: the cache is re-prefilled). Safe
+        from another thread than the one reading frames: it waits for the step under way."""
         self._switch_prompt(self.generator._prompt(text))
 
     def _switch_prompt(self, text: str) -> None:
-        """`set_prompt` for a prompt already checked (a schedule's)."""
-        embedding = self.generator.embed([text])[0]
-        if self.anchor is None:
-            self._tokens.set_prompt(embedding)
-        else:
-            self.anchor.switch(text, embedding)
-        self.prompts.append((self.frames_emitted + self._pending_frames(), text))
+        """`set_prompt` for a prompt already checked (a schedule's, a server client's)."""
+        embedding = self.generator._embedding(text)
+        with self._lock:
+            if self.anchor is None:
+                self._tokens.set_prompt(embedding)
+            else:
+                self.anchor.switch(text, embedding)
+            self.prompts.append((self.frames_emitted + self._pending_frames(), text))
 
     def continue_from(self, motion: Motion) -> None:
         """Go on from the end of an existing clip (before the first step): its tokens become
         the past the model sees, and the decoder's left context."""
-        if self._tokens.steps:
+        if self.steps or self._tokens.steps:
             raise ValueError("continue_from must come before the first step of a stream")
         tokens = self.generator.encode_motion(motion)
-        self._tokens.continue_from(tokens)
-        if self.anchor is not None:
-            self.anchor.continued(tokens)
-        self._final(self._denormalise(self._decoder.push(tokens)))
-        self._skip = self._pending_frames()  # the clip's own last frames: not emitted again
+        with self._lock:
+            self._tokens.continue_from(tokens)
+            if self.anchor is not None:
+                self.anchor.continued(tokens)
+            self._final(self._denormalise(self._decoder.push(tokens)))
+            self._skip = self._pending_frames()  # the clip's own last frames: not again
 
     def advance(self, steps: int) -> None:
         """Draw `steps` token steps, keeping everything for `finish()`."""
@@ -373,9 +402,10 @@ class MotionStream:
         more steps, not kept, as the right context of its last frames (as `generate` does), so
         they are the frames the stream would have emitted had it gone on."""
         g = self.generator
-        context = [self._next_tokens() for _ in range(self._decoder.lookahead)]
-        features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
-        self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
+        with self._lock:
+            context = [self._next_tokens() for _ in range(self._decoder.lookahead)]
+            features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
+            self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
                  np.zeros((0, g.manifest.feature_dim), np.float32),
                  np.zeros((0, g.skeleton.num_joints, 3), np.float32))
@@ -384,7 +414,13 @@ class MotionStream:
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
 
     def _next_tokens(self) -> np.ndarray:
-        return self._tokens.step() if self.anchor is None else self.anchor.step()
+        return self._drawn(self._tokens.step())
+
+    def _drawn(self, row: np.ndarray | None) -> np.ndarray:
+        """The step's tokens, once its token stream has drawn `row` (the server draws many
+        streams' rows in shared calls): re-anchored where due."""
+        self.steps += 1
+        return row if self.anchor is None else self.anchor.after(row)
 
     def _emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False
               ) -> np.ndarray:

@@ -3,6 +3,7 @@ the model never ends a clip, continue_from on a re-anchored stream, frames read 
 import numpy as np
 import pytest
 from mogo import Anchoring, MotionGenerator
+from mogo.generator import EMBEDDINGS_KEPT
 
 
 @pytest.fixture(scope="module")
@@ -66,3 +67,17 @@ def test_a_step_after_frames_read_in_part_gives_the_unread_frames_first(generato
     got = np.concatenate(got)
     assert len(got) > len(read) + 8  # a step brought new frames after the unread ones
     np.testing.assert_array_equal(got[:60], reference[:60])
+
+
+def test_the_prompt_embedding_cache_stays_bounded_and_right():
+    generator = MotionGenerator.load()  # its own cache
+    prompts = [f"a person walks {k} steps." for k in range(EMBEDDINGS_KEPT + 20)]
+    for prompt in prompts:
+        generator._embedding(prompt)
+    assert len(generator._embeddings) == EMBEDDINGS_KEPT
+    assert prompts[0] not in generator._embeddings and prompts[-1] in generator._embeddings
+    expected = generator.embed([prompts[0], prompts[-1]])
+    np.testing.assert_array_equal(generator._embedding(prompts[0]), expected[0])  # again
+    np.testing.assert_array_equal(generator._embedding(prompts[-1]), expected[1])  # kept
+    assert len(generator._embeddings) == EMBEDDINGS_KEPT
+    assert not generator._embedding(prompts[0]).flags.writeable  # shared by streams
