@@ -36,6 +36,12 @@ class UnknownPromptWarning(PromptWarning):
     warnings.simplefilter("error", UnknownPromptWarning)); the `mogo` command refuses it."""
 
 
+class CutWarning(PromptWarning):
+    """A motion the model did not end within the bundle's longest clip (a prompt of several
+    actions, "walks, then sits down"): cut there, maybe mid-action. The `mogo` command prints
+    it as a note; ask for `seconds`, or use a stream, for longer motion."""
+
+
 def checked_prompt(text: object, name: str = "text") -> str:
     if not isinstance(text, str):
         raise TypeError(f"{name} must be a string (the prompt), got {type(text).__name__}")

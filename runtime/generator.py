@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 import threading
+import warnings
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
@@ -28,8 +29,8 @@ import onnxruntime as ort
 from mogo._session import NamedGraph, graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.anchoring import Anchor, Anchoring
-from mogo.arguments import (checked_bool, checked_int, checked_prompt, checked_schedule,
-                            checked_seconds, plural)
+from mogo.arguments import (CutWarning, checked_bool, checked_int, checked_prompt,
+                            checked_schedule, checked_seconds, plural)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.motion.features import JointStream
@@ -136,7 +137,9 @@ class MotionGenerator:
                  sampling: Sampling | None = None, align: bool | PromptAligner = False,
                  plant_feet: bool = True, **options) -> Motion:
         """One prompt -> one Motion. seconds=None lets the model end the motion (at most the
-        bundle's max_seconds); seed=None draws a fresh seed, kept in Motion.seed so the result
+        bundle's max_seconds: a CutWarning where it did not); longer than max_seconds, it is
+        the first `seconds` of `stream(text, seed=seed)`, re-anchored (the model learnt clips
+        of at most max_seconds: one clip that long drifts into other actions); seed=None draws a fresh seed, kept in Motion.seed so the result
         can be reproduced. `sampling` and the keyword `options`: see `sampling()`.
         align=True (or a PromptAligner) rewrites the prompt into caption-style steps (see
         mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment.
@@ -154,12 +157,19 @@ class MotionGenerator:
                   aligner: PromptAligner | None, plant_feet: bool) -> Motion:
         if aligner is not None:
             return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet)
-        steps = None if seconds is None else self._steps(seconds)
         max_steps = self._steps(self.defaults.max_seconds)
+        if seconds is not None and self._steps(seconds) > max_steps:
+            motion = self._play([(text, seconds)], seed, sampling, plant_feet)
+            return self._cut(motion, round(seconds * self.fps))
+        steps = None if seconds is None else self._steps(seconds)
         if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
             steps += self._decoder.lookahead
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
                                       self.defaults.window)
+        if steps is None and len(tokens) == max_steps:
+            warnings.warn(f"the model did not end the motion within "
+                          f"{self.defaults.max_seconds:g} s, its longest clip: cut there; ask "
+                          f"for seconds for longer motion", CutWarning, stacklevel=4)
         frames = None if seconds is None else round(seconds * self.fps)
         return self.decode(tokens, [(0, text)], frames, seed, plant_feet)
 
@@ -213,8 +223,9 @@ class MotionGenerator:
 
     def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
               plant_feet: bool) -> Motion:
+        """A schedule as one re-anchored stream (the stream `stream` makes), cut to length."""
         stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window,
-                              plant_feet, anchoring=None)
+                              plant_feet, Anchoring())
         for k, (prompt, seconds) in enumerate(schedule):
             if k:
                 stream._switch_prompt(prompt)
@@ -238,6 +249,14 @@ class MotionGenerator:
         if frames is not None:
             tokens = tokens[:math.ceil(frames / self.down_factor)]
         return Motion(features, joints, self.fps, tokens, self.skeleton, prompts, seed)
+
+    def _cut(self, motion: Motion, frames: int) -> Motion:
+        """The first `frames` of a stream's Motion (its last token step may give more)."""
+        if len(motion.joints) == frames:
+            return motion
+        return Motion(motion.features[:frames], motion.joints[:frames], motion.fps,
+                      motion.tokens[:math.ceil(frames / self.down_factor)], motion.skeleton,
+                      motion.prompts, motion.seed)
 
     def encode_motion(self, motion: Motion) -> np.ndarray:
         """A clip's features -> its token steps (n, L), by the bundle's VQ encoder."""
@@ -377,13 +396,16 @@ class MotionStream:
 
     def continue_from(self, motion: Motion) -> None:
         """Go on from the end of an existing clip (before the first step): its tokens become
-        the past the model sees, and the decoder's left context."""
+        the decoder's left context, and the past the model sees (re-anchored: its last step,
+        as at a switch, so that a one-off action asked for starts instead of being taken as
+        done by the clip's end)."""
         if self.steps or self._tokens.steps:
             raise ValueError("continue_from must come before the first step of a stream")
         tokens = self.generator.encode_motion(motion)
         with self._lock:
-            self._tokens.continue_from(tokens)
-            if self.anchor is not None:
+            if self.anchor is None:
+                self._tokens.continue_from(tokens)
+            else:
                 self.anchor.continued(tokens)
             self._final(self._denormalise(self._decoder.push(tokens)))
             self._skip = self._pending_frames()  # the clip's own last frames: not again
