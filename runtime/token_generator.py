@@ -211,6 +211,7 @@ class TokenStream:
         clip under the prompt."""
         g, L = self.generator, self.generator.num_levels
         self.caches = [g.empty_cache(level, len(self.uncond)) for level in range(L)]
+        self._group = None  # see _step_group
         self.positions = np.zeros(0, np.int64)  # (P,) position of every cache slot
         self.slot_tokens = np.zeros((0, L), np.int64)  # (P, L) the tokens each slot holds
         self.last = np.zeros(L, np.int64)  # tokens of the latest step (none yet: any valid id)
@@ -227,6 +228,7 @@ class TokenStream:
                                                    self.positions, none,
                                                    g.empty_cache(level, len(self.uncond))))
         self.caches = [present for _, present in outputs]
+        self._group = None
 
     def _overwrite_oldest(self, presents: list[Cache], n: int) -> None:
         """Full window: the new slot (the last of every present) replaces the oldest step slot
@@ -267,22 +269,32 @@ def _step_group(members: list[TokenStream]) -> list[np.ndarray | None]:
     g, first = members[0].generator, members[0]
     uniforms = [step_uniforms(s.rng, g.num_levels) for s in members]
     rows = np.cumsum([0] + [len(s.uncond) for s in members])
+
     def stacked(parts: list[np.ndarray]) -> np.ndarray:
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     prompt = stacked([s.prompt for s in members])
     uncond = stacked([s.uncond for s in members])
     token_ids = stacked([np.repeat(s.last[None, None], len(s.uncond), axis=0) for s in members])
-    caches = [[stacked(parts) for parts in zip(*(s.caches[level] for s in members))]
-              for level in range(g.num_levels)]
-    position = np.array([first.steps], np.int64)
+    last = first._group  # the members of the last call and its presents, which hold the caches
+    if last is not None and last[0] == members and all(s._group is last for s in members):
+        caches = last[1]  # the same streams in the same order: their caches as they lie, no copy
+    else:
+        caches = [[stacked(parts) for parts in zip(*(s.caches[level] for s in members))]
+                  for level in range(g.num_levels)]
+    position, past = np.array([first.steps], np.int64), first.positions
     outputs = g.each_level(lambda level: g.run(level, prompt, uncond, token_ids, position,
-                                               first.positions, caches[level]))
+                                               past, caches[level]))
     logits = np.full((len(uncond), g.num_levels, g.num_classes), -np.inf, np.float32)
     for level, (level_logits, _) in enumerate(outputs):
         logits[:, level, :level_logits.shape[1]] = level_logits
-    return [s._drawn(logits[a:b], [[held[a:b] for held in present] for _, present in outputs],
-                     u) for s, a, b, u in zip(members, rows[:-1], rows[1:], uniforms)]
+    drawn = [s._drawn(logits[a:b], [[held[a:b] for held in present] for _, present in outputs],
+                      u) for s, a, b, u in zip(members, rows[:-1], rows[1:], uniforms)]
+    group = (members, [present for _, present in outputs])
+    for stream, row in zip(members, drawn):  # the presents are their caches (not a full window)
+        took = row is not None and len(stream.positions) > len(past)
+        stream._group = group if took and len(members) > 1 else None
+    return drawn
 
 
 def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:

@@ -8,8 +8,10 @@ leave before they are due. A new stream catches up at once (its first frame come
 decoder's lookahead), then steps on the shared ticks with all the others. Streams whose caches
 have one layout share one call of each level graph (mogo.token_generator.step_together): a
 re-anchored cache is the prefix and the steps since its clip started, so that is streams at
-the same step of their clips. A stream takes a few extra steps (more lead, once) to join a
-larger group a little ahead. The windows due are decoded in one call
+the same step of their clips. A stream on its clock takes a step more to join a larger group
+a little ahead, or waits a tick for one behind (its lead between LEAD and LEAD +
+ALIGN_STEPS): fresh clips and holds start at the model's own times and scatter the streams
+again and again. The windows due are decoded in one call
 (mogo.stream_decoder.push_many). Not thread-safe: the server calls it from one thread.
 """
 from __future__ import annotations
@@ -30,7 +32,7 @@ from mogo.serve.rowwise import rowwise_graph
 from mogo.stream_decoder import push_many
 from mogo.token_generator import TokenGenerator, step_together
 
-ALIGN_STEPS = 24  # extra steps a stream may take to join a larger group (1.2 s more lead)
+ALIGN_STEPS = 24  # extra lead a stream may take to join a larger group (1.2 s at most)
 SHARD_FROM = 16  # due streams from which a round runs as two shards: a second call of each
 # level graph costs ~2 ms of CPU more a round, and below this one core keeps real time easily
 
@@ -114,22 +116,28 @@ class Engine:
         due = []
         for stream in self.streams.values():
             target = self.lead + stream.extra + tick - stream.start_tick
-            if stream.steps >= target and self._joins(stream, steps):
-                stream.extra += 1  # one step beyond the clock: nearer to a larger group
-                target += 1
+            if stream.steps >= target - 1:  # on its clock: it may move towards a group
+                move = self._move(stream, steps, stream.steps >= target)
+                stream.extra += move
+                target += move
             if stream.steps < target:
                 due.append(stream)
         return due
 
-    def _joins(self, stream: ServedStream, steps: Counter) -> bool:
-        """Whether a step takes `stream` towards a larger group of streams at most
-        ALIGN_STEPS ahead in their clips. Bounded: ALIGN_STEPS extra steps in a stream's life
-        (so at most that much more lead)."""
-        if stream.extra >= ALIGN_STEPS:
-            return False
+    def _move(self, stream: ServedStream, steps: Counter, idle: bool) -> int:
+        """+1: a step beyond the clock (when `idle`) towards a larger group ahead in their
+        clips; -1: a tick's wait (when due) for a larger group behind; 0: neither. The lead
+        stays between `lead` and `lead` + ALIGN_STEPS: clips restart at the model's own
+        times, so a stream moves again and again."""
         n = stream._tokens.steps
-        ahead = [(count, m) for m, count in steps.items() if n < m <= n + ALIGN_STEPS]
-        return bool(ahead) and max(ahead)[0] >= steps[n]
+        if idle:
+            room = range(n + 1, n + 1 + ALIGN_STEPS - stream.extra)
+        else:
+            room = range(n - stream.extra, n)
+        larger = [count for m, count in steps.items() if m in room]
+        if not larger or max(larger) < steps[n] + (0 if idle else 1):
+            return 0
+        return 1 if idle else -1
 
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         """One step of each stream in `due`: (stream, index of its first new frame, joints
