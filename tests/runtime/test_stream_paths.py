@@ -76,8 +76,8 @@ def test_a_one_off_after_continue_from_happens_within_two_seconds(generator, pro
 
 
 def test_a_step_after_frames_read_in_part_gives_the_unread_frames_first(generator):
-    """frames() leaves part of a burst unread; the step that decodes the next burst returns
-    the unread frames, then the new ones (feet planted: their own lookahead)."""
+    """frames() leaves part of a burst unread; the next step() returns them first, and the
+    frames go on as from a stream read by step() alone (feet planted: their own lookahead)."""
     plain = generator.stream("a person walks forward.", seed=3)
     reference = []
     while sum(map(len, reference)) < 60:
@@ -89,7 +89,7 @@ def test_a_step_after_frames_read_in_part_gives_the_unread_frames_first(generato
     while sum(map(len, got)) < 60:
         got.append(stream.step())
     got = np.concatenate(got)
-    assert len(got) > len(read) + 8  # a step brought new frames after the unread ones
+    assert len(got) > len(read) + 8  # steps brought new frames after the unread ones
     np.testing.assert_array_equal(got[:60], reference[:60])
 
 

@@ -101,6 +101,31 @@ def test_served_streams_draw_the_tokens_of_mogo_stream(generator, engine_parts, 
     assert anchors >= 2 * len(STREAMS)
 
 
+def test_step_together_gives_each_stream_its_own_tokens_in_any_group(generator, engine_parts):
+    """Streams stepped in changing company draw what each draws stepped alone: a group of
+    other members after a shared call, the same group again (its presents reused), and again
+    after one member's cache was recomputed under a new prompt."""
+    sampling = generator.sampling(None)
+    walk, wave = generator.embed(["a person walks forward.", "a person waves."])
+
+    def run(together: bool) -> list[list[np.ndarray]]:
+        a, b, c = (engine_parts.start(walk, seed, sampling, 128, allow_end=False)
+                   for seed in range(3))
+        schedule = [[a, b], [c], [a, c], [b], [a, b], [a, b], "switch", [a, b], [a, b], [c]]
+        drawn = {id(s): [] for s in (a, b, c)}
+        for group in schedule:
+            if group == "switch":
+                b.set_prompt(wave)  # same layout, its cache recomputed
+                continue
+            rows = step_together(group) if together else [s.step() for s in group]
+            for stream, row in zip(group, rows):
+                drawn[id(stream)].append(row)
+        return [np.array(rows) for rows in drawn.values()]
+
+    for alone, together in zip(run(False), run(True)):
+        assert np.array_equal(alone, together)
+
+
 def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator,
                                                                        engine_parts):
     """Past a re-anchor: the same decoding, joints and foot planting (mogo.motion.feet)."""
