@@ -139,8 +139,9 @@ class MotionGenerator:
         """One prompt -> one Motion. seconds=None lets the model end the motion (at most the
         bundle's max_seconds: a CutWarning where it did not); longer than max_seconds, it is
         the first `seconds` of `stream(text, seed=seed)`, re-anchored (the model learnt clips
-        of at most max_seconds: one clip that long drifts into other actions); seed=None draws a fresh seed, kept in Motion.seed so the result
-        can be reproduced. `sampling` and the keyword `options`: see `sampling()`.
+        of at most max_seconds: one clip that long drifts into other actions); seed=None
+        draws a fresh seed, kept in Motion.seed so the result can be reproduced. `sampling`
+        and the keyword `options`: see `sampling()`.
         align=True (or a PromptAligner) rewrites the prompt into caption-style steps (see
         mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment.
         plant_feet=False keeps the joints as decoded (see mogo.motion.feet); the same for
@@ -223,7 +224,8 @@ class MotionGenerator:
 
     def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
               plant_feet: bool) -> Motion:
-        """A schedule as one re-anchored stream (the stream `stream` makes), cut to length."""
+        """A schedule as one re-anchored stream (the stream `stream` makes), a switch per
+        entry."""
         stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window,
                               plant_feet, Anchoring())
         for k, (prompt, seconds) in enumerate(schedule):
