@@ -103,12 +103,19 @@ class Anchor:
             self._reanchor(self.anchoring.switch_keep)
 
     def continued(self, tokens: np.ndarray) -> None:
-        """The stream goes on from these steps (MotionStream.continue_from)."""
+        """The stream goes on from these steps (MotionStream.continue_from): as at a switch,
+        a fresh clip from the last `switch_keep` (kept whole, the end of a walk made the model
+        end a jump asked for next at once, and stand)."""
         self.recent = np.asarray(tokens, np.int64)[-self.anchoring.keep:]
+        self._reanchor(self.anchoring.switch_keep)
 
     def step(self) -> np.ndarray:
         """The next token step, starting a fresh clip, re-anchoring or settling where due."""
-        row = self._tokens.step()
+        return self.after(self._tokens.step())
+
+    def after(self, row: np.ndarray | None) -> np.ndarray:
+        """`step` once the token stream has drawn `row` (None: the model ended its clip; the
+        server draws the rows of many streams in shared calls)."""
         if row is None:  # the model ended its clip (never at step 0: the row comes)
             if self.one_off:
                 self._hold()

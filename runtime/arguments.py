@@ -49,6 +49,12 @@ class UnknownPromptWarning(PromptWarning):
     warnings.simplefilter("error", UnknownPromptWarning)); the `mogo` command refuses it."""
 
 
+class CutWarning(PromptWarning):
+    """A motion the model did not end within the bundle's longest clip (a prompt of several
+    actions, "walks, then sits down"): cut there, maybe mid-action. The `mogo` command prints
+    it as a note; ask for `seconds`, or use a stream, for longer motion."""
+
+
 def checked_prompt(text: object, name: str = "text") -> str:
     """A prompt as the model, the files and the terminal get it: valid Unicode (a lone
     surrogate is what a terminal in another encoding than UTF-8 leaves), each run of

@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import math
 import os
+import threading
+import warnings
+from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
@@ -26,7 +29,7 @@ import onnxruntime as ort
 from mogo._session import NamedGraph, check_types, graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.anchoring import Anchor, Anchoring
-from mogo.arguments import (ScheduleError, checked_bool, checked_int, checked_prompt,
+from mogo.arguments import (CutWarning, ScheduleError, checked_bool, checked_int, checked_prompt,
                             checked_schedule, checked_seconds, plural)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
@@ -42,6 +45,7 @@ from mogo.token_generator import TokenGenerator, TokenStream
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
 STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
+EMBEDDINGS_KEPT = 256  # prompt embeddings kept for streams (a switch back encodes no text)
 
 
 class MotionGenerator:
@@ -73,6 +77,8 @@ class MotionGenerator:
                                               threads, io_types(manifest, self._decoder))
         self._vq_encoder = NamedGraph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
+        self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
+        self._embeddings_lock = threading.Lock()
 
     @classmethod
     def load(cls, bundle_dir: str | os.PathLike | None = None, threads: int = 1) -> MotionGenerator:
@@ -88,6 +94,22 @@ class MotionGenerator:
     def embed(self, texts: Sequence[str]) -> np.ndarray:
         """Prompt embeddings (B, text_dim) float32."""
         return self.text.embed(texts)
+
+    def _embedding(self, text: str) -> np.ndarray:
+        """One prompt's embedding (text_dim,), read-only, the last EMBEDDINGS_KEPT kept:
+        streams switch back and forth between few prompts, and every stream of a server
+        starts from one."""
+        with self._embeddings_lock:
+            if text in self._embeddings:
+                self._embeddings.move_to_end(text)
+                return self._embeddings[text]
+        embedding = self.embed([text])[0]
+        embedding.flags.writeable = False
+        with self._embeddings_lock:
+            self._embeddings[text] = embedding
+            if len(self._embeddings) > EMBEDDINGS_KEPT:
+                self._embeddings.popitem(last=False)
+        return embedding
 
     def vocabulary(self) -> set[str]:
         """The whole words of the tokenizer the model was trained with (what prompt alignment
@@ -117,8 +139,11 @@ class MotionGenerator:
                  sampling: Sampling | None = None, align: bool | PromptAligner = False,
                  plant_feet: bool = True, stop=None, **options) -> Motion:
         """One prompt -> one Motion. seconds=None lets the model end the motion (at most the
-        bundle's max_seconds); seed=None draws a fresh seed, kept in Motion.seed so the result
-        can be reproduced. `sampling` and the keyword `options`: see `sampling()`.
+        bundle's max_seconds: a CutWarning where it did not); longer than max_seconds, it is
+        the first `seconds` of `stream(text, seed=seed)`, re-anchored (the model learnt clips
+        of at most max_seconds: one clip that long drifts into other actions); seed=None
+        draws a fresh seed, kept in Motion.seed so the result can be reproduced. `sampling`
+        and the keyword `options`: see `sampling()`.
         align=True (or a PromptAligner) rewrites the prompt into caption-style steps (see
         mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment.
         plant_feet=False keeps the joints as decoded (see mogo.motion.feet); the same for
@@ -137,12 +162,19 @@ class MotionGenerator:
                   aligner: PromptAligner | None, plant_feet: bool, stop=None) -> Motion:
         if aligner is not None:
             return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet)
-        steps = None if seconds is None else self._steps(seconds)
         max_steps = self._steps(self.defaults.max_seconds)
+        if seconds is not None and self._steps(seconds) > max_steps:
+            motion = self._play([(text, seconds)], seed, sampling, plant_feet)
+            return self._cut(motion, round(seconds * self.fps))
+        steps = None if seconds is None else self._steps(seconds)
         if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
             steps += self._decoder.lookahead
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
                                       self.defaults.window, stop)
+        if steps is None and len(tokens) == max_steps:
+            warnings.warn(f"the model did not end the motion within "
+                          f"{self.defaults.max_seconds:g} s, its longest clip: cut there; ask "
+                          f"for seconds for longer motion", CutWarning, stacklevel=4)
         frames = None if seconds is None else round(seconds * self.fps)
         return self.decode(tokens, [(0, text)], frames, seed, plant_feet)
 
@@ -212,8 +244,10 @@ class MotionGenerator:
 
     def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
               plant_feet: bool) -> Motion:
+        """A schedule as one re-anchored stream (the stream `stream` makes), a switch per
+        entry."""
         stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window,
-                              plant_feet, anchoring=None)
+                              plant_feet, Anchoring())
         for k, (prompt, seconds) in enumerate(schedule):
             if k:
                 stream._switch_prompt(prompt)
@@ -237,6 +271,14 @@ class MotionGenerator:
         if frames is not None:
             tokens = tokens[:math.ceil(frames / self.down_factor)]
         return Motion(features, joints, self.fps, tokens, self.skeleton, prompts, seed)
+
+    def _cut(self, motion: Motion, frames: int) -> Motion:
+        """The first `frames` of a stream's Motion (its last token step may give more)."""
+        if len(motion.joints) == frames:
+            return motion
+        return Motion(motion.features[:frames], motion.joints[:frames], motion.fps,
+                      motion.tokens[:math.ceil(frames / self.down_factor)], motion.skeleton,
+                      motion.prompts, motion.seed)
 
     def encode_motion(self, motion: Motion) -> np.ndarray:
         """A clip's features -> its token steps (n, L), by the bundle's VQ encoder."""
@@ -317,14 +359,18 @@ class MotionStream:
 
     def __init__(self, generator: MotionGenerator, text: str, seed: int, sampling: Sampling,
                  window: int | None, plant_feet: bool = True,
-                 anchoring: Anchoring | None = None):
+                 anchoring: Anchoring | None = None, *, tokens: TokenGenerator | None = None,
+                 decoder_session: ort.InferenceSession | None = None):
+        """`tokens`, `decoder_session`: other sessions of the bundle's graphs (the server's,
+        mogo.serve.engine); None: the generator's."""
         self.generator = generator
         self.seed = seed
         self.prompts: list[tuple[int, str]] = [(0, text)]  # checked by the generator
-        embedding = generator.embed([text])[0]
-        self._tokens: TokenStream = generator.tokens.start(embedding, seed, sampling, window,
-                                                           allow_end=False)
-        self._decoder = generator.streaming_decoder()
+        self.steps = 0  # token steps drawn
+        self._lock = threading.RLock()  # set_prompt from another thread waits for a step
+        self._tokens: TokenStream = (tokens or generator.tokens).start(
+            generator._embedding(text), seed, sampling, window, allow_end=False)
+        self._decoder = generator.streaming_decoder(decoder_session)
         self._joints = JointStream(generator.skeleton)
         self._feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
         self.frames_emitted = 0
@@ -332,14 +378,15 @@ class MotionStream:
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
         self._record: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
         self.anchor = (None if anchoring is None else
-                       Anchor(anchoring, self._tokens, lambda t: generator.embed([t])[0], text))
+                       Anchor(anchoring, self._tokens, generator._embedding, text))
 
     def step(self) -> np.ndarray:
-        row = self._next_tokens()
-        frames = self._emit(row[None], self._decoder.push(row[None]))
-        if len(self._unread):
-            frames, self._unread = np.concatenate([self._unread, frames]), self._unread[:0]
-        return frames
+        with self._lock:
+            row = self._next_tokens()
+            frames = self._emit(row[None], self._decoder.push(row[None]))
+            if len(self._unread):
+                frames, self._unread = np.concatenate([self._unread, frames]), self._unread[:0]
+            return frames
 
     def frames(self, limit: int | None = None) -> Iterator[np.ndarray]:
         """Frames (J, 3) one by one, forever or `limit` of them. Frames decoded but not yet
@@ -355,29 +402,35 @@ class MotionStream:
                 yield frame
 
     def set_prompt(self, text: str) -> None:
-        """Switch the prompt from the next step on (exact: the cache is re-prefilled)."""
+        """Switch the prompt from the next step on (exact: the cache is re-prefilled). Safe
+        from another thread than the one reading frames: it waits for the step under way."""
         self._switch_prompt(self.generator._prompt(text))
 
     def _switch_prompt(self, text: str) -> None:
-        """`set_prompt` for a prompt already checked (a schedule's)."""
-        embedding = self.generator.embed([text])[0]
-        if self.anchor is None:
-            self._tokens.set_prompt(embedding)
-        else:
-            self.anchor.switch(text, embedding)
-        self.prompts.append((self.frames_emitted + self._pending_frames(), text))
+        """`set_prompt` for a prompt already checked (a schedule's, a server client's)."""
+        embedding = self.generator._embedding(text)
+        with self._lock:
+            if self.anchor is None:
+                self._tokens.set_prompt(embedding)
+            else:
+                self.anchor.switch(text, embedding)
+            self.prompts.append((self.frames_emitted + self._pending_frames(), text))
 
     def continue_from(self, motion: Motion) -> None:
         """Go on from the end of an existing clip (before the first step): its tokens become
-        the past the model sees, and the decoder's left context."""
-        if self._tokens.steps:
+        the decoder's left context, and the past the model sees (re-anchored: its last step,
+        as at a switch, so that a one-off action asked for starts instead of being taken as
+        done by the clip's end)."""
+        if self.steps or self._tokens.steps:
             raise ValueError("continue_from must come before the first step of a stream")
         tokens = self.generator.encode_motion(motion)
-        self._tokens.continue_from(tokens)
-        if self.anchor is not None:
-            self.anchor.continued(tokens)
-        self._final(self._denormalise(self._decoder.push(tokens)))
-        self._skip = self._pending_frames()  # the clip's own last frames: not emitted again
+        with self._lock:
+            if self.anchor is None:
+                self._tokens.continue_from(tokens)
+            else:
+                self.anchor.continued(tokens)
+            self._final(self._denormalise(self._decoder.push(tokens)))
+            self._skip = self._pending_frames()  # the clip's own last frames: not again
 
     def advance(self, steps: int) -> None:
         """Draw `steps` token steps, keeping everything for `finish()`."""
@@ -393,9 +446,10 @@ class MotionStream:
         more steps, not kept, as the right context of its last frames (as `generate` does), so
         they are the frames the stream would have emitted had it gone on."""
         g = self.generator
-        context = [self._next_tokens() for _ in range(self._decoder.lookahead)]
-        features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
-        self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
+        with self._lock:
+            context = [self._next_tokens() for _ in range(self._decoder.lookahead)]
+            features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
+            self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
                  np.zeros((0, g.manifest.feature_dim), np.float32),
                  np.zeros((0, g.skeleton.num_joints, 3), np.float32))
@@ -404,7 +458,13 @@ class MotionStream:
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
 
     def _next_tokens(self) -> np.ndarray:
-        return self._tokens.step() if self.anchor is None else self.anchor.step()
+        return self._drawn(self._tokens.step())
+
+    def _drawn(self, row: np.ndarray | None) -> np.ndarray:
+        """The step's tokens, once its token stream has drawn `row` (the server draws many
+        streams' rows in shared calls): re-anchored where due."""
+        self.steps += 1
+        return row if self.anchor is None else self.anchor.after(row)
 
     def _emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False
               ) -> np.ndarray:

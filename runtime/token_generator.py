@@ -43,10 +43,13 @@ class TokenGenerator:
     """The level graphs of one model; `start` opens a stream on them (streams share sessions)."""
 
     def __init__(self, level_paths: Sequence[str | os.PathLike], graphs: Sequence[Graph],
-                 end_token: int, intra_op_threads: int = 1, level_workers: int = 1):
+                 end_token: int, intra_op_threads: int = 1, level_workers: int = 1,
+                 rows_apart: bool = False):
         """graphs[l]: the input and output names of level l (protocol order).
         level_workers > 1 runs the levels of a step in that many groups at once, balanced by
-        layer count (each session then keeps `intra_op_threads`, best 1)."""
+        layer count (each session then keeps `intra_op_threads`, best 1). rows_apart: batch
+        rows never mix inside the graphs (mogo.serve.rowwise), so streams may share a call
+        (`step_together`); an int8 graph as exported quantises its whole batch at once."""
         if level_workers < 1:
             raise ValueError(f"level_workers must be >= 1, got {level_workers}")
         if len(level_paths) != len(graphs):
@@ -59,6 +62,7 @@ class TokenGenerator:
         self.end_token = end_token
         self.num_levels = len(graphs)
         self.num_classes = end_token + 1  # level 0's logits: every code and the end token
+        self.rows_apart = rows_apart
         self._spread_levels(level_workers)
 
     def with_level_workers(self, level_workers: int) -> TokenGenerator:
@@ -155,25 +159,25 @@ class TokenStream:
     def step(self) -> np.ndarray | None:
         """The tokens (L,) of the next step, or None once level 0 has drawn the end token.
         The first step is the prefill: the prompt prefix at position 0 predicts step 0."""
-        if self.ended:
-            return None
+        return step_together([self])[0]
+
+    @property
+    def layout(self) -> tuple:
+        """Streams with equal layouts query at one position over slots at the same positions,
+        so they can share a call of each level graph (`step_together`)."""
+        return self.steps, self.positions.tobytes()
+
+    def _drawn(self, logits: np.ndarray, presents: list[Cache], uniforms: np.ndarray
+               ) -> np.ndarray | None:
+        """The step after its graph calls: tokens sampled from this stream's logits
+        (rows, L, C), its cache moved on by `presents`."""
         g, n = self.generator, self.steps
-        uniforms = step_uniforms(self.rng, g.num_levels)
-        token_ids = np.repeat(self.last[None, None], len(self.uncond), axis=0)  # (B, 1, L)
-        position = np.array([n], np.int64)
-        outputs = g.each_level(lambda level: g.run(level, self.prompt, self.uncond, token_ids,
-                                                   position, self.positions, self.caches[level]))
-        end_allowed = self.allow_end and n > 0
-        logits = np.full((len(self.uncond), g.num_levels, g.num_classes), -np.inf, np.float32)
-        for level, (level_logits, _) in enumerate(outputs):
-            logits[:, level, :level_logits.shape[1]] = level_logits
-        forbid = [None if end_allowed else g.end_token] + [None] * (g.num_levels - 1)
+        forbid = [None if self.allow_end and n > 0 else g.end_token] + [None] * (g.num_levels - 1)
         row = choose_tokens(logits[0], logits[1] if self.sampling.guided else None, uniforms,
                             self.sampling, forbid)
         if row[0] == g.end_token:
             self.ended = True
             return None
-        presents = [present for _, present in outputs]
         if self.window is not None and len(self.positions) == 1 + self.window:
             self._overwrite_oldest(presents, n)
         else:
@@ -214,6 +218,7 @@ class TokenStream:
         clip under the prompt."""
         g, L = self.generator, self.generator.num_levels
         self.caches = [g.empty_cache(level, len(self.uncond)) for level in range(L)]
+        self._group = None  # see _step_group
         self.positions = np.zeros(0, np.int64)  # (P,) position of every cache slot
         self.slot_tokens = np.zeros((0, L), np.int64)  # (P, L) the tokens each slot holds
         self.last = np.zeros(L, np.int64)  # tokens of the latest step (none yet: any valid id)
@@ -230,6 +235,7 @@ class TokenStream:
                                                    self.positions, none,
                                                    g.empty_cache(level, len(self.uncond))))
         self.caches = [present for _, present in outputs]
+        self._group = None
 
     def _overwrite_oldest(self, presents: list[Cache], n: int) -> None:
         """Full window: the new slot (the last of every present) replaces the oldest step slot
@@ -246,6 +252,56 @@ class TokenStream:
         """(text_dim,) -> (B, text_dim) float32, one row per guidance branch."""
         prompt = np.asarray(prompt_embedding, np.float32).reshape(1, -1)
         return np.repeat(prompt, len(self.uncond), axis=0)
+
+
+def step_together(streams: Sequence[TokenStream]) -> list[np.ndarray | None]:
+    """One step of each stream (its tokens (L,), or None where it has ended): the streams of
+    one layout share one call of each level graph, their rows stacked. The one token loop:
+    TokenStream.step is this for one stream. Streams share a call only on graphs whose rows
+    never mix (TokenGenerator.rows_apart), so a stream's tokens never depend on the others."""
+    groups: dict[tuple, list[int]] = {}
+    for k, stream in enumerate(streams):
+        if not stream.ended:
+            shared = stream.generator.rows_apart
+            key = (id(stream.generator), stream.layout) if shared else id(stream)
+            groups.setdefault(key, []).append(k)
+    drawn: list[np.ndarray | None] = [None] * len(streams)
+    for ks in groups.values():
+        for k, row in zip(ks, _step_group([streams[k] for k in ks])):
+            drawn[k] = row
+    return drawn
+
+
+def _step_group(members: list[TokenStream]) -> list[np.ndarray | None]:
+    g, first = members[0].generator, members[0]
+    uniforms = [step_uniforms(s.rng, g.num_levels) for s in members]
+    rows = np.cumsum([0] + [len(s.uncond) for s in members])
+
+    def stacked(parts: list[np.ndarray]) -> np.ndarray:
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    prompt = stacked([s.prompt for s in members])
+    uncond = stacked([s.uncond for s in members])
+    token_ids = stacked([np.repeat(s.last[None, None], len(s.uncond), axis=0) for s in members])
+    last = first._group  # the members of the last call and its presents, which hold the caches
+    if last is not None and last[0] == members and all(s._group is last for s in members):
+        caches = last[1]  # the same streams in the same order: their caches as they lie, no copy
+    else:
+        caches = [[stacked(parts) for parts in zip(*(s.caches[level] for s in members))]
+                  for level in range(g.num_levels)]
+    position, past = np.array([first.steps], np.int64), first.positions
+    outputs = g.each_level(lambda level: g.run(level, prompt, uncond, token_ids, position,
+                                               past, caches[level]))
+    logits = np.full((len(uncond), g.num_levels, g.num_classes), -np.inf, np.float32)
+    for level, (level_logits, _) in enumerate(outputs):
+        logits[:, level, :level_logits.shape[1]] = level_logits
+    drawn = [s._drawn(logits[a:b], [[held[a:b] for held in present] for _, present in outputs],
+                      u) for s, a, b, u in zip(members, rows[:-1], rows[1:], uniforms)]
+    group = (members, [present for _, present in outputs])
+    for stream, row in zip(members, drawn):  # the presents are their caches (not a full window)
+        took = row is not None and len(stream.positions) > len(past)
+        stream._group = group if took and len(members) > 1 else None
+    return drawn
 
 
 def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:

@@ -10,12 +10,12 @@ process's user + system time over the wall time, in cores). N holds real time wh
 client got >= 97% of the frame rate and p99 lateness stayed within one frame (50 ms).
 The clients run on the same machine as the server: their own CPU use is part of the load.
 
-`engine_cost` measures the compute alone, in this process, with no sockets: N streams past
-warm-up stepped on the engine's clock, CPU time (all threads) per stream step, wall time per
-tick and the cores used (CPU over wall). CPU time shows what N costs even on a busy machine;
-1000 / (fps * CPU ms) streams per core is the ceiling it sets. `engine_first_frame` times a
-new stream's first frame on a warm engine, no sockets, in CPU and wall time
-(`--engine-only` runs these two alone). `engine_profile` (`--profile N`) splits a stream step's
+`engine_cost` measures the compute alone, in this process, with no sockets: N streams
+past their first frames stepped on the engine's clock, CPU time (all threads) per stream
+step, wall time per tick and the cores used (CPU over wall). CPU time shows what N costs
+even on a busy machine; 1000 / (fps * CPU ms) streams per core is the ceiling it sets.
+`engine_first_frame` times a new stream's first frame on a warm engine, no sockets, in CPU
+and wall time (`--engine-only` runs these two alone). `engine_profile` (`--profile N`) splits a stream step's
 CPU among its parts (the level graphs, sampling, the VQ decoder, joints, foot planting).
 """
 from __future__ import annotations
@@ -127,17 +127,16 @@ def measure(url: str, pid: int, clients: int, seconds: float, binary: bool = Fal
 
 def engine_cost(clients: int, threads: int, ticks: int = 40,
                 profile: cProfile.Profile | None = None) -> dict:
-    """CPU ms per stream step and wall ms per tick of the Engine alone, streams past warm-up;
-    `profile` records the measured ticks."""
+    """CPU ms per stream step and wall ms per tick of the Engine alone, streams past their
+    first frames; `profile` records the measured ticks."""
     from mogo.generator import MotionGenerator
     from mogo.serve.engine import Engine
-    from mogo.serve.stepper import COMPACT_EVERY
 
     generator = MotionGenerator.load(threads=threads)
     engine = Engine(generator, threads)
     for k in range(clients):
         engine.open(PROMPTS[k % len(PROMPTS)], k, generator.sampling(None), 0.0)
-    now, ready = 0.0, engine.stepper.steady_from + 2 * COMPACT_EVERY
+    now, ready = 0.0, engine.lead + 2 * generator.streaming_decoder().every  # frames flow
 
     def run_until(end: float) -> int:
         nonlocal now
@@ -151,7 +150,7 @@ def engine_cost(clients: int, threads: int, ticks: int = 40,
                 now += 1 / engine.fps
         return steps
 
-    while min(s.tokens.steps for s in engine.streams.values()) < ready:
+    while min(s.steps for s in engine.streams.values()) < ready:
         run_until(now + 1 / engine.fps)
     cpu, wall = time.process_time(), time.perf_counter()
     if profile is not None:
@@ -167,7 +166,7 @@ def engine_cost(clients: int, threads: int, ticks: int = 40,
 
 def engine_profile(clients: int) -> list[tuple[str, float]]:
     """Where a stream step's CPU goes: (part, ms per stream step) for the parts of PARTS, the
-    rest (the stepper's and engine's own Python) and the whole, from cProfile on one thread
+    rest (the engine's and streams' own Python) and the whole, from cProfile on one thread
     (cProfile's own cost inflates the Python-heavy parts)."""
     profile = cProfile.Profile()
     steps = engine_cost(clients, 1, profile=profile)["steps"]
@@ -176,7 +175,7 @@ def engine_profile(clients: int) -> list[tuple[str, float]]:
     parts = [(part, sum(entry[3] for (file, _, name), entry in stats.items()
                         if file.endswith(module) and name == function))
              for part, (module, function) in PARTS.items()]
-    parts.append(("the rest: the stepper's and engine's Python", whole - sum(s for _, s in parts)))
+    parts.append(("the rest: the engine's and streams' Python", whole - sum(s for _, s in parts)))
     return [(part, seconds * 1e3 / steps) for part, seconds in parts + [("a stream step", whole)]]
 
 
@@ -274,14 +273,14 @@ def engine_only(clients: list[int], threads: int | None, out: Path) -> dict:
 
 def main_from_args(args) -> None:
     if args.profile:
-        print(f"Where the CPU of a stream step goes: {args.profile} streams past warm-up, "
-              "the engine alone on one thread, cProfile:\n")
+        print(f"Where the CPU of a stream step goes: {args.profile} streams past their first "
+              "frames, the engine alone on one thread, cProfile:\n")
         print(profile_table(engine_profile(args.profile)))
         return
     if args.engine_only:
         result = engine_only(args.clients, args.threads, Path(args.out))
         print(f"The engine alone (no sockets, {result['threads']} threads), streams past "
-              "warm-up:\n")
+              "their first frames:\n")
         print(engine_table(result["engine"]))
         first = result["first_frame"]
         print(f"\nfirst frame, one stream, engine warm: {first['wall_ms']:.0f} ms wall, "
@@ -291,7 +290,7 @@ def main_from_args(args) -> None:
     result = run(args.clients, args.seconds, args.threads, args.bundle, Path(args.out),
                  args.binary)
     print(table(result["rows"]))
-    print("\nThe engine alone (no sockets), streams past warm-up:\n")
+    print("\nThe engine alone (no sockets), streams past their first frames:\n")
     print(engine_table(result["engine"]))
     print(f"\nfirst frame, one client, server warm: {result['first_frame_ms']:.0f} ms (median "
           f"of 7); largest N in real time: {result['largest_real_time']}")

@@ -1,4 +1,4 @@
-"""What the ONNX graph rewrites share (mogo.serve's rowwise and newslot, mogo.export's VQ
+"""What the ONNX graph rewrites share (mogo.serve's rowwise, mogo.export's VQ
 graphs): the nodes that read each value. Plain protobuf walking: no onnx import needed here."""
 
 from __future__ import annotations

@@ -16,4 +16,4 @@ def engine_parts(generator):
     pytest.importorskip("onnx")
     from mogo.serve.engine import Engine
 
-    return Engine(generator).stepper.tokens
+    return Engine(generator).tokens

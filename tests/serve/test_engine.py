@@ -73,16 +73,3 @@ def test_a_decoder_the_rewrite_cannot_cut_or_gets_wrong_decodes_whole_windows(
     while sum(map(len, frames)) < 120:  # past the first full window
         frames += [joints for _, _, joints in engine.round([stream])]
     assert np.isfinite(np.concatenate(frames)).all()
-
-
-def test_new_streams_share_a_rounds_solo_steps(generator, engine_parts):
-    """A burst of new streams holds up the running ones by a bounded number of one-row steps
-    a round; a lone new stream takes them all (fewer trips to its first frame)."""
-    engine = Engine(generator, 1, tokens=engine_parts)
-    sampling = generator.sampling(None)
-    burst = [engine.open(f"a person walks {k} steps", k, sampling, 0.0) for k in range(3)]
-    engine.round(engine.due(0.0))
-    assert [s.tokens.steps for s in burst] == [engine_module.SOLO_STEPS_A_ROUND // 3] * 3
-    lone = engine.open("a person waves", 9, sampling, 0.0)
-    engine.round([lone])
-    assert lone.tokens.steps == engine_module.SOLO_STEPS_A_ROUND

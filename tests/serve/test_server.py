@@ -204,7 +204,7 @@ def test_a_stream_gives_the_same_frames_alone_and_among_others(generator, engine
         while now < 1.0 + seconds:
             while pending and pending[0] <= now:
                 engine.open("a person jumps", len(pending), sampling, pending.pop(0))
-            if stream.tokens.steps == 100 and stream.prompt != "a person waves":
+            if stream.steps == 100 and stream.prompt != "a person waves":
                 engine.switch(stream, "a person waves")
             due = engine.due(now)
             out = engine.round(due) if due else []
@@ -215,25 +215,6 @@ def test_a_stream_gives_the_same_frames_alone_and_among_others(generator, engine
     alone = play([])
     among = play([0.95, 1.0, 1.3, 4.0, 9.0])
     assert len(alone) > 150 and np.array_equal(alone, among[:len(alone)])
-
-
-def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator,
-                                                                       engine_parts):
-    """Before the window fills a lone served stream draws the runtime's tokens, so its frames
-    are those of a MotionStream that is not re-anchored (served streams are not, yet): the
-    same decoding, joints and foot planting (mogo.motion.feet)."""
-    for plant_feet in (True, False):
-        engine = Engine(generator, 1, tokens=engine_parts)
-        stream = engine.open("a person walks forward", 3, generator.sampling(None), 0.0,
-                             plant_feet)
-        got = []
-        while sum(map(len, got)) < 80:
-            got += [joints for _, _, joints in engine.round([stream])]
-        served = np.concatenate(got)
-        local = generator.stream("a person walks forward", seed=3, plant_feet=plant_feet,
-                                 anchoring=False)
-        expected = np.array(list(local.frames(limit=len(served))))
-        np.testing.assert_allclose(served, expected, atol=1e-5)
 
 
 @pytest.mark.parametrize("binary", [False, True])

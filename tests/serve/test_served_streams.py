@@ -1,0 +1,184 @@
+"""Served streams on the engine's clock: the tokens of `mogo stream` for the same prompt, seed
+and switches, whatever else runs; a switch changes what a stream does, a burst of new streams
+all start, streams at one step of their clips share one call of each level graph."""
+from collections import Counter
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnx")
+
+from mogo.serve import engine as engine_module
+from mogo.serve.engine import ALIGN_STEPS, Engine
+from mogo.token_generator import TokenGenerator, step_together
+
+
+def served(engine, prompts: dict[int, str], seed: int, steps: int) -> np.ndarray:
+    """One stream's joints over `steps` token steps, the prompt switched at the steps given."""
+    stream = engine.open(prompts[0], seed, engine.generator.sampling(None), 0.0)
+    frames = []
+    while stream.steps < steps:
+        if stream.steps in prompts:
+            engine.switch(stream, prompts[stream.steps])
+        frames += [joints for _, _, joints in engine.round([stream])]
+    engine.close(stream)
+    return np.concatenate(frames)
+
+
+def test_a_served_switch_changes_the_frames_after_it(generator, engine_parts):
+    engine = Engine(generator, 1, tokens=engine_parts)
+    walk = {0: "a person walks forward."}
+    plain = served(engine, walk, 5, 120)
+    switched = served(engine, walk | {60: "a person jumps on the spot."}, 5, 120)
+    lookahead = generator.manifest.vq.decoder.lookahead
+    before = 60 - lookahead - 8  # frames no token after the switch reaches (feet: 8 more)
+    n = min(len(plain), len(switched))
+    assert n > 70
+    np.testing.assert_allclose(switched[:before], plain[:before], atol=1e-5)
+    assert np.abs(switched[60:n] - plain[60:n]).max() > 0.1
+
+
+def test_a_burst_of_new_streams_all_start(generator, engine_parts):
+    """More new streams than a round's solo steps: each still reaches its first frame."""
+    engine = Engine(generator, 1, tokens=engine_parts)
+    sampling = generator.sampling(None)
+    burst = [engine.open("a person walks forward.", k, sampling, 0.0) for k in range(25)]
+    started, now = set(), 0.0
+    while len(started) < len(burst) and now < 8.0:
+        due = engine.due(now)
+        started |= {stream.id for stream, _, _ in engine.round(due)} if due else set()
+        now = round(now + (0 if due else 0.05), 6)
+    assert started == {stream.id for stream in burst}
+
+
+STREAMS = [("a person walks forward.", 3, {}), ("a person jogs forward.", 4, {"guidance": 2.0}),
+           ("a person waves.", 5, {"top_k": 40}), ("a person walks forward.", 6, {})]
+SWITCHES = {0: (100, "a person jumps on the spot."), 1: (150, "a person turns left.")}
+STEPS = 128 + 2 * 8 + 30  # past the shipped window and two of the old stepper's compactions
+
+
+def drawn_served(generator, engine_parts, shard: bool, monkeypatch) -> list[np.ndarray]:
+    """Each stream's token rows, all stepped together by one engine (in two shards: every
+    round on two threads), a later stream and switches included."""
+    if shard:
+        monkeypatch.setattr(engine_module, "SHARD_FROM", 2)
+    engine = Engine(generator, 2 if shard else 1, tokens=engine_parts)
+    streams = [engine.open(prompt, seed, generator.sampling(None, **options), 0.0)
+               for prompt, seed, options in STREAMS]
+    late = engine.open("a person jumps.", 9, generator.sampling(None), 0.0)
+    rows: list[list[np.ndarray]] = [[] for _ in streams]
+    while min(s.steps for s in streams) < STEPS:
+        for k, stream in enumerate(streams):
+            if k in SWITCHES and stream.steps == SWITCHES[k][0]:
+                engine.switch(stream, SWITCHES[k][1])
+        due = [s for s in streams if s.steps < STEPS] + ([late] if streams[0].steps > 20 else [])
+        engine.round(due)
+        for k, stream in enumerate(streams):
+            if stream in due:  # the step's row, also where it started a clip or re-anchored
+                rows[k].append(stream._tokens.last.copy())
+    engine.shutdown()
+    return [np.array(r) for r in rows]
+
+
+@pytest.mark.parametrize("shard", [False, True], ids=["one-thread", "two-shards"])
+def test_served_streams_draw_the_tokens_of_mogo_stream(generator, engine_parts, shard,
+                                                       monkeypatch):
+    """The shipped bundle's window (128) is beyond its relative distances (64); re-anchored,
+    fresh clips and holds included: the same rows as a MotionStream of the same prompt, seed,
+    sampling and switches (guided streams step alone on the bundle's own graphs)."""
+    served = drawn_served(generator, engine_parts, shard, monkeypatch)
+    anchors = 0
+    for k, (prompt, seed, options) in enumerate(STREAMS):
+        stream = generator.stream(prompt, seed=seed, **options)
+        expected = []
+        for n in range(STEPS):
+            if k in SWITCHES and n == SWITCHES[k][0]:
+                stream.set_prompt(SWITCHES[k][1])
+            stream.step()
+            expected.append(stream._tokens.last.copy())
+        anchors += stream.anchor.anchors
+        assert np.array_equal(served[k], np.array(expected)), f"stream {k}"
+    assert anchors >= 2 * len(STREAMS)
+
+
+def test_step_together_gives_each_stream_its_own_tokens_in_any_group(generator, engine_parts):
+    """Streams stepped in changing company draw what each draws stepped alone: a group of
+    other members after a shared call, the same group again (its presents reused), and again
+    after one member's cache was recomputed under a new prompt."""
+    sampling = generator.sampling(None)
+    walk, wave = generator.embed(["a person walks forward.", "a person waves."])
+
+    def run(together: bool) -> list[list[np.ndarray]]:
+        a, b, c = (engine_parts.start(walk, seed, sampling, 128, allow_end=False)
+                   for seed in range(3))
+        schedule = [[a, b], [c], [a, c], [b], [a, b], [a, b], "switch", [a, b], [a, b], [c]]
+        drawn = {id(s): [] for s in (a, b, c)}
+        for group in schedule:
+            if group == "switch":
+                b.set_prompt(wave)  # same layout, its cache recomputed
+                continue
+            rows = step_together(group) if together else [s.step() for s in group]
+            for stream, row in zip(group, rows):
+                drawn[id(stream)].append(row)
+        return [np.array(rows) for rows in drawn.values()]
+
+    for alone, together in zip(run(False), run(True)):
+        assert np.array_equal(alone, together)
+
+
+def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator,
+                                                                       engine_parts):
+    """Past a re-anchor: the same decoding, joints and foot planting (mogo.motion.feet)."""
+    for plant_feet in (True, False):
+        engine = Engine(generator, 1, tokens=engine_parts)
+        stream = engine.open("a person walks forward", 3, generator.sampling(None), 0.0,
+                             plant_feet)
+        got = []
+        while sum(map(len, got)) < 120:
+            got += [joints for _, _, joints in engine.round([stream])]
+        assert stream.anchor.anchors >= 1
+        served = np.concatenate(got)
+        local = generator.stream("a person walks forward", seed=3, plant_feet=plant_feet)
+        expected = np.array(list(local.frames(limit=len(served))))
+        np.testing.assert_allclose(served, expected, atol=1e-5)
+
+
+def test_streams_at_one_step_share_one_call_of_each_level_graph(generator, engine_parts,
+                                                                 monkeypatch):
+    """Each round draws its rows with one call of each level graph for each step of their
+    clips the due streams are at. Four streams start together; one 0.3 s later takes extra
+    steps to join them."""
+    calls: list[int] = []
+    run = TokenGenerator.run
+
+    def counted(self, level, prompt, *args):
+        calls.append(len(prompt))
+        return run(self, level, prompt, *args)
+
+    def drawn_counted(streams):
+        calls.clear()
+        groups = Counter(s.layout for s in streams)  # token streams
+        drawn = step_together(streams)
+        rounds.append((groups, list(calls)))
+        return drawn
+
+    monkeypatch.setattr(TokenGenerator, "run", counted)
+    monkeypatch.setattr(engine_module, "step_together", drawn_counted)
+    engine = Engine(generator, 1, tokens=engine_parts)
+    sampling = generator.sampling(None)
+    streams = [engine.open("a person walks forward.", k, sampling, 0.0) for k in range(4)]
+    now, rounds = 0.0, []
+    while now < 3.0:
+        if now == 0.3 and len(streams) == 4:
+            streams.append(engine.open("a person waves.", 9, sampling, now))
+        due = engine.due(now)
+        if due:
+            engine.round(due)
+        now = round(now + (0 if due else 0.05), 6)
+    levels = generator.tokens.num_levels
+    for groups, made in rounds:
+        assert sorted(made) == sorted(n for n in groups.values() for _ in range(levels))
+    assert 0 < streams[-1].extra <= ALIGN_STEPS
+    assert sum(made == [5] * levels for _, made in rounds) > 10  # the late stream joined
+
+
