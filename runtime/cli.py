@@ -22,16 +22,23 @@ from mogo.arguments import (PromptWarning, UnfamiliarPromptWarning, UnknownPromp
 from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
+# On PyPI, `mogo` is an unrelated PyMongo wrapper: the import name and the command stay `mogo`.
+DISTRIBUTION = "mogo-edge"
 
 
 class CliError(Exception):
     """A user-facing error: printed as one line, exit status 2."""
 
 
+def needs_extra(label: str, extra: str) -> str:
+    """The one line for a verb whose extra is missing, with the command that installs it."""
+    return f"this command needs the {label} extra: pip install '{DISTRIBUTION}[{extra}]'"
+
+
 def require_torch() -> None:
     """For verbs that need the training extra: a clear line instead of an ImportError."""
     if importlib.util.find_spec("torch") is None:
-        raise CliError("this command needs the training extra: pip install 'mogo[train]'")
+        raise CliError(needs_extra("training", "train"))
 
 
 def _load_generator(args: argparse.Namespace):
@@ -356,7 +363,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _version() -> str:
     try:
-        return version("mogo")
+        return version(DISTRIBUTION)
     except PackageNotFoundError:  # run from a source tree that was never installed
         return "unknown (not installed)"
 
@@ -367,8 +374,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"mogo {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_runtime_commands(commands)
-    for plugin in sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
-        plugin.load()(commands)
+    # by name: an environment that still has the old `mogo` distribution beside `mogo-edge`
+    # lists each verb twice
+    plugins = {plugin.name: plugin for plugin in entry_points(group=PLUGIN_GROUP)}
+    for name in sorted(plugins):
+        plugins[name].load()(commands)
     return parser
 
 

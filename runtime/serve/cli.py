@@ -7,7 +7,7 @@ import importlib.util
 import ipaddress
 import sys
 
-from mogo.cli import CliError, _load_generator
+from mogo.cli import CliError, _load_generator, needs_extra
 
 LOCAL_HOSTS = {"localhost"}
 
@@ -30,7 +30,7 @@ def add_commands(commands) -> None:
 def require_serve_extra() -> None:
     """A clear line instead of an ImportError where the serve extra is missing."""
     if any(importlib.util.find_spec(name) is None for name in ("aiohttp", "onnx")):
-        raise CliError("this command needs the serve extra: pip install 'mogo[serve]'")
+        raise CliError(needs_extra("serve", "serve"))
 
 
 def _cmd_serve(args: argparse.Namespace) -> None:
