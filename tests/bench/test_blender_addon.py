@@ -29,6 +29,12 @@ def test_the_addon_generates_retargets_and_streams_in_blender(tmp_path, launcher
     missing = scene["without_runtime"].strip()  # an operator's ERROR report, one line
     assert missing.startswith("Error: MOGO: MOGO runtime not found") and "\n" not in missing
     assert "Preferences > Add-ons > MOGO" in missing
+    # Install's default: the wheel the add-on ships, this project (PyPI's `mogo` is another),
+    # into the empty folder; its dependencies are not there yet (pip was told not to fetch them)
+    installed = scene["install"].strip()
+    assert installed.startswith("Error: MOGO: MOGO runtime not found (numpy, onnxruntime, "
+                                "tokenizers, PIL, mogo missing in "), installed
+    assert scene["runtime_file"].endswith("/installed/mogo/__init__.py")
     assert scene["empty_prompt"].strip() == "Error: MOGO: type a prompt, e.g. 'a person walks " \
                                             "forward'"
     # one key per frame, the 24 fps scene set to the motion's 20 and its range
