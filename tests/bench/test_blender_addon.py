@@ -12,7 +12,7 @@ BLENDER = shutil.which("blender")
 BPY_PYTHON = os.environ.get("MOGO_BPY_PYTHON")  # e.g. a venv with `pip install bpy==4.4.0`
 LAUNCHERS = [
     pytest.param(lambda: background(BLENDER), id="blender", marks=pytest.mark.skipif(
-        BLENDER is None, reason="Blender is not installed")),
+        BLENDER is None, reason="Blender is not installed: apt-get install blender")),
     pytest.param(lambda: as_module(BPY_PYTHON), id="bpy-module", marks=pytest.mark.skipif(
         not BPY_PYTHON, reason="MOGO_BPY_PYTHON names no Python with the bpy module"))]
 

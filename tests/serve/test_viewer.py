@@ -13,7 +13,8 @@ import pytest
 
 CHROMIUM, DRIVER = "/usr/bin/chromium", shutil.which("chromedriver") or "/usr/bin/chromedriver"
 pytestmark = pytest.mark.skipif(not (os.path.exists(CHROMIUM) and os.path.exists(DRIVER)),
-                                reason="needs /usr/bin/chromium and chromedriver")
+                                reason="needs /usr/bin/chromium and chromedriver: apt-get "
+                                       "install chromium chromium-driver")
 webdriver = pytest.importorskip("selenium.webdriver")
 SCREENSHOT = os.environ.get("MOGO_VIEWER_SCREENSHOT")  # where to keep the picture, if anywhere
 
