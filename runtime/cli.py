@@ -22,6 +22,7 @@ from mogo.arguments import (PromptWarning, UnfamiliarPromptWarning, UnknownPromp
 from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
+LONG_TAKE_SECONDS = 30.0  # from this length on, generate shows its progress on stderr
 # On PyPI, `mogo` is an unrelated PyMongo wrapper: the import name and the command stay `mogo`.
 DISTRIBUTION = "mogo-edge"
 
@@ -112,6 +113,22 @@ def _aligner(args: argparse.Namespace, generator):
     return LLMAligner(args.llm_url, args.llm_model, timeout=args.llm_timeout, fallback=rules)
 
 
+def _formats(args: argparse.Namespace) -> tuple[str, ...]:
+    """--formats bvh,npy; else the default take, its animation file --format's."""
+    from mogo.clip import TAKE, take_suffixes
+
+    if args.formats is None:
+        return (args.format or TAKE[0],) + TAKE[1:]
+    if args.format is not None:
+        raise CliError("give --formats (it names the animation file too) or --format, not both")
+    formats = tuple(name.strip() for name in args.formats.split(","))
+    try:
+        take_suffixes(formats)
+    except ValueError as error:
+        raise CliError(f"--formats: {error}") from None
+    return formats
+
+
 def _cmd_generate(args: argparse.Namespace) -> None:
     from mogo.clip import check_take
     from mogo.motion import bvh, rig
@@ -124,8 +141,10 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         schedule = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
+    formats = _formats(args)
     folder = check_take(args.out, args.name, args.overwrite, what="--name",
-                        animation=args.format)  # before the work
+                        formats=formats)  # before the work
+    long = args.seconds is not None and args.seconds >= LONG_TAKE_SECONDS
     generator = _load_generator(args)
     rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
     sampling = _sampling(args, generator)
@@ -135,7 +154,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     else:
         motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
                                     sampling=sampling, align=_aligner(args, generator),
-                                    plant_feet=args.plant_feet)
+                                    plant_feet=args.plant_feet, progress=long)
     if motion.alignment is not None:
         print(motion.alignment.describe())
         if motion.alignment.note:
@@ -143,10 +162,13 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     elif args.text is not None:
         _note_played(generator, args.text)
     name = args.name or _file_stem(motion.caption)
+    if long:
+        print(f"writing {', '.join(formats)} ({plural(len(motion.joints), 'frame')})",
+              file=sys.stderr, flush=True)
     written = motion.save_take(folder, name, overwrite=args.overwrite,
                                bone_translations=args.bvh_bone_translations,
                                scale=bvh.UNITS[args.bvh_units], naming=args.bvh_names,
-                               animation=args.format)
+                               formats=formats)
     frames = plural(len(motion.joints), "frame")
     print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
           f"for: {motion.caption}")
@@ -294,7 +316,7 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
 
 
 def _add_runtime_commands(commands) -> None:
-    from mogo.clip import ANIMATIONS
+    from mogo.clip import ANIMATIONS, FORMATS, TAKE
     from mogo.motion import bvh  # their option lists
     generate = commands.add_parser(
         "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)")
@@ -312,9 +334,13 @@ def _add_runtime_commands(commands) -> None:
     generate.add_argument("--bvh-bone-translations", action="store_true",
                           help="position channels on every BVH joint: the joints back exactly, "
                                "bone stretch included (default: a rigid skeleton, rotations only)")
-    generate.add_argument("--format", choices=list(ANIMATIONS), default="bvh",
+    generate.add_argument("--format", choices=list(ANIMATIONS),
                           help="the animation file: a .bvh skeleton, or a .glb skinned mannequin "
                                "(three.js, Blender, engines play it as it is) (default bvh)")
+    generate.add_argument("--formats", metavar="LIST",
+                          help=f"the files to write, comma-separated, of {', '.join(FORMATS)} "
+                               f"(default {','.join(TAKE)}; e.g. bvh,npy: a long take without "
+                               "its large GIF and JSON)")
     generate.add_argument("--bvh-names", choices=list(bvh.NAMINGS), default="mixamo",
                           help="BVH (and GLB) joint names: each named for the bone it moves, "
                                "Mixamo/Unity style (Hips, LeftUpLeg, LeftArm, ...), or the SMPL "
