@@ -160,7 +160,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         if motion.alignment.note:
             print(f"note: {motion.alignment.note}")
     elif args.text is not None:
-        _note_played(generator, args.text)
+        _note_played(generator, args)
     name = args.name or _file_stem(motion.caption)
     if long:
         print(f"writing {', '.join(formats)} ({plural(len(motion.joints), 'frame')})",
@@ -180,11 +180,24 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         print(f"wrote {path}")
 
 
-def _note_played(generator, text: str) -> None:
+def _note_played(generator, args: argparse.Namespace) -> None:
     """A `note:` line on stderr naming the known caption a prompt in other words is played as
     (mogo.repertoire.Familiarity.played_note)."""
-    if (known := generator.known(text)) is not None and known.played_note:
-        print(f"note: {known.played_note}", file=sys.stderr)
+    if (known := generator.known(args.text)) is not None and known.played_note:
+        print(f"note: {known.played_note}{_align_hint(args, far=False)}", file=sys.stderr)
+
+
+def _align_hint(args: argparse.Namespace, far: bool) -> str:
+    """What `--align rules` would do for a prompt `mogo generate` plays as written, where the
+    model plays it as something else: its steps one by one, other words mapped to known ones
+    ('' where --align is not at hand: given already, a prompts file, `mogo stream`)."""
+    if not hasattr(args, "align") or args.align or args.text is None:
+        return ""
+    from mogo.repertoire import what_it_says
+
+    if (steps := max(what_it_says(args.text)["steps"])) > 1:
+        return f" (it reads as {steps} steps: --align rules plays them one after another)"
+    return " (--align rules maps some other words onto the ones it knows)" if far else ""
 
 
 def _cmd_stream(args: argparse.Namespace) -> None:
@@ -193,7 +206,10 @@ def _cmd_stream(args: argparse.Namespace) -> None:
     generator = _load_generator(args)
     stream = generator.stream(args.text, seed=args.seed, sampling=_sampling(args, generator),
                               plant_feet=args.plant_feet)
-    _note_played(generator, args.text)
+    if args.seed is None:  # drawn at random: said, so that the stream can be had again
+        print(f"note: seed {stream.seed} (random; --seed {stream.seed} streams this motion "
+              "again)", file=sys.stderr)
+    _note_played(generator, args)
     try:
         for index, frame in enumerate(stream.frames(args.frames)):
             record = dict(frame=index, seconds=round(index / generator.fps, 4),
@@ -284,7 +300,9 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
                 if issubclass(category, UnknownPromptWarning) or (
                         args.strict and issubclass(category, UnfamiliarPromptWarning)):
                     raise CliError(str(message))
-                if issubclass(category, PromptWarning):
+                if issubclass(category, UnfamiliarPromptWarning):
+                    print(f"note: {message}{_align_hint(args, far=True)}", file=sys.stderr)
+                elif issubclass(category, PromptWarning):
                     print(f"note: {message}", file=sys.stderr)
                 else:
                     show(message, category, *where, **options)
