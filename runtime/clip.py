@@ -28,6 +28,7 @@ ANIMATIONS = ("bvh", "glb")
 @dataclass
 class Motion:
     features: np.ndarray  # (T, D) float32, un-normalised HumanML3D-layout features, as decoded
+    # (T - 1 rows for a clip read from a file: see from_file)
     joints: np.ndarray  # (T, J, 3) float32, metres, Y up; feet planted unless plant_feet=False
     fps: float
     tokens: np.ndarray  # (n, L) int64, the token steps the features were decoded from
@@ -43,7 +44,10 @@ class Motion:
         from with MotionStream.continue_from: a BVH (any rig with SMPL, Mixamo or CMU joint
         names; unit and up axis detected) or a DeepMimic motion (see mogo.motion.mocap).
         `mapping`: a JSON file naming the rig's joint for each of ours (mogo.motion.rigs).
-        The clip is put on the floor at the origin, facing +Z, as HumanML3D clips are."""
+        The clip is put on the floor at the origin, facing +Z, as HumanML3D clips are.
+        `joints` has every frame of the file (at 20 fps); `features` one row fewer, as
+        HumanML3D's new_joint_vecs have beside new_joints: a row holds the velocities to the
+        next frame, which the last frame does not have."""
         rig = None if mapping is None else rigs.read_mapping(mapping)
         clip = mocap.read_mocap(path, rig)
         joints = mocap.resample(clip.joints, clip.fps, SMPL_22.fps)
@@ -51,7 +55,7 @@ class Motion:
             features, canonical = joints_to_features(joints, SMPL_22)
         except ValueError as error:
             raise ValueError(f"{path}: {error}") from None
-        return cls(features, canonical[:len(features)], SMPL_22.fps,
+        return cls(features, canonical, SMPL_22.fps,
                    np.zeros((0, 0), np.int64), SMPL_22, [(0, Path(path).name)])
 
     @property
