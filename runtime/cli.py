@@ -163,7 +163,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         _note_played(generator, args)
     name = args.name or _file_stem(motion.caption)
     if long:
-        print(f"writing {', '.join(formats)} ({plural(len(motion.joints), 'frame')})",
+        print(f"writing: {', '.join(formats)} ({plural(len(motion.joints), 'frame')})",
               file=sys.stderr, flush=True)
     written = motion.save_take(folder, name, overwrite=args.overwrite,
                                bone_translations=args.bvh_bone_translations,

@@ -41,7 +41,7 @@ def test_a_long_take_shows_its_progress_on_stderr(tmp_path, capsys, monkeypatch)
     assert len(steps) >= 5  # about every 10% where stderr is not a terminal
     done, total = map(int, re.match(r"generating: (\d+)/(\d+) ", steps[-1]).groups())
     assert done == total and total > 60  # 60 frames, and the decoder's right context
-    assert "writing npy (60 frames)" in captured.err
+    assert "writing: npy (60 frames)\n" in captured.err
     assert "generating" not in captured.out and captured.out.count("wrote ") == 1
     assert main(["generate", "a person walks forward.", "--seconds", "2.9", "--seed", "0",
                  "--out", str(tmp_path), "--formats", "npy"]) == 0
