@@ -144,13 +144,14 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     formats = _formats(args)
     folder = check_take(args.out, args.name, args.overwrite, what="--name",
                         formats=formats)  # before the work
-    long = args.seconds is not None and args.seconds >= LONG_TAKE_SECONDS
+    seconds = sum(s for _, s in schedule) if args.prompts_file else args.seconds
+    long = seconds is not None and seconds >= LONG_TAKE_SECONDS
     generator = _load_generator(args)
     rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
     sampling = _sampling(args, generator)
     if args.prompts_file:
         motion = generator.play(schedule, seed=args.seed, sampling=sampling,
-                                plant_feet=args.plant_feet)
+                                plant_feet=args.plant_feet, progress=long)
     else:
         motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
                                     sampling=sampling, align=_aligner(args, generator),

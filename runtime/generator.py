@@ -32,6 +32,7 @@ from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.motion.features import JointStream
 from mogo.motion.feet import FootPlanter, planted
+from mogo.progress import Progress
 from mogo.repertoire import Familiarity
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StreamingDecoder
@@ -121,7 +122,7 @@ class MotionGenerator:
         mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment.
         plant_feet=False keeps the joints as decoded (see mogo.motion.feet); the same for
         every method that makes motion. progress=True: a progress line on stderr while the
-        token steps are drawn (minutes, for a long clip; not with align)."""
+        token steps are drawn (minutes, for a long clip)."""
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
         seed = _seed(seed)
@@ -135,7 +136,8 @@ class MotionGenerator:
                   aligner: PromptAligner | None, plant_feet: bool,
                   progress: bool = False) -> Motion:
         if aligner is not None:
-            return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet)
+            return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet,
+                                      progress)
         steps = None if seconds is None else self._steps(seconds)
         max_steps = self._steps(self.defaults.max_seconds)
         if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
@@ -170,17 +172,19 @@ class MotionGenerator:
                 for k, text in enumerate(texts)]
 
     def _play_aligned(self, alignment: Alignment, seconds: float | None, seed: int,
-                      sampling: Sampling, plant_feet: bool) -> Motion:
+                      sampling: Sampling, plant_feet: bool, progress: bool = False) -> Motion:
         if seconds is not None:
             alignment = alignment.scaled(seconds)
-        motion = self._play(alignment.schedule(), seed, sampling, plant_feet)
+        motion = self._play(alignment.schedule(), seed, sampling, plant_feet, progress)
         motion.alignment = alignment
         return motion
 
     def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
-             sampling: Sampling | None = None, plant_feet: bool = True, **options) -> Motion:
+             sampling: Sampling | None = None, plant_feet: bool = True, progress: bool = False,
+             **options) -> Motion:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
-        fly: the same stream, so every switch is a smooth continuation."""
+        fly: the same stream, so every switch is a smooth continuation. progress=True: a
+        progress line on stderr while the token steps are drawn."""
         sampling = self.sampling(sampling, **options)
         seed = _seed(seed)
         plant_feet = checked_bool(plant_feet, "plant_feet")
@@ -191,16 +195,21 @@ class MotionGenerator:
                 entries.append((self._prompt(entry[0], "prompt"), seconds))
             except (TypeError, ValueError) as error:  # which entry, for a long schedule
                 raise type(error)(f"schedule[{k}]: {error}") from None
-        return self._play(entries, seed, sampling, plant_feet)
+        return self._play(entries, seed, sampling, plant_feet, checked_bool(progress, "progress"))
 
     def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
-              plant_feet: bool) -> Motion:
+              plant_feet: bool, progress: bool = False) -> Motion:
         stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window,
                               plant_feet, anchoring=None)
-        for k, (prompt, seconds) in enumerate(schedule):
+        steps = [self._steps(seconds) for _, seconds in schedule]
+        shown = Progress(sum(steps), "generating", enabled=progress, unit="steps")
+        for k, ((prompt, _), count) in enumerate(zip(schedule, steps, strict=True)):
             if k:
                 stream._switch_prompt(prompt)
-            stream.advance(self._steps(seconds))
+            for _ in range(count):
+                stream.advance(1)
+                shown.update()
+        shown.close()
         return stream.finish()
 
     def decode(self, tokens: np.ndarray, prompts: list[tuple[int, str]],

@@ -46,3 +46,20 @@ def test_a_long_take_shows_its_progress_on_stderr(tmp_path, capsys, monkeypatch)
     assert main(["generate", "a person walks forward.", "--seconds", "2.9", "--seed", "0",
                  "--out", str(tmp_path), "--formats", "npy"]) == 0
     assert "generating" not in capsys.readouterr().err  # a short take: no progress
+
+
+@pytest.mark.parametrize("how", ["prompts-file", "align"])
+def test_a_long_played_take_shows_its_progress_too(how, tmp_path, capsys, monkeypatch):
+    """A prompts file and an aligned prompt are played step by step (generator.play): the
+    same progress line, over every step of the schedule."""
+    monkeypatch.setattr(cli, "LONG_TAKE_SECONDS", 3.0)
+    if how == "prompts-file":
+        (tmp_path / "plan.txt").write_text("2 a person walks forward.\n1.5 a person jumps.\n")
+        flags = ["--prompts-file", str(tmp_path / "plan.txt")]
+    else:
+        flags = ["walk ahead and then jump", "--align", "rules", "--seconds", "3.5"]
+    assert main(["generate", *flags, "--seed", "0", "--out", str(tmp_path / "out"),
+                 "--formats", "npy"]) == 0
+    steps = [line for line in capsys.readouterr().err.splitlines()
+             if line.startswith("generating: ")]
+    assert len(steps) >= 5 and re.match(r"generating: (\d+)/\1 \(100%\)", steps[-1]), steps
