@@ -77,6 +77,7 @@ def main() -> None:
     if request.get("png"):
         _render(scene, [ours, target], request)
     result["live"] = _live(scene, request.get("live_frames", 20))
+    result["long_names"] = _long_names(target)
     with open(request["result"], "w") as file:
         json.dump(result, file)
 
@@ -105,6 +106,15 @@ def _live(scene, frames: int) -> dict:
                 prompts=session.stream.prompts, keys=_hips_keys(ours.animation_data.action),
                 plays=_plays(scene, ours), error=str(session.error or ""),
                 running="live" in ui._CACHE)
+
+
+def _long_names(target) -> list[str]:
+    """Two retarget-style Actions of a prompt too long for Blender's names, as Blender named
+    them (the second numbered by Blender itself)."""
+    from mogo_blender import scene as addon_scene
+    prompt = ("a person walks forward, then waves with the right hand, then turns around and "
+              "claps")
+    return [addon_scene.new_action(target, prompt, f" on {target.name}").name for _ in (1, 2)]
 
 
 def _hips_keys(action) -> list[float]:

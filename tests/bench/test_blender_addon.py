@@ -56,4 +56,8 @@ def test_the_addon_generates_retargets_and_streams_in_blender(tmp_path, launcher
     assert (walk, jog) == ("a person walks forward.", "a person jogs.")
     assert 20 <= switched < live["written"]
     assert png.stat().st_size > 0
+    # a long name: cut after a whole word, room left for the number Blender gives a second one
+    first, second = scene["long_names"]
+    assert first == "a person walks forward, then waves with the on Mannequin"
+    assert second == first + ".001" and len(second.encode()) <= 63
     assert "| frames / keys / scene fps | 40 / 40 / 20 |" in table(figures)
