@@ -100,9 +100,8 @@ def report(rows: dict[int, dict[str, float]], model: str, flags: set[str] | None
              "|---:|---:|---:|---:|"]
     for t, row in rows.items():
         first, clip = README.get(t, (None, None))
-        lines.append(f"| {t} | {row['first_ms']:.0f} ms / "
-                     f"{'-' if first is None else f'{first:.0f} ms'} | {row['clip_s']:.3f} s / "
-                     f"{'-' if clip is None else f'{clip:.3f} s'} | {row['step_ms']:.2f} ms |")
+        lines.append(f"| {t} | {_beside(row['first_ms'], first, '{:.0f} ms')} | "
+                     f"{_beside(row['clip_s'], clip, '{:.3f} s')} | {row['step_ms']:.2f} ms |")
     lines.append("")
     lines.append(f"Medians of {ROUNDS} interleaved rounds at most; other work on this machine "
                  "slows them.")
@@ -110,6 +109,13 @@ def report(rows: dict[int, dict[str, float]], model: str, flags: set[str] | None
         lines.append("No VNNI here: the bundle's int8 level graphs run on slower integer "
                      "kernels than on the README's kind of machine (docs/performance.md).")
     return "\n".join(lines)
+
+
+def _beside(here: float, readme: float | None, unit: str) -> str:
+    """'62 ms / 51 ms (1.2x)': this machine's figure, the README's, how many times slower."""
+    if readme is None:
+        return f"{unit.format(here)} / -"
+    return f"{unit.format(here)} / {unit.format(readme)} ({here / readme:.1f}x)"
 
 
 def main(bundle: str | None, threads: list[int] | None) -> None:

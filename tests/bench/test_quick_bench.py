@@ -16,9 +16,13 @@ def test_it_runs_without_torch_and_prints_both_columns(run_without_torch):
     assert out.startswith("this machine: ") and "onnxruntime" in out
     assert re.search(r"^  AVX2 (yes|no), AVX-512 (yes|no), AVX-512 VNNI (yes|no)", out,
                      re.MULTILINE) or "NEON" in out or "unknown" in out
-    row = re.search(r"^\| 1 \| (\d+) ms / 51 ms \| (\d+\.\d+) s / 0\.258 s \| (\d+\.\d+) ms \|$",
-                    out, re.MULTILINE)
-    assert row and all(float(v) > 0 for v in row.groups())
+    row = re.search(r"^\| 1 \| (\d+) ms / 51 ms \((\d+\.\d)x\) \| (\d+\.\d+) s / 0\.258 s "
+                    r"\((\d+\.\d)x\) \| (\d+\.\d+) ms \|$", out, re.MULTILINE)
+    assert row, out
+    first, first_ratio, clip, clip_ratio, step = map(float, row.groups())
+    assert first > 0 and clip > 0 and step > 0
+    assert abs(first_ratio - first / 51) < 0.1  # how many times the README's
+    assert abs(clip_ratio - clip / 0.258) < 0.1
     assert "| 2 |" not in out
 
 
