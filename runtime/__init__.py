@@ -12,6 +12,7 @@
 
 Everything here runs on numpy + onnxruntime + tokenizers + pillow; nothing imports torch.
 The names below are the public API; every other module is the runtime's own business.
+Which of their members are public and which are shared inside mogo only: docs/api.md.
 """
 from mogo.align import Alignment
 from mogo.anchoring import Anchoring

@@ -41,6 +41,11 @@ def checked_prompt(text: object, name: str = "text") -> str:
         raise TypeError(f"{name} must be a string (the prompt), got {type(text).__name__}")
     if not text.strip():
         raise ValueError("the prompt is empty")
+    try:  # JSON's "\ud800" or a Latin-1 terminal's bytes: a lone surrogate is no text
+        text.encode("utf-8")
+    except UnicodeEncodeError as error:
+        raise ValueError(f"{name} is not valid Unicode: a lone surrogate "
+                         f"{text[error.start]!r} at character {error.start}") from None
     return text.strip()
 
 

@@ -114,26 +114,29 @@ class MotionGenerator:
     # -- whole clips ---------------------------------------------------------------------------
     def generate(self, text: str, seconds: float | None = None, seed: int | None = None,
                  sampling: Sampling | None = None, align: bool | PromptAligner = False,
-                 plant_feet: bool = True, progress: bool = False, **options) -> Motion:
+                 plant_feet: bool = True, stop=None, progress: bool = False,
+                 **options) -> Motion:
         """One prompt -> one Motion. seconds=None lets the model end the motion (at most the
         bundle's max_seconds); seed=None draws a fresh seed, kept in Motion.seed so the result
         can be reproduced. `sampling` and the keyword `options`: see `sampling()`.
         align=True (or a PromptAligner) rewrites the prompt into caption-style steps (see
         mogo.align), played as one motion by `play`; the steps are kept in Motion.alignment.
         plant_feet=False keeps the joints as decoded (see mogo.motion.feet); the same for
-        every method that makes motion. progress=True: a progress line on stderr while the
-        token steps are drawn (minutes, for a long clip)."""
+        every method that makes motion. stop: a threading.Event another thread may set to
+        end the work early (mogo.token_generator.Stopped is raised; `mogo serve` sets it when
+        a client leaves). progress=True: a progress line on stderr while the token steps are
+        drawn (minutes, for a long clip)."""
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
         seed = _seed(seed)
         aligner = self.aligner(align)
         plant_feet = checked_bool(plant_feet, "plant_feet")
         text = checked_prompt(text) if aligner else self._prompt(text)
-        return self._generate(text, seconds, seed, sampling, aligner, plant_feet,
+        return self._generate(text, seconds, seed, sampling, aligner, plant_feet, stop,
                               checked_bool(progress, "progress"))
 
     def _generate(self, text: str, seconds: float | None, seed: int, sampling: Sampling,
-                  aligner: PromptAligner | None, plant_feet: bool,
+                  aligner: PromptAligner | None, plant_feet: bool, stop=None,
                   progress: bool = False) -> Motion:
         if aligner is not None:
             return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet,
@@ -143,7 +146,7 @@ class MotionGenerator:
         if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
             steps += self._decoder.lookahead
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
-                                      self.defaults.window, progress)
+                                      self.defaults.window, stop, progress)
         frames = None if seconds is None else round(seconds * self.fps)
         return self.decode(tokens, [(0, text)], frames, seed, plant_feet)
 

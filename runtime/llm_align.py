@@ -11,8 +11,11 @@ Alignment.note says why.
 """
 from __future__ import annotations
 
+import http.client
 import json
 import os
+import socket
+import threading
 import urllib.error
 import urllib.request
 from numbers import Real
@@ -21,6 +24,8 @@ from mogo.align import AlignedStep, Alignment, PromptAligner, RuleAligner
 
 MAX_STEPS = 8
 MAX_TIMEOUT = 3600.0  # seconds; an aligner waiting longer has hung
+MAX_REPLY_BYTES = 1 << 20  # a chat reply is a few KB; a larger one is refused unread
+MAX_ANSWER_CHARS = 16384  # the answer's JSON is looked for in the reply's last characters
 STEP_SECONDS = (0.5, 30.0)
 
 SYSTEM_PROMPT = """\
@@ -71,7 +76,8 @@ EXAMPLES = (
 class LLMAligner(PromptAligner):
     """url: the server's base URL ("http://localhost:8080/v1"; env MOGO_LLM_URL); model:
     the model name the server expects (env MOGO_LLM_MODEL); api_key: sent as a bearer
-    token (env MOGO_LLM_API_KEY; local servers need none). timeout in seconds per request."""
+    token (env MOGO_LLM_API_KEY; local servers need none), to that server only: a redirect
+    is not followed. timeout: seconds for the whole exchange, the reply read to its end."""
 
     def __init__(self, url: str | None = None, model: str | None = None,
                  api_key: str | None = None, timeout: float = 10.0,
@@ -96,7 +102,16 @@ class LLMAligner(PromptAligner):
         except TimeoutError:
             return self._fall_back(text, f"the LLM did not answer within {self.timeout:g} s")
         except urllib.error.HTTPError as error:
+            if 300 <= error.code < 400:  # the API key would go along (issue 39)
+                where = error.headers.get("Location")
+                return self._fall_back(text, f"the LLM server answered HTTP {error.code}, a "
+                                             f"redirect to {where!r}, not followed")
             return self._fall_back(text, f"the LLM server answered HTTP {error.code}")
+        except http.client.IncompleteRead:
+            return self._fall_back(text, "the LLM server's reply was cut short")
+        except http.client.HTTPException as error:
+            return self._fall_back(text, f"the LLM server's reply was not HTTP "
+                                         f"({type(error).__name__})")
         except (urllib.error.URLError, OSError) as error:
             reason = getattr(error, "reason", error)
             if isinstance(reason, TimeoutError):
@@ -125,8 +140,27 @@ class LLMAligner(PromptAligner):
             headers["Authorization"] = f"Bearer {self.api_key}"
         request = urllib.request.Request(self.url.rstrip("/") + "/chat/completions", body,
                                          headers, method="POST")
-        with urllib.request.urlopen(request, timeout=self.timeout) as response:
-            reply = json.loads(response.read().decode("utf-8"))
+        watchdog = _Watchdog(self.timeout)
+        opener = urllib.request.build_opener(_NoRedirect, watchdog.handler(_HTTP),
+                                             watchdog.handler(_HTTPS))
+        try:
+            with watchdog, opener.open(request, timeout=self.timeout) as response:
+                data = response.read(MAX_REPLY_BYTES + 1)
+                missing = response.length  # of its Content-Length (a read cut short)
+        except (OSError, http.client.HTTPException):
+            if watchdog.expired:
+                raise TimeoutError from None
+            raise
+        if watchdog.expired:
+            raise TimeoutError
+        if missing and len(data) <= MAX_REPLY_BYTES:
+            raise http.client.IncompleteRead(data, missing)
+        if len(data) > MAX_REPLY_BYTES:
+            raise ValueError(f"it is larger than {MAX_REPLY_BYTES} bytes")
+        try:
+            reply = json.loads(data.decode("utf-8"))
+        except RecursionError:
+            raise ValueError("its JSON is nested too deeply") from None
         try:
             return reply["choices"][0]["message"]["content"]
         except (KeyError, IndexError, TypeError):
@@ -138,14 +172,87 @@ class LLMAligner(PromptAligner):
         return Alignment(alignment.steps, alignment.source, note)
 
 
+class _NoRedirect(urllib.request.HTTPRedirectHandler):
+    """A redirect is an HTTPError: the request and its API key go nowhere else."""
+
+    def redirect_request(self, req, fp, code, msg, headers, newurl):
+        return None
+
+
+class _Watchdog:
+    """Shuts the connection's socket once `timeout` seconds have passed since it started,
+    whatever phase the exchange is in (a server may drip its reply a byte a second)."""
+
+    def __init__(self, timeout: float):
+        self.timer = threading.Timer(timeout, self._expire)
+        self.timer.daemon = True
+        self.sockets, self.expired, self.lock = [], False, threading.Lock()
+
+    def handler(self, base: type) -> urllib.request.BaseHandler:
+        """`base` (a handler below) whose connections this watchdog watches."""
+        handler = base()
+        handler.watchdog = self
+        return handler
+
+    def watch(self, sock: socket.socket) -> None:
+        with self.lock:
+            self.sockets.append(sock)
+            if self.expired:
+                _shut(sock)
+
+    def _expire(self) -> None:
+        with self.lock:
+            self.expired = True
+            for sock in self.sockets:
+                _shut(sock)
+
+    def __enter__(self):
+        self.timer.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.timer.cancel()
+
+
+def _shut(sock: socket.socket) -> None:
+    try:
+        sock.shutdown(socket.SHUT_RDWR)  # a read blocked on it returns at once
+    except OSError:
+        pass
+
+
+class _Watched:
+    """A urllib handler whose connections tell their socket to a _Watchdog."""
+    watchdog: _Watchdog
+
+    def do_open(self, http_class, req, **kwargs):
+        watchdog = self.watchdog
+
+        class Connection(http_class):
+            def connect(self):
+                super().connect()
+                watchdog.watch(self.sock)
+
+        return super().do_open(Connection, req, **kwargs)
+
+
+class _HTTP(_Watched, urllib.request.HTTPHandler):
+    pass
+
+
+class _HTTPS(_Watched, urllib.request.HTTPSHandler):
+    pass
+
+
 def last_json_object(content: str) -> dict:
     """The last {...} block of a reply that may think aloud before answering."""
+    content = content[-MAX_ANSWER_CHARS:]  # each "{" is tried: the work grows as its square
     end = content.rfind("}")
     start = content.rfind("{", 0, end)
     while start >= 0:
         try:
             value = json.loads(content[start:end + 1])
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, RecursionError):
             start = content.rfind("{", 0, start)
             continue
         if isinstance(value, dict):

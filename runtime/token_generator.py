@@ -36,6 +36,10 @@ LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"] 
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
 
 
+class Stopped(Exception):
+    """`generate` was asked to stop by another thread (`mogo serve`, when a client leaves)."""
+
+
 class TokenGenerator:
     """The level graphs of one model; `start` opens a stream on them (streams share sessions)."""
 
@@ -81,15 +85,18 @@ class TokenGenerator:
 
     def generate(self, prompt_embedding: np.ndarray, num_frames: int | None = None,
                  max_frames: int = MAX_FRAMES, sampling: Sampling = Sampling(), seed: int = 0,
-                 window: int | None = None, progress: bool = False) -> np.ndarray:
+                 window: int | None = None, stop=None, progress: bool = False) -> np.ndarray:
         """prompt_embedding (text_dim,) -> token ids (T, L) int64. num_frames given: exactly that
         many steps, the end token masked. None: until level 0 draws the end token or max_frames.
-        progress=True: a progress line on stderr (mogo.progress) as the steps are drawn."""
+        stop: a threading.Event; once set, the next step raises Stopped. progress=True: a
+        progress line on stderr (mogo.progress) as the steps are drawn."""
         stream = self.start(prompt_embedding, seed, sampling, window, num_frames is None)
         total = max_frames if num_frames is None else num_frames
         shown = Progress(total, "generating", enabled=progress, unit="steps")
         rows = []
         while len(rows) < total:
+            if stop is not None and stop.is_set():
+                raise Stopped("stopped")
             row = stream.step()
             if row is None:
                 break

@@ -1,10 +1,15 @@
 """Plain helpers the tests share (fixtures are in conftest.py): tiny data, clips, training-run
 records and the two-process runner. Importable as `helpers` from any test folder."""
+import contextlib
 import json
 import os
 import shutil
 import subprocess
 import sys
+import tempfile
+import time
+import urllib.request
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -126,3 +131,39 @@ def bundle_with_old_text_side(folder) -> str:
     shutil.copy2(os.path.join(OLD_TEXT_SIDE, "manifest.json"),
                  os.path.join(folder, "manifest.json"))
     return str(folder)
+
+
+@contextlib.contextmanager
+def served(timeout: float = 60.0) -> Iterator[int]:
+    """A real `mogo serve` on 127.0.0.1 and a free port (yielded), ready once /v1/health
+    answers; stopped (killed if it lingers) on the way out. Its stderr goes to a file, so a
+    chatty server never blocks on a full pipe."""
+    from mogo.bench.speed.serve import free_port
+
+    port = free_port()
+    with tempfile.TemporaryFile("w+") as log:
+        server = subprocess.Popen([sys.executable, "-m", "mogo", "serve", "--port", str(port),
+                                   "--threads", "1"], stderr=log, text=True)
+        try:
+            deadline = time.monotonic() + timeout
+            while not _answers(f"http://127.0.0.1:{port}/v1/health"):
+                if server.poll() is not None or time.monotonic() > deadline:
+                    log.seek(0)
+                    raise AssertionError(f"mogo serve is not answering: {log.read()}")
+                time.sleep(0.2)
+            yield port
+        finally:
+            server.terminate()
+            try:
+                server.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                server.kill()
+                server.wait()
+
+
+def _answers(url: str) -> bool:
+    try:
+        with urllib.request.urlopen(url, timeout=2):
+            return True
+    except OSError:
+        return False

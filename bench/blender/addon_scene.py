@@ -1,9 +1,10 @@
 """Blender's side of `python -m mogo.bench.quality.blender_addon`: the add-on as a user has it,
 headless. Install and enable it from its zip, check the message without a runtime, press its
 Install (the runtime wheel it ships, into an empty folder; the runtime's dependencies come from
-this environment's site-packages, added after it), Generate twice (a 24 fps scene), build a Mixamo-named armature of other proportions
-with arms in an A-pose, map it with the preset and Retarget; record every bone's world head
-per frame on both armatures, and optionally render one frame to PNG.
+this environment's site-packages, added after it), Generate twice (a 24 fps scene), build a
+Mixamo-named armature of other proportions with arms in an A-pose, map it with the preset and
+Retarget; record every bone's world head per frame on both armatures, name two Actions of a
+long prompt, and optionally render one frame to PNG.
 
     blender -b --factory-startup --python bench/blender/addon_scene.py -- REQUEST.json
 REQUEST.json: {"zip", "site_packages", "empty" (a folder without the runtime), "installed" (an

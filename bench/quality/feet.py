@@ -276,13 +276,13 @@ def cost(generator: MotionGenerator, threads: tuple[int, ...] = (1, 2), rounds: 
             stream.step()
         steps, planting = [], []
         for _ in range(rounds):
-            steps.append(_seconds(lambda: [stream.step() for _ in range(frames // 24)])
+            steps.append(_seconds(lambda s=stream: [s.step() for _ in range(frames // 24)])
                          / (frames // 24) / generator.down_factor)
             planting.append(_seconds(lambda: [_plant_in_bursts(generator.skeleton, clip)
                                               for clip in clips]) / frames)
         step, per_frame = float(np.median(steps)), float(np.median(planting))
-        first = [np.median([_seconds(lambda: next(sized.stream(
-            LOCOMOTION[0], seed=0, plant_feet=plant).frames())) for _ in range(rounds)])
+        first = [np.median([_seconds(lambda g=sized, p=plant: next(g.stream(
+            LOCOMOTION[0], seed=0, plant_feet=p).frames())) for _ in range(rounds)])
                  for plant in (False, True)]
         lines.append(f"| {count} | {1e3 * step:.2f} | {1e3 * per_frame:.3f} | "
                      f"{per_frame / step:.1%} | {1e3 * first[0]:.0f} | {1e3 * first[1]:.0f} |")

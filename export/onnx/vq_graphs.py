@@ -43,6 +43,7 @@ from mogo.bundle import Bundle
 from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
 from mogo.export.onnx.t2m_graphs import export_module
 from mogo.manifest import DecoderGraph, Graph
+from mogo.serve.onnx_graph import consumer_map
 
 IMPORT_MAX_DIFFERENCE = 1e-4  # decoded features, torch against the bundle's decoder graph
 MIN_TOKEN_AGREEMENT = 0.99  # ids, torch against the bundle's encoder graph
@@ -137,10 +138,7 @@ def _dequantisation(graph: onnx.GraphProto) -> dict[str, Tensor]:
     codebooks of a small model become one (L*K, C) table), so names cannot be relied on."""
     constants = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
     producers = {output: node for node in graph.node for output in node.output}
-    consumers = {}
-    for node in graph.node:
-        for name in node.input:
-            consumers.setdefault(name, []).append(node)
+    consumers = consumer_map(graph)
 
     def value(name: str) -> np.ndarray:  # a constant, through the Casts and Reshapes on it
         if name in constants:

@@ -146,15 +146,7 @@ def joints_to_features(joints: np.ndarray, skeleton: Skeleton = SMPL_22,
     `local_rotations` (T, J, 4) are used for the 6D block when known, in the convention of
     `local_rotations_from_joints`; otherwise they are solved from the positions.
     """
-    joints = np.asarray(joints)
-    expected = (skeleton.num_joints, 3)
-    if joints.ndim != 3 or joints.shape[1:] != expected:
-        raise ValueError(f"joints must be (T, {expected[0]}, 3) for the {skeleton.name} "
-                         f"skeleton, got shape {joints.shape}")
-    if joints.shape[0] < 2:
-        raise ValueError(f"a clip needs at least 2 frames, got {joints.shape[0]}")
-    if not np.all(np.isfinite(joints)):
-        raise ValueError("joints contain NaN or infinite values")
+    joints = skeleton.checked_joints(joints, min_frames=2)
     positions = canonicalize(joints, skeleton, facing_sigma)
 
     forward = facing_directions(positions, skeleton, facing_sigma)

@@ -175,11 +175,7 @@ def _check_joints(joints: np.ndarray, skeleton: Skeleton | None) -> Skeleton:
     if joints.ndim != 3 or joints.shape[-1] != 3 or joints.shape[0] < 1:
         raise ValueError(f"joints must be (T, J, 3) with T >= 1, got shape {joints.shape}")
     skeleton = skeleton or _skeleton_for_joints(joints.shape[1])
-    if joints.shape[1] != skeleton.num_joints:
-        raise ValueError(f"the {skeleton.name} skeleton has {skeleton.num_joints} joints, "
-                         f"got {joints.shape[1]}")
-    if not np.all(np.isfinite(joints)):
-        raise ValueError("joints contain NaN or infinite values")
+    skeleton.checked_joints(joints)
     return skeleton
 
 

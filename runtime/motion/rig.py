@@ -54,13 +54,9 @@ def check(skeleton: Skeleton) -> None:
 
 
 def checked_joints(joints: np.ndarray, skeleton: Skeleton, fps: float) -> np.ndarray:
-    """Joints (T, J, 3) as float64, or a ValueError saying what is wrong (exporters' checks)."""
-    joints = np.asarray(joints, dtype=np.float64)
-    if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3) or len(joints) < 1:
-        raise ValueError(f"joints must be (T, {skeleton.num_joints}, 3) for the "
-                         f"{skeleton.name} skeleton, got shape {joints.shape}")
-    if not np.all(np.isfinite(joints)):
-        raise ValueError("joints contain NaN or infinite values")
+    """Joints (T, J, 3) as float64, or a ValueError saying what is wrong (exporters' checks:
+    Skeleton.checked_joints, and a positive fps)."""
+    joints = skeleton.checked_joints(np.asarray(joints, dtype=np.float64))
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
     return joints

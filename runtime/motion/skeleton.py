@@ -44,6 +44,21 @@ class Skeleton:
     def index(self, name: str) -> int:
         return self.joint_names.index(name)
 
+    def checked_joints(self, joints: np.ndarray, min_frames: int = 1) -> np.ndarray:
+        """Joints (T, J, 3) of this skeleton as an array, or a ValueError saying what is wrong:
+        the shape, too few frames, NaN or infinite values (the one check, in one wording, of
+        everything that reads or writes joints)."""
+        joints = np.asarray(joints)
+        if joints.ndim != 3 or joints.shape[1:] != (self.num_joints, 3):
+            raise ValueError(f"joints must be (T, {self.num_joints}, 3) for the {self.name} "
+                             f"skeleton, got shape {joints.shape}")
+        if len(joints) < min_frames:
+            raise ValueError(f"a clip needs at least {min_frames} frame"
+                             f"{'s' if min_frames > 1 else ''}, got {len(joints)}")
+        if not np.all(np.isfinite(joints)):
+            raise ValueError("joints contain NaN or infinite values")
+        return joints
+
     def mirror_permutation(self) -> np.ndarray:
         """Joint index of each joint's left/right twin (itself for centre joints)."""
         names = list(self.joint_names)

@@ -19,16 +19,15 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
+from mogo.serve.onnx_graph import consumer_map
+
 
 def newslot_graph(data: bytes) -> bytes:
     """The serialised level graph `data` with past and new attended apart and only the new
     slot as each present; refused (ValueError) if its attention is not the exported pattern."""
     model = onnx.load_from_string(data)
     graph = model.graph
-    consumers: dict[str, list[onnx.NodeProto]] = {}
-    for node in graph.node:
-        for name in node.input:
-            consumers.setdefault(name, []).append(node)
+    consumers = consumer_map(graph)
     pasts = {value.name for value in graph.input if value.name.startswith("past_key_values")}
     nodes, replaced = [], set()
     for node in graph.node:

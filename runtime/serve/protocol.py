@@ -5,6 +5,7 @@ Client -> server, JSON text messages:
      "binary": false}                        first message: starts the stream (seed optional)
     {"prompt": "..."}                        later: switch the prompt from the next step on
     {"stop": true}                           later: end the stream (the server closes)
+HTTP POST /v1/generate: one such JSON object (UTF-8), {"prompt", "seconds", "seed", "format"}.
 Server -> client:
     {"type": "started", "stream": id, "seed": s, "fps": 20, "joints": [names], "parents": [..]}
     {"type": "frames", "index": i, "joints": [[[x, y, z] x 22] x n]}   frames i .. i+n-1, metres
@@ -23,9 +24,12 @@ import numpy as np
 
 from mogo.sampling import Sampling
 
-MAX_MESSAGE_CHARS = 4096  # longer client messages get an error (a prompt is 64 tokens at most)
+MAX_MESSAGE_CHARS = 4096  # longer messages get an error (a prompt: text.max_length tokens, 128)
 START_FIELDS = {"prompt", "seed", "binary", "plant_feet", *Sampling.__dataclass_fields__}
 LATER_FIELDS = {"prompt", "stop"}
+CLIP_FIELDS = {"prompt", "seconds", "seed", "format"}
+CLIP_FORMATS = {"bvh": "text/plain", "npy": "application/octet-stream",
+                "json": "application/json", "glb": "model/gltf-binary"}  # -> content type
 
 
 class ProtocolError(ValueError):
@@ -34,6 +38,14 @@ class ProtocolError(ValueError):
 
 class ServerFull(ProtocolError):
     """A stream past the server's cap: refused, and the socket closed."""
+
+
+@dataclass
+class Clip:
+    prompt: object  # checked by the generator, as seconds and seed
+    seconds: object
+    seed: object
+    format: str
 
 
 @dataclass
@@ -55,9 +67,31 @@ def read(text: object) -> dict:
         message = json.loads(text)
     except json.JSONDecodeError as error:
         raise ProtocolError(f"not JSON: {error.msg} at character {error.pos}") from None
+    except RecursionError:  # "[[[[...": json's parser recurses
+        raise ProtocolError("not JSON this server reads: nested too deeply") from None
     if not isinstance(message, dict):
         raise ProtocolError(f"a message must be a JSON object, got {type(message).__name__}")
     return message
+
+
+def body(data: bytes, charset: str | None) -> dict:
+    """An HTTP request's body (JSON is UTF-8, RFC 8259) -> its JSON object, or ProtocolError."""
+    if charset is not None and charset.lower() not in ("utf-8", "utf8"):
+        raise ProtocolError(f"charset {charset!r}: the body must be JSON in UTF-8")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise ProtocolError(f"the body is not UTF-8 (byte {error.start})") from None
+    return read(text)
+
+
+def clip(message: dict) -> Clip:
+    """A POST /v1/generate body."""
+    known(message, CLIP_FIELDS)
+    fmt = message.get("format", "bvh")
+    if not isinstance(fmt, str) or fmt not in CLIP_FORMATS:
+        raise ProtocolError(f'"format" must be one of {", ".join(CLIP_FORMATS)}, got {fmt!r}')
+    return Clip(message.get("prompt"), message.get("seconds"), message.get("seed"), fmt)
 
 
 def start(message: dict) -> Start:

@@ -22,6 +22,8 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
+from mogo.serve.onnx_graph import consumer_map
+
 
 def rowwise_graph(path: str | os.PathLike) -> bytes:
     """The level graph at `path`, dynamic quantisation made per row, serialised for
@@ -30,10 +32,7 @@ def rowwise_graph(path: str | os.PathLike) -> bytes:
     graph = model.graph
     ranks = _ranks(model)
     weights = {init.name: numpy_helper.to_array(init) for init in graph.initializer}
-    consumers: dict[str, list[onnx.NodeProto]] = {}
-    for node in graph.node:
-        for name in node.input:
-            consumers.setdefault(name, []).append(node)
+    consumers = consumer_map(graph)
     after: dict[int, list[onnx.NodeProto]] = {}  # nodes to insert after a node (by id)
     nodes = []
     for node in graph.node:

@@ -3,18 +3,26 @@
 One thread runs the Engine (every stream's steps, prompt checks, switches), so the event loop
 only moves messages. Each client has a bounded queue of outgoing bursts: a client that reads
 too slowly loses its oldest bursts (the frame indices then jump), the others are not held up.
+Whole clips run on a pool of their own, a bounded queue in front of it. What the server
+trusts and refuses (Host, Origin, token, limits): docs/security.md.
 """
 from __future__ import annotations
 
 import asyncio
+import hmac
+import ipaddress
+import logging
 import tempfile
+import threading
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from urllib.parse import urlsplit
 
-from aiohttp import WSMsgType, web
+from aiohttp import WSCloseCode, WSMsgType, web
 
 from mogo.arguments import PromptWarning, UnknownPromptWarning
 from mogo.generator import MotionGenerator, _seed
@@ -23,22 +31,117 @@ from mogo.serve.engine import Engine, ServedStream
 
 QUEUED_BURSTS = 8  # per client: ~3 s of motion; beyond, the oldest burst is dropped
 MAX_WIRE_MESSAGE = 1 << 20  # aiohttp closes the socket (1009) past this; smaller ones get
-FORMATS = {"bvh": "text/plain", "npy": "application/octet-stream", "json": "application/json",
-           "glb": "model/gltf-binary"}
-GENERATE_FIELDS = {"prompt", "seconds", "seed", "format"}
+SWITCHES_PER_SECOND, SWITCH_BURST = 2, 4  # per socket; more get an error, not a switch
+QUEUED_CLIPS = 8  # clip requests waiting beyond the running ones; more get 503
+REQUEST_SECONDS = 10.0  # for a request's headers, a clip's body, a socket's first stream
+KEEPALIVE_SECONDS = 15.0  # an idle keep-alive connection is closed after this
+SHUTDOWN_SECONDS = 2.0  # on SIGINT/SIGTERM, what a request in flight gets to finish
+SPARE_CONNECTIONS = 64  # connections beyond --max-streams (clips, health, the viewer)
+LOG_EVERY_SECONDS = 10.0  # one log line of a kind per this, at most (no log floods)
+LOCAL_NAMES = {"localhost"}  # with every loopback address
+
+
+@dataclass(frozen=True)
+class Access:
+    """Who may use the server. `host`: the address it listens on; `origins`: web pages
+    allowed beside its own (--allow-origin; "*" for any); `token`: asked of every request
+    but the viewer page when given (--token)."""
+    host: str = "127.0.0.1"
+    origins: tuple[str, ...] = ()
+    token: str | None = None
+
+    def refusal(self, request: web.Request) -> tuple[int, str] | None:
+        """(HTTP status, why) for a request it refuses, None for one it serves."""
+        if not (wildcard(self.host) or self._our_host(request.host)):
+            return 403, (f"Host {request.host!r} is not this server (a web page's DNS "
+                         "rebinding?); use http://127.0.0.1 or http://localhost")
+        origin = request.headers.get("Origin")
+        if origin is not None and not self._allowed(origin, request):
+            return 403, (f"web pages from {origin!r} may not use this server; start it with "
+                         f"--allow-origin {origin} to allow them")
+        if self.token is not None and request.path != "/" and not self._has_token(request):
+            return 401, ("this server needs its token: send the header 'Authorization: "
+                         "Bearer TOKEN' or add ?token=TOKEN to the URL")
+        return None
+
+    def _our_host(self, host: str) -> bool:
+        try:
+            name = urlsplit(f"http://{host}").hostname or ""
+        except ValueError:
+            return False
+        return name == self.host.lower().strip("[]") or local(name)
+
+    def _allowed(self, origin: str, request: web.Request) -> bool:
+        origin = origin.rstrip("/").lower()
+        if "*" in self.origins or origin in (o.rstrip("/").lower() for o in self.origins):
+            return True
+        try:
+            url = urlsplit(origin)
+            port = url.port or {"http": 80, "https": 443}.get(url.scheme)
+        except ValueError:
+            return False
+        sockname = request.transport.get_extra_info("sockname") if request.transport else None
+        bound_port = sockname[1] if sockname else None
+        same = url.netloc == request.host.lower()  # the page is one the server gave
+        return url.scheme in ("http", "https") and (
+            same or (local(url.hostname or "") and port == bound_port))
+
+    def _has_token(self, request: web.Request) -> bool:
+        header = request.headers.get("Authorization", "")
+        given = header[7:] if header[:7].lower() == "bearer " else request.query.get("token", "")
+        return hmac.compare_digest(given.encode(), self.token.encode())
+
+
+def local(host: str) -> bool:
+    """localhost or a loopback address, written as a URL or an address (127.1, [::1])."""
+    host = host.strip("[]").lower()
+    if host in LOCAL_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def wildcard(host: str) -> bool:
+    """An address that listens on every interface (0.0.0.0, ::): any Host may be asked for."""
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_unspecified
+    except ValueError:
+        return host == ""
+
+
+class Rate:
+    """At most `per_second` events a second, `burst` at once (a token bucket)."""
+
+    def __init__(self, per_second: float, burst: float, clock=time.monotonic):
+        self.per_second, self.burst, self.clock = per_second, burst, clock
+        self.tokens, self.last = burst, clock()
+
+    def take(self) -> bool:
+        now = self.clock()
+        self.tokens = min(self.burst, self.tokens + (now - self.last) * self.per_second)
+        self.last = now
+        if self.tokens < 1:
+            return False
+        self.tokens -= 1
+        return True
 
 
 class Server:
-    """The app's state: the engine, its thread, the clients."""
+    """The app's state: the engine, its thread, the clients, the clip pool."""
 
     def __init__(self, generator: MotionGenerator, threads: int, max_streams: int,
-                 tokens=None):
-        self.generator, self.max_streams = generator, max_streams
+                 tokens=None, access: Access = Access()):
+        self.generator, self.max_streams, self.access = generator, max_streams, access
         self.engine = Engine(generator, threads, tokens)
         self.thread = ThreadPoolExecutor(1, "mogo-engine")
-        self.clips = ThreadPoolExecutor(1, "mogo-generate")
+        self.clip_workers = threads
+        self.clips = ThreadPoolExecutor(threads, "mogo-generate")
+        self.clip_jobs = 0  # running and waiting
         self.wake = asyncio.Event()
         self.queues: dict[int, asyncio.Queue] = {}
+        self.sockets: set[web.WebSocketResponse] = set()
         self.clock = time.monotonic
 
     async def run_engine(self) -> None:
@@ -111,10 +214,21 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
     server: Server = request.app[SERVER]
     ws = web.WebSocketResponse(max_msg_size=MAX_WIRE_MESSAGE, heartbeat=20)
     await ws.prepare(request)
+    server.sockets.add(ws)
     stream, sender = None, None
+    switches = Rate(SWITCHES_PER_SECOND, SWITCH_BURST)  # each: a prompt check, engine thread
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + REQUEST_SECONDS  # to start a stream
     try:
-        async for message in ws:
-            if message.type in (WSMsgType.ERROR, WSMsgType.CLOSE):
+        while True:
+            try:  # a socket that starts nothing would hold a connection for ever
+                left = None if stream else max(deadline - loop.time(), 1e-3)  # 0: no timeout
+                message = await ws.receive(timeout=left)
+            except asyncio.TimeoutError:
+                await ws.send_str(protocol.error(f"no stream started within "
+                                                 f"{REQUEST_SECONDS:g} s"))
+                break
+            if message.type not in (WSMsgType.TEXT, WSMsgType.BINARY):  # closing, an error
                 break
             try:
                 body = protocol.read(message.data if message.type == WSMsgType.TEXT else b"")
@@ -131,6 +245,10 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                     prompt = protocol.later(body)
                     if prompt is None:
                         break
+                    if not switches.take():
+                        raise protocol.ProtocolError(
+                            f"too many switches: at most {SWITCHES_PER_SECOND} a second "
+                            f"({SWITCH_BURST} at once); this one was not played")
                     notes = await server.call(server.switch, stream, prompt)
                     await ws.send_str(protocol.switched(prompt))
                 for note in notes:
@@ -140,9 +258,10 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                 if isinstance(error, protocol.ServerFull):
                     break
     finally:
+        server.sockets.discard(ws)
         if stream is not None:
             server.queues.pop(stream.id, None)
-            await server.call(server.engine.close, stream)
+            await asyncio.shield(server.call(server.engine.close, stream))
         if sender is not None:
             sender.cancel()
         await ws.close()
@@ -150,10 +269,13 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
 
 
 async def _send(ws: web.WebSocketResponse, queue: asyncio.Queue, binary: bool) -> None:
-    while True:
-        first, joints = await queue.get()
-        data = protocol.frames(first, joints, binary)
-        await (ws.send_bytes(data) if binary else ws.send_str(data))
+    try:
+        while True:
+            first, joints = await queue.get()
+            data = protocol.frames(first, joints, binary)
+            await (ws.send_bytes(data) if binary else ws.send_str(data))
+    except ConnectionError:  # the client left: its handler closes the stream
+        pass
 
 
 async def health(request: web.Request) -> web.Response:
@@ -169,38 +291,64 @@ async def viewer(request: web.Request) -> web.Response:
 
 
 async def generate(request: web.Request) -> web.Response:
-    """POST {prompt, seconds, seed, format} -> the file."""
+    """POST {prompt, seconds, seed, format} -> the file. A client that leaves stops its clip."""
     server: Server = request.app[SERVER]
+    if request.content_type != "application/json":  # a web page's form post cannot send it
+        return _refused(415, "POST /v1/generate takes Content-Type: application/json, got "
+                             f"{request.content_type!r}")
+    try:  # read before it takes a place in the queue: a body dripped slowly holds none
+        body = await asyncio.wait_for(request.read(), REQUEST_SECONDS)
+        clip = protocol.clip(protocol.body(body, request.charset))
+    except asyncio.TimeoutError:
+        late = _refused(408, f"the body did not come within {REQUEST_SECONDS:g} s")
+        late.force_close()  # what is left of it would be read as the next request
+        return late
+    except protocol.ProtocolError as error:
+        return _refused(400, str(error))
+    if server.clip_jobs >= server.clip_workers + QUEUED_CLIPS:
+        return _refused(503, f"busy: {server.clip_jobs} clips are being made or wait; "
+                             "try again later", {"Retry-After": "5"})
+    server.clip_jobs += 1
+    stop = threading.Event()
     try:
-        body = protocol.read(await request.text())
-        protocol.known(body, GENERATE_FIELDS)
-        fmt = body.get("format", "bvh")
-        if fmt not in FORMATS:
-            raise protocol.ProtocolError(f'"format" must be one of {", ".join(FORMATS)}, '
-                                         f"got {fmt!r}")
-        prompt, _ = await server.call(server.checked_prompt, body.get("prompt"))
+        prompt, _ = await server.call(server.checked_prompt, clip.prompt)
         data = await asyncio.get_running_loop().run_in_executor(
-            server.clips, _clip_file, server.generator, prompt, body.get("seconds"),
-            body.get("seed"), fmt)
+            server.clips, _clip_file, server.generator, prompt, clip, stop)
     except (protocol.ProtocolError, TypeError, ValueError) as error:
-        return web.json_response({"type": "error", "error": str(error)}, status=400)
-    return web.Response(body=data, content_type=FORMATS[fmt])
+        return _refused(400, str(error))
+    finally:  # on a disconnect too (aiohttp cancels this handler): the clip stops at its next step
+        stop.set()
+        server.clip_jobs -= 1
+    return web.Response(body=data, content_type=protocol.CLIP_FORMATS[clip.format])
 
 
-def _clip_file(generator: MotionGenerator, prompt: str, seconds, seed, fmt: str) -> bytes:
-    save = getattr(generator.generate(prompt, seconds=seconds, seed=seed), f"save_{fmt}")
+def _clip_file(generator: MotionGenerator, prompt: str, clip: protocol.Clip,
+               stop: threading.Event) -> bytes:
+    motion = generator.generate(prompt, seconds=clip.seconds, seed=clip.seed, stop=stop)
     with tempfile.TemporaryDirectory() as folder:
-        return Path(save(Path(folder) / f"motion.{fmt}")).read_bytes()
+        save = getattr(motion, f"save_{clip.format}")
+        return Path(save(Path(folder) / f"motion.{clip.format}")).read_bytes()
+
+
+def _refused(status: int, why: str, headers=None) -> web.Response:
+    return web.json_response({"type": "error", "error": why}, status=status, headers=headers)
+
+
+@web.middleware
+async def guard(request: web.Request, handler):
+    """Host, Origin and token before any route (docs/security.md)."""
+    refusal = request.app[SERVER].access.refusal(request)
+    return _refused(*refusal) if refusal else await handler(request)
 
 
 SERVER = web.AppKey("server", Server)
 
 
 def make_app(generator: MotionGenerator, threads: int = 1, max_streams: int = 200,
-             tokens=None) -> web.Application:
+             tokens=None, access: Access = Access()) -> web.Application:
     """The server's app; `tokens`: level graphs already made row-wise (tests share them)."""
-    app = web.Application(client_max_size=64 * 1024)
-    app[SERVER] = server = Server(generator, threads, max_streams, tokens)
+    app = web.Application(client_max_size=64 * 1024, middlewares=[guard])
+    app[SERVER] = server = Server(generator, threads, max_streams, tokens, access)
     app.router.add_get("/", viewer)
     app.router.add_get("/v1/health", health)
     app.router.add_post("/v1/generate", generate)
@@ -214,5 +362,99 @@ def make_app(generator: MotionGenerator, threads: int = 1, max_streams: int = 20
         server.engine.shutdown()
         server.clips.shutdown(wait=False, cancel_futures=True)
 
+    async def close_sockets(app):
+        """On SIGINT/SIGTERM: every client gets a close frame (1001, going away), not a 1006."""
+        await asyncio.gather(*(ws.close(code=WSCloseCode.GOING_AWAY, message=b"server stopping")
+                               for ws in list(server.sockets)))
+
     app.cleanup_ctx.append(engine_task)
+    app.on_shutdown.append(close_sockets)
     return app
+
+
+async def listen(app: web.Application, host: str, port: int,
+                 max_connections: int) -> tuple[web.AppRunner, asyncio.Server]:
+    """Serve `app` on host:port (OSError where it cannot listen): a client's disconnect
+    cancels its request, idle and half-sent connections are closed, at most
+    `max_connections` are open at once."""
+    runner = web.AppRunner(app, handle_signals=False, handler_cancellation=True,
+                           shutdown_timeout=SHUTDOWN_SECONDS, access_log=None,
+                           keepalive_timeout=KEEPALIVE_SECONDS)
+    await runner.setup()
+    open_ = set()
+    try:
+        listener = await asyncio.get_running_loop().create_server(
+            lambda: _Guarded(runner.server(), open_, max_connections), host, port)
+    except BaseException:
+        await runner.cleanup()
+        raise
+    return runner, listener
+
+
+async def stop(runner: web.AppRunner, listener: asyncio.Server) -> None:
+    """Stop listening, close every socket properly, stop the engine and the clips."""
+    listener.close()
+    await runner.cleanup()
+
+
+_log = logging.getLogger("mogo.serve")
+
+
+class _Guarded(asyncio.Protocol):
+    """aiohttp's protocol for one connection, behind two checks of its own (slowloris): past
+    the cap a new connection is closed at once, and one whose request headers are not
+    complete within REQUEST_SECONDS is closed. Everything else passes through."""
+
+    def __init__(self, inner: asyncio.Protocol, open_: set, cap: int):
+        self.inner, self.open, self.cap = inner, open_, cap
+        self.transport, self.head, self.timer = None, b"", None
+
+    def connection_made(self, transport) -> None:
+        if len(self.open) >= self.cap:
+            _log.warning("refused a connection: %d are open, the most this server keeps "
+                         "(--max-streams + %d)", len(self.open), SPARE_CONNECTIONS)
+            transport.abort()
+            return
+        self.transport = transport
+        self.open.add(self)
+        self.timer = asyncio.get_running_loop().call_later(REQUEST_SECONDS, transport.abort)
+        self.inner.connection_made(transport)
+
+    def data_received(self, data: bytes) -> None:
+        if self.timer is not None:
+            self.head = (self.head + data)[-(len(data) + 3):]  # enough to see b"\r\n\r\n"
+            if b"\r\n\r\n" in self.head:
+                self.timer.cancel()
+                self.timer, self.head = None, b""
+        self.inner.data_received(data)
+
+    def eof_received(self):
+        return self.inner.eof_received()
+
+    def connection_lost(self, exc) -> None:
+        if self.transport is None:  # refused: aiohttp never saw it
+            return
+        self.open.discard(self)
+        if self.timer is not None:
+            self.timer.cancel()
+        self.inner.connection_lost(exc)
+
+    def pause_writing(self) -> None:
+        self.inner.pause_writing()
+
+    def resume_writing(self) -> None:
+        self.inner.resume_writing()
+
+
+class QuietLog(logging.Filter):
+    """One record of a kind (logger and message) per LOG_EVERY_SECONDS: a flood of bad
+    connections writes a few lines, not megabytes of tracebacks."""
+
+    def __init__(self, clock=time.monotonic):
+        super().__init__()
+        self.clock, self.rates = clock, {}
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        key = (record.name, record.msg)
+        rate = self.rates.setdefault(key, Rate(1 / LOG_EVERY_SECONDS, 1, self.clock))
+        return rate.take()

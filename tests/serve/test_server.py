@@ -11,29 +11,30 @@ import pytest
 pytest.importorskip("aiohttp")
 pytest.importorskip("onnx")
 
-from aiohttp import ClientSession, WSMsgType, web  # noqa: E402
+from aiohttp import ClientSession, WSMsgType  # noqa: E402
 
 from mogo.serve import protocol  # noqa: E402
 from mogo.serve import engine as engine_module  # noqa: E402
 from mogo.serve.engine import Engine  # noqa: E402
-from mogo.serve.server import QUEUED_BURSTS, SERVER, Server, make_app  # noqa: E402
+from mogo.serve.server import (QUEUED_BURSTS, SERVER, Access, Server, listen,  # noqa: E402
+                               make_app, stop)
 
 TIMEOUT = 60  # seconds for a whole test: far above what each needs, so a hang fails
 
 
-def serving(generator, engine_parts, test, max_streams=8):
-    """Run `test(base_url, server)` against a server on an ephemeral port."""
+def serving(generator, engine_parts, test, max_streams=8, access=None, threads=1,
+            max_connections=64):
+    """Run `test(base_url, server)` against a server on an ephemeral port, as `mogo serve`
+    runs it (mogo.serve.server.listen)."""
     async def main():
-        app = make_app(generator, 1, max_streams, tokens=engine_parts)
-        runner = web.AppRunner(app)
-        await runner.setup()
-        site = web.TCPSite(runner, "127.0.0.1", 0)
-        await site.start()
-        port = site._server.sockets[0].getsockname()[1]
+        app = make_app(generator, threads, max_streams, tokens=engine_parts,
+                       access=access or Access())
+        runner, listener = await listen(app, "127.0.0.1", 0, max_connections)
+        port = listener.sockets[0].getsockname()[1]
         try:
             await asyncio.wait_for(test(f"http://127.0.0.1:{port}", app[SERVER]), TIMEOUT)
         finally:
-            await runner.cleanup()
+            await stop(runner, listener)
     asyncio.run(main())
 
 
@@ -169,7 +170,7 @@ def test_generate_returns_the_file(generator, engine_parts):
     async def test(url, server):
         async with ClientSession() as session:
             def post(**body):
-                return session.post(url + "/v1/generate", data=json.dumps(body))
+                return session.post(url + "/v1/generate", json=body)
             async with post(prompt="a person jumps", seconds=2, seed=1, format="bvh") as answer:
                 assert answer.status == 200 and (await answer.text()).startswith("HIERARCHY")
             async with post(prompt="a person jumps", seconds=2, seed=1, format="npy") as answer:
