@@ -72,6 +72,8 @@ def _cmd_export(args: argparse.Namespace) -> None:
     require_torch()
     from mogo.export.onnx.bundle import export_bundle, replace_vq_decoder
 
+    if args.portable or args.fp32:
+        return _cmd_export_portable(args)
     if (args.vq is None) == (args.text is None):
         raise CliError("give --vq (with --t2m or --bundle) or --text (with --bundle)")
     if args.bundle is not None:
@@ -91,6 +93,18 @@ def _cmd_export(args: argparse.Namespace) -> None:
     note = "" if manifest.int8 is None else f"; int8 level graphs {manifest.int8.describe()}"
     print(f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB"
           f"{note}")
+
+
+def _cmd_export_portable(args: argparse.Namespace) -> None:
+    from mogo.export.onnx.portable import OPSET, export_portable
+
+    if not args.portable:
+        raise CliError("--fp32 is an option of --portable")
+    if args.bundle is None or args.vq is not None or args.text is not None or args.int8:
+        raise CliError("--portable converts a bundle: give --bundle and --out only")
+    manifest = export_portable(Path(args.bundle), Path(args.out), fp16=not args.fp32)
+    print(f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB; "
+          f"float graphs at opset {OPSET}, weights {'fp32' if args.fp32 else 'fp16'}")
 
 
 def add_commands(commands) -> None:
@@ -167,6 +181,13 @@ def add_commands(commands) -> None:
     export.add_argument("--int8", action="store_true",
                         help="dynamic int8 level graphs, kept only if they pass the token "
                              "agreement check against fp32")
+    export.add_argument("--portable", action="store_true",
+                        help="with --bundle: the bundle with float graphs at ONNX opset 15, "
+                             "for Unity's inference engine (Sentis) and onnxruntime-web "
+                             "(docs/portable.md)")
+    export.add_argument("--fp32", action="store_true",
+                        help="with --portable: weights stored fp32 (default fp16, computed "
+                             "in fp32: half the size)")
     export.set_defaults(run=_cmd_export)
 
 
