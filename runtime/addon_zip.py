@@ -23,7 +23,8 @@ from mogo.cli import DISTRIBUTION
 PACKAGE = Path(__file__).resolve().parent  # the runtime, `mogo`
 SOURCE = PACKAGE / "blender_addon"
 FOLDER = "mogo_blender"  # the add-on's module name inside Blender
-NOT_RUNTIME = {"export", "bench", "__pycache__"}  # mogo.export, mogo.bench: torch's side
+# not the Python runtime: mogo.export and mogo.bench (torch's side), the JavaScript port (web)
+NOT_RUNTIME = {"export", "bench", "web", "__pycache__"}
 _EPOCH = (1980, 1, 1, 0, 0, 0)  # zip's earliest date: the same bytes on every build
 
 
@@ -40,8 +41,8 @@ def addon_bytes() -> bytes:
 
 
 def runtime_wheel() -> tuple[str, bytes]:
-    """This runtime as a wheel (file name, bytes): the `mogo` package without mogo.export and
-    mogo.bench, and the base install's requirements, so that pip installs it anywhere."""
+    """This runtime as a wheel (file name, bytes): the `mogo` package without NOT_RUNTIME,
+    and the base install's requirements, so that pip installs it anywhere."""
     release = version(DISTRIBUTION)
     stem = f"{DISTRIBUTION.replace('-', '_')}-{release}"
     entries = [(f"mogo/{path.relative_to(PACKAGE).as_posix()}", path.read_bytes())

@@ -1,6 +1,7 @@
 """The suite's two sizes: `python -m pytest` runs the fast part (the runtime, the CLI, the
 server and its fault tests: minutes on 2 cores); `python -m pytest --full` also runs the tests
-marked slow, which CI runs: training and ONNX export (torch), the benches, Blender."""
+marked slow, which CI runs: training and ONNX export (torch), the benches, Blender, the
+portable bundle."""
 import subprocess
 import sys
 from pathlib import Path
@@ -9,7 +10,9 @@ import pytest
 
 from helpers import make_tiny_humanml3d
 
-SLOW_FOLDERS = {"export", "bench"}  # every test there is slow: torch training, whole benches
+# every test there is slow: torch training, whole benches, the portable bundle's export and
+# its JavaScript port in Node and Chromium
+SLOW_FOLDERS = {"export", "bench", "portable"}
 
 
 def pytest_addoption(parser):
@@ -18,8 +21,8 @@ def pytest_addoption(parser):
 
 
 def pytest_configure(config):
-    config.addinivalue_line("markers", "slow: run only with --full (tests/export and "
-                                       "tests/bench are slow as a whole)")
+    config.addinivalue_line("markers", "slow: run only with --full (tests/export, tests/bench "
+                                       "and tests/portable are slow as a whole)")
 
 
 def pytest_collection_modifyitems(config, items):
