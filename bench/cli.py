@@ -10,6 +10,10 @@ from mogo.cli import CliError, require_torch
 
 
 def _cmd_bench(args: argparse.Namespace) -> None:
+    if args.quick:  # the runtime alone: no torch
+        from mogo.bench.speed.quick import main
+
+        return main(args.bundle, args.threads)
     require_torch()
     from mogo.bench.speed.latency import main_from_args
 
@@ -77,6 +81,10 @@ def add_commands(commands) -> None:
     bench.add_argument("--no-paper", action="store_true",
                        help="skip the paper-size model (its first export takes minutes)")
     bench.add_argument("--quick", action="store_true",
+                       help="under a minute, no torch: this machine's CPU features, first "
+                            "frame, 9.8-s clip and token step beside the README's (only "
+                            "--bundle and --threads apply)")
+    bench.add_argument("--smoke", action="store_true",
                        help="a smoke run: tiny model, few lengths and rounds (for tests)")
     bench.set_defaults(run=_cmd_bench)
 

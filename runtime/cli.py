@@ -26,16 +26,24 @@ from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
 PROMPTS_FILE_BYTES = 2**20  # a --prompts-file read past this is refused
+LONG_TAKE_SECONDS = 30.0  # from this length on, generate shows its progress on stderr
+# On PyPI, `mogo` is an unrelated PyMongo wrapper: the import name and the command stay `mogo`.
+DISTRIBUTION = "mogo-edge"
 
 
 class CliError(Exception):
     """A user-facing error: printed as one line, exit status 2."""
 
 
+def needs_extra(label: str, extra: str) -> str:
+    """The one line for a verb whose extra is missing, with the command that installs it."""
+    return f"this command needs the {label} extra: pip install '{DISTRIBUTION}[{extra}]'"
+
+
 def require_torch() -> None:
     """For verbs that need the training extra: a clear line instead of an ImportError."""
     if importlib.util.find_spec("torch") is None:
-        raise CliError("this command needs the training extra: pip install 'mogo[train]'")
+        raise CliError(needs_extra("training", "train"))
 
 
 def _load_generator(args: argparse.Namespace):
@@ -115,6 +123,22 @@ def _aligner(args: argparse.Namespace, generator):
     return LLMAligner(args.llm_url, args.llm_model, timeout=args.llm_timeout, fallback=rules)
 
 
+def _formats(args: argparse.Namespace) -> tuple[str, ...]:
+    """--formats bvh,npy; else the default take, its animation file --format's."""
+    from mogo.clip import TAKE, take_suffixes
+
+    if args.formats is None:
+        return (args.format or TAKE[0],) + TAKE[1:]
+    if args.format is not None:
+        raise CliError("give --formats (it names the animation file too) or --format, not both")
+    formats = tuple(name.strip() for name in args.formats.split(","))
+    try:
+        take_suffixes(formats)
+    except ValueError as error:
+        raise CliError(f"--formats: {error}") from None
+    return formats
+
+
 def _cmd_generate(args: argparse.Namespace) -> None:
     from mogo.clip import check_take
     from mogo.motion import bvh, rig
@@ -127,33 +151,39 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         schedule, lines = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
         raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
+    formats = _formats(args)
     folder = check_take(args.out, args.name, args.overwrite, what="--name",
-                        animation=args.format)  # before the work
+                        formats=formats)  # before the work
+    seconds = sum(s for _, s in schedule) if args.prompts_file else args.seconds
+    long = seconds is not None and seconds >= LONG_TAKE_SECONDS
     generator = _load_generator(args)
     rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
     sampling = _sampling(args, generator)
     if args.prompts_file:
         try:
             motion = generator.play(schedule, seed=args.seed, sampling=sampling,
-                                    plant_feet=args.plant_feet)
+                                    plant_feet=args.plant_feet, progress=long)
         except ScheduleError as error:  # named by the file's line
             where = "" if error.index is None else f":{lines[error.index]}"
             raise CliError(f"{args.prompts_file}{where}: {error.problem}") from None
     else:
         motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
                                     sampling=sampling, align=_aligner(args, generator),
-                                    plant_feet=args.plant_feet)
+                                    plant_feet=args.plant_feet, progress=long)
     if motion.alignment is not None:
         print(shown(motion.alignment.describe(), keep="\n"))
         if motion.alignment.note:
             print(f"note: {shown(motion.alignment.note)}")
     elif args.text is not None:
-        _note_played(generator, args.text)
+        _note_played(generator, args)
     name = args.name or _file_stem(motion.caption)
+    if long:
+        print(f"writing: {', '.join(formats)} ({plural(len(motion.joints), 'frame')})",
+              file=sys.stderr, flush=True)
     written = motion.save_take(folder, name, overwrite=args.overwrite,
                                bone_translations=args.bvh_bone_translations,
                                scale=bvh.UNITS[args.bvh_units], naming=args.bvh_names,
-                               animation=args.format)
+                               formats=formats)
     frames = plural(len(motion.joints), "frame")
     try:  # the take is written: a stdout that fails (a closed pipe, a full disk) is no error
         print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
@@ -173,11 +203,25 @@ def _cmd_generate(args: argparse.Namespace) -> None:
               f"written: {', '.join(shown(path) for path in written)}", file=sys.stderr)
 
 
-def _note_played(generator, text: str) -> None:
+def _note_played(generator, args: argparse.Namespace) -> None:
     """A `note:` line on stderr naming the known caption a prompt in other words is played as
     (mogo.repertoire.Familiarity.played_note)."""
-    if (known := generator.known(text)) is not None and known.played_note:
-        print(f"note: {shown(known.played_note)}", file=sys.stderr)
+    if (known := generator.known(args.text)) is not None and known.played_note:
+        print(f"note: {shown(known.played_note)}{_align_hint(args, far=False)}",
+              file=sys.stderr)
+
+
+def _align_hint(args: argparse.Namespace, far: bool) -> str:
+    """What `--align rules` would do for a prompt `mogo generate` plays as written, where the
+    model plays it as something else: its steps one by one, other words mapped to known ones
+    ('' where --align is not at hand: given already, a prompts file, `mogo stream`)."""
+    if not hasattr(args, "align") or args.align or args.text is None:
+        return ""
+    from mogo.repertoire import what_it_says
+
+    if (steps := max(what_it_says(args.text)["steps"])) > 1:
+        return f" (it reads as {steps} steps: --align rules plays them one after another)"
+    return " (--align rules maps some other words onto the ones it knows)" if far else ""
 
 
 def _cmd_stream(args: argparse.Namespace) -> None:
@@ -186,7 +230,10 @@ def _cmd_stream(args: argparse.Namespace) -> None:
     generator = _load_generator(args)
     stream = generator.stream(args.text, seed=args.seed, sampling=_sampling(args, generator),
                               plant_feet=args.plant_feet)
-    _note_played(generator, args.text)
+    if args.seed is None:  # drawn at random: said, so that the stream can be had again
+        print(f"note: seed {stream.seed} (random; --seed {stream.seed} streams this motion "
+              "again)", file=sys.stderr)
+    _note_played(generator, args)
     try:
         for index, frame in enumerate(stream.frames(args.frames)):
             record = dict(frame=index, seconds=round(index / generator.fps, 4),
@@ -280,7 +327,10 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
                 if issubclass(category, UnknownPromptWarning) or (
                         args.strict and issubclass(category, UnfamiliarPromptWarning)):
                     raise CliError(str(message))
-                if issubclass(category, PromptWarning):
+                if issubclass(category, UnfamiliarPromptWarning):
+                    print(f"note: {shown(message)}{_align_hint(args, far=True)}",
+                          file=sys.stderr)
+                elif issubclass(category, PromptWarning):
                     print(f"note: {shown(message)}", file=sys.stderr)
                 else:
                     show(message, category, *where, **options)
@@ -312,7 +362,7 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
 
 
 def _add_runtime_commands(commands) -> None:
-    from mogo.clip import ANIMATIONS
+    from mogo.clip import ANIMATIONS, FORMATS, TAKE
     from mogo.motion import bvh  # their option lists
     generate = commands.add_parser(
         "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)")
@@ -330,9 +380,13 @@ def _add_runtime_commands(commands) -> None:
     generate.add_argument("--bvh-bone-translations", action="store_true",
                           help="position channels on every BVH joint: the joints back exactly, "
                                "bone stretch included (default: a rigid skeleton, rotations only)")
-    generate.add_argument("--format", choices=list(ANIMATIONS), default="bvh",
+    generate.add_argument("--format", choices=list(ANIMATIONS),
                           help="the animation file: a .bvh skeleton, or a .glb skinned mannequin "
                                "(three.js, Blender, engines play it as it is) (default bvh)")
+    generate.add_argument("--formats", metavar="LIST",
+                          help=f"the files to write, comma-separated, of {', '.join(FORMATS)} "
+                               f"(default {','.join(TAKE)}; e.g. bvh,npy: a long take without "
+                               "its large GIF and JSON)")
     generate.add_argument("--bvh-names", choices=list(bvh.NAMINGS), default="mixamo",
                           help="BVH (and GLB) joint names: each named for the bone it moves, "
                                "Mixamo/Unity style (Hips, LeftUpLeg, LeftArm, ...), or the SMPL "
@@ -381,7 +435,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _version() -> str:
     try:
-        return version("mogo")
+        return version(DISTRIBUTION)
     except PackageNotFoundError:  # run from a source tree that was never installed
         return "unknown (not installed)"
 
@@ -392,8 +446,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"mogo {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_runtime_commands(commands)
-    for plugin in sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
-        plugin.load()(commands)
+    # by name: an environment that still has the old `mogo` distribution beside `mogo-edge`
+    # lists each verb twice
+    plugins = {plugin.name: plugin for plugin in entry_points(group=PLUGIN_GROUP)}
+    for name in sorted(plugins):
+        plugins[name].load()(commands)
     return parser
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -18,10 +19,17 @@ from mogo.motion import bvh, glb, mocap, render, rigs
 from mogo.motion.features import joints_to_features
 from mogo.motion.skeleton import SMPL_22, Skeleton
 
+# What a take may hold, in the order written: the animation as a skeleton (BVH) or a skinned
+# mannequin (GLB), a stick-figure GIF, the joints as .npy, everything as JSON.
+FORMATS = ("bvh", "glb", "gif", "npy", "json")
+TAKE = ("bvh", "gif", "npy", "json")  # a take unless told otherwise
+ANIMATIONS = ("bvh", "glb")
+
 
 @dataclass
 class Motion:
     features: np.ndarray  # (T, D) float32, un-normalised HumanML3D-layout features, as decoded
+    # (T - 1 rows for a clip read from a file: see from_file)
     joints: np.ndarray  # (T, J, 3) float32, metres, Y up; feet planted unless plant_feet=False
     fps: float
     tokens: np.ndarray  # (n, L) int64, the token steps the features were decoded from
@@ -37,7 +45,10 @@ class Motion:
         from with MotionStream.continue_from: a BVH (any rig with SMPL, Mixamo or CMU joint
         names; unit and up axis detected) or a DeepMimic motion (see mogo.motion.mocap).
         `mapping`: a JSON file naming the rig's joint for each of ours (mogo.motion.rigs).
-        The clip is put on the floor at the origin, facing +Z, as HumanML3D clips are."""
+        The clip is put on the floor at the origin, facing +Z, as HumanML3D clips are.
+        `joints` has every frame of the file (at 20 fps); `features` one row fewer, as
+        HumanML3D's new_joint_vecs have beside new_joints: a row holds the velocities to the
+        next frame, which the last frame does not have."""
         rig = None if mapping is None else rigs.read_mapping(mapping)
         clip = mocap.read_mocap(path, rig)
         joints = mocap.resample(clip.joints, clip.fps, SMPL_22.fps)
@@ -45,7 +56,7 @@ class Motion:
             features, canonical = joints_to_features(joints, SMPL_22)
         except ValueError as error:
             raise ValueError(f"{path}: {error}") from None
-        return cls(features, canonical[:len(features)], SMPL_22.fps,
+        return cls(features, canonical, SMPL_22.fps,
                    np.zeros((0, 0), np.int64), SMPL_22, [(0, Path(path).name)])
 
     @property
@@ -91,22 +102,25 @@ class Motion:
 
     def save_take(self, folder: str | os.PathLike, name: str, overwrite: bool = False,
                   bone_translations: bool = False, scale: float = 1.0,
-                  naming: str = "mixamo", animation: str = "bvh") -> list[Path]:
-        """The .bvh (or .glb: `animation`), .gif, .npy and .json of this motion as one take,
-        written all or none. An earlier take named `name` is kept (this one is named name-2,
-        name-3, ...: the first free), unless overwrite=True replaces it. Returns the four
-        paths written. The other options are save_bvh's (naming: save_glb's too)."""
-        suffixes = take_suffixes(animation)
+                  naming: str = "mixamo", formats: Sequence[str] = TAKE) -> list[Path]:
+        """The files of this motion as one take, written all or none: by default the .bvh,
+        .gif, .npy and .json; `formats` names others (any of FORMATS, e.g. ("glb", "npy"): a
+        long take need not write a GIF). An earlier take named `name` is kept (this one is
+        named name-2, name-3, ...: the first free), unless overwrite=True replaces it. Returns
+        the paths written. The other options are save_bvh's (naming: save_glb's too)."""
+        suffixes = take_suffixes(formats)
         overwrite = checked_bool(overwrite, "overwrite")
         bvh.check_options(scale, bone_translations, naming)  # before any file is written
-        folder = check_take(folder, name, overwrite, animation=animation)
-        first = (partial(self._write_glb, naming=naming) if animation == "glb" else
-                 partial(self._write_bvh, scale=scale, bone_translations=bone_translations,
-                         naming=naming))
-        writers = [first, self._write_gif, partial(_write_array, self.joints), self._write_json]
+        folder = check_take(folder, name, overwrite, formats=formats)
+        writers = dict(
+            bvh=partial(self._write_bvh, scale=scale, bone_translations=bone_translations,
+                        naming=naming),
+            glb=partial(self._write_glb, naming=naming), gif=self._write_gif,
+            npy=partial(_write_array, self.joints), json=self._write_json)
         names = ([[folder / (name + suffix) for suffix in suffixes]] if overwrite
                  else files.numbered(folder, name, suffixes))
-        return files.write_all(writers, names, replace=overwrite)
+        return files.write_all([writers[suffix[1:]] for suffix in suffixes], names,
+                               replace=overwrite)
 
     def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False,
                    naming: str = "mixamo") -> None:
@@ -137,23 +151,24 @@ class Motion:
             file.write(json.dumps(document, allow_nan=False) + "\n")
 
 
-TAKE = (".bvh", ".gif", ".npy", ".json")  # the files of one take, in the order written
-ANIMATIONS = ("bvh", "glb")  # the take's animation file: a skeleton, or a skinned mannequin
-
-
-def take_suffixes(animation: str = "bvh") -> tuple[str, ...]:
-    """The files of a take whose animation file is a .bvh or a .glb."""
-    if animation not in ANIMATIONS:
-        raise ValueError(f"animation must be one of {', '.join(ANIMATIONS)}, got {animation!r}")
-    return (f".{animation}",) + TAKE[1:]
+def take_suffixes(formats: Sequence[str] = TAKE) -> tuple[str, ...]:
+    """The files of a take of `formats` (each of FORMATS at most once), in FORMATS' order."""
+    if isinstance(formats, str) or not isinstance(formats, Sequence):
+        raise TypeError(f"formats must be a list of names, got {type(formats).__name__}")
+    choose = f"choose from {', '.join(FORMATS)}"
+    if unknown := [f for f in formats if f not in FORMATS]:
+        raise ValueError(f"no format {unknown[0]!r}; {choose}")
+    if not formats or len(set(formats)) < len(formats):
+        raise ValueError(f"name each format once, at least one; {choose}")
+    return tuple(f".{f}" for f in FORMATS if f in formats)
 
 
 def check_take(folder: str | os.PathLike, name: str | None, overwrite: bool = False,
-               what: str = "name", animation: str = "bvh") -> Path:
+               what: str = "name", formats: Sequence[str] = TAKE) -> Path:
     """The checks save_take makes, for a caller to make before the work of generating: the
-    folder takes files, the name is a plain file name, nothing but files is to be replaced.
-    `what` names the name in messages (e.g. "--name")."""
-    suffixes = take_suffixes(animation)
+    formats are known, the folder takes files, the name is a plain file name, nothing but
+    files is to be replaced. `what` names the name in messages (e.g. "--name")."""
+    suffixes = take_suffixes(formats)
     folder = files.check_folder(folder)
     if name is not None:
         files.check_name(name, folder, suffixes, what)

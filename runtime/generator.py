@@ -36,11 +36,12 @@ from mogo.clip import Motion
 from mogo.manifest import MAX_GENERATE_SECONDS, io_types
 from mogo.motion.features import JointStream
 from mogo.motion.feet import FootPlanter, planted
+from mogo.progress import Progress
 from mogo.repertoire import Familiarity
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StreamingDecoder
 from mogo.text_side import TextSide
-from mogo.token_generator import TokenGenerator, TokenStream
+from mogo.token_generator import Stopped, TokenGenerator, TokenStream
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
@@ -137,7 +138,8 @@ class MotionGenerator:
     # -- whole clips ---------------------------------------------------------------------------
     def generate(self, text: str, seconds: float | None = None, seed: int | None = None,
                  sampling: Sampling | None = None, align: bool | PromptAligner = False,
-                 plant_feet: bool = True, stop=None, **options) -> Motion:
+                 plant_feet: bool = True, stop=None, progress: bool = False,
+                 **options) -> Motion:
         """One prompt -> one Motion. seconds=None lets the model end the motion (at most the
         bundle's max_seconds: a CutWarning where it did not); longer than max_seconds, it is
         the first `seconds` of `stream(text, seed=seed)`, re-anchored (the model learnt clips
@@ -149,28 +151,32 @@ class MotionGenerator:
         plant_feet=False keeps the joints as decoded (see mogo.motion.feet); the same for
         every method that makes motion. stop: a threading.Event another thread may set to
         end the work early (mogo.token_generator.Stopped is raised; `mogo serve` sets it when
-        a client leaves)."""
+        a client leaves). progress=True: a progress line on stderr while the token steps are
+        drawn (minutes, for a long clip)."""
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
         seed = _seed(seed)
         aligner = self.aligner(align)
         plant_feet = checked_bool(plant_feet, "plant_feet")
         text = checked_prompt(text) if aligner else self._prompt(text)
-        return self._generate(text, seconds, seed, sampling, aligner, plant_feet, stop)
+        return self._generate(text, seconds, seed, sampling, aligner, plant_feet, stop,
+                              checked_bool(progress, "progress"))
 
     def _generate(self, text: str, seconds: float | None, seed: int, sampling: Sampling,
-                  aligner: PromptAligner | None, plant_feet: bool, stop=None) -> Motion:
+                  aligner: PromptAligner | None, plant_feet: bool, stop=None,
+                  progress: bool = False) -> Motion:
         if aligner is not None:
-            return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet)
+            return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet,
+                                      progress)
         max_steps = self._steps(self.defaults.max_seconds)
         if seconds is not None and self._steps(seconds) > max_steps:
-            motion = self._play([(text, seconds)], seed, sampling, plant_feet)
+            motion = self._play([(text, seconds)], seed, sampling, plant_feet, progress, stop)
             return self._cut(motion, round(seconds * self.fps))
         steps = None if seconds is None else self._steps(seconds)
         if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
             steps += self._decoder.lookahead
         tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
-                                      self.defaults.window, stop)
+                                      self.defaults.window, stop, progress)
         if steps is None and len(tokens) == max_steps:
             warnings.warn(f"the model did not end the motion within "
                           f"{self.defaults.max_seconds:g} s, its longest clip: cut there; ask "
@@ -203,19 +209,21 @@ class MotionGenerator:
                 for k, text in enumerate(texts)]
 
     def _play_aligned(self, alignment: Alignment, seconds: float | None, seed: int,
-                      sampling: Sampling, plant_feet: bool) -> Motion:
+                      sampling: Sampling, plant_feet: bool, progress: bool = False) -> Motion:
         if seconds is not None:
             alignment = alignment.scaled(seconds)
-        motion = self._play(alignment.schedule(), seed, sampling, plant_feet)
+        motion = self._play(alignment.schedule(), seed, sampling, plant_feet, progress)
         motion.alignment = alignment
         return motion
 
     def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
-             sampling: Sampling | None = None, plant_feet: bool = True, **options) -> Motion:
+             sampling: Sampling | None = None, plant_feet: bool = True, progress: bool = False,
+             **options) -> Motion:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
         fly: the same stream, so every switch is a smooth continuation. At most
         MAX_SCHEDULE_ENTRIES prompts and MAX_GENERATE_SECONDS in all; an entry's problem is a
-        ScheduleError naming it."""
+        ScheduleError naming it. progress=True: a progress line on stderr while the token
+        steps are drawn."""
         sampling = self.sampling(sampling, **options)
         seed = _seed(seed)
         plant_feet = checked_bool(plant_feet, "plant_feet")
@@ -240,18 +248,26 @@ class MotionGenerator:
                 raise TypeError(f"schedule[{k}]: {error}") from None
             except ValueError as error:
                 raise ScheduleError(k, str(error)) from None
-        return self._play(list(zip(prompts, lengths)), seed, sampling, plant_feet)
+        return self._play(list(zip(prompts, lengths)), seed, sampling, plant_feet,
+                          checked_bool(progress, "progress"))
 
     def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
-              plant_feet: bool) -> Motion:
+              plant_feet: bool, progress: bool = False, stop=None) -> Motion:
         """A schedule as one re-anchored stream (the stream `stream` makes), a switch per
-        entry."""
+        entry; `stop` as in `generate`."""
         stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window,
                               plant_feet, Anchoring())
-        for k, (prompt, seconds) in enumerate(schedule):
+        steps = [self._steps(seconds) for _, seconds in schedule]
+        shown = Progress(sum(steps), "generating", enabled=progress, unit="steps")
+        for k, ((prompt, _), count) in enumerate(zip(schedule, steps, strict=True)):
             if k:
                 stream._switch_prompt(prompt)
-            stream.advance(self._steps(seconds))
+            for _ in range(count):
+                if stop is not None and stop.is_set():
+                    raise Stopped("stopped")
+                stream.advance(1)
+                shown.update()
+        shown.close()
         return stream.finish()
 
     def decode(self, tokens: np.ndarray, prompts: list[tuple[int, str]],

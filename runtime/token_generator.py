@@ -29,6 +29,7 @@ import numpy as np
 from mogo._session import graph_session
 from mogo.manifest import BundleError, Graph
 from mogo.motion.skeleton import MAX_FRAMES
+from mogo.progress import Progress
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 
 LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"]  # then the pasts
@@ -88,19 +89,24 @@ class TokenGenerator:
 
     def generate(self, prompt_embedding: np.ndarray, num_frames: int | None = None,
                  max_frames: int = MAX_FRAMES, sampling: Sampling = Sampling(), seed: int = 0,
-                 window: int | None = None, stop=None) -> np.ndarray:
+                 window: int | None = None, stop=None, progress: bool = False) -> np.ndarray:
         """prompt_embedding (text_dim,) -> token ids (T, L) int64. num_frames given: exactly that
         many steps, the end token masked. None: until level 0 draws the end token or max_frames.
-        stop: a threading.Event; once set, the next step raises Stopped."""
+        stop: a threading.Event; once set, the next step raises Stopped. progress=True: a
+        progress line on stderr (mogo.progress) as the steps are drawn."""
         stream = self.start(prompt_embedding, seed, sampling, window, num_frames is None)
+        total = max_frames if num_frames is None else num_frames
+        shown = Progress(total, "generating", enabled=progress, unit="steps")
         rows = []
-        while len(rows) < (max_frames if num_frames is None else num_frames):
+        while len(rows) < total:
             if stop is not None and stop.is_set():
                 raise Stopped("stopped")
             row = stream.step()
             if row is None:
                 break
             rows.append(row)
+            shown.update()
+        shown.close()
         return np.array(rows, dtype=np.int64).reshape(-1, self.num_levels)
 
     def run(self, level: int, prompt: np.ndarray, uncond: np.ndarray, token_ids: np.ndarray,

@@ -1,11 +1,14 @@
 """Blender's side of `python -m mogo.bench.quality.blender_addon`: the add-on as a user has it,
-headless. Install and enable it from its zip, check the message without a runtime, point it
-at one, Generate twice (a 24 fps scene), build a Mixamo-named armature of other proportions
-with arms in an A-pose, map it with the preset and Retarget; record every bone's world head
-per frame on both armatures, and optionally render one frame to PNG.
+headless. Install and enable it from its zip, check the message without a runtime, press its
+Install (the runtime wheel it ships, into an empty folder; the runtime's dependencies come from
+this environment's site-packages, added after it), Generate twice (a 24 fps scene), build a
+Mixamo-named armature of other proportions with arms in an A-pose, map it with the preset and
+Retarget; record every bone's world head per frame on both armatures, name two Actions of a
+long prompt, and optionally render one frame to PNG.
 
     blender -b --factory-startup --python bench/blender/addon_scene.py -- REQUEST.json
-REQUEST.json: {"zip", "site_packages", "empty" (a folder without the runtime), "prompt",
+REQUEST.json: {"zip", "site_packages", "empty" (a folder without the runtime), "installed" (an
+empty folder Install fills), "prompt",
 "seconds", "seed", "scale": {"leg", "arm", "torso"}, "a_pose" (degrees), "result", optionally
 "png", "frame", "size", "samples"}. Run with BLENDER_USER_SCRIPTS set to a scratch folder: the
 add-on is installed there, not into the user's Blender.
@@ -13,6 +16,7 @@ add-on is installed there, not into the user's Blender.
 import json
 import os
 import math
+import site
 import sys
 import time
 
@@ -38,7 +42,11 @@ def main() -> None:
     result = {"python": list(sys.version_info[:2]), "blender": bpy.app.version_string}
     preferences.site_packages = request["empty"]
     result["without_runtime"] = _error_of(bpy.ops.mogo.generate)
-    preferences.site_packages = request["site_packages"]
+    preferences.site_packages, preferences.source = request["installed"], ""  # the default
+    result["install"] = _error_of(bpy.ops.mogo.install_runtime)  # mogo-edge only: no deps
+    site.addsitedir(request["site_packages"])  # numpy, onnxruntime, ...: after the folder
+    from mogo_blender import environment
+    result["runtime_file"] = environment.runtime().__file__
     scene = bpy.context.scene
     scene.render.fps = 24  # Blender's default: the add-on sets the motion's own
     settings = scene.mogo
@@ -70,6 +78,7 @@ def main() -> None:
     if request.get("png"):
         _render(scene, [ours, target], request)
     result["live"] = _live(scene, request.get("live_frames", 20))
+    result["long_names"] = _long_names(target)
     with open(request["result"], "w") as file:
         json.dump(result, file)
 
@@ -98,6 +107,15 @@ def _live(scene, frames: int) -> dict:
                 prompts=session.stream.prompts, keys=_hips_keys(ours.animation_data.action),
                 plays=_plays(scene, ours), error=str(session.error or ""),
                 running="live" in ui._CACHE)
+
+
+def _long_names(target) -> list[str]:
+    """Two retarget-style Actions of a prompt too long for Blender's names, as Blender named
+    them (the second numbered by Blender itself)."""
+    from mogo_blender import scene as addon_scene
+    prompt = ("a person walks forward, then waves with the right hand, then turns around and "
+              "claps")
+    return [addon_scene.new_action(target, prompt, f" on {target.name}").name for _ in (1, 2)]
 
 
 def _hips_keys(action) -> list[float]:

@@ -12,8 +12,9 @@ joints, and the target's feet, hands and hips against ours scaled by its proport
 --screenshot: Blender's window with the panel (bench/blender/addon_screenshot.py, on xvfb-run).
 --bpy-python: a Python with the `bpy` module from PyPI (Blender 4.x) runs the same scene script
 instead of a blender executable (bench/blender/bpy_module.py).
-Blender's Python must be the version of this one: the add-on is pointed at this
-environment's site-packages (a user installs with the add-on's Install button instead).
+Blender's Python must be the version of this one: the add-on's Install puts the runtime wheel
+it ships into an empty folder, with pip told to take nothing from an index (no network), and
+the runtime's dependencies come from this environment's site-packages.
 """
 from __future__ import annotations
 
@@ -113,7 +114,9 @@ def _request(folder: Path, prompt: str, seconds: float, seed: int, frame: int) -
     """The add-on zip and an empty folder in `folder`, and the request both scripts read."""
     (folder / "mogo_blender.zip").write_bytes(addon_bytes())
     (folder / "empty").mkdir()
+    (folder / "installed").mkdir()
     return dict(zip=str(folder / "mogo_blender.zip"), empty=str(folder / "empty"),
+                installed=str(folder / "installed"),
                 site_packages=sysconfig.get_paths()["purelib"], prompt=prompt,
                 seconds=seconds, seed=seed, scale=SCALE, a_pose=A_POSE, frame=frame,
                 result=str(folder / "result.json"))
@@ -130,13 +133,15 @@ def _blender(launcher: list[str], script: Path, folder: Path, request: dict, tim
 def _clean_environment(scripts: Path) -> dict:
     """Blender as a user starts it: outside any virtual environment (a Debian Blender finds a
     venv's python3 on PATH and takes its site-packages: this one's, or another activated
-    before it), add-ons installed into `scripts`."""
+    before it), add-ons installed into `scripts`, pip never reaching an index."""
     environment = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
     environment["PATH"] = os.pathsep.join(
         p for p in environment.get("PATH", "").split(os.pathsep)
         if not Path(p).resolve().is_relative_to(Path(sys.prefix).resolve())
         and not (Path(p).parent / "pyvenv.cfg").exists())
     environment["BLENDER_USER_SCRIPTS"] = str(scripts)
+    # Install: the shipped wheel alone, no index (the dependencies are this environment's)
+    environment.update(PIP_NO_INDEX="1", PIP_NO_DEPS="1")
     return environment
 
 
@@ -145,7 +150,8 @@ def _explain(done: subprocess.CompletedProcess, request: dict) -> None:
     (a check); for this environment's site-packages it means another Python version."""
     output = done.stdout + done.stderr
     version = f"{sys.version_info.major}.{sys.version_info.minor}"
-    if f"missing in {request['site_packages']})" in output or "numpy.core" in output:
+    if ("UserError: MOGO runtime not found" in output  # the dependencies appended after Install
+            or f"missing in {request['site_packages']})" in output or "numpy.core" in output):
         raise PythonMismatch(f"Blender's Python cannot use this Python {version}'s packages")
     raise RuntimeError(f"Blender failed:\n{output[-3000:]}")
 

@@ -32,23 +32,17 @@ import numpy as np
 
 from mogo.bench.speed import machine
 from mogo.bench.speed.plot import log_line_chart
+from mogo.bench.speed.quick import PROMPT, time_to_first_frame
 from mogo.bench.speed.step import CLIP_FRAMES, size_configs, step_table
-from mogo.bench.speed.timing import QUICK, Settings, interleaved, log
+from mogo.bench.speed.timing import SMOKE, Settings, interleaved, log
 from mogo.bundle import Bundle
 from mogo.generator import DEFAULT_BUNDLE, STREAM_DECODE_EVERY, MotionGenerator, MotionStream
 from mogo.motion.skeleton import MAX_SECONDS
 
-PROMPT = "a person walks forward, then waves with the right hand."
 SPAN = 96  # steps averaged at each point of the long stream (a multiple of the decode burst)
 
 
 # -- part 1: the product ---------------------------------------------------------------------------
-def time_to_first_frame(generator: MotionGenerator, seed: int) -> None:
-    stream = generator.stream(PROMPT, seed=seed)
-    while not len(stream.step()):
-        pass
-
-
 def product(bundle_dir: Path, settings: Settings) -> dict:
     """Part 1 for one bundle: a dict of measurements, per thread count where it applies."""
     generators = {t: MotionGenerator.load(bundle_dir, threads=t) for t in settings.threads}
@@ -248,7 +242,7 @@ def run(bundle_dir: Path, out: Path, work: Path, settings: Settings) -> dict:
 
 
 def settings_from_args(args: argparse.Namespace) -> Settings:
-    base = QUICK if args.quick else Settings()
+    base = SMOKE if args.smoke else Settings()
     changes = {}
     if args.threads:
         changes["threads"] = tuple(args.threads)

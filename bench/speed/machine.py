@@ -10,6 +10,8 @@ import time
 
 import torch
 
+from mogo.bench.speed.quick import cpu, features_line
+
 BANDWIDTH_BYTES = 512 * 2**20  # far larger than any CPU cache
 MATMUL_SIZE = 1024
 
@@ -50,15 +52,10 @@ def matmul_flops(threads: int, repeats: int = 5) -> float:
 
 
 def describe() -> str:
-    """One line: processor, cores, Python and library versions."""
+    """One line: processor, cores, instruction sets, Python and library versions."""
     import onnxruntime
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as info:
-            names = [line.split(":", 1)[1].strip() for line in info if line.startswith("model name")]
-        cpu = names[0] if names else cpu
-    except OSError:
-        pass
-    return (f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
-            f"onnxruntime {onnxruntime.__version__}, torch {torch.__version__}")
+    model, flags = cpu()
+    return (f"{model}, {os.cpu_count()} cores ({features_line(flags)}), Python "
+            f"{platform.python_version()}, onnxruntime {onnxruntime.__version__}, torch "
+            f"{torch.__version__}")

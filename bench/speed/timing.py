@@ -20,7 +20,7 @@ class Settings:
     sizes: tuple[str, ...] = ("bundle", "paper")
 
 
-QUICK = Settings(lengths=(1, 8), long_steps=300, rounds=3, round_budget_s=2.0, clip_repeats=2,
+SMOKE = Settings(lengths=(1, 8), long_steps=300, rounds=3, round_budget_s=2.0, clip_repeats=2,
                  sizes=("tiny",))
 
 

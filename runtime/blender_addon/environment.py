@@ -1,7 +1,12 @@
 """Getting the MOGO runtime into Blender's Python: a folder of packages (the add-on's own,
 filled by Install with Blender's Python and pip, or a Python environment's site-packages the
-user points at), added to sys.path; and one clear line when something is missing."""
+user points at), added to sys.path; and one clear line when something is missing.
 
+Install installs the runtime's wheel that `mogo blender-addon` put beside this file (or a wheel
+or project folder the user picks), never a name from PyPI: PyPI's `mogo` is an unrelated
+PyMongo wrapper, and this project's distribution is `mogo-edge`."""
+
+import glob
 import importlib
 import os
 import site
@@ -42,8 +47,12 @@ def runtime(context=None):
         raise UserError(
             f"MOGO runtime not found ({', '.join(missing)} missing in {folder}): press Install "
             f"in Preferences > Add-ons > MOGO, or set 'Packages folder' to the site-packages of "
-            f"a Python {version} environment with mogo installed")
+            f"a Python {version} environment with mogo-edge installed")
     import mogo
+    if not hasattr(mogo, "MotionGenerator"):  # PyPI's `mogo`, a PyMongo wrapper
+        raise UserError(
+            f"the 'mogo' in {os.path.dirname(os.path.dirname(mogo.__file__))} is PyPI's "
+            f"unrelated package, not MOGO: press Install in Preferences > Add-ons > MOGO")
     return mogo
 
 
@@ -55,6 +64,12 @@ def _importable(name: str) -> bool:
     return True
 
 
+def shipped_wheel() -> str:
+    """The runtime's wheel inside this add-on ('' where the add-on was installed without)."""
+    wheels = sorted(glob.glob(os.path.join(os.path.dirname(__file__), "mogo_edge-*.whl")))
+    return wheels[-1] if wheels else ""
+
+
 def pip_commands(source: str, folder: str) -> list[list[str]]:
     """Blender's own Python: pip (bootstrapped by ensurepip where it lacks one), then the
     runtime with its dependencies into the packages folder."""
@@ -64,18 +79,20 @@ def pip_commands(source: str, folder: str) -> list[list[str]]:
 
 
 class MOGO_OT_install_runtime(Background, bpy.types.Operator):
-    """Install the MOGO runtime (numpy, onnxruntime, tokenizers, pillow, mogo) into the
-    packages folder with Blender's own Python and pip"""
+    """Install the MOGO runtime (mogo-edge with numpy, onnxruntime, tokenizers, pillow) into
+    the packages folder with Blender's own Python and pip"""
     bl_idname = "mogo.install_runtime"
     bl_label = "Install MOGO runtime"
     label = "installing the runtime with pip"
 
     def prepare(self, context):
-        source = addon_preferences(context).source.strip()
-        if not source:
-            raise UserError("give what to install: 'mogo', a wheel file or a project folder")
-        self.commands = pip_commands(bpy.path.abspath(source) if os.path.exists(
-            bpy.path.abspath(source)) else source, packages_folder(context))
+        given = addon_preferences(context).source.strip()
+        source = bpy.path.abspath(given) if given else shipped_wheel()
+        if not os.path.exists(source):
+            raise UserError(f"Install from: no such wheel file or project folder: {given}"
+                            if given else "this add-on ships no runtime wheel: set Install "
+                            "from to a mogo-edge wheel file or the project's folder")
+        self.commands = pip_commands(source, packages_folder(context))
 
     def work(self):
         for command in self.commands:
@@ -103,11 +120,11 @@ class MOGO_AP_preferences(bpy.types.AddonPreferences):
         name="Packages folder", subtype="DIR_PATH",
         description="Where the runtime is: empty = the add-on's own folder (Install fills it); "
                     "or the site-packages of a Python environment of Blender's Python version "
-                    "that has mogo installed")
+                    "that has mogo-edge installed")
     source: bpy.props.StringProperty(
-        name="Install from", default="mogo",
-        description="What pip installs: 'mogo' from PyPI, a mogo wheel file, or a project "
-                    "folder")
+        name="Install from", subtype="FILE_PATH",
+        description="What pip installs: empty = the runtime shipped with this add-on; or a "
+                    "mogo-edge wheel file or the project's folder")
 
     def draw(self, context):
         layout = self.layout

@@ -28,6 +28,30 @@ SMPL_NAMES = ("Pelvis", "L_Hip", "R_Hip", "Spine1", "L_Knee", "R_Knee", "Spine2"
               "L_Shoulder", "R_Shoulder", "L_Elbow", "R_Elbow", "L_Wrist", "R_Wrist")
 PRESETS = {"MIXAMO": [(name,) for name in BONE_NAMES],
            "SMPL": list(zip(SMPL_NAMES, NAMINGS["smpl"]))}
+NAME_BYTES = 63  # Blender's longest ID name (UTF-8 bytes; 3.4 to 4.x)
+NUMBERED = re.compile(r"\.\d{3,}$")  # ".001": Blender's number for a name already taken
+
+
+def action_name(text: str, suffix: str = "") -> str:
+    """An Action's name within Blender's NAME_BYTES, with room for the ".001" Blender adds to
+    a name already taken: `text` cut after a whole word (mid-word only where a single word is
+    too long), its own ".001" and `suffix` (" on Armature", " (live)") kept."""
+    budget = NAME_BYTES - len(".001")
+    number = match.group() if (match := NUMBERED.search(text)) else ""
+    suffix = _cut(number + suffix, budget // 2, words=False)  # a long armature name: its half
+    return (_cut(text[:len(text) - len(number)], budget - len(suffix.encode())) or "motion"
+            ) + suffix
+
+
+def _cut(text: str, limit: int, words: bool = True) -> str:
+    """`text` within `limit` UTF-8 bytes: whole, or cut at its last space that fits (`words`;
+    else, or where one word is too long, after the last whole character that fits)."""
+    if len(text.encode()) <= limit:
+        return text
+    head = text.encode()[:limit + 1].decode("utf-8", "ignore")  # + 1: a space just after
+    if words and " " in head.strip():
+        return head.rsplit(" ", 1)[0].rstrip(" ,;:")
+    return text.encode()[:limit].decode("utf-8", "ignore")
 
 
 @dataclass(frozen=True)

@@ -73,10 +73,11 @@ def parents_of(armature, names) -> list[int | None]:
             else None for n in names]
 
 
-def new_action(armature, name: str):
-    """A new Action on the armature (a second take never replaces the first: Blender numbers
-    the name, and every take keeps a fake user so it stays in the file)."""
-    action = bpy.data.actions.new(name[:60] or "motion")
+def new_action(armature, text: str, suffix: str = ""):
+    """A new Action on the armature, named `text` + `suffix` within Blender's length
+    (motion_keys.action_name; a second take never replaces the first: Blender numbers the
+    name, and every take keeps a fake user so it stays in the file)."""
+    action = bpy.data.actions.new(motion_keys.action_name(text, suffix))
     action.use_fake_user = True
     if armature.animation_data is None:
         armature.animation_data_create()

@@ -147,7 +147,7 @@ class MOGO_OT_retarget(bpy.types.Operator):
         frames, world, pelvis = our_scene.read_pose(action, source, ours)
         keys, location, scale = retarget(world, pelvis, ours, our_scene.read_target(
             settings.target), mapping)
-        baked = our_scene.new_action(settings.target, f"{action.name} on {settings.target.name}")
+        baked = our_scene.new_action(settings.target, action.name, f" on {settings.target.name}")
         hips = mapping[0]
         for bone, quaternions in keys.items():
             our_scene.add_keys(baked, bone, frames, quaternions,
@@ -193,7 +193,7 @@ def start_live(context):
     stream = loaded.stream(options["text"], seed=options["seed"],
                            sampling=loaded.sampling(**options["sampling"]))
     armature = our_scene.our_armature(context, ours)
-    action = our_scene.new_action(armature, f"{settings.prompt} (live)")
+    action = our_scene.new_action(armature, settings.prompt, " (live)")
     frames = our_scene.match_scene(context.scene, loaded.fps, 2, settings.match_scene)
     context.scene.frame_current = int(frames[0])
     return LiveSession(loaded, ours, armature, action, stream, float(frames[0]),

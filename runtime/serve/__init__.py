@@ -1,5 +1,5 @@
 """`mogo serve`: many characters streaming at once over WebSocket, a viewer, clips over HTTP.
 
-Needs the serve extra (`pip install 'mogo[serve]'`: aiohttp, onnx); the base runtime does not
-import this package. The protocol: mogo.serve.protocol and docs/serve.md.
+Needs the serve extra (`pip install 'mogo-edge[serve]'`: aiohttp, onnx); the base runtime does
+not import this package. The protocol: mogo.serve.protocol and docs/serve.md.
 """

@@ -12,7 +12,7 @@ import socket
 import sys
 from urllib.parse import urlsplit
 
-from mogo.cli import CliError, _load_generator
+from mogo.cli import CliError, _load_generator, needs_extra
 
 TOKEN_VARIABLE = "MOGO_SERVE_TOKEN"
 RESERVED_DESCRIPTORS = 64  # file descriptors kept for the process itself (graphs, logs)
@@ -41,7 +41,7 @@ def add_commands(commands) -> None:
 def require_serve_extra() -> None:
     """A clear line instead of an ImportError where the serve extra is missing."""
     if any(importlib.util.find_spec(name) is None for name in ("aiohttp", "onnx")):
-        raise CliError("this command needs the serve extra: pip install 'mogo[serve]'")
+        raise CliError(needs_extra("serve", "serve"))
 
 
 def _cmd_serve(args: argparse.Namespace) -> None:

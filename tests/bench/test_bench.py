@@ -74,7 +74,7 @@ def test_plot_is_a_small_png(tmp_path):
 
 
 def test_quick_run_writes_tables_json_and_plots(tmp_path, capsys):
-    settings = replace(timing.QUICK, long_steps=2 * latency.SPAN)
+    settings = replace(timing.SMOKE, long_steps=2 * latency.SPAN)
     report = latency.run(DEFAULT_BUNDLE, tmp_path / "out", tmp_path / "work", settings)
     printed = capsys.readouterr().out
     assert "time to first frame" in printed and "tiny model: backend" in printed
@@ -101,7 +101,7 @@ def test_quick_run_writes_tables_json_and_plots(tmp_path, capsys):
 
 
 def test_bad_options_are_refused(capsys):
-    assert main(["bench", "--quick", "--long-steps", "10"]) == 2
+    assert main(["bench", "--smoke", "--long-steps", "10"]) == 2
     assert "--long-steps must be at least" in capsys.readouterr().err
-    assert main(["bench", "--quick", "--threads", "0"]) == 2
+    assert main(["bench", "--smoke", "--threads", "0"]) == 2
     assert ">= 1" in capsys.readouterr().err

@@ -12,7 +12,7 @@ BLENDER = shutil.which("blender")
 BPY_PYTHON = os.environ.get("MOGO_BPY_PYTHON")  # e.g. a venv with `pip install bpy==4.4.0`
 LAUNCHERS = [
     pytest.param(lambda: background(BLENDER), id="blender", marks=pytest.mark.skipif(
-        BLENDER is None, reason="Blender is not installed")),
+        BLENDER is None, reason="Blender is not installed: apt-get install blender")),
     pytest.param(lambda: as_module(BPY_PYTHON), id="bpy-module", marks=pytest.mark.skipif(
         not BPY_PYTHON, reason="MOGO_BPY_PYTHON names no Python with the bpy module"))]
 
@@ -29,6 +29,12 @@ def test_the_addon_generates_retargets_and_streams_in_blender(tmp_path, launcher
     missing = scene["without_runtime"].strip()  # an operator's ERROR report, one line
     assert missing.startswith("Error: MOGO: MOGO runtime not found") and "\n" not in missing
     assert "Preferences > Add-ons > MOGO" in missing
+    # Install's default: the wheel the add-on ships, this project (PyPI's `mogo` is another),
+    # into the empty folder; its dependencies are not there yet (pip was told not to fetch them)
+    installed = scene["install"].strip()
+    assert installed.startswith("Error: MOGO: MOGO runtime not found (numpy, onnxruntime, "
+                                "tokenizers, PIL, mogo missing in "), installed
+    assert scene["runtime_file"].endswith("/installed/mogo/__init__.py")
     assert scene["empty_prompt"].strip() == "Error: MOGO: type a prompt, e.g. 'a person walks " \
                                             "forward'"
     # one key per frame, the 24 fps scene set to the motion's 20 and its range
@@ -50,4 +56,8 @@ def test_the_addon_generates_retargets_and_streams_in_blender(tmp_path, launcher
     assert (walk, jog) == ("a person walks forward.", "a person jogs.")
     assert 20 <= switched < live["written"]
     assert png.stat().st_size > 0
+    # a long name: cut after a whole word, room left for the number Blender gives a second one
+    first, second = scene["long_names"]
+    assert first == "a person walks forward, then waves with the on Mannequin"
+    assert second == first + ".001" and len(second.encode()) <= 63
     assert "| frames / keys / scene fps | 40 / 40 / 20 |" in table(figures)

@@ -25,7 +25,8 @@ def blender_reads_gltf() -> bool:
     return done.returncode == 7
 
 
-@pytest.mark.skipif(BLENDER is None, reason="Blender is not installed")
+@pytest.mark.skipif(BLENDER is None, reason="Blender is not installed: apt-get install "
+                                             "blender")
 def test_blender_reads_our_bvh_as_our_rig_says(tmp_path):
     motion = MotionGenerator.load().generate("a person walks forward.", seconds=2.0, seed=0)
     joints = motion.joints.astype(np.float64)
@@ -44,7 +45,8 @@ def test_blender_reads_our_bvh_as_our_rig_says(tmp_path):
     assert "| **all** | 40 |" in table([Check("walk", len(joints), rigid, result)])
 
 
-@pytest.mark.skipif(BLENDER is None, reason="Blender is not installed")
+@pytest.mark.skipif(BLENDER is None, reason="Blender is not installed: apt-get install "
+                                             "blender")
 def test_blender_reads_our_glb_as_our_rig_says(tmp_path):
     """Blender's glTF importer: the skinned mannequin's bones follow our rig, frame by frame."""
     if not blender_reads_gltf():

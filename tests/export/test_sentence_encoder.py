@@ -108,7 +108,7 @@ def test_the_repertoire_keeps_every_action_count_side_and_way_its_captions_say()
 
 
 @pytest.mark.skipif(not Path("/usr/share/wordnet/data.verb").is_file(),
-                    reason="WordNet (Debian wordnet-base) is not installed")
+                    reason="WordNet is not installed: apt-get install wordnet-base")
 def test_the_committed_wordnet_table_is_the_generators_output(tmp_path):
     from mogo.align_wordnet import WORDNET_VERBS
     from mogo.align_words import VERBS
@@ -121,7 +121,7 @@ def test_the_committed_wordnet_table_is_the_generators_output(tmp_path):
 
 
 @pytest.mark.skipif(not Path("/usr/share/wordnet/data.noun").is_file(),
-                    reason="WordNet (Debian wordnet-base) is not installed")
+                    reason="WordNet is not installed: apt-get install wordnet-base")
 def test_the_committed_people_are_the_generators_output():
     from mogo.export.data.wordnet_people import ADJECTIVES, PEOPLE
     from mogo.export.data.wordnet_synonyms import people

@@ -50,3 +50,30 @@ def test_our_rig_stands_on_the_floor_facing_minus_y(keys):
     assert np.allclose(ours.heads[feet, 2], 0.0, atol=1e-6)  # Z up, on the floor
     assert np.all(ours.tails[feet, 1] < ours.heads[feet, 1])  # toes point at -Y
 
+
+
+LONG = "a person walks forward, then waves with the right hand, then turns around and claps"
+
+
+def test_action_names_fit_blender_and_are_cut_after_a_whole_word(keys):
+    """Blender keeps 63 bytes of a name and cut retargeted takes mid-word ("... hand.001 o"):
+    a name keeps room for Blender's ".001", ends after a whole word of the prompt, and keeps
+    the take's own number and its suffix."""
+    room = keys.NAME_BYTES - len(".001")
+    assert keys.action_name("a person walks forward.") == "a person walks forward."
+    assert keys.action_name("a person jogs.", " (live)") == "a person jogs. (live)"
+    for text, suffix in [(LONG, ""), (LONG, " (live)"), (LONG[:56] + ".001", " on Mannequin"),
+                         (LONG + ".012", " on mixamorig:Armature")]:
+        name = keys.action_name(text, suffix)
+        number = ".0" + text.rsplit(".0", 1)[1] if ".0" in text else ""
+        assert len(name.encode()) <= room and name.endswith(number + suffix), name
+        words = name[:len(name) - len(number + suffix)]
+        assert LONG.startswith(words) and LONG[len(words)] in " ,", name  # a whole word
+    assert keys.action_name(LONG + ".001", " on Mannequin") == \
+        "a person walks forward, then waves with.001 on Mannequin"
+    for text in ("人" * 40, "x" * 100):  # no space to cut at: whole characters
+        name = keys.action_name(text)
+        assert len(name.encode()) <= room and text.startswith(name) and len(name) > 15
+    long_target = keys.action_name(LONG, " on " + "B" * 80)  # the take keeps half the room
+    assert len(long_target.encode()) <= room and long_target.startswith("a person walks")
+    assert keys.action_name("") == "motion"

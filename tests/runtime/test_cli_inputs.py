@@ -149,7 +149,7 @@ def test_a_prompts_file_may_separate_with_tabs_and_start_with_a_bom(tmp_path, ca
 def test_version(capsys):
     with pytest.raises(SystemExit) as exit:
         main(["--version"])
-    assert exit.value.code == 0 and capsys.readouterr().out == f"mogo {version('mogo')}\n"
+    assert exit.value.code == 0 and capsys.readouterr().out == f"mogo {version('mogo-edge')}\n"
 
 
 def test_info_shows_no_path_of_the_machine_that_built_the_bundle(capsys):

@@ -287,7 +287,8 @@ def test_a_bad_mapping_file_is_one_clear_error(tmp_path, table, message):
 def test_a_clip_at_another_frame_rate_is_resampled_to_20_fps(tmp_path):
     rig = _moving_rig(MIXAMO, frames=61, fps=60.0)
     motion = Motion.from_file(rig.write(tmp_path / "fast.bvh", scale=100))
-    assert motion.fps == 20 and len(motion.features) == 20  # 21 frames: 20 feature rows
+    assert motion.fps == 20 and len(motion.joints) == 21  # every frame
+    assert len(motion.features) == 20  # 21 frames: 20 feature rows, as HumanML3D's
     clip = read_mocap(tmp_path / "fast.bvh")
     every_third = rig.positions()[::3]
     assert np.abs(resample(clip.joints, 60.0, 20.0) - every_third).max() < TOLERANCE
@@ -320,3 +321,14 @@ def test_a_stream_continues_from_an_imported_clip(tmp_path):
     stream.continue_from(walk)
     frames = np.stack(list(stream.frames(20)))
     assert frames.shape == (20, 22, 3) and np.all(np.isfinite(frames))
+
+
+def test_a_bvh_we_wrote_comes_back_with_every_frame(tmp_path):
+    """81 frames written, 81 read (the last frame was dropped with the features' last row)."""
+    motion = MotionGenerator.load().generate("a person walks forward.", seconds=4.05, seed=0)
+    assert len(motion.joints) == 81
+    back = Motion.from_file(motion.save_bvh(tmp_path / "walk.bvh"))
+    assert back.joints.shape == (81, 22, 3) and back.features.shape == (80, 263)
+    # our rigid character, put on the floor facing +Z as the generated clip already is
+    error = np.linalg.norm(back.joints - motion.joints, axis=-1)
+    assert error.mean() < 0.03, error.mean()

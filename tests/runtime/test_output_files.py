@@ -72,14 +72,29 @@ def test_a_take_never_replaces_an_earlier_one_unless_asked(tmp_path):
 
 
 def test_a_take_with_a_glb_animation(tmp_path):
-    """animation="glb" (`mogo generate --format glb`): a .glb in the .bvh's place, numbered
+    """formats with "glb" (`mogo generate --format glb`): a .glb in the .bvh's place, numbered
     with the rest of the take; an unknown format is refused before anything is written."""
     motion(0).save_take(tmp_path, "walk")
-    written = motion(1).save_take(tmp_path, "walk", animation="glb")
+    written = motion(1).save_take(tmp_path, "walk", formats=("glb", "gif", "npy", "json"))
     assert [p.name for p in written] == ["walk-2.glb", "walk-2.gif", "walk-2.npy", "walk-2.json"]
     assert written[0].read_bytes()[:4] == b"glTF"
-    with pytest.raises(ValueError, match="animation must be one of bvh, glb"):
-        motion(1).save_take(tmp_path, "other", animation="fbx")
+    with pytest.raises(ValueError, match="no format 'fbx'; choose from bvh, glb, gif, npy"):
+        motion(1).save_take(tmp_path, "other", formats=("fbx",))
+    assert not list(tmp_path.glob("other*"))
+
+
+def test_a_take_of_some_formats_writes_those_alone(tmp_path):
+    """A long take need not write its GIF and JSON: formats names the files (in FORMATS'
+    order, whatever order given); a repeated, empty or bare-string list is refused."""
+    written = motion(0).save_take(tmp_path, "walk", formats=["npy", "bvh"])
+    assert [p.name for p in written] == ["walk.bvh", "walk.npy"]
+    assert sorted(contents(tmp_path)) == ["walk.bvh", "walk.npy"]
+    assert motion(1).save_take(tmp_path, "walk", formats=["npy"])[0].name == "walk-2.npy"
+    for bad in (["npy", "npy"], []):
+        with pytest.raises(ValueError, match="name each format once, at least one"):
+            motion(1).save_take(tmp_path, "other", formats=bad)
+    with pytest.raises(TypeError, match="formats must be a list of names, got str"):
+        motion(1).save_take(tmp_path, "other", formats="npy")
     assert not list(tmp_path.glob("other*"))
 
 
@@ -263,10 +278,12 @@ def test_a_closed_or_full_standard_output_is_one_line(tmp_path):
                                           "left on device); the take was written: ")
     assert len(list(tmp_path.iterdir())) == 8
     with open("/dev/full", "w") as full:
-        code, error = run_mogo("stream", "a person walks.", "--frames", "500", stdout=full)
+        code, error = run_mogo("stream", "a person walks.", "--frames", "500", "--seed", "0",
+                               stdout=full)
     assert (code, error) == (2, "mogo: error: cannot write to standard output: No space left "
                                 "on device\n")
-    code, error = run_mogo("stream", "a person walks.", close_stdout=True)  # `mogo stream | head`
+    code, error = run_mogo("stream", "a person walks.", "--seed", "0",
+                           close_stdout=True)  # `mogo stream | head`
     assert (code, error) == (0, "")
 
 

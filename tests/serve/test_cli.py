@@ -27,7 +27,7 @@ def test_without_the_extra_it_says_how_to_install_it(monkeypatch, capsys):
                         lambda name, *a: None if name == "aiohttp" else real(name, *a))
     assert main(["serve"]) == 2
     assert capsys.readouterr().err == ("mogo: error: this command needs the serve extra: "
-                                       "pip install 'mogo[serve]'\n")
+                                       "pip install 'mogo-edge[serve]'\n")
 
 
 @pytest.mark.parametrize("flags", [["--port", "70000"], ["--max-streams", "0"],

@@ -1,5 +1,6 @@
 """The viewer page in a real browser: headless Chromium loads it from a running server, starts
-two characters, and frames arrive and are drawn on the canvas. Skipped without Chromium."""
+two characters, and frames arrive and are drawn on the canvas, with no error in the browser's
+console (a missing /favicon.ico was one). Skipped without Chromium."""
 import os
 import shutil
 import socket
@@ -13,7 +14,8 @@ import pytest
 
 CHROMIUM, DRIVER = "/usr/bin/chromium", shutil.which("chromedriver") or "/usr/bin/chromedriver"
 pytestmark = pytest.mark.skipif(not (os.path.exists(CHROMIUM) and os.path.exists(DRIVER)),
-                                reason="needs /usr/bin/chromium and chromedriver")
+                                reason="needs /usr/bin/chromium and chromedriver: apt-get "
+                                       "install chromium chromium-driver")
 webdriver = pytest.importorskip("selenium.webdriver")
 SCREENSHOT = os.environ.get("MOGO_VIEWER_SCREENSHOT")  # where to keep the picture, if anywhere
 
@@ -35,6 +37,7 @@ def test_the_viewer_streams_and_draws_characters(tmp_path):
                  "--disable-component-update", "--disable-sync", "--window-size=1100,640",
                  f"--user-data-dir={tempfile.mkdtemp(dir=tmp_path)}"):
         options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})  # the console, read below
     browser = None
     try:
         assert "mogo serve:" in server.stderr.readline()  # listening
@@ -59,6 +62,9 @@ def test_the_viewer_streams_and_draws_characters(tmp_path):
             "for (let i = 0; i < d.length; i += 4) if (d[i] > 200 && d[i + 1] > 120) n++;"
             "return n")
         assert lit > 500  # the characters' orange strokes, not only the dark floor
+        console = [entry["message"] for entry in browser.get_log("browser")
+                   if entry["level"] == "SEVERE"]
+        assert not console, console  # e.g. "favicon.ico - Failed to load resource: ... 404"
         if SCREENSHOT:
             Path(SCREENSHOT).write_bytes(browser.get_screenshot_as_png())
     finally:
