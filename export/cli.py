@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from mogo.cli import CliError, require_torch
+from mogo.export.data.animator import CORPORA, DEFAULT_CORPUS
 from mogo.export.train.options import (EvaluatorTrainOptions, T2MTrainOptions, TextTrainOptions,
                                        VQTrainOptions, add_arguments, from_arguments)
 
@@ -21,7 +22,7 @@ def _cmd_data_synth(args: argparse.Namespace) -> None:
     if args.workers is not None and args.workers < 1:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
     synthesize_corpus(Path(args.out), num_clips=args.clips, seed=args.seed, progress=True,
-                      workers=args.workers)
+                      workers=args.workers, corpus=args.corpus)
 
 
 def _cmd_data_show(args: argparse.Namespace) -> None:
@@ -102,6 +103,9 @@ def add_commands(commands) -> None:
     synth.add_argument("--out", required=True, help="output folder (HumanML3D layout)")
     synth.add_argument("--clips", type=int, default=20000, help="number of clips before mirroring")
     synth.add_argument("--seed", type=int, default=0)
+    synth.add_argument("--corpus", choices=sorted(CORPORA), default=DEFAULT_CORPUS,
+                       help="v1: the shipped bundle's 17 primitives; v2: 39 primitives, steps "
+                            "that vary (docs/model.md)")
     synth.add_argument("--workers", type=int, help="processes (default: one per CPU core; the "
                                                    "corpus is the same for any number)")
     synth.set_defaults(run=_cmd_data_synth)
