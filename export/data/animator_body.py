@@ -46,6 +46,7 @@ class Body:
     toe_out: float  # each foot's yaw away from the facing, radians
     posture: float  # forward bend of the relaxed torso, radians
     arm_rest: np.ndarray  # (4,) relaxed arms (see Track.arms)
+    natural: bool = False  # corpus v2's: gaits calibrated against real clips (animator_steps)
     variation: float = 0.0  # spread of each step's timing and length (share of a step)
     asymmetry: float = 0.0  # the left steps' length over the right's, minus one, halved
 
@@ -64,7 +65,7 @@ class Body:
                                       rng.uniform(0.975, 0.995), 0.0]))
         if not natural:
             return body
-        return replace(body, variation=rng.uniform(0.02, 0.05),
+        return replace(body, natural=True, variation=rng.uniform(0.02, 0.05),
                        asymmetry=rng.uniform(-0.04, 0.04))
 
     def length(self, joint: int) -> float:

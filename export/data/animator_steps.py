@@ -49,6 +49,16 @@ GAITS = {
                   arm_spread=-12 * DEG),
     "stumble": Gait(0.55, 0.65, 0.78, 0.09, 0.02, 0.02, 2 * DEG, 0.45, 5 * DEG, 0.97, 20 * DEG),
 }
+# Corpus v2's walk, jog and run, calibrated against pybullet's DeepMimic clips
+# (bench/quality/realism.py, docs/model.md): shorter, quicker steps, feet lifted higher, toes
+# pushing off harder, arms swinging more in running.
+NATURAL_GAITS = {
+    **GAITS,
+    "walk": Gait(0.51, 0.52, 0.8, 0.16, 0.005, 0.0, 2 * DEG, 0.55, 5 * DEG, 0.98, 35 * DEG),
+    "jog": Gait(0.37, 0.7, 1.25, 0.22, -0.08, 0.02, 8 * DEG, 1.0, 40 * DEG, 0.7, 40 * DEG),
+    "run": Gait(0.34, 0.95, 1.35, 0.3, -0.12, 0.02, 12 * DEG, 1.3, 45 * DEG, 0.6, 50 * DEG),
+}
+NATURAL_SWAY = 0.25  # share of the shift of weight over each foot that the pelvis follows
 SPEEDS = {"slow": 0.75, "normal": 1.0, "fast": 1.3}  # speed multiplier: cadence^0.4 stride^0.6
 # Heading of travel relative to the facing, and the stride's share of a forward stride
 # (sideways: per pair of steps, the leading foot out, the trailing foot closing in).
@@ -133,6 +143,10 @@ def _step_track(body: Body, start: Place, steps: list, gait: Gait, period: float
     weight = 1.0 - (1.0 - SWING_WEIGHT) * in_air
     root = smooth(np.sum(weight[..., None] * xz, 1) / weight.sum(1)[:, None], radius)
     body_yaw = smooth(np.mean(yaw - SIDES * body.toe_out, 1), radius)
+    if body.natural:  # sway less: a person's pelvis shifts only partly over each foot
+        side = leftward(body_yaw)
+        shift = np.sum((root - smooth(xz.mean(1), 2 * radius)) * side, -1)
+        root -= (1 - NATURAL_SWAY) * shift[:, None] * side
     moving = smooth(((t >= pad) & (t <= pad + active)).astype(np.float64), radius)
     ahead = np.sum((xz[:, RIGHT] - xz[:, LEFT]) * facing(body_yaw), -1)  # right foot's lead
 
@@ -178,7 +192,7 @@ def locomotion(gait_name: str, params: dict, place: Place, body: Body,
     in pairs, the leading foot out and the trailing foot in (an odd count gets one more
     closing step). Params a gait lacks are forward, straight, at normal speed; a limp favours
     its hurt `foot`; a stumble trips halfway and catches itself with one long quick step."""
-    gait = GAITS[gait_name]
+    gait = (NATURAL_GAITS if body.natural else GAITS)[gait_name]
     direction = params.get("direction", "forward")
     heading, share = DIRECTIONS[direction]
     speed = SPEEDS[params.get("speed", "normal")] * rng.uniform(0.93, 1.07)
