@@ -8,7 +8,7 @@ knee flexion in stance and in swing, foot clearance, a jump's crouch, flight and
 height and timing, and how alike successive steps are. Numpy only, no model. Prints the
 markdown table (each animator measure the mean over N random performers doing the same
 segment) and writes OUT/realism.md and OUT/realism_sheet.png: per move a row of real frames,
-then v1's, then v2's.
+then v1's, then v2's; and OUT/corpus_v2_sheet.png, a row per primitive v2 adds.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from PIL import Image
 
 from mogo.bench.quality.real_motion import deepmimic_clips
 from mogo.clip import Motion
-from mogo.export.data.animator import Segment, animate
+from mogo.export.data.animator import CORPORA, Segment, animate, sample_segment
 from mogo.motion.features import facing_directions
 from mogo.motion.render import Camera, render_frames
 from mogo.motion.skeleton import SMPL_22
@@ -191,6 +191,22 @@ def sheet(shown: dict[str, dict], path: Path, size: int = 72, columns: int = 8) 
     sheet.quantize(32).save(path, optimize=True)
 
 
+def primitives_sheet(path: Path, size: int = 64, columns: int = 8, seed: int = 0) -> None:
+    """A row per primitive corpus v2 adds to v1, `columns` frames over one random clip of it
+    by a v2 performer."""
+    new = [name for name in CORPORA["v2"] if name not in CORPORA["v1"]]
+    sheet = Image.new("RGB", (columns * size, size * len(new)), "white")
+    camera = Camera(size=192, focal=330, centre_y=110, distance=4.5, look_height=0.8)
+    rng = np.random.default_rng(seed)
+    for r, name in enumerate(new):
+        segment = sample_segment(name, rng)
+        joints = animate([segment], rng, natural=True).joints
+        frames = render_frames(joints, name.replace("_", " "), camera=camera)
+        for c, t in enumerate(np.linspace(0, len(joints) - 1, columns).astype(int)):
+            sheet.paste(frames[t].convert("RGB").resize((size, size)), (c * size, r * size))
+    sheet.quantize(32).save(path, optimize=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "mogo",
@@ -204,8 +220,9 @@ def main() -> None:
     text = table(rows, args.clips)
     (args.out / "realism.md").write_text(text + "\n")
     sheet(shown, args.out / "realism_sheet.png")
+    primitives_sheet(args.out / "corpus_v2_sheet.png")
     print(text)
-    print(f"wrote {args.out}/realism.md and realism_sheet.png")
+    print(f"wrote {args.out}/realism.md, realism_sheet.png and corpus_v2_sheet.png")
 
 
 if __name__ == "__main__":
