@@ -168,7 +168,8 @@ def add_commands(commands) -> None:
         "all", help="the whole model in one command: corpus, VQ, transformer on a pretrained "
                     "sentence encoder, evaluator, bundle, quality report (resumable)")
     every.add_argument("--recipe", required=True, choices=sorted(RECIPES),
-                       help="tiny: end to end on a CPU in minutes; h100: VQ + transformer in "
+                       help="tiny: end to end on a CPU in minutes; cpu: a small model of the "
+                            "shipped size in about 15 minutes; h100: VQ + transformer in "
                             "about 10 minutes on one H100 (docs/model.md)")
     every.add_argument("--out", required=True, help="folder of every stage (run again to go on)")
     every.add_argument("--budget", type=float, metavar="MINUTES",

@@ -54,19 +54,19 @@ RECIPES = {
         report=("--limit", "32", "--repeats", "2", "--mm-captions", "2", "--mm-generations",
                 "10", "--per-primitive", "1"),
         minutes=dict(vq=2.0, t2m=2.0, evaluator=1.0)),
-    # a small model of the shipped size on a 2-core CPU in about 15 minutes of training
+    # a small model of the shipped size on a 2-core CPU, about 15 minutes of training
     "cpu": Recipe(
-        corpus="v2", clips=800,
-        vq=("--batch-size", "32", "--steps", "2000", "--warmup", "100", "--val-clips", "64",
-            "--val-every", "250", "--checkpoint-every", "250", "--log-every", "50"),
-        t2m=("--batch-size", "32", "--lr", "3e-4", "--steps", "2000", "--warmup", "100",
-             "--val-every", "250", "--checkpoint-every", "250", "--log-every", "50"),
-        evaluator=("--config", "tiny", "--steps", "300", "--val-every", "150",
-                   "--checkpoint-every", "150", "--log-every", "50", "--val-spans", "64"),
+        corpus="v2", clips=250,
+        vq=("--batch-size", "32", "--steps", "2000", "--warmup", "50", "--val-clips", "32",
+            "--val-every", "100", "--checkpoint-every", "50", "--log-every", "10"),
+        t2m=("--batch-size", "32", "--lr", "3e-4", "--steps", "2000", "--warmup", "50",
+             "--val-every", "100", "--checkpoint-every", "50", "--log-every", "10"),
+        evaluator=("--config", "tiny", "--steps", "300", "--val-every", "100",
+                   "--checkpoint-every", "100", "--log-every", "10", "--val-spans", "32"),
         int8=False,
-        report=("--limit", "64", "--repeats", "2", "--mm-captions", "4", "--mm-generations",
-                "10", "--per-primitive", "5", "--threads", "2"),
-        minutes=dict(vq=6.0, t2m=7.0, evaluator=2.0)),
+        report=("--limit", "32", "--repeats", "2", "--mm-captions", "2", "--mm-generations",
+                "10", "--per-primitive", "3", "--threads", "2"),
+        minutes=dict(vq=6.0, t2m=7.0, evaluator=1.5)),
     # the shipped model's sizes (cpu_default) and batches; steps from the H100 runs' measured
     # rates (bench/training/train_cost.py) so that VQ + transformer take about 10 minutes
     "h100": Recipe(
