@@ -71,40 +71,39 @@ def step_up(params: dict, body: Body, rng: np.random.Generator) -> list:
 
 
 def crawl(params: dict, body: Body, rng: np.random.Generator) -> list:
-    """Down onto hands and knees, `count` crawling cycles forward (each knee in turn), back
-    up where the crawl ended."""
+    """Down onto hands and knees (the feet stay, the knees go down in front of them), `count`
+    crawling cycles forward (each knee in turn, the opposite hand reaching), back up over the
+    feet where the crawl ended."""
     reach = rng.uniform(0.2, 0.28) * body.energy  # metres per crawling cycle
     low, shin = -0.42, body.length(7) + 0.02
 
     def on_all_fours(at: float, knees: tuple[float, float], lifts=(0.0, 0.0),
                      hands=(0.0, 0.0)) -> np.ndarray:
-        feet = np.array([[0.0, lifts[s], knees[s] - shin] for s in range(2)])
+        feet = np.array([[0.0, lifts[s], knees[s]] for s in range(2)])  # ankles behind knees
         arms = np.array([arm(80 * DEG + hands[s], 12 * DEG, 0.95, 0.2) for s in range(2)])
-        return pose(body, pelvis=(0.0, low, at), torso=(84 * DEG, 0.0, 0.0), arms=arms,
+        return pose(body, pelvis=(0.0, low, at + shin), torso=(84 * DEG, 0.0, 0.0), arms=arms,
                     feet=feet)
 
-    kneel = pose(body, pelvis=(0.0, low + 0.02, 0.0), torso=(0.35, 0.0, 0.0),
-                 arms=both(arm(50 * DEG, 15 * DEG, 0.9)), feet=both((0.0, 0.0, -shin)))
-    keys = [(0.5, pose(body, pelvis=(0.0, -0.3, -0.05), torso=(0.5, 0.0, 0.0),
+    def kneeling(at: float) -> np.ndarray:
+        return pose(body, pelvis=(0.0, low + 0.02, at + shin), torso=(0.35, 0.0, 0.0),
+                    arms=both(arm(50 * DEG, 15 * DEG, 0.9)), feet=both((0.0, 0.0, at)))
+
+    keys = [(0.5, pose(body, pelvis=(0.0, -0.3, 0.1), torso=(0.5, 0.0, 0.0),
                        arms=both(arm(40 * DEG, 15 * DEG, 0.9)))),
-            (0.45, kneel), (0.5, on_all_fours(0.0, (0.0, 0.0)))]
+            (0.45, kneeling(0.0)), (0.5, on_all_fours(0.0, (0.0, 0.0)))]
     knees = [0.0, 0.0]
     for k in range(2 * params["count"]):
         side = k % 2
         start = k * reach / 2
-        moving = list(knees)
-        moving[side] = start + 0.75 * reach  # a quarter cycle ahead of the hips
+        knees[side] = start + 0.75 * reach  # a quarter cycle ahead of the hips
         lifts = (0.04 * (side == 0), 0.04 * (side == 1))
         hand = (25 * DEG * (side == 1), 25 * DEG * (side == 0))  # the opposite hand reaches
-        keys += [(0.22, on_all_fours(start + reach / 4, tuple(moving), lifts, hand)),
-                 (0.22, on_all_fours(start + reach / 2, tuple(moving)))]
-        knees = moving
+        keys += [(0.22, on_all_fours(start + reach / 4, tuple(knees), lifts, hand)),
+                 (0.22, on_all_fours(start + reach / 2, tuple(knees)))]
     end = params["count"] * reach
-    up = pose(body, pelvis=(0.0, low + 0.02, end), torso=(0.35, 0.0, 0.0),
-              arms=both(arm(50 * DEG, 15 * DEG, 0.9)), feet=both((0.0, 0.0, end - shin)))
-    return keys + [(0.5, up), (0.5, pose(body, pelvis=(0.0, -0.3, end - 0.05),
-                                         torso=(0.5, 0.0, 0.0),
-                                         feet=both((0.0, 0.0, end)))),
+    return keys + [(0.5, kneeling(end)),
+                   (0.5, pose(body, pelvis=(0.0, -0.3, end + 0.1), torso=(0.5, 0.0, 0.0),
+                              feet=both((0.0, 0.0, end)))),
                    (0.55, pose(body, pelvis=(0.0, 0.0, end), feet=both((0.0, 0.0, end))))]
 
 
