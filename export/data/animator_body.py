@@ -7,7 +7,7 @@ exactly where the footstep planner puts them and no bone ever changes length.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -46,18 +46,27 @@ class Body:
     toe_out: float  # each foot's yaw away from the facing, radians
     posture: float  # forward bend of the relaxed torso, radians
     arm_rest: np.ndarray  # (4,) relaxed arms (see Track.arms)
+    natural: bool = False  # corpus v2's: gaits calibrated against real clips (animator_steps)
+    variation: float = 0.0  # spread of each step's timing and length (share of a step)
+    asymmetry: float = 0.0  # the left steps' length over the right's, minus one, halved
 
     @classmethod
-    def sample(cls, rng: np.random.Generator) -> "Body":
+    def sample(cls, rng: np.random.Generator, natural: bool = False) -> "Body":
+        """A random performer; `natural` (corpus v2) also draws an uneven, varying gait,
+        after every v1 draw so that v1 corpora stay what they were."""
         offsets = SMPL_22.rest_offsets * rng.uniform(0.96, 1.04)
         offsets[LEG_BONES] *= rng.uniform(0.98, 1.02)
         offsets[ARM_BONES] *= rng.uniform(0.98, 1.02)
-        return cls(offsets=offsets, tempo=rng.uniform(0.9, 1.1), energy=rng.uniform(0.85, 1.15),
+        body = cls(offsets=offsets, tempo=rng.uniform(0.9, 1.1), energy=rng.uniform(0.85, 1.15),
                    arm_swing=rng.uniform(0.7, 1.3), stance=rng.uniform(0.085, 0.115),
                    toe_out=np.radians(rng.uniform(3.0, 12.0)),
                    posture=np.radians(rng.uniform(-2.0, 6.0)),
                    arm_rest=np.array([rng.uniform(-0.05, 0.1), rng.uniform(0.06, 0.2),
                                       rng.uniform(0.975, 0.995), 0.0]))
+        if not natural:
+            return body
+        return replace(body, natural=True, variation=rng.uniform(0.02, 0.05),
+                       asymmetry=rng.uniform(-0.04, 0.04))
 
     def length(self, joint: int) -> float:
         return float(np.linalg.norm(self.offsets[joint]))

@@ -18,6 +18,9 @@ from mogo.export.data.animator_body import (FPS, LEFT, RIGHT, SIDES, Body, Track
 DEG = np.pi / 180
 MIN_SECONDS = 2.0  # shorter segments are padded with standing, so one segment makes a clip
 TIMING_JITTER = 0.1  # each key's duration varies by up to this share
+# Corpus v2, calibrated against pybullet's DeepMimic jump and punch (bench/quality/realism.py):
+# jumps crouch deeper, fly longer, higher and further; punches strike faster.
+NATURAL_JUMP, NATURAL_STRIKE = 1.35, 0.55
 
 
 @dataclass(frozen=True)
@@ -198,8 +201,9 @@ def punch(params: dict, body: Body, rng: np.random.Generator) -> list:
     strike = pose(body, torso=(0.0, 0.0, -SIDES[LIMBS[hand][0]] * 20 * DEG * body.energy),
                   arms=limbs(hand, arm(88 * DEG, -14 * DEG, 0.99, 0.2), guard))
     keys = [(0.35, pose(body, arms=both(guard)))]
+    snap = NATURAL_STRIKE if body.natural else 1.0
     for _ in range(params["count"]):
-        keys += [(0.14, strike), (0.28, pose(body, arms=both(guard)))]
+        keys += [(0.14 * snap, strike), (0.28, pose(body, arms=both(guard)))]
     return keys + [(0.45, pose(body))]
 
 
@@ -248,11 +252,12 @@ def jump(params: dict, body: Body, rng: np.random.Generator) -> list:
     `count` times, travelling forward if asked. Feet rise before they travel and stop
     travelling before they come down."""
     forward = params["forward"]
-    distance = rng.uniform(0.5, 0.85) * body.energy if forward else 0.0
-    height = (rng.uniform(0.15, 0.2) if forward else rng.uniform(0.2, 0.3)) * body.energy
+    big = NATURAL_JUMP if body.natural else 1.0
+    distance = rng.uniform(0.5, 0.85) * body.energy * big if forward else 0.0
+    height = (rng.uniform(0.15, 0.2) if forward else rng.uniform(0.2, 0.3)) * body.energy * big
 
     def crouch(at: float) -> np.ndarray:
-        return pose(body, pelvis=(0.0, -0.2, at - 0.04), torso=(0.5, 0.0, 0.0),
+        return pose(body, pelvis=(0.0, -0.2 * big, at - 0.04), torso=(0.5, 0.0, 0.0),
                     arms=both(arm(-40 * DEG, 15 * DEG, 0.97)), feet=both((0.0, 0.0, at)))
 
     def airborne(at: float, feet_at: float, lift: float, toes: float, swing: float,
@@ -265,13 +270,14 @@ def jump(params: dict, body: Body, rng: np.random.Generator) -> list:
     for k in range(params["count"]):
         start, end = k * distance, (k + 1) * distance
         keys += [(0.16, airborne(start + 0.1 * distance, start, 0.0, 50 * DEG, 50 * DEG, 0.2)),
-                 (0.08, airborne(start + 0.25 * distance, start, 0.4 * height, 35 * DEG,
-                                 100 * DEG, 0.15)),
-                 (0.12, airborne(start + 0.5 * distance, start + 0.5 * distance, height,
-                                 25 * DEG, 140 * DEG, 0.1)),
-                 (0.12, airborne(start + 0.75 * distance, end, 0.4 * height, 25 * DEG,
-                                 110 * DEG, 0.1)),
-                 (0.08, airborne(end - 0.05 * distance, end, 0.0, 30 * DEG, 80 * DEG, 0.15)),
+                 (0.08 * big, airborne(start + 0.25 * distance, start, 0.4 * height, 35 * DEG,
+                                       100 * DEG, 0.15)),
+                 (0.12 * big, airborne(start + 0.5 * distance, start + 0.5 * distance, height,
+                                       25 * DEG, 140 * DEG, 0.1)),
+                 (0.12 * big, airborne(start + 0.75 * distance, end, 0.4 * height, 25 * DEG,
+                                       110 * DEG, 0.1)),
+                 (0.08 * big, airborne(end - 0.05 * distance, end, 0.0, 30 * DEG, 80 * DEG,
+                                       0.15)),
                  (0.18, crouch(end))]
     end = params["count"] * distance
     return keys + [(0.5, pose(body, pelvis=(0.0, 0.0, end), feet=both((0.0, 0.0, end))))]

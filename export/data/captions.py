@@ -16,7 +16,8 @@ from mogo.export.data.caption_templates import (JOINERS, POOLS, SUBJECTS, TEMPLA
 
 _VERB = re.compile(r"<(\w+)>")
 _REPETITION_NOUNS = {"jump": "jump", "squat": "squat", "clap": "clap", "punch": "punch",
-                     "jumping_jacks": "jumping jack"}
+                     "jumping_jacks": "jumping jack", "hop": "hop", "shrug": "shrug",
+                     "uppercut": "uppercut"}
 _GAITS = {"walk": ("walk", "steps"), "jog": ("jog", "strides"), "run": ("run", "strides")}
 
 
@@ -88,16 +89,14 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
     slots: dict[str, list[str]] = {"pos": [possessive]}
     if primitive in _GAITS:
         gait, stride = _GAITS[primitive]
-        direction, speed = params["direction"], params["speed"]
         slots["gait"] = [gait]
         slots["stride"] = [stride]
-        slots["dir"] = {"forward": ["forward", "forwards", "ahead"],
-                        "backward": ["backward", "backwards"],
-                        "left": ["to the left", "sideways to the left", "leftward"],
-                        "right": ["to the right", "sideways to the right", "rightward"],
-                        }[direction]
-        if direction in ("left", "right"):
-            slots["lateral"] = [f"to the {direction}", direction]
+    if "steps" in params:
+        slots["steps"] = [number_word(params["steps"])]
+    if "turn" in params:
+        slots["path"] = _path(params["turn"])
+    if "speed" in params:
+        speed = params["speed"]
         slots["speed"] = {"slow": ["slowly", "at a slow pace", "leisurely"],
                           "normal": ["", "at a normal pace", "at a steady pace"],
                           "fast": ["quickly", "at a fast pace", "briskly"]}[speed]
@@ -107,8 +106,15 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
                               "fast": ["fast", "quick"]}[speed]
         slots["step_adj"] = {"slow": ["small", "slow"], "normal": [""],
                              "fast": ["quick", "big"]}[speed]
-        slots["steps"] = [number_word(params["steps"])]
-        slots["path"] = _path(params["turn"])
+    if "direction" in params and primitive != "spin":
+        direction = params["direction"]
+        slots["dir"] = {"forward": ["forward", "forwards", "ahead"],
+                        "backward": ["backward", "backwards"],
+                        "left": ["to the left", "sideways to the left", "leftward"],
+                        "right": ["to the right", "sideways to the right", "rightward"],
+                        }[direction]
+        if direction in ("left", "right"):
+            slots["lateral"] = [f"to the {direction}", direction]
     if "angle" in params:
         amounts, fractions = _turn_size(params["angle"])
         slots["turn_amount"] = amounts
@@ -140,6 +146,11 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
             slots["side"] = [hand]
             if "count" in params:
                 slots["side_reps"] = [count_noun(params["count"], f"{hand} punch")]
+    if "at" in params:
+        slots["point_at"] = {"forward": ["forward", "ahead", "straight ahead"],
+                             "up": ["up", "upward", "at the sky"],
+                             "sideways": [f"to the {params['hand']}",
+                                          f"out to the {params['hand']} side"]}[params["at"]]
     if "foot" in params:
         foot = params["foot"]
         slots["leg"] = [f"the {foot} leg", f"{possessive} {foot} leg", f"the {foot} foot"]

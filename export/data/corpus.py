@@ -6,6 +6,9 @@ whatever the number of worker processes. The test split measures generalisation 
 a seed-chosen set of ordered primitive pairs ("walk then wave") appears only in test, and part
 of the test clips are captioned only with held-out templates. Mirrored copies (M-prefixed IDs)
 go in the same split as their originals, as in HumanML3D.
+
+Two corpus versions: v1 (17 primitives, the shipped bundle's corpus, byte for byte what it
+was) and v2 (39 primitives, performers whose steps vary, animator.CORPORA).
 """
 from __future__ import annotations
 
@@ -18,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.export.data.animator import PRIMITIVES, Segment, animate, sample_segment
+from mogo.export.data.animator import (CORPORA, DEFAULT_CORPUS, Segment, animate,
+                                       sample_segment)
 from mogo.export.data.animator_body import FPS
 from mogo.export.data.caption_templates import JOINERS, TEMPLATES
 from mogo.export.data.captions import caption_program, caption_segment
@@ -33,7 +37,7 @@ GENERATOR_VERSION = 1
 MAX_SEGMENTS = 3
 MAX_ATTEMPTS = 100  # program draws per clip before giving up on the length limits
 SPLIT_FRACTIONS = (("train", 0.80), ("val", 0.05), ("test", 0.15))
-NUM_HELDOUT_PAIRS = 12  # of the 16 x 15 ordered pairs of distinct non-idle primitives
+HELDOUT_PAIR_SHARE = 0.05  # of the ordered pairs of distinct non-idle primitives (v1: 12)
 FORCED_PAIR_SHARE = 1 / 3  # test clips built around a held-out pair (more occur by chance)
 HELDOUT_CAPTION_SHARE = 0.5  # test clips captioned from the held-out template pool
 WHOLE_CAPTIONS = 3  # caption lines per clip; multi-segment clips give one to each segment
@@ -45,6 +49,7 @@ class Plan:
     """What every clip needs to know about the corpus."""
     out: Path
     seed: int
+    corpus: str
     heldout_pairs: frozenset[tuple[str, str]]
 
 
@@ -55,12 +60,12 @@ class ClipResult:
     attempts: int
 
 
-def heldout_pairs(seed: int) -> list[tuple[str, str]]:
+def heldout_pairs(seed: int, corpus: str = DEFAULT_CORPUS) -> list[tuple[str, str]]:
     """The ordered primitive pairs kept out of train and val, fixed by the seed."""
-    names = sorted(p for p in PRIMITIVES if p != "idle")
+    names = sorted(p for p in CORPORA[corpus] if p != "idle")
     pairs = [(a, b) for a in names for b in names if a != b]
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
-    chosen = rng.choice(len(pairs), size=NUM_HELDOUT_PAIRS, replace=False)
+    chosen = rng.choice(len(pairs), size=round(HELDOUT_PAIR_SHARE * len(pairs)), replace=False)
     return sorted(pairs[k] for k in chosen)
 
 
@@ -79,7 +84,7 @@ def _pairs(segments: list[Segment]) -> set[tuple[str, str]]:
 
 def _draw_program(rng: np.random.Generator, plan: Plan, force_pair: bool) -> list[Segment]:
     """1-3 random segments; with `force_pair`, 2-3 segments around a held-out pair."""
-    names = sorted(PRIMITIVES)
+    names = sorted(CORPORA[plan.corpus])
     if not force_pair:
         count = int(rng.integers(1, MAX_SEGMENTS + 1))
         return [sample_segment(names[int(rng.integers(len(names)))], rng) for _ in range(count)]
@@ -100,7 +105,7 @@ def _draw_clip(rng: np.random.Generator, plan: Plan, split: str):
         segments = _draw_program(rng, plan, force_pair)
         if split != "test" and _pairs(segments) & plan.heldout_pairs:
             continue
-        animation = animate(segments, rng)
+        animation = animate(segments, rng, natural=plan.corpus != "v1")
         if MIN_FRAMES <= animation.joints.shape[0] <= MAX_FRAMES:
             return segments, animation, attempt
     raise RuntimeError(f"no program within {MIN_FRAMES}-{MAX_FRAMES} frames "
@@ -174,10 +179,12 @@ def make_clip(index: int, plan: Plan) -> ClipResult:
 
 
 def synthesize_corpus(out: Path, num_clips: int, seed: int, progress: bool = True,
-                      workers: int | None = None) -> dict:
-    """Write `num_clips` clips and their mirrors to `out` (which must be new or empty);
-    returns the corpus summary also written as corpus.json."""
+                      workers: int | None = None, corpus: str = DEFAULT_CORPUS) -> dict:
+    """Write `num_clips` clips of corpus version `corpus` and their mirrors to `out` (which
+    must be new or empty); returns the corpus summary also written as corpus.json."""
     out = Path(out)
+    if corpus not in CORPORA:
+        raise ValueError(f"unknown corpus {corpus!r}; expected one of {', '.join(CORPORA)}")
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out} is not empty; choose a new folder")
     if num_clips < 1:
@@ -185,7 +192,7 @@ def synthesize_corpus(out: Path, num_clips: int, seed: int, progress: bool = Tru
     workers = workers or os.cpu_count() or 1
     for sub in ("new_joint_vecs", "new_joints", "texts", "programs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    plan = Plan(out, seed, frozenset(heldout_pairs(seed)))
+    plan = Plan(out, seed, corpus, frozenset(heldout_pairs(seed, corpus)))
 
     splits: dict[str, list[str]] = {name: [] for name, _ in SPLIT_FRACTIONS}
     attempts = 0
@@ -205,12 +212,14 @@ def synthesize_corpus(out: Path, num_clips: int, seed: int, progress: bool = Tru
     for name, ids in splits.items():
         (out / f"{name}.txt").write_text("".join(f"{i}\n" for i in ids))
     summary = {
-        "generator_version": GENERATOR_VERSION, "seed": seed, "clips": num_clips,
+        "generator_version": GENERATOR_VERSION, "corpus": corpus, "seed": seed,
+        "clips": num_clips, "primitives": len(CORPORA[corpus]),
         "ids_per_split": {name: len(ids) for name, ids in splits.items()},
         "fps": FPS, "frames": [MIN_FRAMES, MAX_FRAMES],
         "program_draws_per_clip": round(attempts / num_clips, 3),
         "heldout_pairs": [list(p) for p in sorted(plan.heldout_pairs)],
-        "heldout_templates": sorted({t.id for ts in TEMPLATES.values() for t in ts if t.heldout})
+        "heldout_templates": sorted({t.id for name in CORPORA[corpus] for t in TEMPLATES[name]
+                                     if t.heldout})
         + [j.id for j in JOINERS if j.heldout],
         "heldout_caption_share_of_test": HELDOUT_CAPTION_SHARE,
         "std_floor": STD_FLOOR,

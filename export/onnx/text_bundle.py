@@ -21,7 +21,8 @@ from mogo.bundle import Bundle, write_manifest
 from mogo.export.data.outside_repertoire import CALIBRATION, INSIDE
 from mogo.export.models.runs import load_checkpoint
 from mogo.export.models.sentence_encoder import (CAPTIONS, ENCODER, MAX_LENGTH, Adapter, MiniLM,
-                                                 SentenceEmbedder, variant_rows)
+                                                 SentenceEmbedder, SentenceTower,
+                                                 sentence_tokenizer, variant_rows)
 from mogo.export.onnx.bundle import _new_folder
 from mogo.export.onnx.text_graph import export_sentence_text_graph
 from mogo.manifest import (SENTENCE_ENCODER, Manifest, Pretrained, Repertoire, Text, TrainedEncoder,
@@ -46,10 +47,7 @@ def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     kept = {manifest.text.tokenizer: TRAINED_TOKENIZER, manifest.text.encoder.file: TRAINED}
     for name in manifest.files:  # the old text side under new names, every other file as it is
         shutil.copy2(old.path(name), out / kept.get(name, name))
-    tokenizer = Tokenizer.from_file(str(run / ENCODER / "tokenizer.json"))
-    tokenizer.enable_padding()  # to the longest prompt of a batch (the fixed 128 would cost)
-    tokenizer.enable_truncation(MAX_LENGTH)
-    tokenizer.save(str(out / "tokenizer.json"))
+    sentence_tokenizer(run / ENCODER).save(str(out / "tokenizer.json"))
     config = best["config"]
     adapter = Adapter(config["in_dim"], config["out_dim"], config["recipe"]["hidden"])
     adapter.load_state_dict(best["model"])
@@ -58,7 +56,10 @@ def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     provenance = json.loads((run / ENCODER / "provenance.json").read_text())
     pretrained = Pretrained(**provenance, reference_min_cosine=_reference_cosine(
         run / ENCODER, out, [str(t) for t in captions["val_text"][:CHECK_CAPTIONS]]))
-    repertoire = _write_repertoire(out, run / ENCODER, captions)
+    texts, sentences = own_captions(captions, "train")
+    targets = captions["train_target"][~variant_rows(captions, "train")]
+    repertoire = write_repertoire(out, run / ENCODER, [str(t) for t in texts], sentences,
+                                  own_captions(captions, "val")[1], targets)
     trained_encoder = TrainedEncoder(TRAINED_TOKENIZER,
                                      replace(manifest.text.encoder, file=TRAINED))
     text = Text(tokenizer="tokenizer.json", max_length=MAX_LENGTH, kind=SENTENCE_ENCODER,
@@ -100,24 +101,50 @@ def _reference_cosine(encoder: Path, out: Path, texts: list[str]) -> float:
     return round(float(np.min(np.sum(shipped * reference, axis=1))), 5)
 
 
-def _write_repertoire(out: Path, encoder: Path, captions) -> Repertoire:
-    """The training captions kept (`kept_captions`), their prompt embeddings by the bundle's
-    own encoder (the adapter's targets), and the threshold that best separates the val
-    captions and INSIDE from CALIBRATION (each of the three counted as a third)."""
-    texts, sentences = own_captions(captions, "train")
-    kept = kept_captions([str(t) for t in texts], sentences)
+def sentence_text_side(out: Path, tower: SentenceTower, train: list[str],
+                       val: list[str]) -> Text:
+    """The text side of a model conditioned on a sentence encoder (`mogo train t2m
+    --text-encoder sentence`): the encoder's graph and the trained projection as one graph, its
+    tokenizer, its provenance and the repertoire of the training captions (`train`; `val`
+    calibrates its threshold). One encoder, the one the level graphs were trained on: no
+    adapter, no second encoder, nothing to route between."""
+    folder = tower.folder
+    if not (folder / "model.safetensors").is_file():
+        raise ValueError(f"{folder}: no model.safetensors (and config.json), the fp32 reference "
+                         "the shipped graph is checked against")
+    sentence_tokenizer(folder).save(str(out / "tokenizer.json"))
+    graph = export_sentence_text_graph(folder / "model.onnx", tower.projection.eval(),
+                                       out / "text_encoder.onnx")
+    provenance = json.loads((folder / "provenance.json").read_text())
+    pretrained = Pretrained(**provenance, reference_min_cosine=_reference_cosine(
+        folder, out, val[:CHECK_CAPTIONS]))
+    embedder = SentenceEmbedder(folder)
+    train = sorted(set(train))
+    repertoire = write_repertoire(out, folder, train, embedder.embed(train),
+                                  embedder.embed(sorted(set(val))))
+    return Text(tokenizer="tokenizer.json", max_length=MAX_LENGTH, kind=SENTENCE_ENCODER,
+                encoder=graph, pretrained=pretrained, repertoire=repertoire)
+
+
+def write_repertoire(out: Path, encoder: Path, texts: list[str], sentences: np.ndarray,
+                     val_sentences: np.ndarray, prompts: np.ndarray | None = None) -> Repertoire:
+    """The training captions kept (`kept_captions` of `texts` and their unit `sentences`), with
+    `prompts` (their prompt embeddings by the encoder the level graphs were trained with, where
+    that is not the sentence encoder), and the threshold that best separates the val captions
+    and INSIDE from CALIBRATION (each of the three counted as a third)."""
+    kept = kept_captions(texts, sentences)
     np.save(out / "repertoire.npy", sentences[kept].astype(np.float16))
-    targets = captions["train_target"][~variant_rows(captions, "train")]
-    np.save(out / "repertoire_prompts.npy", targets[kept].astype(np.float16))
-    (out / "repertoire.json").write_text(json.dumps([str(texts[k]) for k in kept], indent=0))
+    if prompts is not None:
+        np.save(out / "repertoire_prompts.npy", prompts[kept].astype(np.float16))
+    (out / "repertoire.json").write_text(json.dumps([texts[k] for k in kept], indent=0))
     known = sentences[kept].astype(np.float16).astype(np.float32)
     embedder = SentenceEmbedder(encoder)
-    val = nearest_cosine(own_captions(captions, "val")[1], known)
+    val = nearest_cosine(val_sentences, known)
     inside = nearest_cosine(embedder.embed(list(INSIDE)), known)
     outside = nearest_cosine(embedder.embed(list(CALIBRATION)), known)
     threshold, accepted, refused = calibrate([val, inside], outside)
     return Repertoire(embeddings="repertoire.npy", captions="repertoire.json",
-                      prompts="repertoire_prompts.npy",
+                      prompts=None if prompts is None else "repertoire_prompts.npy",
                       threshold=threshold, held_out_accepted=accepted, outside_refused=refused)
 
 

@@ -3,7 +3,8 @@ which brings its model, its step (the loss) and its validation; the loop owns th
 seeds, builds and wraps the model (DDP under torchrun), restores a run from its checkpoint and
 skips the batches its epoch already saw, sets the warm-up-cosine learning rate, clips the
 gradients, logs to RUN/metrics.jsonl, validates every `--val-every` steps (keeping the best
-model in best.pt) and writes RUN/checkpoint.pt every `--checkpoint-every` steps.
+model in best.pt) and writes RUN/checkpoint.pt every `--checkpoint-every` steps. With
+`--max-minutes` it stops early once past that wall time, validated and checkpointed.
 
 Resuming is exact (same world size): batches depend only on (seed, epoch) (`batches`), and
 every step reseeds torch from (seed, rank, step) (`begin_step`), so dropout and other training
@@ -99,7 +100,9 @@ class Run:
 
 
 def train_loop(trainer: Trainer, run: Run) -> nn.Module:
-    """Train until run.options.steps; -> the trained model (not the DDP wrapper)."""
+    """Train until run.options.steps (or its wall-time budget); -> the trained model (not the
+    DDP wrapper)."""
+    started = time.monotonic()
     seed_everything(run.recipe["seed"])
     model = trainer.build()
     ddp = wrap_model(model, run.process)
@@ -136,15 +139,32 @@ def train_loop(trainer: Trainer, run: Run) -> nn.Module:
         trainer.stepped(model)
         step += 1
         window.add(values)
+        out_of_time = False
         if _due(step, run.options.log_every, steps):
             _log_training(trainer, model, run, log, step, lr, window)
             window = _Window()
-        if _due(step, run.options.val_every, steps):
+            out_of_time = _past_budget(started, run)
+        if _due(step, run.options.val_every, steps) or out_of_time:
             best = _validate(trainer, model, run, log, step, best)
-        if run.process.is_main and _due(step, run.options.checkpoint_every, steps):
+        if run.process.is_main and (_due(step, run.options.checkpoint_every, steps)
+                                    or out_of_time):
             save_checkpoint(run.out / "checkpoint.pt", model, optimizer, step, run.config,
                             **{trainer.best_name: best}, **trainer.checkpoint_extras(None))
+        if out_of_time:
+            if run.process.is_main:
+                print(f"stopped at step {step} of {steps}: past --max-minutes "
+                      f"{run.options.max_minutes:g} (--resume goes on)", flush=True)
+            break
     return model
+
+
+def _past_budget(started: float, run: Run) -> bool:
+    """Whether the run is past its wall-time budget (every rank decides alike: rank 0's
+    clock, through the mean of the ranks' flags)."""
+    if run.options.max_minutes is None:
+        return False
+    over = float(time.monotonic() - started > 60 * run.options.max_minutes)
+    return all_reduce_mean(dict(over=over if run.process.is_main else 0.0), run.process)["over"] > 0
 
 
 def _due(step: int, every: int, steps: int) -> bool:

@@ -57,10 +57,13 @@ class RunOptions:
     log_every: int = option(50, "steps between progress lines")
     resume: bool = option(False, "continue the run in --out from its checkpoint.pt (the settings "
                                  "without a default above are the run's)")
+    max_minutes: float | None = option(None, "wall-time budget: past it (checked at each log "
+                                             "line) validate, write checkpoint.pt and stop; "
+                                             "--resume goes on", metavar="MINUTES")
 
     def check_intervals(self) -> None:
-        for name in ("steps", "val_every", "checkpoint_every", "log_every"):
-            if getattr(self, name) <= 0:
+        for name in ("steps", "val_every", "checkpoint_every", "log_every", "max_minutes"):
+            if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise ValueError(f"--{name.replace('_', '-')} must be positive, "
                                  f"got {getattr(self, name)}")
 
@@ -122,7 +125,18 @@ class T2MTrainOptions(RunOptions):
     lr: float | None = another_default(RunOptions, "lr", 2e-4)
     warmup: int | None = another_default(RunOptions, "warmup", 1000)
     vq: Path = option(help="the `mogo train vq` run folder")
-    text_encoder: str | None = recipe("small", "(default {default})", choices=["small"])
+    text_encoder: str | None = recipe(
+        "small", "small: trained with the model from scratch; sentence: a frozen pretrained "
+                 "sentence encoder (--sentence-encoder) and a trained projection, the paper's "
+                 "conditioning (default {default})", choices=["small", "sentence"])
+    sentence_encoder: str | None = recipe(
+        None, "with --text-encoder sentence: an encoder folder (model.onnx: MiniLM's inputs and "
+              "outputs, the graph that ships; tokenizer.json; provenance.json; config.json and "
+              "model.safetensors, its fp32 reference), e.g. a `mogo train text` run's "
+              "encoder/", metavar="DIR")
+    variants: float | None = recipe(
+        None, "share of training captions replaced by a variant (another subject or verb, as "
+              "`mogo train text` makes; default 0.25 with --text-encoder sentence, else 0)")
 
 
 @dataclass(kw_only=True)

@@ -5,7 +5,9 @@ RUN/ holds
     tokens/{train,val}.npz  every clip encoded once by the VQ (the whole clip), with the caption
                             spans cut in token units; reused while the VQ checkpoint's sha256,
                             the data folder and the span rule are unchanged
-    tokenizer.json          trained on the training captions
+    tokenizer.json          trained on the training captions (a sentence encoder's own)
+    variants.json           with --variants: each training caption's variants (another subject,
+                            another verb)
     checkpoint.pt           latest: weights, optimizer, step, configs
     best.pt                 lowest validation loss: weights and configs
     metrics.jsonl           train and val records
@@ -15,6 +17,7 @@ dropout, prompt dropout and token corruption do not depend on what ran before.
 """
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from dataclasses import asdict, replace
@@ -30,6 +33,7 @@ from torch.utils.data import Dataset
 from mogo.bundle import file_sha256
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.models.runs import build_text_to_motion, load_vq, read_tokens, vq_checkpoint
+from mogo.export.models.sentence_encoder import ENCODER_FILES
 from mogo.export.models.t2m import T2MConfig, TextToMotion
 from mogo.export.models.text_encoder import TEXT_ENCODERS, encode_captions
 from mogo.export.models.vq import MoSAVQ, VQConfig
@@ -44,6 +48,8 @@ from mogo.progress import Progress
 
 TOKENIZE_BATCH = 128
 TOKENIZER = "tokenizer.json"
+VARIANTS = "variants.json"
+SENTENCE_VARIANTS = 0.25  # --variants' default with a sentence encoder
 PRESETS: dict[str, Callable[[], T2MConfig]] = dict(
     tiny=T2MConfig.tiny, cpu_default=T2MConfig.cpu_default, paper=T2MConfig.paper)
 
@@ -167,7 +173,7 @@ def train_t2m(options: T2MTrainOptions) -> None:
             state["config"]["text_encoder"] if state is not None else
             dict(kind=recipe["text_encoder"],
                  config=TEXT_ENCODERS[recipe["text_encoder"]].make_config(
-                     recipe["preset"], t2m_config.text_dim, tokenizer)))
+                     recipe, t2m_config.text_dim, tokenizer)))
         train_loop(T2MTrainer(out, config, tokenizer, process),
                    Run(out, options, recipe, config, state, process))
         finish_together(process)
@@ -183,6 +189,19 @@ def _recipe(options: T2MTrainOptions, state: dict | None) -> dict:
     if recipe["text_encoder"] not in TEXT_ENCODERS:
         raise ValueError(f"unknown text encoder {recipe['text_encoder']!r}; use "
                          f"{', '.join(TEXT_ENCODERS)}")
+    sentence = recipe["text_encoder"] == "sentence"
+    if sentence:
+        folder = recipe["sentence_encoder"]
+        if folder is None or not all((Path(folder) / f).is_file() for f in ENCODER_FILES):
+            raise ValueError(f"--text-encoder sentence needs --sentence-encoder DIR holding "
+                             f"{', '.join(ENCODER_FILES)} (got {folder})")
+        recipe["sentence_encoder"] = str(Path(folder).resolve())
+    elif recipe["sentence_encoder"] is not None:
+        raise ValueError("--sentence-encoder is for --text-encoder sentence")
+    if recipe["variants"] is None:
+        recipe["variants"] = SENTENCE_VARIANTS if sentence else 0.0
+    if not 0.0 <= recipe["variants"] <= 1.0:
+        raise ValueError(f"--variants is a share, between 0 and 1, got {recipe['variants']}")
     if recipe["batch_size"] <= 0 or recipe["lr"] <= 0 or recipe["warmup"] < 0:
         raise ValueError(f"need batch size > 0, lr > 0, warmup >= 0, got {recipe['batch_size']}, "
                          f"{recipe['lr']}, {recipe['warmup']}")
@@ -198,6 +217,22 @@ def _t2m_config(preset: str, vq: VQConfig) -> T2MConfig:
     return replace(config, codebook_size=vq.codebook_size)
 
 
+def caption_variants(captions: list[str], tokenizer: Tokenizer) -> dict[str, list[str]]:
+    """Each distinct caption's variants: another subject (a kind of person), another verb of
+    its primitive that no caption uses (mogo.export.train.train_text's, seed 0)."""
+    from mogo.export.train.train_text import other_subjects, other_verbs
+
+    texts = sorted(set(captions))
+    known = {w for text in texts for w in text.replace(".", " ").replace(",", " ").split()}
+    rng = np.random.default_rng(0)
+    subjects, of_subject = other_subjects(texts, rng)
+    verbs, of_verb = other_verbs(texts, known, rng)
+    variants: dict[str, list[str]] = {}
+    for variant, source in zip(subjects + verbs, np.concatenate([of_subject, of_verb])):
+        variants.setdefault(texts[source], []).append(variant)
+    return variants
+
+
 def _prepare(out: Path, folder: HumanML3DFolder, vq: MoSAVQ, recipe: dict, vq_sha256: str,
              fresh: bool, device: torch.device) -> None:
     """Rank 0: the token caches (unless still valid) and, for a new run, the tokenizer."""
@@ -208,9 +243,10 @@ def _prepare(out: Path, folder: HumanML3DFolder, vq: MoSAVQ, recipe: dict, vq_sh
             _write_tokens(path, tokenize_split(folder, split, vq, key, device))
     if fresh:
         captions = [str(c) for c in read_tokens(out / "tokens" / "train.npz")["captions"]]
-        tokenizer = TEXT_ENCODERS[recipe["text_encoder"]].make_tokenizer(recipe["preset"],
-                                                                         captions)
+        tokenizer = TEXT_ENCODERS[recipe["text_encoder"]].make_tokenizer(recipe, captions)
         tokenizer.save(str(out / TOKENIZER))
+        if recipe["variants"]:
+            (out / VARIANTS).write_text(json.dumps(caption_variants(captions, tokenizer)))
 
 
 class T2MTrainer(Trainer):
@@ -221,6 +257,8 @@ class T2MTrainer(Trainer):
     def __init__(self, out: Path, config: dict, tokenizer: Tokenizer, process: Process):
         self.out, self.config, self.tokenizer, self.process = out, config, tokenizer, process
         self.recipe = config["recipe"]
+        share = self.recipe.get("variants", 0.0)  # runs from before variants had none
+        self.variants = json.loads((out / VARIANTS).read_text()) if share else {}
 
     def build(self) -> TextToMotion:
         return build_text_to_motion(self.config["text_encoder"], T2MConfig(**self.config["t2m"]))
@@ -229,6 +267,11 @@ class T2MTrainer(Trainer):
         return make_optimizer(model, self.recipe["lr"])
 
     def restored(self, model: nn.Module, state: dict | None) -> None:
+        if hasattr(model.text_encoder, "remember"):  # a frozen sentence encoder
+            captions = read_tokens(self.out / "tokens" / "train.npz")["captions"]
+            texts = sorted({str(c) for c in captions} | {v for vs in self.variants.values()
+                                                          for v in vs})
+            model.text_encoder.remember(self.tokenizer, texts)
         started = None if state is None else state["config"]["world_size"]
         if started is not None and started != self.process.world_size and self.process.is_main:
             print(f"note: the run started with {started} processes, now "
@@ -249,6 +292,12 @@ class T2MTrainer(Trainer):
                 f"{len(self.val_set)} val spans, {per_epoch} steps an epoch")
 
     def step(self, model: nn.Module, batch: dict) -> tuple[Tensor, dict[str, Tensor]]:
+        if self.variants:  # drawn from the step's seeded torch state: resuming stays exact
+            draws = torch.rand(len(batch["captions"]), 2).tolist()
+            batch = dict(batch, captions=[
+                others[int(pick * len(others))] if chance < self.recipe["variants"] else caption
+                for caption, (chance, pick) in zip(batch["captions"], draws)
+                for others in [self.variants.get(caption) or [caption]]])
         loss, accuracy = _forward(model, self.tokenizer, batch, self.process.device)
         return loss, dict(loss=loss.detach(),
                           **{f"acc_{level}": value for level, value in enumerate(accuracy)})

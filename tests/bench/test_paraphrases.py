@@ -1,4 +1,5 @@
-"""The paraphrase phrasebooks: every primitive the semantic checks know has phrases, each
+"""The paraphrase phrasebooks: every primitive of corpus v1 (the shipped model's, each with a
+semantic check; the books were written before corpus v2) has phrases, each
 phrase names its action by one of its key words, no key word is a word of the shipped
 model's training captions, and the sentences render for any params."""
 import re
@@ -9,6 +10,7 @@ import pytest
 from mogo.bench.quality.paraphrases import (BLIND, FRESH, LATE, PHRASEBOOKS, UNSEEN,
                                             caption_words, paraphrase, unseen_key_words)
 from mogo.bench.quality.semantic import CHECKS
+from mogo.export.data.animator import CORPORA
 from mogo.generator import MotionGenerator
 
 PARAMS = dict(direction="left", turn=45, count=3, hand="both", foot="left", angle=-90,
@@ -17,7 +19,8 @@ PARAMS = dict(direction="left", turn=45, count=3, hand="both", foot="left", angl
 
 @pytest.mark.parametrize("book", PHRASEBOOKS, ids=lambda b: b.name)
 def test_every_primitive_has_phrases_each_with_an_unseen_key_word(book):
-    assert set(book.phrases) == set(CHECKS) == set(book.keys)
+    assert set(book.phrases) == set(CORPORA["v1"]) == set(book.keys) and set(CHECKS) >= set(
+        book.keys)
     for primitive, phrases in book.phrases.items():
         for phrase in phrases:
             assert set(re.findall(r"[a-z]+", phrase)) & set(book.keys[primitive]), phrase

@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mogo.export.data.animator import Segment
+from mogo.export.data.animator import CORPORA, Segment
 from mogo.export.data.caption_templates import JOINERS, TEMPLATES
 from mogo.export.data.corpus import heldout_pairs, mirror_segment, synthesize_corpus
 from mogo.export.data.humanml3d import parse_caption_line
@@ -102,7 +102,7 @@ def test_heldout_pairs_and_templates_stay_out_of_train_and_val(corpus):
     pairs = {tuple(p) for p in summary["heldout_pairs"]}
     assert pairs == set(heldout_pairs(SEED)) and pairs != set(heldout_pairs(SEED + 1))
     heldout_ids = set(summary["heldout_templates"])
-    assert heldout_ids == {t.id for ts in TEMPLATES.values() for t in ts if t.heldout} | \
+    assert heldout_ids == {t.id for name in CORPORA["v1"] for t in TEMPLATES[name] if t.heldout} | \
         {j.id for j in JOINERS if j.heldout}
     for split in ("train", "val"):
         for clip_id in _ids(corpus, split):
