@@ -21,7 +21,9 @@ deliberate change, re-record on one machine and say why in the commit:
     python tests/runtime/test_golden.py --record
 
 Issue 25 re-recorded the joints when feet became planted by default (the *_feet_as_decoded
-cases keep the bytes from before it); issue 19 re-recorded the re-anchored stream cases.
+cases keep the bytes from before it); issue 19 re-recorded the re-anchored stream cases; issue
+38 re-recorded play/walk_then_wave (play re-anchored) and continue_from/40_frames (a stream
+continued from a clip starts a fresh clip from the clip's last step).
 """
 import functools
 import hashlib
