@@ -261,7 +261,7 @@ class MotionGenerator:
         shown = Progress(sum(steps), "generating", enabled=progress, unit="steps")
         for k, ((prompt, _), count) in enumerate(zip(schedule, steps, strict=True)):
             if k:
-                stream._switch_prompt(prompt)
+                stream.switch_prompt(prompt)
             for _ in range(count):
                 if stop is not None and stop.is_set():
                     raise Stopped("stopped")
@@ -384,9 +384,9 @@ class MotionStream:
         self.prompts: list[tuple[int, str]] = [(0, text)]  # checked by the generator
         self.steps = 0  # token steps drawn
         self._lock = threading.RLock()  # set_prompt from another thread waits for a step
-        self._tokens: TokenStream = (tokens or generator.tokens).start(
+        self.tokens: TokenStream = (tokens or generator.tokens).start(
             generator._embedding(text), seed, sampling, window, allow_end=False)
-        self._decoder = generator.streaming_decoder(decoder_session)
+        self.decoder = generator.streaming_decoder(decoder_session)
         self._joints = JointStream(generator.skeleton)
         self._feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
         self.frames_emitted = 0
@@ -394,12 +394,12 @@ class MotionStream:
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
         self._record: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
         self.anchor = (None if anchoring is None else
-                       Anchor(anchoring, self._tokens, generator._embedding, text))
+                       Anchor(anchoring, self.tokens, generator._embedding, text))
 
     def step(self) -> np.ndarray:
         with self._lock:
             row = self._next_tokens()
-            frames = self._emit(row[None], self._decoder.push(row[None]))
+            frames = self.emit(row[None], self.decoder.push(row[None]))
             if len(self._unread):
                 frames, self._unread = np.concatenate([self._unread, frames]), self._unread[:0]
             return frames
@@ -420,14 +420,14 @@ class MotionStream:
     def set_prompt(self, text: str) -> None:
         """Switch the prompt from the next step on (exact: the cache is re-prefilled). Safe
         from another thread than the one reading frames: it waits for the step under way."""
-        self._switch_prompt(self.generator._prompt(text))
+        self.switch_prompt(self.generator._prompt(text))
 
-    def _switch_prompt(self, text: str) -> None:
+    def switch_prompt(self, text: str) -> None:
         """`set_prompt` for a prompt already checked (a schedule's, a server client's)."""
         embedding = self.generator._embedding(text)
         with self._lock:
             if self.anchor is None:
-                self._tokens.set_prompt(embedding)
+                self.tokens.set_prompt(embedding)
             else:
                 self.anchor.switch(text, embedding)
             self.prompts.append((self.frames_emitted + self._pending_frames(), text))
@@ -437,15 +437,15 @@ class MotionStream:
         the decoder's left context, and the past the model sees (re-anchored: its last step,
         as at a switch, so that a one-off action asked for starts instead of being taken as
         done by the clip's end)."""
-        if self.steps or self._tokens.steps:
+        if self.steps or self.tokens.steps:
             raise ValueError("continue_from must come before the first step of a stream")
         tokens = self.generator.encode_motion(motion)
         with self._lock:
             if self.anchor is None:
-                self._tokens.continue_from(tokens)
+                self.tokens.continue_from(tokens)
             else:
                 self.anchor.continued(tokens)
-            self._final(self._denormalise(self._decoder.push(tokens)))
+            self._final(self._denormalise(self.decoder.push(tokens)))
             self._skip = self._pending_frames()  # the clip's own last frames: not again
 
     def advance(self, steps: int) -> None:
@@ -463,9 +463,9 @@ class MotionStream:
         they are the frames the stream would have emitted had it gone on."""
         g = self.generator
         with self._lock:
-            context = [self._next_tokens() for _ in range(self._decoder.lookahead)]
-            features = self._decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
-            self._emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
+            context = [self._next_tokens() for _ in range(self.decoder.lookahead)]
+            features = self.decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
+            self.emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
         empty = (np.zeros((0, g.tokens.num_levels), np.int64),
                  np.zeros((0, g.manifest.feature_dim), np.float32),
                  np.zeros((0, g.skeleton.num_joints, 3), np.float32))
@@ -474,15 +474,15 @@ class MotionStream:
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
 
     def _next_tokens(self) -> np.ndarray:
-        return self._drawn(self._tokens.step())
+        return self.drawn(self.tokens.step())
 
-    def _drawn(self, row: np.ndarray | None) -> np.ndarray:
+    def drawn(self, row: np.ndarray | None) -> np.ndarray:
         """The step's tokens, once its token stream has drawn `row` (the server draws many
         streams' rows in shared calls): re-anchored where due."""
         self.steps += 1
         return row if self.anchor is None else self.anchor.after(row)
 
-    def _emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False
+    def emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False
               ) -> np.ndarray:
         features, joints = self._final(self._denormalise(normalised), end)
         skip = min(self._skip, len(joints))
@@ -510,7 +510,7 @@ class MotionStream:
         """Frames drawn as tokens but not yet emitted (the decoder's lookahead, and the
         frames the foot planter holds back)."""
         held = 0 if self._feet is None else self._feet.pending
-        return (self._decoder.pushed - self._decoder.emitted) * self.generator.down_factor + held
+        return (self.decoder.pushed - self.decoder.emitted) * self.generator.down_factor + held
 
 
 def _seed(seed: object) -> int:

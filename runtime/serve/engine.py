@@ -103,7 +103,7 @@ class Engine:
         return stream
 
     def switch(self, stream: ServedStream, prompt: str) -> None:
-        stream._switch_prompt(prompt)
+        stream.switch_prompt(prompt)
 
     def close(self, stream: ServedStream) -> None:
         self.streams.pop(stream.id, None)
@@ -112,7 +112,7 @@ class Engine:
         """The streams behind their target at `now`, and those that take an extra step to
         share the calls of more streams (`_joins`)."""
         tick = self.tick(now)
-        steps = Counter(s._tokens.steps for s in self.streams.values())
+        steps = Counter(s.tokens.steps for s in self.streams.values())
         due = []
         for stream in self.streams.values():
             target = self.lead + stream.extra + tick - stream.start_tick
@@ -129,7 +129,7 @@ class Engine:
         clips; -1: a tick's wait (when due) for a larger group behind; 0: neither. The lead
         stays between `lead` and `lead` + ALIGN_STEPS: clips restart at the model's own
         times, so a stream moves again and again."""
-        n = stream._tokens.steps
+        n = stream.tokens.steps
         if idle:
             room = range(n + 1, n + 1 + ALIGN_STEPS - stream.extra)
         else:
@@ -154,14 +154,14 @@ class Engine:
     def _step(self, due: list[ServedStream]) -> list[tuple]:
         """MotionStream.step for many streams: the token rows of one layout drawn in one call,
         the windows due decoded in one call."""
-        rows = [stream._drawn(row) for stream, row in
-                zip(due, step_together([stream._tokens for stream in due]))]
-        decoded = push_many([s._decoder for s in due], [row[None] for row in rows],
+        rows = [stream.drawn(row) for stream, row in
+                zip(due, step_together([stream.tokens for stream in due]))]
+        decoded = push_many([s.decoder for s in due], [row[None] for row in rows],
                             self.interior)
         made = []
         for stream, row, features in zip(due, rows, decoded):
             first = stream.frames_emitted
-            joints = stream._emit(row[None], features)
+            joints = stream.emit(row[None], features)
             if len(joints):
                 made.append((stream, first, joints))
         return made

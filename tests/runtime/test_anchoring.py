@@ -58,7 +58,7 @@ def test_a_re_anchored_stream_holds_at_most_its_span(generator):
     stream = generator.stream("a person walks forward.", seed=1, anchoring=SMALL)
     for _ in range(5 * SMALL.span):
         stream.step()
-        held = stream._tokens
+        held = stream.tokens
         assert len(held.positions) <= SMALL.span + 1 and held.positions.max() < SMALL.span
         assert all(cache.shape[2] <= SMALL.span + 1 for level in held.caches for cache in level)
         assert len(stream.anchor.recent) == min(SMALL.keep, held.steps)
@@ -70,28 +70,28 @@ def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
     before = stream.anchor.anchors
     stream.set_prompt("a person waves with the right hand.")
     assert stream.anchor.anchors == before + 1
-    assert stream._tokens.steps == SMALL.switch_keep  # a fresh clip from the last step
+    assert stream.tokens.steps == SMALL.switch_keep  # a fresh clip from the last step
     recent = stream.anchor.recent.copy()
     assert np.array_equal(recent, stream.finish().tokens[13 - SMALL.keep:13])
 
 
 def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator):
     stream = generator.stream("a person bows.", seed=0, anchoring=SMALL)
-    assert stream.anchor.one_off and stream._tokens.allow_end and not stream.anchor.holding
+    assert stream.anchor.one_off and stream.tokens.allow_end and not stream.anchor.holding
     stream.advance(SMALL.max_one_off + 1)
     assert stream.anchor.holding and not stream.anchor.one_off and stream.anchor.fresh == 1
-    assert not stream._tokens.allow_end  # the hold stands still: the model does not end it
-    assert stream._tokens.steps <= SMALL.span
+    assert not stream.tokens.allow_end  # the hold stands still: the model does not end it
+    assert stream.tokens.steps <= SMALL.span
     stream.set_prompt("a person walks forward.")
     assert not stream.anchor.holding and not stream.anchor.one_off
-    assert stream._tokens.allow_end  # a walk the model ends starts again
+    assert stream.tokens.allow_end  # a walk the model ends starts again
 
 
 def test_standing_still_is_never_ended_and_re_anchors_from_its_last_still_keep_steps(generator):
     stream = generator.stream("a person stands still.", seed=5, anchoring=SMALL)
-    assert stream.anchor.still and not stream._tokens.allow_end
+    assert stream.anchor.still and not stream.tokens.allow_end
     stream.advance(SMALL.span)
-    assert stream._tokens.steps == SMALL.still_keep and stream.anchor.fresh == 0
+    assert stream.tokens.steps == SMALL.still_keep and stream.anchor.fresh == 0
 
 
 def test_a_spin_the_model_ends_starts_again_and_keeps_turning(generator):

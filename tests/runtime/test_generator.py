@@ -158,7 +158,7 @@ def test_continue_from_goes_on_from_the_end_of_a_clip(generator):
 
 def _held_state(stream) -> tuple:
     """The sizes of everything a stream keeps between steps."""
-    tokens = stream._tokens
+    tokens = stream.tokens
     return (tuple(held.shape for cache in tokens.caches for held in cache),
             tokens.positions.shape, tokens.slot_tokens.shape, len(stream._unread),
             stream._record is None)
@@ -178,9 +178,9 @@ def test_a_long_stream_holds_a_constant_state(generator, window):
     steps, full = 4 * window + 3, None
     for n in range(1, steps + 1):
         stream.step()
-        assert stream._decoder.buffered_tokens <= most_buffered
+        assert stream.decoder.buffered_tokens <= most_buffered
         if n > window:
-            held = stream._tokens
+            held = stream.tokens
             assert sorted(held.positions) == [0, *range(n - window, n)]
             assert full in (None, _held_state(stream)), f"the state grew at step {n}"
             full = _held_state(stream)

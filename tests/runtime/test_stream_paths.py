@@ -33,9 +33,9 @@ def test_a_one_off_the_model_never_ends_holds_at_max_one_off(generator):
     stream = generator.stream("a person bows.", seed=0, anchoring=cap)
     for n in range(1, cap.max_one_off):
         stream.step()
-        assert stream._tokens.steps == n and not stream.anchor.holding
+        assert stream.tokens.steps == n and not stream.anchor.holding
     stream.step()
-    assert stream.anchor.holding and stream.anchor.fresh == 1 and stream._tokens.steps == 0
+    assert stream.anchor.holding and stream.anchor.fresh == 1 and stream.tokens.steps == 0
 
 
 def test_continue_from_on_a_re_anchored_stream_starts_a_fresh_clip_from_the_clips_end(
@@ -48,9 +48,9 @@ def test_continue_from_on_a_re_anchored_stream_starts_a_fresh_clip_from_the_clip
     stream.continue_from(clip)
     tokens = generator.encode_motion(clip)  # the clip's features encoded again
     assert np.array_equal(stream.anchor.recent, tokens[-shipped.keep:])
-    assert stream._tokens.steps == shipped.switch_keep and stream.anchor.anchors == 1
-    assert np.array_equal(stream._tokens.last, tokens[-1])
-    assert stream._decoder.pushed == len(tokens)
+    assert stream.tokens.steps == shipped.switch_keep and stream.anchor.anchors == 1
+    assert np.array_equal(stream.tokens.last, tokens[-1])
+    assert stream.decoder.pushed == len(tokens)
     row = stream._next_tokens()
     assert np.array_equal(stream.anchor.recent,
                           np.concatenate([tokens[1 - shipped.keep:], row[None]]))

@@ -75,7 +75,7 @@ def drawn_served(generator, engine_parts, shard: bool, monkeypatch) -> list[np.n
         engine.round(due)
         for k, stream in enumerate(streams):
             if stream in due:  # the step's row, also where it started a clip or re-anchored
-                rows[k].append(stream._tokens.last.copy())
+                rows[k].append(stream.tokens.last.copy())
     engine.shutdown()
     return [np.array(r) for r in rows]
 
@@ -95,7 +95,7 @@ def test_served_streams_draw_the_tokens_of_mogo_stream(generator, engine_parts, 
             if k in SWITCHES and n == SWITCHES[k][0]:
                 stream.set_prompt(SWITCHES[k][1])
             stream.step()
-            expected.append(stream._tokens.last.copy())
+            expected.append(stream.tokens.last.copy())
         anchors += stream.anchor.anchors
         assert np.array_equal(served[k], np.array(expected)), f"stream {k}"
     assert anchors >= 2 * len(STREAMS)
