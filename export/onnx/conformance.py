@@ -9,7 +9,7 @@ Three kinds of case, in one JSON file (no pickle, ~320 KB):
 - "sampler": one level's logits, the options and a uniform -> the token (float64 rules of
   mogo.sampling, exact);
 - "generate": a schedule of prompts (text, embedding, steps; one for `generate`, several
-  for `play`), seed, sampling, window and step count -> the uniforms of every step, the
+  for the token loop switched between them, not re-anchored), seed, sampling, window and step count -> the uniforms of every step, the
   tokens, each token's margin and gap, and the joints (feet not planted; some cases also with them
   planted, `joints_planted`).
 Tokens must match exactly, except from the first step where ours had a near tie (its margin
@@ -170,9 +170,9 @@ def _generate_case(
     options: dict,
     window: int | None,
 ) -> dict:
-    """`generate` (one prompt) or `play` (several, switched between) of the given token
-    steps, the lookahead's steps drawn beyond them, the feet not planted; each level's
-    logits caught on their way to the sampler to measure the margins."""
+    """`generate` (one prompt) or the token loop switched between several prompts, of the
+    given token steps, the lookahead's steps drawn beyond them, the feet not planted; each
+    level's logits caught on their way to the sampler to measure the margins."""
     sampling = generator.sampling(**options)
     tokens_gen = generator.tokens.with_level_workers(1)
     caught: list[np.ndarray] = []
@@ -220,16 +220,13 @@ def _generate_case(
         return row
 
     tokens = run_tokens(tokens_gen, case, measured)
-    if len(schedule) == 1:
-        motion = generator.decode(tokens, [(0, schedule[0][0])], frames, seed, plant_feet=False)
-    else:
-        seconds = [
-            (prompt, steps * generator.down_factor / generator.fps) for prompt, steps in schedule
-        ]
-        motion = generator.play(seconds, seed, sampling, plant_feet=False)
-        assert np.array_equal(motion.tokens, tokens[: len(motion.tokens)])
+    prompts, start = [], 0  # the frame each prompt starts at: the token loop switched there
+    for prompt, steps in schedule:
+        prompts.append((start, prompt))
+        start += steps * generator.down_factor
+    motion = generator.decode(tokens, prompts, frames, seed, plant_feet=False)
     if name in PLANTED:
-        planted = generator.decode(tokens, [(0, schedule[0][0])], frames, seed).joints
+        planted = generator.decode(tokens, prompts, frames, seed).joints
         case["joints_planted"] = _rounded(planted)
     return dict(
         case,
