@@ -20,8 +20,8 @@ The convolutions are either centred or causal (all padding on the left): a causa
 zero lookahead, so a stream can decode every frame as soon as its token exists. Between the
 two, `decoder_lookahead` = n keeps the centred taps of the decoder's last convolutions while
 their right context adds up to at most n tokens and makes the others causal: a stream waits n
-tokens for a frame instead of the centred decoder's 31. `decoder_receptive_field` derives the decoder's context from its
-layers.
+tokens for a frame instead of the centred decoder's 31. `decoder_receptive_field` derives the
+decoder's context from its layers.
 """
 from __future__ import annotations
 
