@@ -263,8 +263,8 @@ class MotionGenerator:
                             f"{type(anchoring).__name__}")
         low_latency = checked_bool(low_latency, "low_latency")
         if low_latency and self._low_latency is None:
-            raise ValueError("low_latency=True: this bundle has no low-latency decoder "
-                             "(manifest vq.low_latency_decoder)")
+            raise ValueError("this bundle has no low-latency decoder (manifest "
+                             "vq.low_latency_decoder); stream without low latency")
         return MotionStream(self, self._prompt(text), seed, sampling, window,
                             checked_bool(plant_feet, "plant_feet"), anchoring, low_latency)
 
