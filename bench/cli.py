@@ -93,8 +93,14 @@ def add_commands(commands) -> None:
                             "WebSocket clients at once, frame rate, lateness, CPU")
     serve.add_argument("--clients", type=int, nargs="+", default=[1, 10, 25, 50, 75, 100],
                        help="client counts to try (default 1 10 25 50 75 100)")
+    serve.add_argument("--burst", type=int, nargs="+", default=[1, 10, 50],
+                       help="clients connecting at once to the idle server, for the first-frame "
+                            "latency of each burst size (default 1 10 50)")
     serve.add_argument("--seconds", type=float, default=15.0,
                        help="how long each count streams (default 15)")
+    serve.add_argument("--spread", type=float, default=2.0,
+                       help="the clients of a count arrive evenly over this many seconds "
+                            "(default 2)")
     serve.add_argument("--threads", type=int, help="the server's --threads (default its own)")
     serve.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
     serve.add_argument("--out", default="bench_out",
@@ -102,9 +108,9 @@ def add_commands(commands) -> None:
     serve.add_argument("--engine-only", action="store_true",
                        help="no server: the engine's CPU per stream step and wall per tick for "
                             "each --clients, and one stream's first frame (serve_engine.json)")
-    serve.add_argument("--binary", action="store_true",
-                       help="the clients take binary frames instead of JSON (the protocol's "
-                            "\"binary\": true)")
+    serve.add_argument("--json", action="store_true",
+                       help="the clients take JSON frames instead of binary ones (the "
+                            "protocol's \"binary\": false)")
     serve.add_argument("--profile", type=int, metavar="N",
                        help="no server: where the CPU of a stream step goes, N streams past "
                             "warm-up, one thread, cProfile (a table)")

@@ -229,7 +229,7 @@ def _cmd_stream(args: argparse.Namespace) -> None:
         raise CliError(f"--frames must be at least 1, got {args.frames}")
     generator = _load_generator(args)
     stream = generator.stream(args.text, seed=args.seed, sampling=_sampling(args, generator),
-                              plant_feet=args.plant_feet)
+                              plant_feet=args.plant_feet, low_latency=args.low_latency)
     if args.seed is None:  # drawn at random: said, so that the stream can be had again
         print(f"note: seed {stream.seed} (random; --seed {stream.seed} streams this motion "
               "again)", file=sys.stderr)
@@ -272,6 +272,9 @@ def _cmd_info(args: argparse.Namespace) -> None:
         f"vq          {vq.levels} levels of {vq.codebook_size} codes, "
         f"{plural(vq.down_factor, 'frame')} per token, decoder context "
         f"{decoder.left_context} back / {decoder.lookahead} ahead (tokens)",
+        *([] if vq.low_latency_decoder is None else [
+            f"            low-latency decoder: context {vq.low_latency_decoder.left_context} "
+            f"back / {vq.low_latency_decoder.lookahead} ahead (tokens)"]),
         "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),
     ]
     if text.pretrained is not None:
@@ -410,6 +413,9 @@ def _add_runtime_commands(commands) -> None:
         "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)")
     stream.add_argument("text", help="what the person does")
     stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
+    stream.add_argument("--low-latency", action="store_true",
+                        help="the bundle's low-latency decoder: frames a few tokens after theirs, "
+                             "not 31 (a little less exact; bundles that ship one)")
     _generation_arguments(stream)
     stream.set_defaults(run=_noting_prompts(_cmd_stream))
 

@@ -46,6 +46,7 @@ from mogo.token_generator import Stopped, TokenGenerator, TokenStream
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
 STREAM_DECODE_EVERY = 8  # tokens per streaming decode: a window costs ~the same for 1 or 8
+# (a low-latency stream decodes every token: waiting for 8 would undo most of what it gains)
 EMBEDDINGS_KEPT = 256  # prompt embeddings kept for streams (a switch back encodes no text)
 
 
@@ -76,6 +77,10 @@ class MotionGenerator:
         self._decoder = manifest.vq.decoder
         self._decoder_session = graph_session(bundle.path(self._decoder.file), self._decoder,
                                               threads, io_types(manifest, self._decoder))
+        self._low_latency = manifest.vq.low_latency_decoder  # None: the bundle has none
+        self._low_latency_session = None if self._low_latency is None else graph_session(
+            bundle.path(self._low_latency.file), self._low_latency, threads,
+            io_types(manifest, self._low_latency))
         self._vq_encoder = NamedGraph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
         self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
@@ -317,11 +322,14 @@ class MotionGenerator:
     # -- streams -------------------------------------------------------------------------------
     def stream(self, text: str, seed: int | None = None, sampling: Sampling | None = None,
                window: int | None = None, plant_feet: bool = True,
-               anchoring: Anchoring | bool = True, **options) -> MotionStream:
+               anchoring: Anchoring | bool = True, low_latency: bool = False,
+               **options) -> MotionStream:
         """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`.
         `anchoring`: True re-anchors the stream (mogo.anchoring: it keeps doing what the
         prompt says, one-off prompts settle into a hold), an Anchoring tunes it, False
-        lets the model run on from step 0 (it drifts after a few seconds)."""
+        lets the model run on from step 0 (it drifts after a few seconds). `low_latency`:
+        decode with the bundle's low-latency decoder (its frames wait a few tokens, not the
+        centred decoder's 31; a little less exact: docs/model.md), every token."""
         sampling = self.sampling(sampling, **options)
         seed = _seed(seed)
         window = self.defaults.window if window is None else checked_int(window, "window", 1)
@@ -332,16 +340,23 @@ class MotionGenerator:
         elif not isinstance(anchoring, Anchoring):
             raise TypeError(f"anchoring must be True, False or an Anchoring, got "
                             f"{type(anchoring).__name__}")
+        low_latency = checked_bool(low_latency, "low_latency")
+        if low_latency and self._low_latency is None:
+            raise ValueError("this bundle has no low-latency decoder (manifest "
+                             "vq.low_latency_decoder); stream without low latency")
         return MotionStream(self, self._prompt(text), seed, sampling, window,
-                            checked_bool(plant_feet, "plant_feet"), anchoring)
+                            checked_bool(plant_feet, "plant_feet"), anchoring, low_latency)
 
-    def streaming_decoder(self, session: ort.InferenceSession | None = None
-                          ) -> StreamingDecoder:
-        """`session`: another session of the bundle's decoder graph (None: this generator's)."""
-        d = self._decoder
-        return StreamingDecoder(session or self._decoder_session, d.left_context, d.lookahead,
+    def streaming_decoder(self, session: ort.InferenceSession | None = None,
+                          low_latency: bool = False) -> StreamingDecoder:
+        """`session`: another session of the bundle's decoder graph (None: this generator's);
+        `low_latency`: the low-latency decoder's, decoding every token."""
+        d, own = ((self._low_latency, self._low_latency_session) if low_latency
+                  else (self._decoder, self._decoder_session))
+        return StreamingDecoder(session or own, d.left_context, d.lookahead,
                                 self.codebook_size, ids_name=d.inputs[0],
-                                features_name=d.outputs[0], every=STREAM_DECODE_EVERY)
+                                features_name=d.outputs[0],
+                                every=1 if low_latency else STREAM_DECODE_EVERY)
 
     def sampling(self, sampling: Sampling | None = None, **options) -> Sampling:
         """How a call draws its tokens: `sampling` (None: the bundle's defaults), with keyword
@@ -375,7 +390,8 @@ class MotionStream:
 
     def __init__(self, generator: MotionGenerator, text: str, seed: int, sampling: Sampling,
                  window: int | None, plant_feet: bool = True,
-                 anchoring: Anchoring | None = None, *, tokens: TokenGenerator | None = None,
+                 anchoring: Anchoring | None = None, low_latency: bool = False, *,
+                 tokens: TokenGenerator | None = None,
                  decoder_session: ort.InferenceSession | None = None):
         """`tokens`, `decoder_session`: other sessions of the bundle's graphs (the server's,
         mogo.serve.engine); None: the generator's."""
@@ -386,7 +402,7 @@ class MotionStream:
         self._lock = threading.RLock()  # set_prompt from another thread waits for a step
         self.tokens: TokenStream = (tokens or generator.tokens).start(
             generator._embedding(text), seed, sampling, window, allow_end=False)
-        self.decoder = generator.streaming_decoder(decoder_session)
+        self.decoder = generator.streaming_decoder(decoder_session, low_latency=low_latency)
         self._joints = JointStream(generator.skeleton)
         self._feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
         self.frames_emitted = 0

@@ -193,9 +193,12 @@ class T2M:
 
 @dataclass(frozen=True)
 class VQ:
+    """`low_latency_decoder`: optional, a decoder of the same tokens with a shorter lookahead,
+    for streams that ask for low latency (the frames come sooner, a little less exact)."""
     config: dict
     encoder: Graph
     decoder: DecoderGraph
+    low_latency_decoder: DecoderGraph | None = None
 
     @property
     def levels(self) -> int:
@@ -256,6 +259,7 @@ class Fp16Storage:
     prompt_embedding_max_abs_difference: float | None = None
     vq_encoder_token_agreement: float | None = None
     vq_decoder_feature_max_abs_difference: float | None = None
+    vq_low_latency_decoder_feature_max_abs_difference: float | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -294,7 +298,9 @@ class Manifest:
 
     def graphs(self) -> list[Graph]:
         trained = () if self.text.trained is None else (self.text.trained.encoder,)
-        return [self.text.encoder, *trained, *self.t2m.levels, self.vq.encoder, self.vq.decoder]
+        low_latency = () if self.vq.low_latency_decoder is None else (self.vq.low_latency_decoder,)
+        return [self.text.encoder, *trained, *self.t2m.levels, self.vq.encoder, self.vq.decoder,
+                *low_latency]
 
     def referenced_files(self) -> set[str]:
         """Every file the manifest names outside `files`."""
@@ -384,7 +390,7 @@ def io_types(manifest: Manifest, graph: Graph) -> tuple[list[tuple[str, int | No
                 [("tensor(float)", text_dim)] + floats[:len(graph.outputs) - 1])
     if graph is manifest.vq.encoder:
         return [("tensor(float)", manifest.feature_dim)], [("tensor(int64)", levels)]
-    if graph is manifest.vq.decoder:
+    if graph is manifest.vq.decoder or graph is manifest.vq.low_latency_decoder:
         return [("tensor(int64)", levels)], [("tensor(float)", manifest.feature_dim)]
     level = next(k for k, g in enumerate(manifest.t2m.levels) if g is graph)
     classes = manifest.vq.codebook_size + (1 if level == 0 else 0)  # level 0: and the end
@@ -406,8 +412,11 @@ def _check_ranges(manifest: Manifest) -> None:
                 "defaults.max_seconds": (d.max_seconds, MAX_GENERATE_SECONDS),
                 "text.max_length": (manifest.text.max_length, MAX_SIZE),
                 "defaults.window": (1 if d.window is None else d.window, MAX_SIZE)}
-    at_least_zero = {"vq.decoder.left_context": manifest.vq.decoder.left_context,
-                     "vq.decoder.lookahead": manifest.vq.decoder.lookahead}
+    decoders = {"vq.decoder": manifest.vq.decoder,
+                "vq.low_latency_decoder": manifest.vq.low_latency_decoder}
+    at_least_zero = {f"{path}.{name}": getattr(decoder, name)
+                     for path, decoder in decoders.items() if decoder is not None
+                     for name in ("left_context", "lookahead")}
     for path, (value, most) in positive.items():
         if not value > 0:
             raise KeyProblem(path, f"{value!r}, must be > 0")

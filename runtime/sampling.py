@@ -155,29 +155,34 @@ def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndar
     if sampling.temperature == 0:
         return np.argmax(z, axis=1)
     z = z / sampling.temperature
-    order, z = _descending(z)
-    keep = np.count_nonzero(np.isfinite(z), axis=1)
+    z_sorted = _descending(z)
+    keep = np.count_nonzero(np.isfinite(z_sorted), axis=1)
     if sampling.top_k:
         keep = np.minimum(keep, min(sampling.top_k, z.shape[1]))
     inside = np.arange(z.shape[1])[None] < keep[:, None]
-    p = np.where(inside, np.exp(z - z[:, :1]), 0.0)
+    p = np.where(inside, np.exp(z_sorted - z_sorted[:, :1]), 0.0)
     c = np.cumsum(p, axis=1)
     if sampling.top_p < 1:
         keep = np.count_nonzero(inside & (c - p < sampling.top_p * c[rows, keep - 1, None]),
                                 axis=1)
     total = c[rows, keep - 1]
     index = np.count_nonzero(c <= (uniforms * total)[:, None], axis=1)
-    return order[rows, index]
+    return _column(z, z_sorted[rows, index], index)
 
 
-def _descending(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each row's column order, largest first, ties lower id first, and the sorted rows. A
-    stable sort costs ~4x a quicksort of 512 logits, so rows are quicksorted and only those
-    with a tie among their finite values sorted again stably (the sorted values stay: tied
-    entries are equal); the order of -inf entries does not matter (they are never kept)."""
-    order = np.argsort(-z, axis=1)
-    z_sorted = np.take_along_axis(z, order, axis=1)
-    tied = np.any((z_sorted[:, 1:] == z_sorted[:, :-1]) & np.isfinite(z_sorted[:, 1:]), axis=1)
-    if tied.any():
-        order[tied] = np.argsort(-z[tied], axis=1, kind="stable")
-    return order, z_sorted
+def _descending(z: np.ndarray) -> np.ndarray:
+    """Each row sorted, largest first. Values alone: a sort without the column order costs
+    ~1/2 of an argsort of 512 logits with numpy's SIMD sorts (~1/5 for many rows), and the
+    one column wanted is found afterwards (`_column`)."""
+    return -np.sort(-z, axis=1)
+
+
+def _column(z: np.ndarray, value: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Per row, the column at position `index` of the row sorted descending with ties lower
+    id first, whose value is `value` (finite): among the columns equal to it, the one of rank
+    index - (the number of larger values)."""
+    equal = z == value[:, None]
+    rank = index - np.count_nonzero(z > value[:, None], axis=1)
+    if not rank.any():  # no row took a second entry of a tie: the first equal column
+        return np.argmax(equal, axis=1)
+    return np.argmax(np.cumsum(equal, axis=1) > rank[:, None], axis=1)

@@ -96,14 +96,21 @@ def generate_items(generator: MotionGenerator, items: Sequence[TestItem], seed: 
 
 
 def reconstruct(generator: MotionGenerator, clips: Sequence[np.ndarray],
-                threads: int = 1) -> list[np.ndarray]:
-    """Each clip's features through the bundle's VQ: encode, then decode to its length."""
+                threads: int = 1, low_latency: bool = False) -> list[np.ndarray]:
+    """Each clip's features through the bundle's VQ: encode, then decode to its length
+    (`low_latency`: by the bundle's low-latency decoder, the frames a low-latency stream of
+    those tokens gets)."""
     skeleton = generator.skeleton
 
     def one(features: np.ndarray) -> np.ndarray:
         real = Motion(features, np.zeros((len(features), skeleton.num_joints, 3), np.float32),
                       generator.fps, np.zeros((0, 1), np.int64), skeleton)
-        return generator.decode(generator.encode_motion(real), [], len(features)).features
+        tokens = generator.encode_motion(real)
+        if not low_latency:
+            return generator.decode(tokens, [], len(features)).features
+        decoder = generator.streaming_decoder(low_latency=True)
+        normalised = decoder.decode_offline(tokens)[:len(features)]
+        return normalised * generator.bundle.std + generator.bundle.mean
     return parallel_map(one, clips, threads, "VQ reconstruction", "clips")
 
 

@@ -1,5 +1,6 @@
 """The error of bundles' VQ on a whole split, through their graphs (torch-free):
-`python -m mogo.bench.quality.vq_report --data DIR [--bundle B ...] [--split test] [--threads N]`.
+`python -m mogo.bench.quality.vq_report --data DIR [--bundle B ...] [--split test] [--threads N]
+[--low-latency]` (`--low-latency`: a second row per bundle, its low-latency decoder's).
 
 What the VQ issue's target is measured on: every clip of the split encoded and decoded whole
 by the bundle's ONNX encoder and decoder (as `mogo eval`'s reconstruction row), joints
@@ -41,11 +42,11 @@ def clip_errors(real: np.ndarray, rebuilt: np.ndarray,
 
 
 def report(generator: MotionGenerator, folder: HumanML3DFolder, split: str = "test",
-           limit: int | None = None, threads: int = 1) -> dict:
+           limit: int | None = None, threads: int = 1, low_latency: bool = False) -> dict:
     ids = folder.ids(split)[:limit]
     real = [folder.features(clip_id) for clip_id in ids]
     errors = np.array([clip_errors(r, b, generator.skeleton) for r, b in
-                       zip(real, reconstruct(generator, real, threads))])
+                       zip(real, reconstruct(generator, real, threads, low_latency))])
     worst = int(np.argmax(errors[:, 0]))
     return dict(clips=len(ids), mpjpe_mm=float(errors[:, 0].mean()),
                 poses_mm=float(errors[:, 1].mean()), trajectory_mm=float(errors[:, 2].mean()),
@@ -72,12 +73,18 @@ def main() -> None:
     parser.add_argument("--split", default="test")
     parser.add_argument("--limit", type=int, help="the first N clips of the split (default all)")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--low-latency", action="store_true",
+                        help="also each bundle's low-latency decoder (a row of its own)")
     args = parser.parse_args()
     folder = HumanML3DFolder(args.data, splits=(args.split,))
     rows = {}
     for bundle in args.bundle:
         generator = MotionGenerator.load(bundle)
-        rows[bundle or "default"] = report(generator, folder, args.split, args.limit, args.threads)
+        name = bundle or "default"
+        rows[name] = report(generator, folder, args.split, args.limit, args.threads)
+        if args.low_latency:
+            rows[f"{name}, low-latency decoder"] = report(generator, folder, args.split,
+                                                          args.limit, args.threads, True)
     print(f"{args.split} split of {args.data}, each clip encoded and decoded whole\n")
     print(format_table(rows))
 

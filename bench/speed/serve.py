@@ -1,14 +1,23 @@
 """`mogo bench-serve`: how many characters `mogo serve` streams in real time on this machine.
 
-Starts `mogo serve` in its own process, warms it, times one client's first frame (start message
-sent -> first frame received, the server otherwise idle), then for each N opens N WebSocket
-clients at once, each with its own prompt and seed and one prompt switch, and for `seconds`
-records when every frame arrives. Frame i of a client is due at t0 + i / fps, t0 the arrival of
-its frame 0; a frame's lateness is how far past that it came (0 if in time). Per N: frames per
-second per client (mean), p50 / p99 lateness over all frames, and the server's CPU use (its
-process's user + system time over the wall time, in cores). N holds real time when every
-client got >= 97% of the frame rate and p99 lateness stayed within one frame (50 ms).
-The clients run on the same machine as the server: their own CPU use is part of the load.
+Starts `mogo serve` in its own process and the clients in another (so the server's event loop
+and the clients' never share a process), warms the server, then:
+
+- bursts: for each burst size B, B WebSocket clients connect at once to the idle server; each
+  one's first-frame latency (start message sent -> first frame received). Percentiles over the
+  clients (B = 1 repeated 7 times).
+- counts: for each N, N clients arrive spread evenly over `spread` seconds, each with its own
+  prompt and seed and one prompt switch, and for `seconds` record when every frame arrives.
+  Frame i of a client is due at t0 + i / fps, t0 the arrival of its frame 0; a frame's
+  lateness is how far past that it came (0 if in time). Per N: frames per second per client
+  (mean and min), p50 / p99 lateness over all frames, first-frame latency p50 / p99, and the
+  server's CPU use (its process's user + system time over the wall time, in cores). N holds
+  real time when every client got >= 97% of the frame rate and p99 lateness stayed within one
+  frame (50 ms).
+
+Frames are binary (the protocol's "binary": true) unless asked for JSON. Between counts the
+bench waits until the server's /v1/health reports no stream left, so each count starts from
+an empty server. The clients run on the same machine: their CPU use is part of the load.
 
 `engine_cost` measures the compute alone, in this process, with no sockets: N streams
 past their first frames stepped on the engine's clock, CPU time (all threads) per stream
@@ -23,12 +32,16 @@ from __future__ import annotations
 import asyncio
 import cProfile
 import json
+import math
+import multiprocessing
 import os
 import pstats
 import socket
 import subprocess
 import sys
 import time
+import urllib.request
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -62,17 +75,22 @@ def cpu_seconds(pid: int) -> float:
 
 
 async def client(url: str, k: int, seconds: float, switch_at: float | None,
-                 binary: bool = False) -> list[float]:
-    """One client's frame arrival times (seconds, monotonic), frame by frame; `binary`: frames
-    as the protocol's binary bursts (a header of index and count, then float32 joints)."""
+                 binary: bool = True, delay: float = 0.0, first_only: bool = False
+                 ) -> tuple[float, list[float]]:
+    """One client, `delay` seconds from now: its first-frame latency (seconds from its start
+    message) and its frame arrival times (seconds, monotonic), frame by frame, for `seconds`
+    (or until the first frame, `first_only`); `binary`: frames as the protocol's binary bursts
+    (a header of index and count, then float32 joints), else JSON."""
     import aiohttp
 
+    await asyncio.sleep(delay)
     arrivals: list[float] = []
     async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
+        sent = time.monotonic()
         await ws.send_json({"prompt": PROMPTS[k % len(PROMPTS)], "seed": k, "binary": binary})
-        end = time.monotonic() + seconds
+        end = sent + seconds
         switched = switch_at is None
-        while (left := end - time.monotonic()) > 0:
+        while (left := end - time.monotonic()) > 0 and not (first_only and arrivals):
             try:
                 message = await asyncio.wait_for(ws.receive(), left)
             except asyncio.TimeoutError:
@@ -86,31 +104,68 @@ async def client(url: str, k: int, seconds: float, switch_at: float | None,
             if not switched and arrivals and time.monotonic() > end - seconds + switch_at:
                 await ws.send_json({"prompt": PROMPTS[(k + 3) % len(PROMPTS)]})
                 switched = True
-    return arrivals
+    return (arrivals[0] - sent if arrivals else math.inf), arrivals
 
 
-async def first_frame_ms(url: str) -> float:
-    import aiohttp
-
-    async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
-        start = time.monotonic()
-        await ws.send_json({"prompt": PROMPTS[0], "seed": 0})
-        while json.loads((await ws.receive()).data)["type"] != "frames":
-            pass
-        return (time.monotonic() - start) * 1e3
-
-
-def measure(url: str, pid: int, clients: int, seconds: float, binary: bool = False) -> dict:
-    """N clients at once; their frame rate and lateness, the server's CPU use."""
+def clients_process(url: str, delays: list[float], seconds: float, binary: bool,
+                    first_only: bool = False) -> list[tuple[float, list[float]]]:
+    """What the clients' process runs: one client a delay, all on one event loop; client k
+    switches its prompt once, between 30% and 70% of `seconds`."""
     async def run():
-        return await asyncio.gather(*(client(url, k, seconds, seconds * (0.3 + 0.4 * k / clients),
-                                             binary) for k in range(clients)))
+        n = len(delays)
+        return await asyncio.gather(*(
+            client(url, k, seconds, None if first_only else seconds * (0.3 + 0.4 * k / n),
+                   binary, delay, first_only) for k, delay in enumerate(delays)))
+    return asyncio.run(run())
 
+
+def wait_until_empty(base: str, timeout: float = 60.0) -> None:
+    """Until the server's /v1/health reports no stream: the clients of a count have closed
+    their sockets, but the server frees their streams once it reads the close."""
+    deadline = time.monotonic() + timeout
+    while True:
+        with urllib.request.urlopen(f"{base}/v1/health", timeout=10) as answer:
+            streams = json.load(answer)["streams"]
+        if streams == 0:
+            return
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"mogo serve still holds {streams} streams {timeout:.0f} s after "
+                               "its clients left")
+        time.sleep(0.1)
+
+
+def percentiles_ms(seconds: list[float]) -> dict:
+    """p50, p90, p99 and max, each a value measured (no interpolation): a client that got no
+    frame (inf) makes them inf, not NaN."""
+    values = np.asarray(seconds) * 1e3
+    percentiles = {f"p{q}": float(np.percentile(values, q, method="higher"))
+                   for q in (50, 90, 99)}
+    return dict(percentiles, max=float(values.max()))
+
+
+def burst(pool: ProcessPoolExecutor, base: str, size: int, binary: bool) -> dict:
+    """`size` clients connecting at once to the idle server; their first-frame latencies
+    (size 1: 7 times)."""
+    firsts = []
+    for _ in range(7 if size == 1 else 1):
+        results = pool.submit(clients_process, f"{base}/v1/stream", [0.0] * size, 60.0, binary,
+                              True).result()
+        firsts += [first for first, _ in results]
+        wait_until_empty(base)
+    return dict(burst=size, first_frame_ms=percentiles_ms(firsts))
+
+
+def measure(pool: ProcessPoolExecutor, base: str, pid: int, clients: int, seconds: float,
+            spread: float, binary: bool = True) -> dict:
+    """N clients arriving evenly over `spread` seconds; their frame rate, lateness and first
+    frames, the server's CPU use."""
+    delays = [spread * k / clients for k in range(clients)]
     cpu, wall = cpu_seconds(pid), time.monotonic()
-    arrivals = asyncio.run(run())
+    results = pool.submit(clients_process, f"{base}/v1/stream", delays, seconds, binary).result()
     cpu, wall = cpu_seconds(pid) - cpu, time.monotonic() - wall
+    wait_until_empty(base)
     rates, late = [], []
-    for times in arrivals:
+    for _, times in results:
         times = np.asarray(times)
         if len(times) < 2:
             rates.append(0.0)
@@ -120,7 +175,8 @@ def measure(url: str, pid: int, clients: int, seconds: float, binary: bool = Fal
     late = np.concatenate(late) if late else np.array([np.inf])
     row = dict(clients=clients, fps=float(np.mean(rates)), fps_min=float(np.min(rates)),
                p50_ms=float(np.percentile(late, 50) * 1e3),
-               p99_ms=float(np.percentile(late, 99) * 1e3), cpu_cores=cpu / wall)
+               p99_ms=float(np.percentile(late, 99) * 1e3), cpu_cores=cpu / wall,
+               first_frame_ms=percentiles_ms([first for first, _ in results]))
     row["real_time"] = row["fps_min"] >= 0.97 * FPS and row["p99_ms"] <= 1e3 / FPS
     return row
 
@@ -217,48 +273,68 @@ def engine_table(rows: list[dict]) -> str:
 
 def table(rows: list[dict]) -> str:
     lines = ["| clients | frames/s per client (mean / min) | lateness p50 | lateness p99 | "
-             "server CPU (cores) | real time |", "|---:|---:|---:|---:|---:|:---:|"]
+             "first frame p50 / p99 | server CPU (cores) | real time |",
+             "|---:|---:|---:|---:|---:|---:|:---:|"]
     for r in rows:
+        first = r["first_frame_ms"]
         lines.append(f"| {r['clients']} | {r['fps']:.1f} / {r['fps_min']:.1f} | "
-                     f"{r['p50_ms']:.0f} ms | {r['p99_ms']:.0f} ms | {r['cpu_cores']:.2f} | "
+                     f"{r['p50_ms']:.0f} ms | {r['p99_ms']:.0f} ms | {first['p50']:.0f} / "
+                     f"{first['p99']:.0f} ms | {r['cpu_cores']:.2f} | "
                      f"{'yes' if r['real_time'] else 'no'} |")
     return "\n".join(lines)
 
 
-def run(clients: list[int], seconds: float, threads: int | None, bundle: str | None,
-        out: Path, binary: bool = False) -> dict:
+def burst_table(rows: list[dict]) -> str:
+    lines = ["| clients arriving at once | first frame p50 | p90 | p99 | max |",
+             "|---:|---:|---:|---:|---:|"]
+    lines += [f"| {r['burst']} | " + " | ".join(f"{r['first_frame_ms'][p]:.0f} ms" for p in
+                                               ("p50", "p90", "p99", "max")) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def run(clients: list[int], bursts: list[int], seconds: float, spread: float,
+        threads: int | None, bundle: str | None, out: Path, binary: bool = True) -> dict:
     port = free_port()
     command = [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--max-streams",
-               str(max(*clients, WARM_CLIENTS) + 1)]
+               str(max(*clients, *bursts, WARM_CLIENTS))]
     command += ["--threads", str(threads)] if threads else []
     command += ["--bundle", bundle] if bundle else []
     server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    base = f"http://127.0.0.1:{port}"
     try:
-        if "mogo serve:" not in server.stderr.readline():
-            raise RuntimeError("mogo serve did not start")
-        url = f"http://127.0.0.1:{port}/v1/stream"
-        measure(url, server.pid, WARM_CLIENTS, 4.0)  # warm: graphs run once, caches allocated
-        first = sorted(asyncio.run(first_frame_ms(url)) for _ in range(7))
-        rows = []
-        for n in clients:
-            rows.append(measure(url, server.pid, n, seconds, binary))
-            print(table(rows[-1:]).splitlines()[-1], flush=True)
+        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            if "mogo serve:" not in server.stderr.readline():
+                raise RuntimeError("mogo serve did not start")
+            measure(pool, base, server.pid, WARM_CLIENTS, 4.0, 0.0, binary)  # graphs run once
+            bursts_measured = []
+            for size in bursts:
+                bursts_measured.append(burst(pool, base, size, binary))
+                print(burst_table(bursts_measured[-1:]).splitlines()[-1], flush=True)
+            rows = []
+            for n in clients:
+                rows.append(measure(pool, base, server.pid, n, seconds, spread, binary))
+                print(table(rows[-1:]).splitlines()[-1], flush=True)
     finally:
         server.terminate()
         server.wait(timeout=30)
     held = [r["clients"] for r in rows if r["real_time"]]
     engine = [engine_cost(n, threads or 2) for n in clients]
-    result = dict(first_frame_ms=first[len(first) // 2], rows=rows, engine=engine,
-                  largest_real_time=max(held) if held else 0, seconds=seconds)
+    result = dict(bursts=bursts_measured, rows=rows, engine=engine,
+                  largest_real_time=max(held) if held else 0, seconds=seconds, spread=spread,
+                  binary=binary)
     out.mkdir(parents=True, exist_ok=True)
     (out / "serve_bench.json").write_text(json.dumps(result, indent=1))
-    log_line_chart(out / "serve_bench.png", "mogo serve: N clients at once", "clients",
-                   "see legend", {
+    log_line_chart(out / "serve_bench.png", "mogo serve: N clients arriving over "
+                   f"{spread:g} s", "clients", "see legend", {
                        "frames/s per client": [(r["clients"], max(r["fps"], 0.1)) for r in rows],
                        "p99 lateness, ms (min 1)": [(r["clients"], max(r["p99_ms"], 1.0))
                                                     for r in rows],
                        "server CPU, % of a core": [(r["clients"], max(100 * r["cpu_cores"], 1))
                                                    for r in rows]})
+    log_line_chart(out / "serve_bursts.png", "mogo serve: first frame of clients arriving at "
+                   "once", "clients arriving at once", "first frame, ms", {
+                       f"{p}": [(r["burst"], max(r["first_frame_ms"][p], 1.0))
+                                for r in bursts_measured] for p in ("p50", "p99", "max")})
     return result
 
 
@@ -287,11 +363,14 @@ def main_from_args(args) -> None:
               f"{first['cpu_ms']:.0f} ms CPU (medians of 7)")
         print(f"wrote {Path(args.out) / 'serve_engine.json'}")
         return
-    result = run(args.clients, args.seconds, args.threads, args.bundle, Path(args.out),
-                 args.binary)
+    result = run(args.clients, args.burst, args.seconds, args.spread, args.threads, args.bundle,
+                 Path(args.out), not args.json)
+    print(f"Clients arriving at once on the idle server ({'JSON' if args.json else 'binary'} "
+          "frames), first-frame latency:\n")
+    print(burst_table(result["bursts"]))
+    print(f"\nN clients arriving over {args.spread:g} s, {args.seconds:g} s each:\n")
     print(table(result["rows"]))
     print("\nThe engine alone (no sockets), streams past their first frames:\n")
     print(engine_table(result["engine"]))
-    print(f"\nfirst frame, one client, server warm: {result['first_frame_ms']:.0f} ms (median "
-          f"of 7); largest N in real time: {result['largest_real_time']}")
-    print(f"wrote {Path(args.out) / 'serve_bench.json'} and serve_bench.png")
+    print(f"\nlargest N in real time: {result['largest_real_time']}")
+    print(f"wrote {Path(args.out) / 'serve_bench.json'}, serve_bench.png and serve_bursts.png")

@@ -17,8 +17,11 @@ learns from the quantisation error q - u alone.
 `dequantize` (what the ONNX decoder graph and the runtime run) needs only ids.
 
 The convolutions are either centred or causal (all padding on the left): a causal model has
-zero lookahead, so a stream can decode every frame as soon as its token exists.
-`decoder_receptive_field` derives the decoder's context from its layers.
+zero lookahead, so a stream can decode every frame as soon as its token exists. Between the
+two, `decoder_lookahead` = n keeps the centred taps of the decoder's last convolutions while
+their right context adds up to at most n tokens and makes the others causal: a stream waits n
+tokens for a frame instead of the centred decoder's 31. `decoder_receptive_field` derives the
+decoder's context from its layers.
 """
 from __future__ import annotations
 
@@ -59,6 +62,7 @@ class VQConfig:
     code_dim: int = 64  # C
     dropout: float = 0.1
     causal: bool = False  # convolutions see only the past: zero lookahead when streaming
+    decoder_lookahead: int | None = None  # at most this many tokens of right context (None: all)
     scale_bias: bool = True  # learnable W^l, b^l (eq. 1-2); False: plain residual VQ
     recon_loss: str = "l1"  # "l1" (paper) or "smooth_l1" (prototype), also for joints
     joint_weight: float = 0.5  # joint positions (metres) recovered from features
@@ -77,6 +81,8 @@ class VQConfig:
         for name in ("feature_dim", "width", "stages", "dilation_growth", "levels", "code_dim"):
             need(getattr(self, name) >= 1, f"{name} must be >= 1", getattr(self, name))
         need(self.depth >= 0, "depth must be >= 0", self.depth)
+        need(self.decoder_lookahead is None or self.decoder_lookahead >= 0,
+             "decoder_lookahead must be >= 0", self.decoder_lookahead)
         need(self.down_factor in (1, 2, 4), "down_factor must be 1, 2 or 4", self.down_factor)
         need(self.stages >= self.down_stages, f"stages must be >= log2(down_factor) = "
              f"{self.down_stages}", self.stages)
@@ -130,6 +136,9 @@ class Conv(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         return self.conv(F.pad(x, (self.left, self.right)))
+
+    def make_causal(self) -> None:
+        self.left, self.right = self.left + self.right, 0
 
 
 class ResBlock(nn.Module):
@@ -186,6 +195,12 @@ class Decoder(nn.Module):
         layers += [Conv(W, W, 3, causal=causal), nn.ReLU(),
                    Conv(W, config.feature_dim, 3, causal=causal)]
         self.net = nn.Sequential(*layers)
+        if config.decoder_lookahead is not None:
+            budget = config.decoder_lookahead
+            for conv in reversed([m for m in self.net.modules() if isinstance(m, Conv)]):
+                if conv.right > budget:
+                    conv.make_causal()
+                budget -= conv.right
 
     def forward(self, z: Tensor) -> Tensor:
         return self.net(z.transpose(1, 2)).transpose(1, 2)

@@ -61,18 +61,26 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
                         captions=dict(train=train, val=val))
 
 
+LOW_LATENCY_DECODER = "vq_decoder_low_latency.onnx"
+
+
 def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     """`mogo export --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of RUN, for a
     decoder fine-tune of OLD's own VQ (`mogo train vq --init OLD --tune decoder`), which needs
-    none of OLD's training runs. Every other file is copied byte for byte, so RUN's encoder
-    must give OLD's tokens (checked through OLD's encoder graph) and RUN must share OLD's
-    normalisation: that is what OLD's level graphs were trained on. Returns the manifest."""
+    none of OLD's training runs. A decoder of a shorter lookahead (`--decoder-lookahead`) goes
+    beside OLD's as its low-latency decoder (replacing any OLD had); else it replaces OLD's.
+    Every other file is copied byte for byte, so RUN's encoder must give OLD's tokens
+    (checked through OLD's encoder graph) and RUN must share OLD's normalisation: that is what
+    OLD's level graphs were trained on. Returns the manifest."""
     from mogo.export.models.runs import load_checkpoint, load_vq, vq_checkpoint
+    from mogo.export.models.vq import VQConfig
     from mogo.export.onnx.vq_graphs import MIN_TOKEN_AGREEMENT, token_agreement
 
     old = Bundle.load(bundle_dir)
     vq = load_vq(vq_run)
-    if asdict(vq.config) != old.manifest.vq.config:
+    centred = VQConfig(**old.manifest.vq.config)
+    low_latency = vq.config.decoder_lookahead != centred.decoder_lookahead
+    if replace(vq.config, decoder_lookahead=centred.decoder_lookahead) != centred:
         raise ValueError(f"{vq_run} is another VQ model than {bundle_dir}'s (its config differs)")
     if not (np.array_equal(vq.mean.numpy(), old.mean) and np.array_equal(vq.std.numpy(), old.std)):
         raise ValueError(f"{vq_run} normalises with other statistics than {bundle_dir} (trained "
@@ -84,21 +92,25 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
                          "level graphs")
     out = _new_folder(out)
     manifest = old.manifest
-    decoder = manifest.vq.decoder.file
+    decoder = LOW_LATENCY_DECODER if low_latency else manifest.vq.decoder.file
     for name in manifest.files:
         if name != decoder:
             shutil.copy2(old.path(name), out / name)
     graph = export_vq_decoder(vq, out / decoder)
     codes = _check_codes(vq)
     before, after = _outputs_before_and_after_fp16(out / decoder, {"ids": codes.numpy()})
+    difference = float(np.abs(before - after).max())
     storage = manifest.fp16_storage or Fp16Storage(files=())
-    storage = replace(storage, files=tuple(sorted(set(storage.files) | {decoder})),
-                      vq_decoder_feature_max_abs_difference=float(np.abs(before - after).max()))
+    storage = replace(storage, files=tuple(sorted(set(storage.files) | {decoder})), **{
+        f"{'vq_low_latency' if low_latency else 'vq'}_decoder_feature_max_abs_difference":
+            difference})
     trained = replace(_vq_provenance(load_checkpoint(vq_checkpoint(vq_run))),
                       token_agreement_with_bundle=agreement)
-    return write_manifest(out, replace(manifest, vq=replace(manifest.vq, decoder=graph),
+    role = "low_latency_decoder" if low_latency else "decoder"
+    return write_manifest(out, replace(manifest, vq=replace(manifest.vq, **{role: graph}),
                                        fp16_storage=storage,
-                                       training={**manifest.training, "vq": trained}))
+                                       training={**manifest.training,
+                                                 "vq_" + role if low_latency else "vq": trained}))
 
 
 def _vq_provenance(state: dict) -> TrainingRun:

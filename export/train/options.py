@@ -101,6 +101,10 @@ class VQTrainOptions(RunOptions):
         choices=[1, 2, 4])
     causal: bool | None = recipe(None, "causal convolutions: zero decoder lookahead when "
                                        "streaming")
+    decoder_lookahead: int | None = recipe(
+        None, "the decoder's right context, at most N tokens (the last layers keep their "
+              "centred taps, the others turn causal): a stream's frames wait N tokens, not 31; "
+              "may differ from --init's with --tune decoder (default: centred)", metavar="N")
     scale_bias: bool | None = recipe(
         None, "plain residual VQ, without the per-level scale and bias (ablation)",
         flag="--no-scale-bias", action="store_false")

@@ -197,6 +197,37 @@ def test_a_bundles_decoder_is_fine_tuned_and_replaced_without_its_runs(runs, tmp
     assert not np.allclose(old_motion.features, new_motion.features)
 
 
+def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path, capsys):
+    bundle, data = runs / "bundle", runs / "data"
+    tuned, new = tmp_path / "tuned", tmp_path / "new"
+    assert main(["train", "vq", "--out", str(tuned), "--init", str(bundle), "--tune", "decoder",
+                 "--decoder-lookahead", "1", "--data", str(data), "--config", "tiny",
+                 "--batch-size", "4", "--steps", "2", "--val-clips", "2", "--warmup", "0",
+                 "--crop-frames", "40"]) == 0
+    assert main(["train", "vq", "--out", str(tmp_path / "all"), "--init", str(runs / "vq"),
+                 "--decoder-lookahead", "1", "--data", str(data), "--config", "tiny",
+                 "--steps", "1", "--crop-frames", "40"]) == 2  # the encoder would change
+    assert "differs from None of --init" in capsys.readouterr().err
+    assert main(["export", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)]) == 0
+    old, written = read_manifest(bundle), read_manifest(new)
+    assert written.files.keys() - old.files.keys() == {"vq_decoder_low_latency.onnx"}
+    assert all(written.files[name] == entry for name, entry in old.files.items())
+    low = written.vq.low_latency_decoder
+    assert (low.file, low.lookahead) == ("vq_decoder_low_latency.onnx", 1)
+    assert written.vq.decoder == old.vq.decoder and written.vq.config == old.vq.config
+    assert written.training["vq_low_latency_decoder"].recipe["decoder_lookahead"] == 1
+    assert 0 < written.fp16_storage.vq_low_latency_decoder_feature_max_abs_difference < 1e-2
+    centred, generator = MotionGenerator.load(bundle), MotionGenerator.load(new)
+    same = [g.generate(PROMPT, seconds=1.0, seed=0) for g in (centred, generator)]
+    assert np.array_equal(same[0].features, same[1].features)  # generate: the centred decoder
+    with pytest.raises(ValueError, match="no low-latency decoder"):
+        centred.stream(PROMPT, low_latency=True)
+    streams = [generator.stream(PROMPT, seed=3, anchoring=False, plant_feet=False,
+                                low_latency=low) for low in (False, True)]
+    first = [next(k for k in range(1, 60) if len(stream.step())) for stream in streams]
+    assert first == [old.vq.decoder.lookahead + 1, 2]  # frames once their lookahead exists
+
+
 def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, capsys):
     bundle, data = runs / "bundle", runs / "data"
     common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "1",

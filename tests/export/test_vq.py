@@ -275,6 +275,20 @@ def test_causal_decoder_ignores_later_tokens(down):
 def test_receptive_field_of_the_presets():
     assert decoder_receptive_field(VQConfig.cpu_default()) == (31, 31)
     assert decoder_receptive_field(replace(VQConfig.cpu_default(), causal=True)) == (62, 0)
+    for lookahead in (0, 4, 8):  # the same total context, moved to the left
+        narrowed = replace(VQConfig.cpu_default(), decoder_lookahead=lookahead)
+        assert decoder_receptive_field(narrowed) == (62 - lookahead, lookahead)
+
+
+@pytest.mark.parametrize("lookahead", [0, 1, 2])
+def test_a_narrowed_decoder_sees_at_most_its_lookahead(lookahead):
+    model = tiny_model(decoder_lookahead=lookahead).eval()
+    left, reach = decoder_receptive_field(model.config)
+    assert reach == lookahead
+    position = lookahead + 3
+    ids = torch.randint(TINY.codebook_size, (1, position + left + 4, TINY.levels))
+    assert changed_tokens(model, ids, position) == list(range(position - lookahead,
+                                                              position + left + 1))
 
 
 # -- training ----------------------------------------------------------------------------------

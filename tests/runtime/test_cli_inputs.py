@@ -51,6 +51,7 @@ def test_bad_values_to_generate_name_their_flag_on_one_line(flags, message, tmp_
 
 @pytest.mark.parametrize("flags,message", SAMPLING_FLAGS + [
     (["--frames", "x"], "argument --frames: invalid int value: 'x' (see mogo stream --help)"),
+    (["--low-latency"], "this bundle has no low-latency decoder"),  # the shipped bundle
 ])
 def test_bad_values_to_stream_name_their_flag_on_one_line(flags, message, capsys):
     assert message in refused(["stream", "a person jogs.", *flags], capsys)

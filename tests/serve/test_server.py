@@ -225,7 +225,8 @@ def test_the_benchmark_client_counts_every_frame_in_either_encoding(generator, e
     from mogo.bench.speed.serve import client
 
     async def test(url, server):
-        arrivals = await client(f"{url}/v1/stream", 0, 4.0, None, binary)
+        first, arrivals = await client(f"{url}/v1/stream", 0, 4.0, None, binary)
         assert len(arrivals) >= 9 and arrivals == sorted(arrivals)
+        assert 0 < first < arrivals[-1] - arrivals[0] + first
         assert (len(arrivals) - 1) % 8 == 0  # a burst of the first frame, then bursts of 8
     serving(generator, engine_parts, test)
