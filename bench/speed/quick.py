@@ -20,8 +20,9 @@ from mogo.motion.skeleton import MAX_FRAMES
 
 PROMPT = "a person walks forward, then waves with the right hand."
 # The README's Performance table: threads -> (time to first frame in ms, 9.8-s clip in s).
-README = {1: (51.0, 0.258), 2: (59.0, 0.221)}
-README_MACHINE = "a 2-core AMD EPYC VM, 2026-11-24 (its instruction sets were not recorded)"
+README = {1: (101.0, 0.523), 2: (101.0, 0.402)}
+README_MACHINE = ("a 2-core Intel Xeon VM, Sapphire Rapids class (AVX2, AVX-512, AVX-512 VNNI, "
+                  "AMX), 2026-11-27")
 # /proc/cpuinfo flag -> name: what onnxruntime's int8 and float kernels are chosen by.
 FEATURES = {"avx2": "AVX2", "avx512f": "AVX-512", "avx512_vnni": "AVX-512 VNNI",
             "avx_vnni": "AVX-VNNI", "amx_int8": "AMX-INT8", "asimd": "NEON",
