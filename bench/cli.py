@@ -1,6 +1,7 @@
 """The `mogo` verbs of the measuring side: bench (latency; torch for the step tables), eval
 (quality; runtime only), real-motion (the VQ on real motion capture; runtime only) and
 long-streams (runtime only). mogo.cli adds them through the "mogo.commands" entry point."""
+
 from __future__ import annotations
 
 import argparse
@@ -34,9 +35,18 @@ def _cmd_eval(args: argparse.Namespace) -> None:
 
     from mogo.bench.quality.evaluate import EvalOptions, evaluate, format_table
 
-    options = EvalOptions(args.bundle, Path(args.data), Path(args.evaluator), args.limit,
-                          args.repeats, args.seed, args.mm_captions, args.mm_generations,
-                          args.regenerate, args.threads)
+    options = EvalOptions(
+        args.bundle,
+        Path(args.data),
+        Path(args.evaluator),
+        args.limit,
+        args.repeats,
+        args.seed,
+        args.mm_captions,
+        args.mm_generations,
+        args.regenerate,
+        args.threads,
+    )
     result = evaluate(options)
     print(format_table(result))
     if args.json:
@@ -67,109 +77,202 @@ def _cmd_long_streams(args: argparse.Namespace) -> None:
 def add_commands(commands) -> None:
     """Adds bench and eval to the `mogo` parser's subcommands."""
     bench = commands.add_parser(
-        "bench", help="latency: the bundle through the runtime, and one step of the bundle-size "
-                      "and paper-size models on onnxruntime fp32/int8 and torch eager")
+        "bench",
+        help="latency: the bundle through the runtime, and one step of the bundle-size "
+        "and paper-size models on onnxruntime fp32/int8 and torch eager",
+    )
     bench.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    bench.add_argument("--out", default="bench_out",
-                       help="folder for bench.json and the plots (default bench_out/)")
-    bench.add_argument("--work", default=str(Path.home() / ".cache" / "mogo" / "bench"),
-                       help="where the exported random-weight models are kept between runs")
+    bench.add_argument(
+        "--out",
+        default="bench_out",
+        help="folder for bench.json and the plots (default bench_out/)",
+    )
+    bench.add_argument(
+        "--work",
+        default=str(Path.home() / ".cache" / "mogo" / "bench"),
+        help="where the exported random-weight models are kept between runs",
+    )
     bench.add_argument("--threads", type=int, nargs="+", help="thread counts (default 1 2)")
-    bench.add_argument("--lengths", type=int, nargs="+",
-                       help="KV cache lengths of the step tables (default 1 10 50 100 200)")
+    bench.add_argument(
+        "--lengths",
+        type=int,
+        nargs="+",
+        help="KV cache lengths of the step tables (default 1 10 50 100 200)",
+    )
     bench.add_argument("--long-steps", type=int, help="steps of the long stream (default 10000)")
-    bench.add_argument("--no-paper", action="store_true",
-                       help="skip the paper-size model (its first export takes minutes)")
-    bench.add_argument("--quick", action="store_true",
-                       help="under a minute, no torch: this machine's CPU features, first "
-                            "frame, 9.8-s clip and token step beside the README's (only "
-                            "--bundle and --threads apply)")
-    bench.add_argument("--smoke", action="store_true",
-                       help="a smoke run: tiny model, few lengths and rounds (for tests)")
+    bench.add_argument(
+        "--no-paper",
+        action="store_true",
+        help="skip the paper-size model (its first export takes minutes)",
+    )
+    bench.add_argument(
+        "--quick",
+        action="store_true",
+        help="under a minute, no torch: this machine's CPU features, first "
+        "frame, 9.8-s clip and token step beside the README's (only "
+        "--bundle and --threads apply)",
+    )
+    bench.add_argument(
+        "--smoke",
+        action="store_true",
+        help="a smoke run: tiny model, few lengths and rounds (for tests)",
+    )
     bench.set_defaults(run=_cmd_bench)
 
     serve = commands.add_parser(
-        "bench-serve", help="how many characters `mogo serve` streams in real time: N "
-                            "WebSocket clients at once, frame rate, lateness, CPU")
-    serve.add_argument("--clients", type=int, nargs="+", default=[1, 10, 25, 50, 75, 100],
-                       help="client counts to try (default 1 10 25 50 75 100)")
-    serve.add_argument("--burst", type=int, nargs="+", default=[1, 10, 50],
-                       help="clients connecting at once to the idle server, for the first-frame "
-                            "latency of each burst size (default 1 10 50)")
-    serve.add_argument("--seconds", type=float, default=15.0,
-                       help="how long each count streams (default 15)")
-    serve.add_argument("--spread", type=float, default=2.0,
-                       help="the clients of a count arrive evenly over this many seconds "
-                            "(default 2)")
+        "bench-serve",
+        help="how many characters `mogo serve` streams in real time: N "
+        "WebSocket clients at once, frame rate, lateness, CPU",
+    )
+    serve.add_argument(
+        "--clients",
+        type=int,
+        nargs="+",
+        default=[1, 10, 25, 50, 75, 100],
+        help="client counts to try (default 1 10 25 50 75 100)",
+    )
+    serve.add_argument(
+        "--burst",
+        type=int,
+        nargs="+",
+        default=[1, 10, 50],
+        help="clients connecting at once to the idle server, for the first-frame "
+        "latency of each burst size (default 1 10 50)",
+    )
+    serve.add_argument(
+        "--seconds", type=float, default=15.0, help="how long each count streams (default 15)"
+    )
+    serve.add_argument(
+        "--spread",
+        type=float,
+        default=2.0,
+        help="the clients of a count arrive evenly over this many seconds (default 2)",
+    )
     serve.add_argument("--threads", type=int, help="the server's --threads (default its own)")
     serve.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    serve.add_argument("--out", default="bench_out",
-                       help="folder for serve_bench.json and serve_bench.png (default bench_out/)")
-    serve.add_argument("--engine-only", action="store_true",
-                       help="no server: the engine's CPU per stream step and wall per tick for "
-                            "each --clients, and one stream's first frame (serve_engine.json)")
-    serve.add_argument("--json", action="store_true",
-                       help="the clients take JSON frames instead of binary ones (the "
-                            "protocol's \"binary\": false)")
-    serve.add_argument("--profile", type=int, metavar="N",
-                       help="no server: where the CPU of a stream step goes, N streams past "
-                            "warm-up, one thread, cProfile (a table)")
+    serve.add_argument(
+        "--out",
+        default="bench_out",
+        help="folder for serve_bench.json and serve_bench.png (default bench_out/)",
+    )
+    serve.add_argument(
+        "--engine-only",
+        action="store_true",
+        help="no server: the engine's CPU per stream step and wall per tick for "
+        "each --clients, and one stream's first frame (serve_engine.json)",
+    )
+    serve.add_argument(
+        "--json",
+        action="store_true",
+        help="the clients take JSON frames instead of binary ones (the "
+        'protocol\'s "binary": false)',
+    )
+    serve.add_argument(
+        "--profile",
+        type=int,
+        metavar="N",
+        help="no server: where the CPU of a stream step goes, N streams past "
+        "warm-up, one thread, cProfile (a table)",
+    )
     serve.set_defaults(run=_cmd_bench_serve)
 
     streams = commands.add_parser(
-        "long-streams", help="do long streams keep doing what they were asked? every action of "
-                             "the repertoire, re-anchoring off and on (no torch)")
+        "long-streams",
+        help="do long streams keep doing what they were asked? every action of "
+        "the repertoire, re-anchoring off and on (no torch)",
+    )
     streams.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    streams.add_argument("--out", default="bench_out", help="folder for long_streams.md, .json "
-                                                           "and .png (default bench_out/)")
+    streams.add_argument(
+        "--out",
+        default="bench_out",
+        help="folder for long_streams.md, .json and .png (default bench_out/)",
+    )
     streams.add_argument("--minutes", type=float, default=10.0, help="length of each stream")
     streams.add_argument("--seeds", type=int, default=2, help="streams per action and mode")
-    streams.add_argument("--switches", type=int, default=30,
-                         help="prompt switches per seed and mode (one every 10 s; 0: none)")
-    streams.add_argument("--modes", nargs="+", default=["off", "on"],
-                         help="re-anchoring off (before) and/or on (default both)")
+    streams.add_argument(
+        "--switches",
+        type=int,
+        default=30,
+        help="prompt switches per seed and mode (one every 10 s; 0: none)",
+    )
+    streams.add_argument(
+        "--modes",
+        nargs="+",
+        default=["off", "on"],
+        help="re-anchoring off (before) and/or on (default both)",
+    )
     streams.add_argument("--jobs", type=int, default=2, help="streams run in parallel")
-    streams.add_argument("--actions", nargs="+", metavar="NAME",
-                         help="only these actions of the repertoire (default all; e.g. "
-                              "'jog forward' spin)")
-    streams.add_argument("--tables-from", nargs="+", metavar="JSON",
-                         help="no streams: the tables and plot of saved runs "
-                              "(long_streams.json), merged")
-    streams.add_argument("--quick", action="store_true",
-                         help="a smoke run: two actions, 20-s streams, one seed, one switch")
+    streams.add_argument(
+        "--actions",
+        nargs="+",
+        metavar="NAME",
+        help="only these actions of the repertoire (default all; e.g. 'jog forward' spin)",
+    )
+    streams.add_argument(
+        "--tables-from",
+        nargs="+",
+        metavar="JSON",
+        help="no streams: the tables and plot of saved runs (long_streams.json), merged",
+    )
+    streams.add_argument(
+        "--quick",
+        action="store_true",
+        help="a smoke run: two actions, 20-s streams, one seed, one switch",
+    )
     streams.set_defaults(run=_cmd_long_streams)
 
     evaluation = commands.add_parser(
-        "eval", help="a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "
-                     "MultiModality (no torch)")
+        "eval",
+        help="a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "
+        "MultiModality (no torch)",
+    )
     evaluation.add_argument("bundle", nargs="?", help="bundle folder (default: the shipped one)")
     evaluation.add_argument("--data", required=True, help="dataset folder with test.txt")
-    evaluation.add_argument("--evaluator", required=True,
-                            help="evaluator folder (RUN/evaluator of `mogo train evaluator`)")
-    evaluation.add_argument("--limit", type=int,
-                            help="a fixed random sample of this many test caption spans "
-                                 "(default: all; at least 32)")
+    evaluation.add_argument(
+        "--evaluator",
+        required=True,
+        help="evaluator folder (RUN/evaluator of `mogo train evaluator`)",
+    )
+    evaluation.add_argument(
+        "--limit",
+        type=int,
+        help="a fixed random sample of this many test caption spans (default: all; at least 32)",
+    )
     evaluation.add_argument("--repeats", type=int, default=20)
     evaluation.add_argument("--seed", type=int, default=0)
-    evaluation.add_argument("--mm-captions", type=int, default=10,
-                            help="captions for MultiModality (protocol: 100; 0 = skip)")
-    evaluation.add_argument("--mm-generations", type=int, default=30,
-                            help="generations per MultiModality caption")
-    evaluation.add_argument("--regenerate", action="store_true",
-                            help="generate anew in every repeat (the full protocol; repeats x "
-                                 "the generation time)")
-    evaluation.add_argument("--threads", type=int, default=1,
-                            help="clips generated in parallel")
+    evaluation.add_argument(
+        "--mm-captions",
+        type=int,
+        default=10,
+        help="captions for MultiModality (protocol: 100; 0 = skip)",
+    )
+    evaluation.add_argument(
+        "--mm-generations", type=int, default=30, help="generations per MultiModality caption"
+    )
+    evaluation.add_argument(
+        "--regenerate",
+        action="store_true",
+        help="generate anew in every repeat (the full protocol; repeats x the generation time)",
+    )
+    evaluation.add_argument("--threads", type=int, default=1, help="clips generated in parallel")
     evaluation.add_argument("--json", help="also write the numbers to this file")
     evaluation.set_defaults(run=_cmd_eval)
 
     real = commands.add_parser(
-        "real-motion", help="the bundle's VQ on real human motion: pybullet's 20 DeepMimic clips "
-                            "(its wheel fetched by pip into a cache, never installed), MPJPE per "
-                            "clip split into pose and trajectory, GIFs and a contact sheet")
+        "real-motion",
+        help="the bundle's VQ on real human motion: pybullet's 20 DeepMimic clips "
+        "(its wheel fetched by pip into a cache, never installed), MPJPE per "
+        "clip split into pose and trajectory, GIFs and a contact sheet",
+    )
     real.add_argument("bundle", nargs="?", help="bundle folder (default: the shipped one)")
-    real.add_argument("--out", default="real_motion",
-                      help="folder for the GIFs, contact sheet and table (default real_motion/)")
-    real.add_argument("--cache", default=str(Path.home() / ".cache" / "mogo" / "pybullet"),
-                      help="where the pybullet wheel is kept between runs")
+    real.add_argument(
+        "--out",
+        default="real_motion",
+        help="folder for the GIFs, contact sheet and table (default real_motion/)",
+    )
+    real.add_argument(
+        "--cache",
+        default=str(Path.home() / ".cache" / "mogo" / "pybullet"),
+        help="where the pybullet wheel is kept between runs",
+    )
     real.set_defaults(run=_cmd_real_motion)

@@ -10,6 +10,7 @@ under the floor) and foot sliding in contact against short clips of the same pro
 Markdown tables on stdout and in OUT/long_streams.md, the figures in OUT/long_streams.json,
 the pass share by minute in OUT/long_streams.png.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,8 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.bench.quality.stream_checks import (FPS, REPERTOIRE, Action, WindowCheck, drift,
-                                              joint_speed, reaction_frames, window_passes)
+from mogo.bench.quality.stream_checks import (
+    FPS,
+    REPERTOIRE,
+    Action,
+    WindowCheck,
+    drift,
+    joint_speed,
+    reaction_frames,
+    window_passes,
+)
 from mogo.bench.speed.plot import log_line_chart
 from mogo.progress import Progress
 
@@ -37,12 +46,14 @@ def _worker_generator(bundle: str | None):
     global _generator
     if _generator is None:
         from mogo import MotionGenerator
+
         _generator = MotionGenerator.load(bundle, threads=1)
     return _generator
 
 
-def _stream(bundle, prompt: str, seed: int, anchoring: bool, frames: int,
-            switches: list[str] = ()) -> tuple[np.ndarray, list[int], list[float], int]:
+def _stream(
+    bundle, prompt: str, seed: int, anchoring: bool, frames: int, switches: list[str] = ()
+) -> tuple[np.ndarray, list[int], list[float], int]:
     """A stream's joints, the frames where it re-anchored, seconds per step by minute and how
     many of the re-anchors were fresh clips."""
     stream = _worker_generator(bundle).stream(prompt, seed=seed, anchoring=anchoring)
@@ -50,7 +61,8 @@ def _stream(bundle, prompt: str, seed: int, anchoring: bool, frames: int,
     down = stream.generator.down_factor
     while sum(map(len, chunks)) < frames:
         if len(stream.prompts) <= len(switches) and steps * down >= SWITCH_EVERY * len(
-                stream.prompts):  # by steps drawn: frames lag them by the decoder's lookahead
+            stream.prompts
+        ):  # by steps drawn: frames lag them by the decoder's lookahead
             stream.set_prompt(switches[len(stream.prompts) - 1])
         anchors = stream.anchor.anchors if stream.anchor else 0
         chunks.append(stream.step())
@@ -70,11 +82,18 @@ def run_action(bundle, action: Action, seed: int, mode: str, minutes: float) -> 
     short = _worker_generator(bundle).generate(action.prompt, seconds=5, seed=seed).joints
     speed = joint_speed(joints)
     seams = [f for f in seams if 1 <= f < len(speed)]
-    return dict(action=action.name, seed=seed, mode=mode,
-                passes=window_passes(WindowCheck(action, WINDOW), joints),
-                drift=drift(joints), short_slide=drift(short)["slide"],
-                seam_speed=[float(speed[f - 1]) for f in seams], fresh=fresh,
-                ordinary_p99=float(np.percentile(speed, 99)), step_seconds=times)
+    return dict(
+        action=action.name,
+        seed=seed,
+        mode=mode,
+        passes=window_passes(WindowCheck(action, WINDOW), joints),
+        drift=drift(joints),
+        short_slide=drift(short)["slide"],
+        seam_speed=[float(speed[f - 1]) for f in seams],
+        fresh=fresh,
+        ordinary_p99=float(np.percentile(speed, 99)),
+        step_seconds=times,
+    )
 
 
 def run_switches(bundle, seed: int, mode: str, switches: int) -> dict:
@@ -83,30 +102,61 @@ def run_switches(bundle, seed: int, mode: str, switches: int) -> dict:
     rng = np.random.default_rng(seed)
     order = [continuing[0]]
     while len(order) < switches + 1:
-        order.append(continuing[(continuing.index(order[-1]) + 1 + rng.integers(
-            len(continuing) - 1)) % len(continuing)])
-    joints, *_ = _stream(bundle, order[0].prompt, seed, MODES[mode],
-                         SWITCH_EVERY * len(order), [a.prompt for a in order[1:]])
+        order.append(
+            continuing[
+                (continuing.index(order[-1]) + 1 + rng.integers(len(continuing) - 1))
+                % len(continuing)
+            ]
+        )
+    joints, *_ = _stream(
+        bundle,
+        order[0].prompt,
+        seed,
+        MODES[mode],
+        SWITCH_EVERY * len(order),
+        [a.prompt for a in order[1:]],
+    )
     checks = {a.name: WindowCheck(a, REACTION_WINDOW) for a in set(order[1:])}
-    reactions = [reaction_frames(checks[a.name], joints[k * SWITCH_EVERY:(k + 1) * SWITCH_EVERY])
-                 for k, a in enumerate(order) if k]
+    reactions = [
+        reaction_frames(checks[a.name], joints[k * SWITCH_EVERY : (k + 1) * SWITCH_EVERY])
+        for k, a in enumerate(order)
+        if k
+    ]
     return dict(mode=mode, seed=seed, reactions=reactions)
 
 
-def measure(bundle: str | None, minutes: float, seeds: int, switches: int, jobs: int,
-            modes: list[str], actions: tuple[Action, ...] = REPERTOIRE) -> dict:
+def measure(
+    bundle: str | None,
+    minutes: float,
+    seeds: int,
+    switches: int,
+    jobs: int,
+    modes: list[str],
+    actions: tuple[Action, ...] = REPERTOIRE,
+) -> dict:
     with ProcessPoolExecutor(jobs) as pool:
-        streams = [pool.submit(run_action, bundle, a, s, m, minutes)
-                   for m in modes for a in actions for s in range(seeds)]
-        switching = [pool.submit(run_switches, bundle, s, m, switches)
-                     for m in modes for s in range(seeds) if switches]
+        streams = [
+            pool.submit(run_action, bundle, a, s, m, minutes)
+            for m in modes
+            for a in actions
+            for s in range(seeds)
+        ]
+        switching = [
+            pool.submit(run_switches, bundle, s, m, switches)
+            for m in modes
+            for s in range(seeds)
+            if switches
+        ]
         progress = Progress(len(streams) + len(switching), "long streams", unit="streams")
         for _ in as_completed(streams + switching):
             progress.update()
         progress.close()
-        return dict(modes=modes, lengths={m: (minutes, seeds) for m in modes},
-                    streams=[f.result() for f in streams],
-                    switches=[f.result() for f in switching])
+        return dict(
+            modes=modes,
+            lengths={m: (minutes, seeds) for m in modes},
+            streams=[f.result() for f in streams],
+            switches=[f.result() for f in switching],
+        )
 
 
 def _share(flags: list[bool]) -> str:
@@ -126,16 +176,29 @@ def action_table(result: dict) -> str:
     modes, streams = result["modes"], result["streams"]
     by_mode = {m: [r for r in streams if r["mode"] == m] for m in modes}
     names = {r["action"] for r in streams}
-    lines = ["| action | prompt | " + " | ".join(f"anchoring {m}" for m in modes) + " |",
-             "|---|---|" + "---|" * len(modes)]
+    lines = [
+        "| action | prompt | " + " | ".join(f"anchoring {m}" for m in modes) + " |",
+        "|---|---|" + "---|" * len(modes),
+    ]
     for action in (a for a in REPERTOIRE if a.name in names):
         kind = "" if action.continuing else " (one-off: hold)"
-        lines.append(f"| {action.name}{kind} | {action.prompt} | "
-                     + " | ".join(_cell(by_mode[m], action) for m in modes) + " |")
+        lines.append(
+            f"| {action.name}{kind} | {action.prompt} | "
+            + " | ".join(_cell(by_mode[m], action) for m in modes)
+            + " |"
+        )
     for title, continuing in (("all continuing", True), ("all one-off holds", False)):
-        cells = [_share([p for r in by_mode[m] for p in (r["passes"] if continuing
-                                                          else r["passes"][1:])
-                         if _action(r).continuing == continuing]) for m in modes]
+        cells = [
+            _share(
+                [
+                    p
+                    for r in by_mode[m]
+                    for p in (r["passes"] if continuing else r["passes"][1:])
+                    if _action(r).continuing == continuing
+                ]
+            )
+            for m in modes
+        ]
         lines.append(f"| **{title}** | | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -146,8 +209,10 @@ def _action(row: dict) -> Action:
 
 def figures_table(result: dict) -> str:
     """Switch reaction, seams, drift, foot sliding and step time, per mode."""
-    lines = ["| figure | " + " | ".join(f"anchoring {m}" for m in result["modes"]) + " |",
-             "|---|" + "---|" * len(result["modes"])]
+    lines = [
+        "| figure | " + " | ".join(f"anchoring {m}" for m in result["modes"]) + " |",
+        "|---|" + "---|" * len(result["modes"]),
+    ]
     rows: dict[str, list[str]] = {}
     for mode in result["modes"]:
         streams = [r for r in result["streams"] if r["mode"] == mode]
@@ -161,17 +226,17 @@ def figures_table(result: dict) -> str:
         fresh = sum(r.get("fresh", 0) for r in streams)
         for name, value in {
             **_switch_figures(seconds),
-            "seams: joint speed above the stream's 99th percentile":
-                f"{np.mean([s > p for s, p in seams]):.1%} of {len(seams)} ({fresh} fresh "
-                f"clips)" if seams else "none",
-            "pelvis height, 1st-99th percentile, lowest / highest stream (m)":
-                f"{min(x['pelvis_low'] for x in d):.2f} / {max(x['pelvis_high'] for x in d):.2f}",
+            "seams: joint speed above the stream's 99th percentile": f"{np.mean([s > p for s, p in seams]):.1%} of {len(seams)} ({fresh} fresh "
+            f"clips)"
+            if seams
+            else "none",
+            "pelvis height, 1st-99th percentile, lowest / highest stream (m)": f"{min(x['pelvis_low'] for x in d):.2f} / {max(x['pelvis_high'] for x in d):.2f}",
             "deepest foot under the floor (cm)": f"{100 * max(x['under_floor'] for x in d):.1f}",
-            "foot sliding in contact, stream / 5-s clips (cm/s)":
-                f"{100 * np.mean([x['slide'] for x in d]):.1f} / "
-                f"{100 * np.mean([r['short_slide'] for r in streams]):.1f}",
-            "ms per step, first / last minute":
-                f"{1000 * np.mean(firsts):.2f} / {1000 * np.mean(lasts):.2f}" if times else "-",
+            "foot sliding in contact, stream / 5-s clips (cm/s)": f"{100 * np.mean([x['slide'] for x in d]):.1f} / "
+            f"{100 * np.mean([r['short_slide'] for r in streams]):.1f}",
+            "ms per step, first / last minute": f"{1000 * np.mean(firsts):.2f} / {1000 * np.mean(lasts):.2f}"
+            if times
+            else "-",
         }.items():
             rows.setdefault(name, []).append(value)
     lines += [f"| {name} | " + " | ".join(values) + " |" for name, values in rows.items()]
@@ -184,13 +249,14 @@ def _switch_figures(seconds: np.ndarray) -> dict[str, str]:
         return {}
     finite = seconds[np.isfinite(seconds)]
     return {
-        "switches: new action under way within 1.5 s":
-            f"{np.mean(seconds <= PROMPT_SECONDS):.0%} of {len(seconds)}",
-        "switches: median / 90th percentile reaction (s)":
-            " / ".join(f"{np.percentile(seconds, q, method='lower'):.2f}" for q in (50, 90)),
+        "switches: new action under way within 1.5 s": f"{np.mean(seconds <= PROMPT_SECONDS):.0%} of {len(seconds)}",
+        "switches: median / 90th percentile reaction (s)": " / ".join(
+            f"{np.percentile(seconds, q, method='lower'):.2f}" for q in (50, 90)
+        ),
         "switches: never under way within 10 s": f"{np.sum(~np.isfinite(seconds))}",
-        "switches: mean reaction where it shows (s)":
-            f"{finite.mean():.2f}" if len(finite) else "-",
+        "switches: mean reaction where it shows (s)": f"{finite.mean():.2f}"
+        if len(finite)
+        else "-",
     }
 
 
@@ -202,42 +268,67 @@ def plot(result: dict, path: Path) -> None:
     series = {}
     for mode in result["modes"]:
         for title, continuing in (("continuing", True), ("one-off hold", False)):
-            rows = [r["passes"] if continuing else [None] + r["passes"][1:]
-                    for r in result["streams"]
-                    if r["mode"] == mode and _action(r).continuing == continuing]
-            minutes = [[p for ps in rows for p in ps[m:m + per_minute] if p is not None]
-                       for m in range(0, max(map(len, rows), default=0), per_minute)]
+            rows = [
+                r["passes"] if continuing else [None] + r["passes"][1:]
+                for r in result["streams"]
+                if r["mode"] == mode and _action(r).continuing == continuing
+            ]
+            minutes = [
+                [p for ps in rows for p in ps[m : m + per_minute] if p is not None]
+                for m in range(0, max(map(len, rows), default=0), per_minute)
+            ]
             if any(minutes):
                 series[f"anchoring {mode}: {title}"] = [
-                    (m + 1, 100 * float(np.mean(flags))) for m, flags in enumerate(minutes)
-                    if flags]
-    log_line_chart(path, "10-s windows doing what the prompt asks", "minute of the stream",
-                   "% of windows passing", series, log=False)
+                    (m + 1, 100 * float(np.mean(flags))) for m, flags in enumerate(minutes) if flags
+                ]
+    log_line_chart(
+        path,
+        "10-s windows doing what the prompt asks",
+        "minute of the stream",
+        "% of windows passing",
+        series,
+        log=False,
+    )
 
 
 def merged(paths: list[str]) -> dict:
     """Saved runs (long_streams.json) as one result, e.g. a run of each mode."""
     runs = [json.loads(Path(path).read_text()) for path in paths]
-    return dict(modes=[m for r in runs for m in r["modes"]],
-                lengths={m: r["lengths"][m] for r in runs for m in r["modes"]},
-                streams=[s for r in runs for s in r["streams"]],
-                switches=[s for r in runs for s in r["switches"]])
+    return dict(
+        modes=[m for r in runs for m in r["modes"]],
+        lengths={m: r["lengths"][m] for r in runs for m in r["modes"]},
+        streams=[s for r in runs for s in r["streams"]],
+        switches=[s for r in runs for s in r["switches"]],
+    )
 
 
 def report(result: dict) -> str:
-    runs = "; ".join(f"anchoring {m}: {minutes:.3g}-minute streams, {seeds} seed(s) per action"
-                     for m, (minutes, seeds) in result["lengths"].items())
-    return (f"{runs}; switches every {SWITCH_EVERY // FPS} s between continuing actions\n\n"
-            f"{action_table(result)}\n\n{figures_table(result)}\n")
+    runs = "; ".join(
+        f"anchoring {m}: {minutes:.3g}-minute streams, {seeds} seed(s) per action"
+        for m, (minutes, seeds) in result["lengths"].items()
+    )
+    return (
+        f"{runs}; switches every {SWITCH_EVERY // FPS} s between continuing actions\n\n"
+        f"{action_table(result)}\n\n{figures_table(result)}\n"
+    )
 
 
 def main(args: argparse.Namespace) -> None:
-    minutes, seeds, switches = ((1 / 3, 1, 1) if args.quick else
-                                (args.minutes, args.seeds, args.switches))
-    actions = (tuple(a for a in REPERTOIRE if a.name in args.actions) if args.actions else
-               tuple(REPERTOIRE[k] for k in (0, -5)) if args.quick else REPERTOIRE)
-    result = (merged(args.tables_from) if args.tables_from else
-              measure(args.bundle, minutes, seeds, switches, args.jobs, args.modes, actions))
+    minutes, seeds, switches = (
+        (1 / 3, 1, 1) if args.quick else (args.minutes, args.seeds, args.switches)
+    )
+    actions = (
+        tuple(a for a in REPERTOIRE if a.name in args.actions)
+        if args.actions
+        else tuple(REPERTOIRE[k] for k in (0, -5))
+        if args.quick
+        else REPERTOIRE
+    )
+    result = (
+        merged(args.tables_from)
+        if args.tables_from
+        else measure(args.bundle, minutes, seeds, switches, args.jobs, args.modes, actions)
+    )
     text = report(result)
     print(text)
     out = Path(args.out)

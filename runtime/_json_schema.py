@@ -2,6 +2,7 @@
 JSON into a dataclass type (fields typed int, float, str, bool, X | None, tuple[...], dict[str,
 ...] and nested dataclasses), refusing unknown keys, missing keys, wrong types and non-finite
 numbers with a KeyProblem that names the key path; `write` is its inverse."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -12,13 +13,20 @@ import typing
 
 class KeyProblem(Exception):
     """What is wrong at `path`, a key path like t2m.levels[2].file."""
+
     def __init__(self, path: str, what: str):
         super().__init__(f"{path}: {what}")
         self.path, self.what = path, what
 
 
-_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
-          dict: "an object", list: "a list"}
+_NAMES = {
+    int: "an integer",
+    float: "a number",
+    str: "a string",
+    bool: "true or false",
+    dict: "an object",
+    list: "a list",
+}
 
 
 def read(kind, value, path: str):
@@ -35,10 +43,14 @@ def read(kind, value, path: str):
         if Ellipsis not in args and len(items) != len(args):
             raise KeyProblem(path, f"{len(items)} items, expected {len(args)}")
         item_kinds = [args[0]] * len(items) if Ellipsis in args else args
-        return tuple(read(k, v, f"{path}[{i}]") for i, (k, v) in enumerate(zip(item_kinds, items)))
+        return tuple(
+            read(k, v, f"{path}[{i}]")
+            for i, (k, v) in enumerate(zip(item_kinds, items, strict=True))
+        )
     if typing.get_origin(kind) is dict:
-        return {key: read(args[1], v, f"{path}.{key}")
-                for key, v in _expect(value, dict, path).items()}
+        return {
+            key: read(args[1], v, f"{path}.{key}") for key, v in _expect(value, dict, path).items()
+        }
     if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         if not math.isfinite(min(abs(value), math.inf)):  # NaN, Infinity (JSON allows them)
             raise KeyProblem(path, f"expected a finite number, got {value!r}")
@@ -74,8 +86,11 @@ def _join(path: str, key: str) -> str:
 def write(value):
     """A schema object as plain JSON values; a None field with a None default is left out."""
     if dataclasses.is_dataclass(value):
-        return {f.name: write(getattr(value, f.name)) for f in dataclasses.fields(value)
-                if not (getattr(value, f.name) is None and f.default is None)}
+        return {
+            f.name: write(getattr(value, f.name))
+            for f in dataclasses.fields(value)
+            if not (getattr(value, f.name) is None and f.default is None)
+        }
     if isinstance(value, (tuple, list)):
         return [write(v) for v in value]
     if isinstance(value, dict):

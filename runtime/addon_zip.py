@@ -6,6 +6,7 @@ The zip carries this runtime as a wheel, which the add-on's Install hands to pip
 this project, never PyPI's unrelated `mogo`, and needs no source tree. The wheel is written
 from the installed package's own files (pip's wheel build needs the source tree and a build
 backend, which an installed runtime does not have)."""
+
 from __future__ import annotations
 
 import base64
@@ -33,11 +34,14 @@ def addon_bytes() -> bytes:
     fixed date."""
     sources = sorted(SOURCE.glob("*.py"))
     if not sources:
-        raise FileNotFoundError(errno.ENOENT, "the Blender add-on is missing from this install",
-                                str(SOURCE))
+        raise FileNotFoundError(
+            errno.ENOENT, "the Blender add-on is missing from this install", str(SOURCE)
+        )
     wheel_name, wheel = runtime_wheel()
-    return _zip([(f"{FOLDER}/{path.name}", path.read_bytes()) for path in sources]
-                + [(f"{FOLDER}/{wheel_name}", wheel)])
+    return _zip(
+        [(f"{FOLDER}/{path.name}", path.read_bytes()) for path in sources]
+        + [(f"{FOLDER}/{wheel_name}", wheel)]
+    )
 
 
 def runtime_wheel() -> tuple[str, bytes]:
@@ -45,16 +49,26 @@ def runtime_wheel() -> tuple[str, bytes]:
     and the base install's requirements, so that pip installs it anywhere."""
     release = version(DISTRIBUTION)
     stem = f"{DISTRIBUTION.replace('-', '_')}-{release}"
-    entries = [(f"mogo/{path.relative_to(PACKAGE).as_posix()}", path.read_bytes())
-               for path in sorted(PACKAGE.rglob("*"))
-               if path.is_file() and path.suffix != ".pyc"
-               and not NOT_RUNTIME & set(path.relative_to(PACKAGE).parts)]
+    entries = [
+        (f"mogo/{path.relative_to(PACKAGE).as_posix()}", path.read_bytes())
+        for path in sorted(PACKAGE.rglob("*"))
+        if path.is_file()
+        and path.suffix != ".pyc"
+        and not NOT_RUNTIME & set(path.relative_to(PACKAGE).parts)
+    ]
     base = [line for line in requires(DISTRIBUTION) or [] if "extra ==" not in line]
-    metadata = "".join([f"Metadata-Version: 2.1\nName: {DISTRIBUTION}\nVersion: {release}\n"]
-                       + [f"Requires-Dist: {line}\n" for line in base])
-    entries += [(f"{stem}.dist-info/METADATA", metadata.encode()),
-                (f"{stem}.dist-info/WHEEL", b"Wheel-Version: 1.0\nGenerator: mogo blender-addon"
-                                            b"\nRoot-Is-Purelib: true\nTag: py3-none-any\n")]
+    metadata = "".join(
+        [f"Metadata-Version: 2.1\nName: {DISTRIBUTION}\nVersion: {release}\n"]
+        + [f"Requires-Dist: {line}\n" for line in base]
+    )
+    entries += [
+        (f"{stem}.dist-info/METADATA", metadata.encode()),
+        (
+            f"{stem}.dist-info/WHEEL",
+            b"Wheel-Version: 1.0\nGenerator: mogo blender-addon"
+            b"\nRoot-Is-Purelib: true\nTag: py3-none-any\n",
+        ),
+    ]
     record = "".join(f"{name},sha256={_digest(data)},{len(data)}\n" for name, data in entries)
     entries.append((f"{stem}.dist-info/RECORD", f"{record}{stem}.dist-info/RECORD,,\n".encode()))
     return f"{stem}-py3-none-any.whl", _zip(entries)
@@ -70,8 +84,9 @@ def _zip(entries: list[tuple[str, bytes]]) -> bytes:
         for name, data in entries:
             entry = zipfile.ZipInfo(name, _EPOCH)
             entry.external_attr = 0o644 << 16
-            entry.compress_type = zipfile.ZIP_STORED if name.endswith(".whl") else \
-                zipfile.ZIP_DEFLATED  # a wheel is deflated already
+            entry.compress_type = (
+                zipfile.ZIP_STORED if name.endswith(".whl") else zipfile.ZIP_DEFLATED
+            )  # a wheel is deflated already
             archive.writestr(entry, data)
     return buffer.getvalue()
 
@@ -85,5 +100,6 @@ def write_addon(path: str | os.PathLike, overwrite: bool = False) -> Path:
         raise FileExistsError(errno.EEXIST, "exists (--overwrite replaces it)", str(path))
     files.check_replaceable([path])
     data = addon_bytes()
-    return files.write_all([lambda temporary: temporary.write_bytes(data)], iter([[path]]),
-                           replace=overwrite)[0]
+    return files.write_all(
+        [lambda temporary: temporary.write_bytes(data)], iter([[path]]), replace=overwrite
+    )[0]

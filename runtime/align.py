@@ -12,6 +12,7 @@ the steps it was trained on, played one after another by prompt switching:
 The rules need nothing but the standard library; `vocabulary` (the words of the bundle's
 training captions) lets them replace and report words the model never saw.
 """
+
 from __future__ import annotations
 
 import re
@@ -20,9 +21,21 @@ from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 from mogo.align_wordnet import WORDNET_VERBS
-from mogo.align_words import (CAUSATIVES, FILLERS, HEDGES, LEFT_ALONE, NOUNS, NUMBERS, SECONDS,
-                              SEQUENCE, SUBJECTS, VERBS, WORD_SYNONYMS, caption_phrases,
-                              spoken_number)
+from mogo.align_words import (
+    CAUSATIVES,
+    FILLERS,
+    HEDGES,
+    LEFT_ALONE,
+    NOUNS,
+    NUMBERS,
+    SECONDS,
+    SEQUENCE,
+    SUBJECTS,
+    VERBS,
+    WORD_SYNONYMS,
+    caption_phrases,
+    spoken_number,
+)
 from mogo.motion.skeleton import MAX_SECONDS
 
 MIN_STEP_SECONDS = 1.0
@@ -51,8 +64,10 @@ class Alignment:
     def scaled(self, seconds: float) -> Alignment:
         """The same steps stretched or shrunk proportionally to last `seconds` in all."""
         factor = seconds / self.seconds
-        return replace(self, steps=tuple(AlignedStep(s.prompt, round(s.seconds * factor, 3))
-                                         for s in self.steps))
+        return replace(
+            self,
+            steps=tuple(AlignedStep(s.prompt, round(s.seconds * factor, 3)) for s in self.steps),
+        )
 
     def describe(self) -> str:
         """One line: 'steps (rules): 3.3 s "a person walks forward." | ...'."""
@@ -60,8 +75,11 @@ class Alignment:
         return f"steps ({self.source}): {steps}"
 
     def as_dict(self) -> dict:
-        return dict(source=self.source, note=self.note,
-                    steps=[dict(prompt=s.prompt, seconds=s.seconds) for s in self.steps])
+        return dict(
+            source=self.source,
+            note=self.note,
+            steps=[dict(prompt=s.prompt, seconds=s.seconds) for s in self.steps],
+        )
 
 
 class PromptAligner:
@@ -71,12 +89,41 @@ class PromptAligner:
         raise NotImplementedError
 
 
-_DOUBLED = {"jog", "run", "squat", "sit", "clap", "spin", "hop", "step", "sidestep", "jab",
-            "put", "get", "trot", "swivel", "skip", "begin", "hit"}
+_DOUBLED = {
+    "jog",
+    "run",
+    "squat",
+    "sit",
+    "clap",
+    "spin",
+    "hop",
+    "step",
+    "sidestep",
+    "jab",
+    "put",
+    "get",
+    "trot",
+    "swivel",
+    "skip",
+    "begin",
+    "hit",
+}
 _AFTER_FIRST = re.compile(r"^after (.+?),\s*(.+)$")
 _AFTER_LAST = re.compile(r"^(.+?)\s+after\s+(.+)$")
-_LETTER_FIXES = str.maketrans({"ß": "ss", "æ": "ae", "œ": "oe", "ø": "o", "ł": "l", "đ": "d",
-                               "’": "'", "‘": "'", "–": "-", "—": "-"})
+_LETTER_FIXES = str.maketrans(
+    {
+        "ß": "ss",
+        "æ": "ae",
+        "œ": "oe",
+        "ø": "o",
+        "ł": "l",
+        "đ": "d",
+        "’": "'",
+        "‘": "'",
+        "–": "-",
+        "—": "-",
+    }
+)
 
 
 def conjugate(verb: str, form: str) -> str:
@@ -98,8 +145,12 @@ def conjugate(verb: str, form: str) -> str:
 _SUBJECT_WORDS = {w for phrase in SUBJECTS + FILLERS for w in phrase.split()}
 _JACKS = (["jumping", "jack"], ["jumping", "jacks"])
 _SPOKEN = {spoken_number(n): n for n in range(1000)}  # the numbers the captions spell
-_PRIMITIVE_OF = {verb: primitive for table in (WORDNET_VERBS, VERBS)  # the hand-written win
-                 for primitive, verbs in table.items() for verb in verbs}
+_PRIMITIVE_OF = {
+    verb: primitive
+    for table in (WORDNET_VERBS, VERBS)  # the hand-written win
+    for primitive, verbs in table.items()
+    for verb in verbs
+}
 _BASE_OF = {conjugate(verb, form): verb for verb in _PRIMITIVE_OF for form in ("s", "ing")}
 _BASE_OF.update({verb: verb for verb in _PRIMITIVE_OF})
 
@@ -136,14 +187,19 @@ class RuleAligner(PromptAligner):
     synonyms replace only words outside it, and words still outside it are reported. None:
     no word is replaced or reported (typos are still fixed onto the rules' own words)."""
 
-    def __init__(self, vocabulary: Iterable[str] | None = None,
-                 max_step_seconds: float = MAX_SECONDS):
+    def __init__(
+        self, vocabulary: Iterable[str] | None = None, max_step_seconds: float = MAX_SECONDS
+    ):
         self.vocabulary = None if vocabulary is None else frozenset(vocabulary)
         self.max_step_seconds = max_step_seconds
         phrases = SUBJECTS + FILLERS + CAUSATIVES + NUMBERS + LEFT_ALONE + tuple(NOUNS)
-        self.known = frozenset({w for phrase in phrases for w in phrase.split()} | set(_BASE_OF)
-                               | set(WORD_SYNONYMS) | set(WORD_SYNONYMS.values())
-                               | (self.vocabulary or set()))
+        self.known = frozenset(
+            {w for phrase in phrases for w in phrase.split()}
+            | set(_BASE_OF)
+            | set(WORD_SYNONYMS)
+            | set(WORD_SYNONYMS.values())
+            | (self.vocabulary or set())
+        )
         self._spellings = sorted(w for w in self.known if len(w) >= 3 and w.isalpha())
 
     def align(self, text: str) -> Alignment:
@@ -151,8 +207,10 @@ class RuleAligner(PromptAligner):
             raise ValueError(f"a prompt must be text, got {type(text).__name__}")
         words = plain_words(text)
         if not any(w.isalpha() for w in words):
-            raise ValueError(f"no usable words in the prompt {text!r} (after dropping "
-                             "accents, other scripts and punctuation nothing is left)")
+            raise ValueError(
+                f"no usable words in the prompt {text!r} (after dropping "
+                "accents, other scripts and punctuation nothing is left)"
+            )
         steps, unknown, ignored = [], [], []
         for clause in self._clauses(text):
             step = self._step(clause, unknown)
@@ -161,12 +219,14 @@ class RuleAligner(PromptAligner):
             else:
                 steps.append(step)
         if not steps:
-            raise ValueError(f"no motion in the prompt {text!r}: no verb or action the rules "
-                             "know")
+            raise ValueError(f"no motion in the prompt {text!r}: no verb or action the rules know")
         notes = []
         if unknown:
-            notes.append("the model does not know " + ", ".join(dict.fromkeys(unknown)) +
-                         " (kept as written)")
+            notes.append(
+                "the model does not know "
+                + ", ".join(dict.fromkeys(unknown))
+                + " (kept as written)"
+            )
         if ignored:
             notes.append("ignored " + ", ".join(f"'{words}'" for words in ignored))
         return Alignment(tuple(steps), "rules", "; ".join(notes) or None)
@@ -188,7 +248,7 @@ class RuleAligner(PromptAligner):
         return [c for c in clauses if c]
 
     def _after(self, part: str) -> list[str]:
-        """"after X, Y" and "Y after X" -> X, Y ("after that" was cut before)."""
+        """ "after X, Y" and "Y after X" -> X, Y ("after that" was cut before)."""
         part = part.strip(" ,")
         first = _AFTER_FIRST.match(part) or _AFTER_LAST.match(part)
         if first is None:
@@ -223,7 +283,7 @@ class RuleAligner(PromptAligner):
         gerund = words[0].endswith("ing") and words[0] in _BASE_OF
         phrase = []
         for k, word in enumerate(words):
-            base = None if words[k:k + 2] in _JACKS else _BASE_OF.get(word)
+            base = None if words[k : k + 2] in _JACKS else _BASE_OF.get(word)
             after_and = k > 0 and words[k - 1] == "and" and (gerund or word == base)
             if base is not None and (k == 0 or after_and):
                 word = self._verb(base)
@@ -248,8 +308,11 @@ class RuleAligner(PromptAligner):
                 if words[:n] == phrase.split() and len(words) > n:
                     words = words[n:]
                     break
-            if len(words) > 2 and words[0] in CAUSATIVES and any(
-                    words[1:1 + len(s.split())] == s.split() for s in SUBJECTS):
+            if (
+                len(words) > 2
+                and words[0] in CAUSATIVES
+                and any(words[1 : 1 + len(s.split())] == s.split() for s in SUBJECTS)
+            ):
                 words = words[1:]
         return [] if " ".join(words) in FILLERS + SUBJECTS else words
 
@@ -270,8 +333,9 @@ class RuleAligner(PromptAligner):
         if first in _BASE_OF or words[:2] in _JACKS:
             return True
         nouns = [w for w in words[:3] if w in NOUNS]
-        return bool(nouns) and (first in ("a", "an") or first in NUMBERS or first.isdigit()
-                                or first in NOUNS)
+        return bool(nouns) and (
+            first in ("a", "an") or first in NUMBERS or first.isdigit() or first in NOUNS
+        )
 
     def _verb(self, base: str) -> str:
         """The 3rd person form, replaced by its primitive's main verb when the bundle does
@@ -314,8 +378,14 @@ class RuleAligner(PromptAligner):
 def primitive_of(words: list[str]) -> str | None:
     """The primitive plain words ask for: their first action verb's, else an action noun's
     ("does three squats"); None when they name none."""
-    primitive = next((_PRIMITIVE_OF[_BASE_OF[w]] for w in words if w in _BASE_OF
-                      and _PRIMITIVE_OF[_BASE_OF[w]] is not None), None)
+    primitive = next(
+        (
+            _PRIMITIVE_OF[_BASE_OF[w]]
+            for w in words
+            if w in _BASE_OF and _PRIMITIVE_OF[_BASE_OF[w]] is not None
+        ),
+        None,
+    )
     if "jumping" in words and ("jacks" in words or "jack" in words):
         primitive = "jumping_jacks"
     return primitive or next((NOUNS[w] for w in words if w in NOUNS), None)
@@ -329,12 +399,15 @@ def _count(word: str) -> int | None:
 
 
 def _repetitions(phrase: list[str]) -> int:
-    """"three times", "twice", "4 squats" -> the count; 1 when none is said."""
+    """ "three times", "twice", "4 squats" -> the count; 1 when none is said."""
     for k, word in enumerate(phrase):
         if word == "twice":
             return 2
-        if _count(word) and (k + 1 < len(phrase)) and (phrase[k + 1] in ("times", "time")
-                                                       or phrase[k + 1] in NOUNS):
+        if (
+            _count(word)
+            and (k + 1 < len(phrase))
+            and (phrase[k + 1] in ("times", "time") or phrase[k + 1] in NOUNS)
+        ):
             return _count(word)
     return 1
 
@@ -345,7 +418,7 @@ def _spoken_numbers(phrase: list[str]) -> list[str]:
     spoken, k = [], 0
     while k < len(phrase):
         word, count = phrase[k], _count(phrase[k])
-        if count in (1, 2) and phrase[k + 1:k + 2] in (["times"], ["time"]):
+        if count in (1, 2) and phrase[k + 1 : k + 2] in (["times"], ["time"]):
             spoken.append("once" if count == 1 else "twice")
             k += 1
         elif word.isdigit():

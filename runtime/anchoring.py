@@ -23,6 +23,7 @@ Only which tokens are drawn changes: the decoder sees one continuous token strea
 frames still equal an offline decode of the tokens, and the cache never holds more than
 `span` steps.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -55,6 +56,7 @@ class Anchoring:
     9.8 s, where the model has not ended it itself); the prompt of the hold. The span is
     longer than the clips of short actions (a spin's turn: 2 s), so that the model ends them
     itself before."""
+
     span: int = 80
     keep: int = 10
     switch_keep: int = 1
@@ -64,20 +66,26 @@ class Anchoring:
 
     def __post_init__(self):
         if not 1 <= self.keep < self.span:
-            raise ValueError(f"anchoring needs 1 <= keep < span, got keep={self.keep}, "
-                             f"span={self.span}")
+            raise ValueError(
+                f"anchoring needs 1 <= keep < span, got keep={self.keep}, span={self.span}"
+            )
         for name in ("switch_keep", "still_keep"):
             if not 1 <= getattr(self, name) <= self.keep:
-                raise ValueError(f"anchoring needs 1 <= {name} <= keep, got "
-                                 f"{name}={getattr(self, name)}, keep={self.keep}")
+                raise ValueError(
+                    f"anchoring needs 1 <= {name} <= keep, got "
+                    f"{name}={getattr(self, name)}, keep={self.keep}"
+                )
 
 
 def settles(text: str) -> bool:
     """Whether a prompt asks for something that ends, after which the stream holds: a one-off
     action (ONE_OFF), a count ("waves three times", "four steps") or a sequence ("then")."""
     words = plain_words(text)
-    return bool(_COUNTS.intersection(words)) or any(w.isdigit() for w in words) \
+    return (
+        bool(_COUNTS.intersection(words))
+        or any(w.isdigit() for w in words)
         or primitive_of(words) in ONE_OFF
+    )
 
 
 class Anchor:
@@ -85,8 +93,13 @@ class Anchor:
     model may end its clip (TokenStream.allow_end; not while standing still): the stream
     then goes on with a fresh clip, of the prompt or, after a one-off, of the hold."""
 
-    def __init__(self, anchoring: Anchoring, tokens: TokenStream,
-                 embed: Callable[[str], np.ndarray], text: str):
+    def __init__(
+        self,
+        anchoring: Anchoring,
+        tokens: TokenStream,
+        embed: Callable[[str], np.ndarray],
+        text: str,
+    ):
         self.anchoring, self._tokens, self._embed = anchoring, tokens, embed
         self.recent = np.zeros((0, tokens.generator.num_levels), np.int64)
         self.anchors = 0  # re-anchors and fresh clips so far
@@ -106,7 +119,7 @@ class Anchor:
         """The stream goes on from these steps (MotionStream.continue_from): as at a switch,
         a fresh clip from the last `switch_keep` (kept whole, the end of a walk made the model
         end a jump asked for next at once, and stand)."""
-        self.recent = np.asarray(tokens, np.int64)[-self.anchoring.keep:]
+        self.recent = np.asarray(tokens, np.int64)[-self.anchoring.keep :]
         self._reanchor(self.anchoring.switch_keep)
 
     def step(self) -> np.ndarray:
@@ -122,7 +135,7 @@ class Anchor:
             else:
                 self._restart()
             row = self._tokens.step()
-        self.recent = np.concatenate([self.recent, row[None]])[-self.anchoring.keep:]
+        self.recent = np.concatenate([self.recent, row[None]])[-self.anchoring.keep :]
         if self.one_off:
             if self._tokens.steps >= self.anchoring.max_one_off:
                 self._hold()
@@ -150,5 +163,5 @@ class Anchor:
         self.fresh += 1
 
     def _reanchor(self, keep: int | None = None) -> None:
-        self._tokens.continue_from(self.recent[-(keep or self.anchoring.keep):])
+        self._tokens.continue_from(self.recent[-(keep or self.anchoring.keep) :])
         self.anchors += 1

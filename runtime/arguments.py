@@ -1,6 +1,7 @@
 """The public API's argument checks, in one place: a wrong type is a TypeError and a wrong
 value a ValueError, each naming the argument, raised where it enters the API rather than from
 deep inside numpy or onnxruntime. (Sampling options check themselves: mogo.sampling.)"""
+
 from __future__ import annotations
 
 import itertools
@@ -65,13 +66,17 @@ def checked_prompt(text: object, name: str = "text") -> str:
     try:  # JSON's "\ud800" or a Latin-1 terminal's bytes: a lone surrogate is no text
         text.encode("utf-8")
     except UnicodeEncodeError as error:
-        raise ValueError(f"{name} is not valid Unicode: a lone surrogate "
-                         f"{text[error.start]!r} at character {error.start}") from None
-    cleaned = " ".join("".join(" " if c.isspace() else c for c in text
-                               if c.isspace() or not _invisible(c)).split())
+        raise ValueError(
+            f"{name} is not valid Unicode: a lone surrogate "
+            f"{text[error.start]!r} at character {error.start}"
+        ) from None
+    cleaned = " ".join(
+        "".join(" " if c.isspace() else c for c in text if c.isspace() or not _invisible(c)).split()
+    )
     if not cleaned:
-        raise ValueError("the prompt is empty" + (" (only invisible characters)" if text.strip()
-                                                  else ""))
+        raise ValueError(
+            "the prompt is empty" + (" (only invisible characters)" if text.strip() else "")
+        )
     return cleaned
 
 
@@ -85,13 +90,22 @@ def shown(text: object, keep: str = "") -> str:
     """`text` (a path, a message) for a terminal: control and invisible characters but those
     in `keep` written as escapes (\\n, \\x1b, \\u202e), lone surrogates too, so that what
     the user reads is what it is, on the lines it says."""
-    return "".join(c.encode("unicode_escape", "backslashreplace").decode("ascii")
-                   if c not in keep and (_invisible(c) or unicodedata.category(c) == "Cs")
-                   else c for c in str(text))
+    return "".join(
+        c.encode("unicode_escape", "backslashreplace").decode("ascii")
+        if c not in keep and (_invisible(c) or unicodedata.category(c) == "Cs")
+        else c
+        for c in str(text)
+    )
 
 
-def read_prompt(text: object, tokenizer: Tokenizer, max_length: int,
-                vocabulary_size: int | None, name: str = "text", stacklevel: int = 2) -> str:
+def read_prompt(
+    text: object,
+    tokenizer: Tokenizer,
+    max_length: int,
+    vocabulary_size: int | None,
+    name: str = "text",
+    stacklevel: int = 2,
+) -> str:
     """A prompt checked: text and not empty; a prompt with no word the model knows, words it
     does not know and tokens past the text encoder's `max_length` (counted by the untruncated
     `tokenizer`) are told by a PromptWarning, for the line `stacklevel` frames up from here
@@ -105,11 +119,14 @@ def read_prompt(text: object, tokenizer: Tokenizer, max_length: int,
     if vocabulary_size is not None:
         _tell_unknown_words(spoken, encoding, vocabulary_size, stacklevel + 1)
     if len(encoding.ids) > max_length:
-        read = spoken[:encoding.offsets[max_length - 1][1]].split()[-5:]  # its last words
-        warnings.warn(f"the prompt is {len(encoding.ids)} tokens long and the model reads only "
-                      f"{max_length}: everything after {short(' '.join(read))} is ignored "
-                      "(play the parts one after another instead)", PromptWarning,
-                      stacklevel=stacklevel)
+        read = spoken[: encoding.offsets[max_length - 1][1]].split()[-5:]  # its last words
+        warnings.warn(
+            f"the prompt is {len(encoding.ids)} tokens long and the model reads only "
+            f"{max_length}: everything after {short(' '.join(read))} is ignored "
+            "(play the parts one after another instead)",
+            PromptWarning,
+            stacklevel=stacklevel,
+        )
     return text
 
 
@@ -125,8 +142,9 @@ def word_reading(text: str, encoding) -> tuple[bool, list[str]]:
         token = encoding.tokens[indices[0]]
         if len(indices) == 1 and token not in SPECIAL_TOKENS:
             known = known or any(c.isalpha() for c in token)
-        elif spelled := text[encoding.offsets[indices[0]][0]:
-                             encoding.offsets[indices[-1]][1]].strip(string.punctuation):
+        elif spelled := text[
+            encoding.offsets[indices[0]][0] : encoding.offsets[indices[-1]][1]
+        ].strip(string.punctuation):
             unknown.append(spelled)
     return known, list(dict.fromkeys(unknown))
 
@@ -135,16 +153,23 @@ def _tell_unknown_words(text: str, encoding, vocabulary_size: int, stacklevel: i
     """A trained-with-the-model encoder's words: none known, or some unknown (see read_prompt)."""
     known, unknown = word_reading(text, encoding)
     if not known:
-        warnings.warn(f"the model knows no word of the prompt {short(text)}, so its motion "
-                      f"would be a generic one: it knows the {vocabulary_size} words of its "
-                      "training captions, such as 'a person walks forward' (align=True, or "
-                      "--align rules, maps some other words onto them)", UnknownPromptWarning,
-                      stacklevel=stacklevel)
+        warnings.warn(
+            f"the model knows no word of the prompt {short(text)}, so its motion "
+            f"would be a generic one: it knows the {vocabulary_size} words of its "
+            "training captions, such as 'a person walks forward' (align=True, or "
+            "--align rules, maps some other words onto them)",
+            UnknownPromptWarning,
+            stacklevel=stacklevel,
+        )
     elif unknown:
-        listed = ", ".join(map(repr, unknown[:8])) + (f" and {len(unknown) - 8} more"
-                                                      if len(unknown) > 8 else "")
-        warnings.warn(f"the model does not know {listed}: their meaning is lost",
-                      PromptWarning, stacklevel=stacklevel)
+        listed = ", ".join(map(repr, unknown[:8])) + (
+            f" and {len(unknown) - 8} more" if len(unknown) > 8 else ""
+        )
+        warnings.warn(
+            f"the model does not know {listed}: their meaning is lost",
+            PromptWarning,
+            stacklevel=stacklevel,
+        )
 
 
 def checked_seconds(seconds: object, minimum: float, fps: float, maximum: float) -> float:
@@ -154,13 +179,17 @@ def checked_seconds(seconds: object, minimum: float, fps: float, maximum: float)
     if not seconds > 0:
         raise ValueError(f"seconds must be a positive number, got {number_text(seconds)}")
     if seconds > maximum:
-        raise ValueError(f"seconds must be at most {maximum:.0f} in one call, got "
-                         f"{number_text(seconds)}; "
-                         "use a stream for longer motion")
+        raise ValueError(
+            f"seconds must be at most {maximum:.0f} in one call, got "
+            f"{number_text(seconds)}; "
+            "use a stream for longer motion"
+        )
     if float(seconds) < minimum:
-        raise ValueError(f"seconds must be at least {minimum:g} (one token step, "
-                         f"{plural(round(minimum * fps), 'frame')} at {fps:g} fps), got "
-                         f"{float(seconds):g}")
+        raise ValueError(
+            f"seconds must be at least {minimum:g} (one token step, "
+            f"{plural(round(minimum * fps), 'frame')} at {fps:g} fps), got "
+            f"{float(seconds):g}"
+        )
     return float(seconds)
 
 
@@ -177,8 +206,9 @@ def checked_int(value: object, name: str, minimum: int, maximum: int | None = No
 
 def checked_bool(value: object, name: str) -> bool:
     """A True/False argument (numpy's bool too); 0, 1 or "no" are not taken for one."""
-    if isinstance(value, bool) or (getattr(value, "shape", None) == ()
-                                   and getattr(value, "dtype", None) == bool):
+    if isinstance(value, bool) or (
+        getattr(value, "shape", None) == () and getattr(value, "dtype", None) == "bool"
+    ):
         return bool(value)
     raise TypeError(f"{name} must be True or False, got {type(value).__name__}")
 
@@ -187,18 +217,23 @@ def checked_schedule(schedule: object) -> list:
     """A schedule's shape: a non-empty list of at most MAX_SCHEDULE_ENTRIES (prompt, seconds)
     pairs (their values are the generator's to check)."""
     if isinstance(schedule, (str, bytes)) or not isinstance(schedule, Iterable):
-        raise TypeError(f"schedule must be a list of (prompt, seconds) pairs, got "
-                        f"{type(schedule).__name__}")
+        raise TypeError(
+            f"schedule must be a list of (prompt, seconds) pairs, got {type(schedule).__name__}"
+        )
     entries = list(itertools.islice(schedule, MAX_SCHEDULE_ENTRIES + 1))
     if not entries:
         raise ValueError("the schedule is empty")
     if len(entries) > MAX_SCHEDULE_ENTRIES:
-        raise ScheduleError(MAX_SCHEDULE_ENTRIES, f"more than {MAX_SCHEDULE_ENTRIES} prompts in "
-                            "one schedule; use a stream (MotionStream) for more")
+        raise ScheduleError(
+            MAX_SCHEDULE_ENTRIES,
+            f"more than {MAX_SCHEDULE_ENTRIES} prompts in "
+            "one schedule; use a stream (MotionStream) for more",
+        )
     for k, entry in enumerate(entries):
         if isinstance(entry, (str, bytes)) or not isinstance(entry, Sequence) or len(entry) != 2:
-            raise TypeError(f"schedule[{k}] must be a (prompt, seconds) pair, got "
-                            f"{reprlib.repr(entry)}")
+            raise TypeError(
+                f"schedule[{k}] must be a (prompt, seconds) pair, got {reprlib.repr(entry)}"
+            )
     return entries
 
 
@@ -213,7 +248,7 @@ def number_text(value: object) -> str:
 
 def short(text: str, limit: int = 60) -> str:
     """Quoted on one line, cut to about `limit` characters, for messages."""
-    return repr(text if len(text) <= limit else text[:limit - 3] + "...")
+    return repr(text if len(text) <= limit else text[: limit - 3] + "...")
 
 
 def plural(count: int, noun: str) -> str:

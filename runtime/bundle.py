@@ -7,6 +7,7 @@ sha256, and must match, before any session is created. Everything the runtime kn
 model (sizes, graph names, fps, skeleton, decoder context) comes from the manifest (its schema:
 mogo.manifest), never from code.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -16,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.motion import untrusted
 from mogo._session import graph_session
 from mogo.manifest import MANIFEST, BundleError, FileEntry, Manifest, io_types
+from mogo.motion import untrusted
 
 
 @dataclass(frozen=True)
@@ -33,8 +34,14 @@ class Bundle:
         root = Path(root)
         if not root.is_dir():
             hint = f"; give its folder, {root.parent}" if root.name == MANIFEST else ""
-            raise BundleError(f"{root}: " + (f"a file, not a bundle folder{hint}"
-                                             if root.exists() else "no such bundle folder"))
+            raise BundleError(
+                f"{root}: "
+                + (
+                    f"a file, not a bundle folder{hint}"
+                    if root.exists()
+                    else "no such bundle folder"
+                )
+            )
         if not os.access(root, os.R_OK | os.X_OK):
             raise BundleError(f"{root}: no permission to read this bundle folder")
         manifest = read_manifest(root)
@@ -43,8 +50,9 @@ class Bundle:
         mean, std = read_array(root / norm.mean), read_array(root / norm.std)
         for name, array in ((norm.mean, mean), (norm.std, std)):
             if array.shape != (manifest.feature_dim,):
-                raise BundleError(f"{root / name}: shape {array.shape}, expected "
-                                  f"({manifest.feature_dim},)")
+                raise BundleError(
+                    f"{root / name}: shape {array.shape}, expected ({manifest.feature_dim},)"
+                )
         if np.any(std <= 0):
             raise BundleError(f"{root / norm.std}: has values <= 0")
         return cls(root, manifest, mean, std)
@@ -66,12 +74,16 @@ def read_manifest(root: Path) -> Manifest:
     path = root / MANIFEST
     if not path.is_file():
         if root.is_dir() and not any(root.iterdir()):
-            raise BundleError(f"{root}: an empty folder; a bundle folder holds a {MANIFEST} "
-                              "and the files it lists")
+            raise BundleError(
+                f"{root}: an empty folder; a bundle folder holds a {MANIFEST} "
+                "and the files it lists"
+            )
         raise BundleError(f"{path}: missing; a bundle folder holds a {MANIFEST}")
     if path.is_symlink():  # what vouches for every other file must itself be in the folder
-        raise BundleError(f"{path}: a symbolic link (to {os.path.realpath(path)}); the "
-                          "manifest must be a file of the bundle folder")
+        raise BundleError(
+            f"{path}: a symbolic link (to {os.path.realpath(path)}); the "
+            "manifest must be a file of the bundle folder"
+        )
     try:
         data = untrusted.read_json(path, "manifest")
     except ValueError as error:
@@ -82,8 +94,11 @@ def read_manifest(root: Path) -> Manifest:
 def write_manifest(root: Path, manifest: Manifest) -> Manifest:
     """The manifest with the size and sha256 of every file in `root`, written as its
     manifest.json (what `mogo export` does last); returns it."""
-    files = {p.name: FileEntry(bytes=p.stat().st_size, sha256=file_sha256(p))
-             for p in sorted(Path(root).iterdir()) if p.is_file() and p.name != MANIFEST}
+    files = {
+        p.name: FileEntry(bytes=p.stat().st_size, sha256=file_sha256(p))
+        for p in sorted(Path(root).iterdir())
+        if p.is_file() and p.name != MANIFEST
+    }
     manifest = replace(manifest, files=files)
     (Path(root) / MANIFEST).write_text(manifest.dumps())
     return manifest
@@ -101,14 +116,17 @@ def verify_files(root: Path, manifest: Manifest) -> None:
     for name, entry in sorted(files.items()):
         path, target = root / name, Path(os.path.realpath(root / name))
         if not target.is_relative_to(inside):  # a symbolic link on the way out
-            raise BundleError(f"{root / MANIFEST}: file name {name!r} leaves the bundle folder "
-                              f"(a symbolic link to {target})")
+            raise BundleError(
+                f"{root / MANIFEST}: file name {name!r} leaves the bundle folder "
+                f"(a symbolic link to {target})"
+            )
         if not path.is_file():
             raise BundleError(f"{path}: missing from the bundle")
         size = path.stat().st_size
         if size != entry.bytes:
-            raise BundleError(f"{path}: {size} bytes, the manifest says {entry.bytes} "
-                              "(truncated or replaced)")
+            raise BundleError(
+                f"{path}: {size} bytes, the manifest says {entry.bytes} (truncated or replaced)"
+            )
         if file_sha256(path) != entry.sha256:
             raise BundleError(f"{path}: sha256 does not match the manifest (corrupted or altered)")
 

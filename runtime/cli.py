@@ -1,6 +1,7 @@
 """The `mogo` command. The runtime's verbs (generate, stream, info) are here and import no
 torch; the verbs of mogo.export and mogo.bench (data, train, export, bench, eval) add
 themselves through the "mogo.commands" entry points, so this module never imports them."""
+
 from __future__ import annotations
 
 import argparse
@@ -20,8 +21,15 @@ from dataclasses import fields
 from importlib.metadata import PackageNotFoundError, entry_points, version
 from pathlib import Path
 
-from mogo.arguments import (MAX_SCHEDULE_ENTRIES, PromptWarning, ScheduleError,
-                            UnfamiliarPromptWarning, UnknownPromptWarning, plural, shown)
+from mogo.arguments import (
+    MAX_SCHEDULE_ENTRIES,
+    PromptWarning,
+    ScheduleError,
+    UnfamiliarPromptWarning,
+    UnknownPromptWarning,
+    plural,
+    shown,
+)
 from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
@@ -76,14 +84,18 @@ def _read_schedule(path: Path) -> tuple[list[tuple[str, float]], list[int]]:
     except OSError as error:
         raise CliError(f"cannot read the prompts file {path}: {error.strerror}") from None
     if len(data) > PROMPTS_FILE_BYTES:
-        raise CliError(f"{path}: larger than {PROMPTS_FILE_BYTES // 1024} KiB; a prompts file "
-                       f"holds at most {MAX_SCHEDULE_ENTRIES} lines 'SECONDS PROMPT'")
+        raise CliError(
+            f"{path}: larger than {PROMPTS_FILE_BYTES // 1024} KiB; a prompts file "
+            f"holds at most {MAX_SCHEDULE_ENTRIES} lines 'SECONDS PROMPT'"
+        )
     try:
         lines = data.decode("utf-8-sig").splitlines()
     except UnicodeDecodeError as error:
-        line = data[:error.start].count(b"\n") + 1
-        raise CliError(f"{path}:{line}: not UTF-8 text (byte 0x{data[error.start]:02x}); save "
-                       "the prompts file as UTF-8") from None
+        line = data[: error.start].count(b"\n") + 1
+        raise CliError(
+            f"{path}:{line}: not UTF-8 text (byte 0x{data[error.start]:02x}); save "
+            "the prompts file as UTF-8"
+        ) from None
     schedule, numbers = [], []
     for number, line in enumerate(lines, 1):
         if not line.strip() or line.lstrip().startswith("#"):
@@ -92,11 +104,13 @@ def _read_schedule(path: Path) -> tuple[list[tuple[str, float]], list[int]]:
         try:
             length = float(seconds)
         except ValueError:
-            raise CliError(f"{path}:{number}: expected 'SECONDS PROMPT', got {line.strip()!r}"
-                           ) from None
+            raise CliError(
+                f"{path}:{number}: expected 'SECONDS PROMPT', got {line.strip()!r}"
+            ) from None
         if not math.isfinite(length) or length <= 0:
-            raise CliError(f"{path}:{number}: the seconds must be a positive number, got "
-                           f"{seconds!r}")
+            raise CliError(
+                f"{path}:{number}: the seconds must be a positive number, got {seconds!r}"
+            )
         if not prompt.strip():
             raise CliError(f"{path}:{number}: no prompt after the seconds")
         schedule.append((prompt.strip(), length))
@@ -150,10 +164,11 @@ def _cmd_generate(args: argparse.Namespace) -> None:
             raise CliError("--align rewrites one prompt; a --prompts-file is played as written")
         schedule, lines = _read_schedule(Path(args.prompts_file))
     elif args.text is None:
-        raise CliError("give a prompt, e.g. mogo generate \"a person walks forward\"")
+        raise CliError('give a prompt, e.g. mogo generate "a person walks forward"')
     formats = _formats(args)
-    folder = check_take(args.out, args.name, args.overwrite, what="--name",
-                        formats=formats)  # before the work
+    folder = check_take(
+        args.out, args.name, args.overwrite, what="--name", formats=formats
+    )  # before the work
     seconds = sum(s for _, s in schedule) if args.prompts_file else args.seconds
     long = seconds is not None and seconds >= LONG_TAKE_SECONDS
     generator = _load_generator(args)
@@ -161,15 +176,26 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     sampling = _sampling(args, generator)
     if args.prompts_file:
         try:
-            motion = generator.play(schedule, seed=args.seed, sampling=sampling,
-                                    plant_feet=args.plant_feet, progress=long)
+            motion = generator.play(
+                schedule,
+                seed=args.seed,
+                sampling=sampling,
+                plant_feet=args.plant_feet,
+                progress=long,
+            )
         except ScheduleError as error:  # named by the file's line
             where = "" if error.index is None else f":{lines[error.index]}"
             raise CliError(f"{args.prompts_file}{where}: {error.problem}") from None
     else:
-        motion = generator.generate(args.text, seconds=args.seconds, seed=args.seed,
-                                    sampling=sampling, align=_aligner(args, generator),
-                                    plant_feet=args.plant_feet, progress=long)
+        motion = generator.generate(
+            args.text,
+            seconds=args.seconds,
+            seed=args.seed,
+            sampling=sampling,
+            align=_aligner(args, generator),
+            plant_feet=args.plant_feet,
+            progress=long,
+        )
     if motion.alignment is not None:
         print(shown(motion.alignment.describe(), keep="\n"))
         if motion.alignment.note:
@@ -178,20 +204,32 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         _note_played(generator, args)
     name = args.name or _file_stem(motion.caption)
     if long:
-        print(f"writing: {', '.join(formats)} ({plural(len(motion.joints), 'frame')})",
-              file=sys.stderr, flush=True)
-    written = motion.save_take(folder, name, overwrite=args.overwrite,
-                               bone_translations=args.bvh_bone_translations,
-                               scale=bvh.UNITS[args.bvh_units], naming=args.bvh_names,
-                               formats=formats)
+        print(
+            f"writing: {', '.join(formats)} ({plural(len(motion.joints), 'frame')})",
+            file=sys.stderr,
+            flush=True,
+        )
+    written = motion.save_take(
+        folder,
+        name,
+        overwrite=args.overwrite,
+        bone_translations=args.bvh_bone_translations,
+        scale=bvh.UNITS[args.bvh_units],
+        naming=args.bvh_names,
+        formats=formats,
+    )
     frames = plural(len(motion.joints), "frame")
     try:  # the take is written: a stdout that fails (a closed pipe, a full disk) is no error
-        print(f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
-              f"for: {shown(motion.caption)}")
+        print(
+            f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
+            f"for: {shown(motion.caption)}"
+        )
         taken = written[0].name.removesuffix(written[0].suffix)
         if taken != name:
-            print(f"note: {shown(folder / name)}.* is an earlier take, kept; this one is "
-                  f"{taken} (--overwrite replaces)")
+            print(
+                f"note: {shown(folder / name)}.* is an earlier take, kept; this one is "
+                f"{taken} (--overwrite replaces)"
+            )
         for path in written:
             print(f"wrote {shown(path)}")
         sys.stdout.flush()
@@ -199,16 +237,18 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         if error.filename != _Stdout.NAME:
             raise
         _silence_stdout()
-        print(f"note: cannot write to standard output ({error.strerror}); the take was "
-              f"written: {', '.join(shown(path) for path in written)}", file=sys.stderr)
+        print(
+            f"note: cannot write to standard output ({error.strerror}); the take was "
+            f"written: {', '.join(shown(path) for path in written)}",
+            file=sys.stderr,
+        )
 
 
 def _note_played(generator, args: argparse.Namespace) -> None:
     """A `note:` line on stderr naming the known caption a prompt in other words is played as
     (mogo.repertoire.Familiarity.played_note)."""
     if (known := generator.known(args.text)) is not None and known.played_note:
-        print(f"note: {shown(known.played_note)}{_align_hint(args, far=False)}",
-              file=sys.stderr)
+        print(f"note: {shown(known.played_note)}{_align_hint(args, far=False)}", file=sys.stderr)
 
 
 def _align_hint(args: argparse.Namespace, far: bool) -> str:
@@ -228,16 +268,26 @@ def _cmd_stream(args: argparse.Namespace) -> None:
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be at least 1, got {args.frames}")
     generator = _load_generator(args)
-    stream = generator.stream(args.text, seed=args.seed, sampling=_sampling(args, generator),
-                              plant_feet=args.plant_feet, low_latency=args.low_latency)
+    stream = generator.stream(
+        args.text,
+        seed=args.seed,
+        sampling=_sampling(args, generator),
+        plant_feet=args.plant_feet,
+        low_latency=args.low_latency,
+    )
     if args.seed is None:  # drawn at random: said, so that the stream can be had again
-        print(f"note: seed {stream.seed} (random; --seed {stream.seed} streams this motion "
-              "again)", file=sys.stderr)
+        print(
+            f"note: seed {stream.seed} (random; --seed {stream.seed} streams this motion again)",
+            file=sys.stderr,
+        )
     _note_played(generator, args)
     try:
         for index, frame in enumerate(stream.frames(args.frames)):
-            record = dict(frame=index, seconds=round(index / generator.fps, 4),
-                          joints=[[round(float(v), 5) for v in joint] for joint in frame])
+            record = dict(
+                frame=index,
+                seconds=round(index / generator.fps, 4),
+                joints=[[round(float(v), 5) for v in joint] for joint in frame],
+            )
             sys.stdout.write(json.dumps(record, separators=(",", ":")) + "\n")
             sys.stdout.flush()
     except BrokenPipeError:  # the reading program stopped: a normal way to end a stream
@@ -247,8 +297,10 @@ def _cmd_stream(args: argparse.Namespace) -> None:
 def _cmd_blender_addon(args: argparse.Namespace) -> None:
     from mogo.addon_zip import write_addon
 
-    print(f"wrote {shown(write_addon(args.out, overwrite=args.overwrite))} (Blender: Edit > "
-          "Preferences > Add-ons > Install, then enable 'MOGO motion'; docs/blender.md)")
+    print(
+        f"wrote {shown(write_addon(args.out, overwrite=args.overwrite))} (Blender: Edit > "
+        "Preferences > Add-ons > Install, then enable 'MOGO motion'; docs/blender.md)"
+    )
 
 
 def _cmd_info(args: argparse.Namespace) -> None:
@@ -272,37 +324,59 @@ def _cmd_info(args: argparse.Namespace) -> None:
         f"vq          {vq.levels} levels of {vq.codebook_size} codes, "
         f"{plural(vq.down_factor, 'frame')} per token, decoder context "
         f"{decoder.left_context} back / {decoder.lookahead} ahead (tokens)",
-        *([] if vq.low_latency_decoder is None else [
-            f"            low-latency decoder: context {vq.low_latency_decoder.left_context} "
-            f"back / {vq.low_latency_decoder.lookahead} ahead (tokens)"]),
+        *(
+            []
+            if vq.low_latency_decoder is None
+            else [
+                f"            low-latency decoder: context {vq.low_latency_decoder.left_context} "
+                f"back / {vq.low_latency_decoder.lookahead} ahead (tokens)"
+            ]
+        ),
         "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),
     ]
     if text.pretrained is not None:
-        lines.append(f"encoder     {text.pretrained.name} ({text.pretrained.license}), int8 "
-                     f"graph vs fp32 reference: cosine >= {text.pretrained.reference_min_cosine}"
-                     + ("; prompts in the training words: the encoder trained with the model"
-                        if text.trained else ""))
+        lines.append(
+            f"encoder     {text.pretrained.name} ({text.pretrained.license}), int8 "
+            f"graph vs fp32 reference: cosine >= {text.pretrained.reference_min_cosine}"
+            + (
+                "; prompts in the training words: the encoder trained with the model"
+                if text.trained
+                else ""
+            )
+        )
     if text.repertoire is not None:
         r = text.repertoire
-        lines.append(f"repertoire  similarity threshold {r.threshold:.2f}: accepts "
-                     f"{r.held_out_accepted:.0%} of held-out captions, refuses "
-                     f"{r.outside_refused:.0%} of outside prompts"
-                     + ("; prompts in other words are played as the caption nearest their "
-                        "adapted embedding that says the same steps, sides and counts"
-                        if r.prompts else ""))
+        lines.append(
+            f"repertoire  similarity threshold {r.threshold:.2f}: accepts "
+            f"{r.held_out_accepted:.0%} of held-out captions, refuses "
+            f"{r.outside_refused:.0%} of outside prompts"
+            + (
+                "; prompts in other words are played as the caption nearest their "
+                "adapted embedding that says the same steps, sides and counts"
+                if r.prompts
+                else ""
+            )
+        )
     if m.int8 is not None:
         lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
     for part, run in m.training.items():
         recipe = run.recipe or {}  # the trainer's own record: read as it is, where present
-        tuned = (f", {'the decoder' if recipe.get('tune') == 'decoder' else 'all weights'} "
-                 f"fine-tuned from {_built_path(recipe['init'])}" if recipe.get("init")
-                 else "")
-        lines.append(f"trained     {part}: {run.step} steps, batch "
-                     f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
-                     f"seed {recipe.get('seed')}{tuned}")
-    lines.append(f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
-                 f"{bundle.open_graphs()} graphs open with the manifest's names and types; "
-                 "tokenizers and repertoire read")
+        tuned = (
+            f", {'the decoder' if recipe.get('tune') == 'decoder' else 'all weights'} "
+            f"fine-tuned from {_built_path(recipe['init'])}"
+            if recipe.get("init")
+            else ""
+        )
+        lines.append(
+            f"trained     {part}: {run.step} steps, batch "
+            f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
+            f"seed {recipe.get('seed')}{tuned}"
+        )
+    lines.append(
+        f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
+        f"{bundle.open_graphs()} graphs open with the manifest's names and types; "
+        "tokenizers and repertoire read"
+    )
     width = max(map(len, m.files))
     lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
     print(shown("\n".join(lines), keep="\n"))  # a bundle's own text may hold escapes
@@ -320,6 +394,7 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
     encoder's length, far from the model's repertoire) as a `note:` line on stderr, stdout
     staying the output; a prompt with no known word refused, since its motion would be a
     generic one, and with --strict one far from the repertoire too."""
+
     @functools.wraps(command)
     def run(args: argparse.Namespace) -> None:
         with warnings.catch_warnings():
@@ -328,11 +403,11 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
 
             def note(message, category, *where, **options):
                 if issubclass(category, UnknownPromptWarning) or (
-                        args.strict and issubclass(category, UnfamiliarPromptWarning)):
+                    args.strict and issubclass(category, UnfamiliarPromptWarning)
+                ):
                     raise CliError(str(message))
                 if issubclass(category, UnfamiliarPromptWarning):
-                    print(f"note: {shown(message)}{_align_hint(args, far=True)}",
-                          file=sys.stderr)
+                    print(f"note: {shown(message)}{_align_hint(args, far=True)}", file=sys.stderr)
                 elif issubclass(category, PromptWarning):
                     print(f"note: {shown(message)}", file=sys.stderr)
                 else:
@@ -340,6 +415,7 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
 
             warnings.showwarning = note
             command(args)
+
     return run
 
 
@@ -347,82 +423,132 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
     """--bundle, --seed, a flag per field of Sampling (--top-k for top_k), --threads and
     --no-plant-feet."""
     command.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    command.add_argument("--seed", type=int, help="same seed, same motion (default: random, "
-                                                  "printed)")
+    command.add_argument(
+        "--seed", type=int, help="same seed, same motion (default: random, printed)"
+    )
     for option in fields(Sampling):
-        command.add_argument("--" + option.name.replace("_", "-"), type=type(option.default),
-                             help=f"{option.metadata['help']} (default: the bundle's)")
-    command.add_argument("--strict", action="store_true",
-                         help="refuse a prompt far from what the model was trained on (bundles "
-                              "with a repertoire; `mogo info` shows its threshold)")
-    command.add_argument("--threads", type=int,
-                         help="cores to use; the same motion for any count (default: 2 where "
-                              "there are 2 or more, the fastest measured)")
-    command.add_argument("--plant-feet", action=argparse.BooleanOptionalAction, default=True,
-                         help="hold each foot still while the motion's contacts say it is "
-                              "planted, the legs re-solved by IK (default: on; --no-plant-feet "
-                              "keeps the joints as decoded)")
+        command.add_argument(
+            "--" + option.name.replace("_", "-"),
+            type=type(option.default),
+            help=f"{option.metadata['help']} (default: the bundle's)",
+        )
+    command.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse a prompt far from what the model was trained on (bundles "
+        "with a repertoire; `mogo info` shows its threshold)",
+    )
+    command.add_argument(
+        "--threads",
+        type=int,
+        help="cores to use; the same motion for any count (default: 2 where "
+        "there are 2 or more, the fastest measured)",
+    )
+    command.add_argument(
+        "--plant-feet",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="hold each foot still while the motion's contacts say it is "
+        "planted, the legs re-solved by IK (default: on; --no-plant-feet "
+        "keeps the joints as decoded)",
+    )
 
 
 def _add_runtime_commands(commands) -> None:
     from mogo.clip import ANIMATIONS, FORMATS, TAKE
     from mogo.motion import bvh  # their option lists
+
     generate = commands.add_parser(
-        "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)")
+        "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)"
+    )
     generate.add_argument("text", nargs="?", help="what the person does")
-    generate.add_argument("--seconds", type=float,
-                          help="length (default: the model ends the motion itself)")
-    generate.add_argument("--prompts-file", help="a schedule instead of one prompt: lines "
-                                                 "'SECONDS PROMPT', played as one motion")
+    generate.add_argument(
+        "--seconds", type=float, help="length (default: the model ends the motion itself)"
+    )
+    generate.add_argument(
+        "--prompts-file",
+        help="a schedule instead of one prompt: lines 'SECONDS PROMPT', played as one motion",
+    )
     generate.add_argument("--out", default="out", help="output folder (default out/)")
-    generate.add_argument("--name", help="file name without extension (default: from the "
-                                         "prompt)")
-    generate.add_argument("--overwrite", action="store_true",
-                          help="replace an earlier take of the same name (default: keep it, and "
-                               "name this one NAME-2, NAME-3, ...: the first free)")
-    generate.add_argument("--bvh-bone-translations", action="store_true",
-                          help="position channels on every BVH joint: the joints back exactly, "
-                               "bone stretch included (default: a rigid skeleton, rotations only)")
-    generate.add_argument("--format", choices=list(ANIMATIONS),
-                          help="the animation file: a .bvh skeleton, or a .glb skinned mannequin "
-                               "(three.js, Blender, engines play it as it is) (default bvh)")
-    generate.add_argument("--formats", metavar="LIST",
-                          help=f"the files to write, comma-separated, of {', '.join(FORMATS)} "
-                               f"(default {','.join(TAKE)}; e.g. bvh,npy: a long take without "
-                               "its large GIF and JSON)")
-    generate.add_argument("--bvh-names", choices=list(bvh.NAMINGS), default="mixamo",
-                          help="BVH (and GLB) joint names: each named for the bone it moves, "
-                               "Mixamo/Unity style (Hips, LeftUpLeg, LeftArm, ...), or the SMPL "
-                               "joint names (default mixamo)")
-    generate.add_argument("--bvh-units", choices=list(bvh.UNITS), default="m",
-                          help="BVH length unit (default m)")
-    generate.add_argument("--align", choices=["rules", "llm"],
-                          help="rewrite the prompt into caption-style steps played as one "
-                               "motion: built-in rules, or an LLM server (falls back to the "
-                               "rules; API key from MOGO_LLM_API_KEY)")
-    generate.add_argument("--llm-url", help="OpenAI-compatible server base URL, e.g. "
-                                            "http://localhost:8080/v1 (default: MOGO_LLM_URL)")
-    generate.add_argument("--llm-model", help="model name on that server (default: "
-                                              "MOGO_LLM_MODEL)")
-    generate.add_argument("--llm-timeout", type=float, default=10.0,
-                          help="seconds to wait for the LLM before using the rules (default 10)")
+    generate.add_argument("--name", help="file name without extension (default: from the prompt)")
+    generate.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an earlier take of the same name (default: keep it, and "
+        "name this one NAME-2, NAME-3, ...: the first free)",
+    )
+    generate.add_argument(
+        "--bvh-bone-translations",
+        action="store_true",
+        help="position channels on every BVH joint: the joints back exactly, "
+        "bone stretch included (default: a rigid skeleton, rotations only)",
+    )
+    generate.add_argument(
+        "--format",
+        choices=list(ANIMATIONS),
+        help="the animation file: a .bvh skeleton, or a .glb skinned mannequin "
+        "(three.js, Blender, engines play it as it is) (default bvh)",
+    )
+    generate.add_argument(
+        "--formats",
+        metavar="LIST",
+        help=f"the files to write, comma-separated, of {', '.join(FORMATS)} "
+        f"(default {','.join(TAKE)}; e.g. bvh,npy: a long take without "
+        "its large GIF and JSON)",
+    )
+    generate.add_argument(
+        "--bvh-names",
+        choices=list(bvh.NAMINGS),
+        default="mixamo",
+        help="BVH (and GLB) joint names: each named for the bone it moves, "
+        "Mixamo/Unity style (Hips, LeftUpLeg, LeftArm, ...), or the SMPL "
+        "joint names (default mixamo)",
+    )
+    generate.add_argument(
+        "--bvh-units", choices=list(bvh.UNITS), default="m", help="BVH length unit (default m)"
+    )
+    generate.add_argument(
+        "--align",
+        choices=["rules", "llm"],
+        help="rewrite the prompt into caption-style steps played as one "
+        "motion: built-in rules, or an LLM server (falls back to the "
+        "rules; API key from MOGO_LLM_API_KEY)",
+    )
+    generate.add_argument(
+        "--llm-url",
+        help="OpenAI-compatible server base URL, e.g. "
+        "http://localhost:8080/v1 (default: MOGO_LLM_URL)",
+    )
+    generate.add_argument("--llm-model", help="model name on that server (default: MOGO_LLM_MODEL)")
+    generate.add_argument(
+        "--llm-timeout",
+        type=float,
+        default=10.0,
+        help="seconds to wait for the LLM before using the rules (default 10)",
+    )
     _generation_arguments(generate)
     generate.set_defaults(run=_noting_prompts(_cmd_generate))
 
     stream = commands.add_parser(
-        "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)")
+        "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)"
+    )
     stream.add_argument("text", help="what the person does")
     stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
-    stream.add_argument("--low-latency", action="store_true",
-                        help="the bundle's low-latency decoder: frames a few tokens after theirs, "
-                             "not 31 (a little less exact; bundles that ship one)")
+    stream.add_argument(
+        "--low-latency",
+        action="store_true",
+        help="the bundle's low-latency decoder: frames a few tokens after theirs, "
+        "not 31 (a little less exact; bundles that ship one)",
+    )
     _generation_arguments(stream)
     stream.set_defaults(run=_noting_prompts(_cmd_stream))
 
-    addon = commands.add_parser("blender-addon", help="write the Blender add-on as the zip "
-                                                      "Blender installs")
-    addon.add_argument("--out", default="mogo_blender.zip",
-                       help="the zip to write (default mogo_blender.zip)")
+    addon = commands.add_parser(
+        "blender-addon", help="write the Blender add-on as the zip Blender installs"
+    )
+    addon.add_argument(
+        "--out", default="mogo_blender.zip", help="the zip to write (default mogo_blender.zip)"
+    )
     addon.add_argument("--overwrite", action="store_true", help="replace an existing file")
     addon.set_defaults(run=_cmd_blender_addon)
 
@@ -448,7 +574,8 @@ def _version() -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
-        prog="mogo", description="MOGO: text to 3D human motion, token by token, on a CPU.")
+        prog="mogo", description="MOGO: text to 3D human motion, token by token, on a CPU."
+    )
     parser.add_argument("--version", action="version", version=f"mogo {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_runtime_commands(commands)
@@ -498,6 +625,7 @@ def _exit_on_termination():
     """SIGTERM and SIGHUP as an exit (status 128 + the signal) that runs every cleanup on the
     way out, as Ctrl-C does: temporaries and half-built folders removed (mogo.files holds all
     three signals while a set of files is renamed into place)."""
+
     def leave(number: int, _frame) -> None:
         raise SystemExit(128 + number)
 

@@ -1,5 +1,6 @@
 """A generated motion and the files it can be written as (npy, BVH, GIF, JSON), each one whole
 (see mogo.files), and the four of them as one take."""
+
 from __future__ import annotations
 
 import json
@@ -39,8 +40,7 @@ class Motion:
     alignment: Alignment | None = None  # the steps prompt alignment made of the user's text
 
     @classmethod
-    def from_file(cls, path: str | os.PathLike, mapping: str | os.PathLike | None = None
-                  ) -> Motion:
+    def from_file(cls, path: str | os.PathLike, mapping: str | os.PathLike | None = None) -> Motion:
         """A motion-capture file as a Motion at 20 fps on the 22-joint skeleton, e.g. to go on
         from with MotionStream.continue_from: a BVH (any rig with SMPL, Mixamo or CMU joint
         names; unit and up axis detected) or a DeepMimic motion (see mogo.motion.mocap).
@@ -56,8 +56,14 @@ class Motion:
             features, canonical = joints_to_features(joints, SMPL_22)
         except ValueError as error:
             raise ValueError(f"{path}: {error}") from None
-        return cls(features, canonical, SMPL_22.fps,
-                   np.zeros((0, 0), np.int64), SMPL_22, [(0, Path(path).name)])
+        return cls(
+            features,
+            canonical,
+            SMPL_22.fps,
+            np.zeros((0, 0), np.int64),
+            SMPL_22,
+            [(0, Path(path).name)],
+        )
 
     @property
     def seconds(self) -> float:
@@ -77,14 +83,23 @@ class Motion:
         added as by save_npy)."""
         return _save(_npy_path(path), partial(_write_array, self.features))
 
-    def save_bvh(self, path: str | os.PathLike, scale: float = 1.0,
-                 bone_translations: bool = False, naming: str = "mixamo") -> Path:
+    def save_bvh(
+        self,
+        path: str | os.PathLike,
+        scale: float = 1.0,
+        bone_translations: bool = False,
+        naming: str = "mixamo",
+    ) -> Path:
         """A BVH of the bundle's rigid T-pose character with per-joint rotations, in metres
         (scale=100 for centimetres), joints named as in mogo.motion.bvh.NAMINGS;
         bone_translations=True adds per-joint position channels, so the file gives these
         joints back exactly despite the bone-length jitter of generated motion."""
-        return _save(Path(path), partial(self._write_bvh, scale=scale,
-                                         bone_translations=bone_translations, naming=naming))
+        return _save(
+            Path(path),
+            partial(
+                self._write_bvh, scale=scale, bone_translations=bone_translations, naming=naming
+            ),
+        )
 
     def save_glb(self, path: str | os.PathLike, naming: str = "mixamo") -> Path:
         """A GLB (binary glTF): a mannequin skinned to the BVH's rigid character, animated by
@@ -100,9 +115,16 @@ class Motion:
         the aligned steps, when prompt alignment made them). Strict JSON: no NaN."""
         return _save(Path(path), self._write_json)
 
-    def save_take(self, folder: str | os.PathLike, name: str, overwrite: bool = False,
-                  bone_translations: bool = False, scale: float = 1.0,
-                  naming: str = "mixamo", formats: Sequence[str] = TAKE) -> list[Path]:
+    def save_take(
+        self,
+        folder: str | os.PathLike,
+        name: str,
+        overwrite: bool = False,
+        bone_translations: bool = False,
+        scale: float = 1.0,
+        naming: str = "mixamo",
+        formats: Sequence[str] = TAKE,
+    ) -> list[Path]:
         """The files of this motion as one take, written all or none: by default the .bvh,
         .gif, .npy and .json; `formats` names others (any of FORMATS, e.g. ("glb", "npy"): a
         long take need not write a GIF). An earlier take named `name` is kept (this one is
@@ -113,19 +135,31 @@ class Motion:
         bvh.check_options(scale, bone_translations, naming)  # before any file is written
         folder = check_take(folder, name, overwrite, formats=formats)
         writers = dict(
-            bvh=partial(self._write_bvh, scale=scale, bone_translations=bone_translations,
-                        naming=naming),
-            glb=partial(self._write_glb, naming=naming), gif=self._write_gif,
-            npy=partial(_write_array, self.joints), json=self._write_json)
-        names = ([[folder / (name + suffix) for suffix in suffixes]] if overwrite
-                 else files.numbered(folder, name, suffixes))
-        return files.write_all([writers[suffix[1:]] for suffix in suffixes], names,
-                               replace=overwrite)
+            bvh=partial(
+                self._write_bvh, scale=scale, bone_translations=bone_translations, naming=naming
+            ),
+            glb=partial(self._write_glb, naming=naming),
+            gif=self._write_gif,
+            npy=partial(_write_array, self.joints),
+            json=self._write_json,
+        )
+        names = (
+            [[folder / (name + suffix) for suffix in suffixes]]
+            if overwrite
+            else files.numbered(folder, name, suffixes)
+        )
+        return files.write_all(
+            [writers[suffix[1:]] for suffix in suffixes], names, replace=overwrite
+        )
 
-    def _write_bvh(self, path: Path, scale: float = 1.0, bone_translations: bool = False,
-                   naming: str = "mixamo") -> None:
-        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations,
-                     naming)
+    def _write_bvh(
+        self,
+        path: Path,
+        scale: float = 1.0,
+        bone_translations: bool = False,
+        naming: str = "mixamo",
+    ) -> None:
+        bvh.save_bvh(path, self.joints, self.skeleton, self.fps, scale, bone_translations, naming)
 
     def _write_glb(self, path: Path, naming: str = "mixamo") -> None:
         glb.save_glb(path, self.joints, self.skeleton, self.fps, bvh.joint_names(naming))
@@ -139,12 +173,14 @@ class Motion:
         if not math.isfinite(self.fps) or self.fps <= 0:
             raise ValueError(f"fps must be a positive number, got {self.fps}")
         document = dict(
-            fps=float(self.fps), skeleton=self.skeleton.name,
+            fps=float(self.fps),
+            skeleton=self.skeleton.name,
             joint_names=list(self.skeleton.joint_names),
             parents=[int(p) for p in self.skeleton.parents],
             prompts=[dict(frame=int(frame), text=text) for frame, text in self.prompts],
             seed=None if self.seed is None else int(self.seed),
-            frames=np.round(self.joints, 5).tolist())
+            frames=np.round(self.joints, 5).tolist(),
+        )
         if self.alignment is not None:
             document["alignment"] = self.alignment.as_dict()
         with open(path, "w", encoding="utf-8") as file:
@@ -163,8 +199,13 @@ def take_suffixes(formats: Sequence[str] = TAKE) -> tuple[str, ...]:
     return tuple(f".{f}" for f in FORMATS if f in formats)
 
 
-def check_take(folder: str | os.PathLike, name: str | None, overwrite: bool = False,
-               what: str = "name", formats: Sequence[str] = TAKE) -> Path:
+def check_take(
+    folder: str | os.PathLike,
+    name: str | None,
+    overwrite: bool = False,
+    what: str = "name",
+    formats: Sequence[str] = TAKE,
+) -> Path:
     """The checks save_take makes, for a caller to make before the work of generating: the
     formats are known, the folder takes files, the name is a plain file name, nothing but
     files is to be replaced. `what` names the name in messages (e.g. "--name")."""

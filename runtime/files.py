@@ -7,6 +7,7 @@ never a symbolic link, a device, a FIFO or a socket (docs/security.md, "Files").
 
 A writer is a function that writes one file's content to the path it is given (a temporary
 name, so it must not go by the name's suffix)."""
+
 from __future__ import annotations
 
 import contextlib
@@ -17,8 +18,8 @@ import secrets
 import signal
 import stat
 import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Sequence
 
 try:
     import fcntl
@@ -27,8 +28,9 @@ except ImportError:  # Windows: no folder lock (its renames never replace an ope
 
 Writer = Callable[[Path], None]
 NUMBERING_ROOM = len("-999")  # the bytes a name keeps free for numbered takes
-HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")
-                     if hasattr(signal, name))  # delivered after the renames, not inside
+HELD_SIGNALS = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)  # delivered after the renames, not inside
 
 
 def check_folder(folder: str | os.PathLike) -> Path:
@@ -38,8 +40,11 @@ def check_folder(folder: str | os.PathLike) -> Path:
     existing = _nearest_existing(folder)
     made = "" if existing == folder else f" (so {folder} cannot be made in it)"
     if os.path.islink(existing) and not existing.exists():
-        raise FileNotFoundError(errno.ENOENT, "a symbolic link that leads nowhere (a loop or a "
-                                f"missing target){made}", str(existing))
+        raise FileNotFoundError(
+            errno.ENOENT,
+            f"a symbolic link that leads nowhere (a loop or a missing target){made}",
+            str(existing),
+        )
     if not existing.is_dir():
         raise NotADirectoryError(errno.ENOTDIR, f"not a folder{made}", str(existing))
     if not os.access(existing, os.W_OK | os.X_OK):
@@ -47,8 +52,9 @@ def check_folder(folder: str | os.PathLike) -> Path:
     longest = _name_max(existing)
     for part in folder.relative_to(existing).parts if existing != folder else ():
         if len(os.fsencode(part)) > longest:
-            raise OSError(errno.ENAMETOOLONG, f"a folder name longer than {longest} bytes",
-                          str(folder))
+            raise OSError(
+                errno.ENAMETOOLONG, f"a folder name longer than {longest} bytes", str(folder)
+            )
     return folder
 
 
@@ -58,11 +64,15 @@ def check_name(name: str, folder: Path, suffixes: Sequence[str], what: str = "na
     if not isinstance(name, str):
         raise TypeError(f"{what} must be a string, got {type(name).__name__}")
     if name in ("", ".", "..") or any(c in name for c in {"/", os.sep, os.altsep or "/", "\0"}):
-        raise ValueError(f"{what} must be a file name, without a folder: not empty, '.', '..' "
-                         f"nor with '/' in it, got {name!r}")
+        raise ValueError(
+            f"{what} must be a file name, without a folder: not empty, '.', '..' "
+            f"nor with '/' in it, got {name!r}"
+        )
     if not name.isprintable():  # controls, bidi overrides, zero-width, lone surrogates
-        raise ValueError(f"{what} must be a file name without control, invisible or "
-                         f"bidirectional characters (they hide what a name says), got {name!r}")
+        raise ValueError(
+            f"{what} must be a file name without control, invisible or "
+            f"bidirectional characters (they hide what a name says), got {name!r}"
+        )
     room = _name_max(folder) - max(len(s) for s in suffixes) - NUMBERING_ROOM
     size = len(os.fsencode(name))
     if size > room:
@@ -79,16 +89,23 @@ def check_replaceable(paths: Iterable[Path]) -> None:
         except FileNotFoundError:
             continue
         if stat.S_ISDIR(mode):
-            raise IsADirectoryError(errno.EISDIR, "a folder is in the way of this file",
-                                    str(path))
+            raise IsADirectoryError(errno.EISDIR, "a folder is in the way of this file", str(path))
         if not stat.S_ISREG(mode):
-            raise FileExistsError(errno.EEXIST, f"{_KINDS.get(stat.S_IFMT(mode), 'not a file')} "
-                                  "is in the way of this file; only regular files are replaced",
-                                  str(path))
+            raise FileExistsError(
+                errno.EEXIST,
+                f"{_KINDS.get(stat.S_IFMT(mode), 'not a file')} "
+                "is in the way of this file; only regular files are replaced",
+                str(path),
+            )
 
 
-_KINDS = {stat.S_IFLNK: "a symbolic link", stat.S_IFCHR: "a device", stat.S_IFBLK: "a device",
-          stat.S_IFIFO: "a FIFO", stat.S_IFSOCK: "a socket"}
+_KINDS = {
+    stat.S_IFLNK: "a symbolic link",
+    stat.S_IFCHR: "a device",
+    stat.S_IFBLK: "a device",
+    stat.S_IFIFO: "a FIFO",
+    stat.S_IFSOCK: "a socket",
+}
 
 
 def numbered(folder: Path, name: str, suffixes: Sequence[str]) -> Iterator[list[Path]]:
@@ -100,8 +117,9 @@ def numbered(folder: Path, name: str, suffixes: Sequence[str]) -> Iterator[list[
             yield paths
 
 
-def write_all(writers: Sequence[Writer], candidates: Iterable[Sequence[Path]],
-              replace: bool) -> list[Path]:
+def write_all(
+    writers: Sequence[Writer], candidates: Iterable[Sequence[Path]], replace: bool
+) -> list[Path]:
     """Each writer's file, all or none, under the first candidate list of paths (one path per
     writer, all in one folder): with replace, over the files there; without, where none
     exists, going on to the next list should another program take a name meanwhile."""
@@ -112,13 +130,14 @@ def write_all(writers: Sequence[Writer], candidates: Iterable[Sequence[Path]],
         check_replaceable(paths)  # before the work, and again as the files are replaced
     folder.mkdir(parents=True, exist_ok=True)
     with _temporaries(folder, len(writers)) as temporaries:
-        for write, temporary, path in zip(writers, temporaries, paths):
+        for write, temporary, path in zip(writers, temporaries, paths, strict=True):
             try:
                 write(temporary)
                 _fsync(temporary)
             except OSError as error:  # named by the file the user asked for
-                raise (OSError(error.errno, error.strerror, str(path)) if error.errno else error
-                       ) from None
+                raise (
+                    OSError(error.errno, error.strerror, str(path)) if error.errno else error
+                ) from None
         with _folder_lock(folder), _interrupts_held():  # the temporaries gone before a signal
             while True:
                 try:
@@ -139,7 +158,7 @@ def _rename_all(temporaries: Sequence[Path], paths: Sequence[Path], replace: boo
         check_replaceable(paths)
     aside, placed = [], []
     try:
-        for temporary, path in zip(temporaries, paths):
+        for temporary, path in zip(temporaries, paths, strict=True):
             if replace and os.path.lexists(path):
                 aside.append((_new_name(path.parent, ".old"), path))
                 os.replace(path, aside[-1][0])

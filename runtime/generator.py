@@ -13,6 +13,7 @@ Tokens come from the level graphs one step at a time (mogo.token_generator), fra
 from the VQ decoder as soon as their right context exists (mogo.stream_decoder), joints
 from the features with the root carried across chunks (mogo.motion.features.JointStream).
 """
+
 from __future__ import annotations
 
 import math
@@ -29,8 +30,16 @@ import onnxruntime as ort
 from mogo._session import NamedGraph, check_types, graph_session
 from mogo.align import Alignment, PromptAligner, RuleAligner
 from mogo.anchoring import Anchor, Anchoring
-from mogo.arguments import (CutWarning, ScheduleError, checked_bool, checked_int, checked_prompt,
-                            checked_schedule, checked_seconds, plural)
+from mogo.arguments import (
+    CutWarning,
+    ScheduleError,
+    checked_bool,
+    checked_int,
+    checked_prompt,
+    checked_schedule,
+    checked_seconds,
+    plural,
+)
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import MAX_GENERATE_SECONDS, io_types
@@ -68,19 +77,34 @@ class MotionGenerator:
         self.text = TextSide(bundle, threads)
         self.tokenizer, self.repertoire = self.text.tokenizer, self.text.repertoire
         levels = manifest.t2m.levels
-        self.tokens = TokenGenerator([bundle.path(g.file) for g in levels], levels,
-                                     manifest.end_token, intra_op_threads=1,
-                                     level_workers=threads)
-        for graph, session in zip(levels, self.tokens.sessions):
+        self.tokens = TokenGenerator(
+            [bundle.path(g.file) for g in levels],
+            levels,
+            manifest.end_token,
+            intra_op_threads=1,
+            level_workers=threads,
+        )
+        for graph, session in zip(levels, self.tokens.sessions, strict=True):
             check_types(bundle.path(graph.file), session, io_types(manifest, graph))
         self.down_factor = manifest.vq.down_factor
         self._decoder = manifest.vq.decoder
-        self._decoder_session = graph_session(bundle.path(self._decoder.file), self._decoder,
-                                              threads, io_types(manifest, self._decoder))
+        self._decoder_session = graph_session(
+            bundle.path(self._decoder.file),
+            self._decoder,
+            threads,
+            io_types(manifest, self._decoder),
+        )
         self._low_latency = manifest.vq.low_latency_decoder  # None: the bundle has none
-        self._low_latency_session = None if self._low_latency is None else graph_session(
-            bundle.path(self._low_latency.file), self._low_latency, threads,
-            io_types(manifest, self._low_latency))
+        self._low_latency_session = (
+            None
+            if self._low_latency is None
+            else graph_session(
+                bundle.path(self._low_latency.file),
+                self._low_latency,
+                threads,
+                io_types(manifest, self._low_latency),
+            )
+        )
         self._vq_encoder = NamedGraph(bundle, manifest.vq.encoder, threads)
         self.codebook_size = manifest.vq.codebook_size
         self._embeddings: OrderedDict[str, np.ndarray] = OrderedDict()
@@ -91,8 +115,10 @@ class MotionGenerator:
         """Load and verify a bundle folder; None: the default bundle shipped with mogo."""
         if bundle_dir is None:
             if not (DEFAULT_BUNDLE / "manifest.json").is_file():
-                raise BundleError(f"no default bundle is installed at {DEFAULT_BUNDLE}; "
-                                  "pass the path of a bundle folder")
+                raise BundleError(
+                    f"no default bundle is installed at {DEFAULT_BUNDLE}; "
+                    "pass the path of a bundle folder"
+                )
             bundle_dir = DEFAULT_BUNDLE
         return cls(Bundle.load(bundle_dir), checked_int(threads, "threads", 1, MAX_THREADS))
 
@@ -141,10 +167,18 @@ class MotionGenerator:
         raise ValueError(f"align must be True, False or a PromptAligner, got {align!r}")
 
     # -- whole clips ---------------------------------------------------------------------------
-    def generate(self, text: str, seconds: float | None = None, seed: int | None = None,
-                 sampling: Sampling | None = None, align: bool | PromptAligner = False,
-                 plant_feet: bool = True, stop=None, progress: bool = False,
-                 **options) -> Motion:
+    def generate(
+        self,
+        text: str,
+        seconds: float | None = None,
+        seed: int | None = None,
+        sampling: Sampling | None = None,
+        align: bool | PromptAligner = False,
+        plant_feet: bool = True,
+        stop=None,
+        progress: bool = False,
+        **options,
+    ) -> Motion:
         """One prompt -> one Motion. seconds=None lets the model end the motion (at most the
         bundle's max_seconds: a CutWarning where it did not); longer than max_seconds, it is
         the first `seconds` of `stream(text, seed=seed)`, re-anchored (the model learnt clips
@@ -164,15 +198,32 @@ class MotionGenerator:
         aligner = self.aligner(align)
         plant_feet = checked_bool(plant_feet, "plant_feet")
         text = checked_prompt(text) if aligner else self._prompt(text)
-        return self._generate(text, seconds, seed, sampling, aligner, plant_feet, stop,
-                              checked_bool(progress, "progress"))
+        return self._generate(
+            text,
+            seconds,
+            seed,
+            sampling,
+            aligner,
+            plant_feet,
+            stop,
+            checked_bool(progress, "progress"),
+        )
 
-    def _generate(self, text: str, seconds: float | None, seed: int, sampling: Sampling,
-                  aligner: PromptAligner | None, plant_feet: bool, stop=None,
-                  progress: bool = False) -> Motion:
+    def _generate(
+        self,
+        text: str,
+        seconds: float | None,
+        seed: int,
+        sampling: Sampling,
+        aligner: PromptAligner | None,
+        plant_feet: bool,
+        stop=None,
+        progress: bool = False,
+    ) -> Motion:
         if aligner is not None:
-            return self._play_aligned(aligner.align(text), seconds, seed, sampling, plant_feet,
-                                      progress)
+            return self._play_aligned(
+                aligner.align(text), seconds, seed, sampling, plant_feet, progress
+            )
         max_steps = self._steps(self.defaults.max_seconds)
         if seconds is not None and self._steps(seconds) > max_steps:
             motion = self._play([(text, seconds)], seed, sampling, plant_feet, progress, stop)
@@ -180,19 +231,37 @@ class MotionGenerator:
         steps = None if seconds is None else self._steps(seconds)
         if steps is not None:  # a cut, not an end: the model goes on for the decoder's context
             steps += self._decoder.lookahead
-        tokens = self.tokens.generate(self.embed([text])[0], steps, max_steps, sampling, seed,
-                                      self.defaults.window, stop, progress)
+        tokens = self.tokens.generate(
+            self.embed([text])[0],
+            steps,
+            max_steps,
+            sampling,
+            seed,
+            self.defaults.window,
+            stop,
+            progress,
+        )
         if steps is None and len(tokens) == max_steps:
-            warnings.warn(f"the model did not end the motion within "
-                          f"{self.defaults.max_seconds:g} s, its longest clip: cut there; ask "
-                          f"for seconds for longer motion", CutWarning, stacklevel=4)
+            warnings.warn(
+                f"the model did not end the motion within "
+                f"{self.defaults.max_seconds:g} s, its longest clip: cut there; ask "
+                f"for seconds for longer motion",
+                CutWarning,
+                stacklevel=4,
+            )
         frames = None if seconds is None else round(seconds * self.fps)
         return self.decode(tokens, [(0, text)], frames, seed, plant_feet)
 
-    def generate_batch(self, texts: Sequence[str], seconds: float | None = None,
-                       seed: int | None = None, sampling: Sampling | None = None,
-                       align: bool | PromptAligner = False, plant_feet: bool = True,
-                       **options) -> list[Motion]:
+    def generate_batch(
+        self,
+        texts: Sequence[str],
+        seconds: float | None = None,
+        seed: int | None = None,
+        sampling: Sampling | None = None,
+        align: bool | PromptAligner = False,
+        plant_feet: bool = True,
+        **options,
+    ) -> list[Motion]:
         """`generate` for each prompt, in order: prompt k with seed + k (seed=None: one fresh
         seed for the batch), so any of them can be reproduced alone."""
         if isinstance(texts, str):
@@ -208,22 +277,40 @@ class MotionGenerator:
         plant_feet = checked_bool(plant_feet, "plant_feet")
         for k, text in enumerate(texts):  # not a comprehension: its own frame (Python 3.11)
             # would put a prompt's warning inside mogo instead of at the caller's line
-            texts[k] = (checked_prompt(text, f"texts[{k}]") if aligner
-                        else self._prompt(text, f"texts[{k}]"))
-        return [self._generate(text, seconds, seed + k, sampling, aligner, plant_feet)
-                for k, text in enumerate(texts)]
+            texts[k] = (
+                checked_prompt(text, f"texts[{k}]")
+                if aligner
+                else self._prompt(text, f"texts[{k}]")
+            )
+        return [
+            self._generate(text, seconds, seed + k, sampling, aligner, plant_feet)
+            for k, text in enumerate(texts)
+        ]
 
-    def _play_aligned(self, alignment: Alignment, seconds: float | None, seed: int,
-                      sampling: Sampling, plant_feet: bool, progress: bool = False) -> Motion:
+    def _play_aligned(
+        self,
+        alignment: Alignment,
+        seconds: float | None,
+        seed: int,
+        sampling: Sampling,
+        plant_feet: bool,
+        progress: bool = False,
+    ) -> Motion:
         if seconds is not None:
             alignment = alignment.scaled(seconds)
         motion = self._play(alignment.schedule(), seed, sampling, plant_feet, progress)
         motion.alignment = alignment
         return motion
 
-    def play(self, schedule: Sequence[tuple[str, float]], seed: int | None = None,
-             sampling: Sampling | None = None, plant_feet: bool = True, progress: bool = False,
-             **options) -> Motion:
+    def play(
+        self,
+        schedule: Sequence[tuple[str, float]],
+        seed: int | None = None,
+        sampling: Sampling | None = None,
+        plant_feet: bool = True,
+        progress: bool = False,
+        **options,
+    ) -> Motion:
         """A list of (prompt, seconds) as one continuous motion, switching prompts on the
         fly: the same stream, so every switch is a smooth continuation. At most
         MAX_SCHEDULE_ENTRIES prompts and MAX_GENERATE_SECONDS in all; an entry's problem is a
@@ -242,9 +329,12 @@ class MotionGenerator:
             except ValueError as error:
                 raise ScheduleError(k, str(error)) from None
         if sum(lengths) > MAX_GENERATE_SECONDS:
-            raise ScheduleError(None, f"the schedule's lengths add up to {sum(lengths):g} s; at "
-                                f"most {MAX_GENERATE_SECONDS:g} in one call (use a stream for "
-                                "longer motion)")
+            raise ScheduleError(
+                None,
+                f"the schedule's lengths add up to {sum(lengths):g} s; at "
+                f"most {MAX_GENERATE_SECONDS:g} in one call (use a stream for "
+                "longer motion)",
+            )
         prompts = []
         for k, entry in enumerate(entries):
             try:
@@ -253,15 +343,28 @@ class MotionGenerator:
                 raise TypeError(f"schedule[{k}]: {error}") from None
             except ValueError as error:
                 raise ScheduleError(k, str(error)) from None
-        return self._play(list(zip(prompts, lengths)), seed, sampling, plant_feet,
-                          checked_bool(progress, "progress"))
+        return self._play(
+            list(zip(prompts, lengths, strict=True)),
+            seed,
+            sampling,
+            plant_feet,
+            checked_bool(progress, "progress"),
+        )
 
-    def _play(self, schedule: list[tuple[str, float]], seed: int, sampling: Sampling,
-              plant_feet: bool, progress: bool = False, stop=None) -> Motion:
+    def _play(
+        self,
+        schedule: list[tuple[str, float]],
+        seed: int,
+        sampling: Sampling,
+        plant_feet: bool,
+        progress: bool = False,
+        stop=None,
+    ) -> Motion:
         """A schedule as one re-anchored stream (the stream `stream` makes), a switch per
         entry; `stop` as in `generate`."""
-        stream = MotionStream(self, schedule[0][0], seed, sampling, self.defaults.window,
-                              plant_feet, Anchoring())
+        stream = MotionStream(
+            self, schedule[0][0], seed, sampling, self.defaults.window, plant_feet, Anchoring()
+        )
         steps = [self._steps(seconds) for _, seconds in schedule]
         shown = Progress(sum(steps), "generating", enabled=progress, unit="steps")
         for k, ((prompt, _), count) in enumerate(zip(schedule, steps, strict=True)):
@@ -275,9 +378,14 @@ class MotionGenerator:
         shown.close()
         return stream.finish()
 
-    def decode(self, tokens: np.ndarray, prompts: list[tuple[int, str]],
-               frames: int | None = None, seed: int | None = None, plant_feet: bool = True
-               ) -> Motion:
+    def decode(
+        self,
+        tokens: np.ndarray,
+        prompts: list[tuple[int, str]],
+        frames: int | None = None,
+        seed: int | None = None,
+        plant_feet: bool = True,
+    ) -> Motion:
         """Token steps (n, L) -> Motion (features and joints), cut to `frames` when given.
         Steps past the cut are only the right context of the last kept frames (decoded
         without it, against the zero padding of an end, they collapse): Motion.tokens keeps
@@ -290,40 +398,58 @@ class MotionGenerator:
         if checked_bool(plant_feet, "plant_feet"):  # foot cleanup (issue 25)
             joints = planted(features, joints, self.skeleton)
         if frames is not None:
-            tokens = tokens[:math.ceil(frames / self.down_factor)]
+            tokens = tokens[: math.ceil(frames / self.down_factor)]
         return Motion(features, joints, self.fps, tokens, self.skeleton, prompts, seed)
 
     def _cut(self, motion: Motion, frames: int) -> Motion:
         """The first `frames` of a stream's Motion (its last token step may give more)."""
         if len(motion.joints) == frames:
             return motion
-        return Motion(motion.features[:frames], motion.joints[:frames], motion.fps,
-                      motion.tokens[:math.ceil(frames / self.down_factor)], motion.skeleton,
-                      motion.prompts, motion.seed)
+        return Motion(
+            motion.features[:frames],
+            motion.joints[:frames],
+            motion.fps,
+            motion.tokens[: math.ceil(frames / self.down_factor)],
+            motion.skeleton,
+            motion.prompts,
+            motion.seed,
+        )
 
     def encode_motion(self, motion: Motion) -> np.ndarray:
         """A clip's features -> its token steps (n, L), by the bundle's VQ encoder."""
         if not isinstance(motion, Motion):
-            raise TypeError(f"motion must be a Motion (from generate, play or a stream's "
-                            f"finish), got {type(motion).__name__}")
+            raise TypeError(
+                f"motion must be a Motion (from generate, play or a stream's "
+                f"finish), got {type(motion).__name__}"
+            )
         features = np.asarray(motion.features, np.float32)
         if features.ndim != 2 or features.shape[1] != self.manifest.feature_dim:
-            raise ValueError(f"motion features must be (T, {self.manifest.feature_dim}), got "
-                             f"{features.shape}")
+            raise ValueError(
+                f"motion features must be (T, {self.manifest.feature_dim}), got {features.shape}"
+            )
         if not np.all(np.isfinite(features)):
             raise ValueError("motion features contain NaN or infinite values")
         usable = len(features) - len(features) % self.down_factor
         if usable < self.down_factor:
-            raise ValueError(f"the motion has {plural(len(features), 'frame')}; at least "
-                             f"{self.down_factor} are needed")
+            raise ValueError(
+                f"the motion has {plural(len(features), 'frame')}; at least "
+                f"{self.down_factor} are needed"
+            )
         normalised = (features[:usable] - self.bundle.mean) / self.bundle.std
         return self._vq_encoder.run(normalised[None])[0]
 
     # -- streams -------------------------------------------------------------------------------
-    def stream(self, text: str, seed: int | None = None, sampling: Sampling | None = None,
-               window: int | None = None, plant_feet: bool = True,
-               anchoring: Anchoring | bool = True, low_latency: bool = False,
-               **options) -> MotionStream:
+    def stream(
+        self,
+        text: str,
+        seed: int | None = None,
+        sampling: Sampling | None = None,
+        window: int | None = None,
+        plant_feet: bool = True,
+        anchoring: Anchoring | bool = True,
+        low_latency: bool = False,
+        **options,
+    ) -> MotionStream:
         """An endless motion; see MotionStream. `sampling` and `options`: see `sampling()`.
         `anchoring`: True re-anchors the stream (mogo.anchoring: it keeps doing what the
         prompt says, one-off prompts settle into a hold), an Anchoring tunes it, False
@@ -338,25 +464,45 @@ class MotionGenerator:
         elif anchoring is False:
             anchoring = None
         elif not isinstance(anchoring, Anchoring):
-            raise TypeError(f"anchoring must be True, False or an Anchoring, got "
-                            f"{type(anchoring).__name__}")
+            raise TypeError(
+                f"anchoring must be True, False or an Anchoring, got {type(anchoring).__name__}"
+            )
         low_latency = checked_bool(low_latency, "low_latency")
         if low_latency and self._low_latency is None:
-            raise ValueError("this bundle has no low-latency decoder (manifest "
-                             "vq.low_latency_decoder); stream without low latency")
-        return MotionStream(self, self._prompt(text), seed, sampling, window,
-                            checked_bool(plant_feet, "plant_feet"), anchoring, low_latency)
+            raise ValueError(
+                "this bundle has no low-latency decoder (manifest "
+                "vq.low_latency_decoder); stream without low latency"
+            )
+        return MotionStream(
+            self,
+            self._prompt(text),
+            seed,
+            sampling,
+            window,
+            checked_bool(plant_feet, "plant_feet"),
+            anchoring,
+            low_latency,
+        )
 
-    def streaming_decoder(self, session: ort.InferenceSession | None = None,
-                          low_latency: bool = False) -> StreamingDecoder:
+    def streaming_decoder(
+        self, session: ort.InferenceSession | None = None, low_latency: bool = False
+    ) -> StreamingDecoder:
         """`session`: another session of the bundle's decoder graph (None: this generator's);
         `low_latency`: the low-latency decoder's, decoding every token."""
-        d, own = ((self._low_latency, self._low_latency_session) if low_latency
-                  else (self._decoder, self._decoder_session))
-        return StreamingDecoder(session or own, d.left_context, d.lookahead,
-                                self.codebook_size, ids_name=d.inputs[0],
-                                features_name=d.outputs[0],
-                                every=1 if low_latency else STREAM_DECODE_EVERY)
+        d, own = (
+            (self._low_latency, self._low_latency_session)
+            if low_latency
+            else (self._decoder, self._decoder_session)
+        )
+        return StreamingDecoder(
+            session or own,
+            d.left_context,
+            d.lookahead,
+            self.codebook_size,
+            ids_name=d.inputs[0],
+            features_name=d.outputs[0],
+            every=1 if low_latency else STREAM_DECODE_EVERY,
+        )
 
     def sampling(self, sampling: Sampling | None = None, **options) -> Sampling:
         """How a call draws its tokens: `sampling` (None: the bundle's defaults), with keyword
@@ -369,8 +515,7 @@ class MotionGenerator:
         return sampling.updated(options)
 
     def _seconds(self, seconds: object) -> float:
-        return checked_seconds(seconds, self.down_factor / self.fps, self.fps,
-                               MAX_GENERATE_SECONDS)
+        return checked_seconds(seconds, self.down_factor / self.fps, self.fps, MAX_GENERATE_SECONDS)
 
     def _steps(self, seconds: float) -> int:
         return max(1, math.ceil(round(seconds * self.fps) / self.down_factor))
@@ -388,11 +533,20 @@ class MotionStream:
     Planting the feet holds each frame back until the frames of its lookahead
     (mogo.motion.feet.LOOKAHEAD) are decoded."""
 
-    def __init__(self, generator: MotionGenerator, text: str, seed: int, sampling: Sampling,
-                 window: int | None, plant_feet: bool = True,
-                 anchoring: Anchoring | None = None, low_latency: bool = False, *,
-                 tokens: TokenGenerator | None = None,
-                 decoder_session: ort.InferenceSession | None = None):
+    def __init__(
+        self,
+        generator: MotionGenerator,
+        text: str,
+        seed: int,
+        sampling: Sampling,
+        window: int | None,
+        plant_feet: bool = True,
+        anchoring: Anchoring | None = None,
+        low_latency: bool = False,
+        *,
+        tokens: TokenGenerator | None = None,
+        decoder_session: ort.InferenceSession | None = None,
+    ):
         """`tokens`, `decoder_session`: other sessions of the bundle's graphs (the server's,
         mogo.serve.engine); None: the generator's."""
         self.generator = generator
@@ -401,7 +555,8 @@ class MotionStream:
         self.steps = 0  # token steps drawn
         self._lock = threading.RLock()  # set_prompt from another thread waits for a step
         self.tokens: TokenStream = (tokens or generator.tokens).start(
-            generator._embedding(text), seed, sampling, window, allow_end=False)
+            generator._embedding(text), seed, sampling, window, allow_end=False
+        )
         self.decoder = generator.streaming_decoder(decoder_session, low_latency=low_latency)
         self._joints = JointStream(generator.skeleton)
         self._feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
@@ -409,8 +564,11 @@ class MotionStream:
         self._skip = 0
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
         self._record: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
-        self.anchor = (None if anchoring is None else
-                       Anchor(anchoring, self.tokens, generator._embedding, text))
+        self.anchor = (
+            None
+            if anchoring is None
+            else Anchor(anchoring, self.tokens, generator._embedding, text)
+        )
 
     def step(self) -> np.ndarray:
         with self._lock:
@@ -482,11 +640,14 @@ class MotionStream:
             context = [self._next_tokens() for _ in range(self.decoder.lookahead)]
             features = self.decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
             self.emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
-        empty = (np.zeros((0, g.tokens.num_levels), np.int64),
-                 np.zeros((0, g.manifest.feature_dim), np.float32),
-                 np.zeros((0, g.skeleton.num_joints, 3), np.float32))
-        tokens, features, joints = (np.concatenate(column)
-                                    for column in zip(empty, *(self._record or [])))
+        empty = (
+            np.zeros((0, g.tokens.num_levels), np.int64),
+            np.zeros((0, g.manifest.feature_dim), np.float32),
+            np.zeros((0, g.skeleton.num_joints, 3), np.float32),
+        )
+        tokens, features, joints = (
+            np.concatenate(column) for column in zip(empty, *(self._record or []), strict=True)
+        )
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
 
     def _next_tokens(self) -> np.ndarray:
@@ -498,8 +659,7 @@ class MotionStream:
         self.steps += 1
         return row if self.anchor is None else self.anchor.after(row)
 
-    def emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False
-              ) -> np.ndarray:
+    def emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False) -> np.ndarray:
         features, joints = self._final(self._denormalise(normalised), end)
         skip = min(self._skip, len(joints))
         features, joints, self._skip = features[skip:], joints[skip:], self._skip - skip
@@ -516,7 +676,9 @@ class MotionStream:
             return features, joints
         final = self._feet.push(features, joints)
         if end:
-            final = tuple(np.concatenate(pair) for pair in zip(final, self._feet.flush()))
+            final = tuple(
+                np.concatenate(pair) for pair in zip(final, self._feet.flush(), strict=True)
+            )
         return final
 
     def _denormalise(self, normalised: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ object; the answer is checked against a schema. Whatever goes wrong (timeout, re
 connection, HTTP error, no JSON, a wrong schema) the rules answer instead, and
 Alignment.note says why.
 """
+
 from __future__ import annotations
 
 import http.client
@@ -50,26 +51,32 @@ Then, on the last lines, give only this JSON object:
 {"prompt": "<all steps as one caption>", "steps": [{"prompt": "<step>", "seconds": <number>}]}"""
 
 EXAMPLES = (
-    ("make the guy stroll ahead and after that wave 3 times",
-     "The person walks forward at a slow pace, then waves; the wave is repeated three times. "
-     "Two steps: walking about 3.5 s, three waves about 3 s.\n"
-     '{"prompt": "a person strolls forward, then waves three times.", "steps": ['
-     '{"prompt": "a person strolls forward.", "seconds": 3.5}, '
-     '{"prompt": "a person waves three times.", "seconds": 3.0}]}'),
-    ("jump twice before sitting down, I want him to wave while he sits",
-     "'Before' orders the actions: the jumps come first, then sitting down. The wave happens "
-     "while sitting, so it stays in the sitting step. Two jumps about 2 s, sitting while "
-     "waving about 4 s.\n"
-     '{"prompt": "a person jumps twice, then sits down while waving.", "steps": ['
-     '{"prompt": "a person jumps twice.", "seconds": 2.0}, '
-     '{"prompt": "a person sits down while waving.", "seconds": 4.0}]}'),
-    ("after a quick jog to the left she does a full spin and bows",
-     "'After' puts the jog first. Then a spin, then a bow: three steps. Jog about 3 s, spin "
-     "about 2 s, bow about 2 s.\n"
-     '{"prompt": "a person jogs quickly to the left, then spins around, then bows.", '
-     '"steps": [{"prompt": "a person jogs quickly to the left.", "seconds": 3.0}, '
-     '{"prompt": "a person does a full spin.", "seconds": 2.0}, '
-     '{"prompt": "a person bows.", "seconds": 2.0}]}'),
+    (
+        "make the guy stroll ahead and after that wave 3 times",
+        "The person walks forward at a slow pace, then waves; the wave is repeated three times. "
+        "Two steps: walking about 3.5 s, three waves about 3 s.\n"
+        '{"prompt": "a person strolls forward, then waves three times.", "steps": ['
+        '{"prompt": "a person strolls forward.", "seconds": 3.5}, '
+        '{"prompt": "a person waves three times.", "seconds": 3.0}]}',
+    ),
+    (
+        "jump twice before sitting down, I want him to wave while he sits",
+        "'Before' orders the actions: the jumps come first, then sitting down. The wave happens "
+        "while sitting, so it stays in the sitting step. Two jumps about 2 s, sitting while "
+        "waving about 4 s.\n"
+        '{"prompt": "a person jumps twice, then sits down while waving.", "steps": ['
+        '{"prompt": "a person jumps twice.", "seconds": 2.0}, '
+        '{"prompt": "a person sits down while waving.", "seconds": 4.0}]}',
+    ),
+    (
+        "after a quick jog to the left she does a full spin and bows",
+        "'After' puts the jog first. Then a spin, then a bow: three steps. Jog about 3 s, spin "
+        "about 2 s, bow about 2 s.\n"
+        '{"prompt": "a person jogs quickly to the left, then spins around, then bows.", '
+        '"steps": [{"prompt": "a person jogs quickly to the left.", "seconds": 3.0}, '
+        '{"prompt": "a person does a full spin.", "seconds": 2.0}, '
+        '{"prompt": "a person bows.", "seconds": 2.0}]}',
+    ),
 )
 
 
@@ -79,20 +86,29 @@ class LLMAligner(PromptAligner):
     token (env MOGO_LLM_API_KEY; local servers need none), to that server only: a redirect
     is not followed. timeout: seconds for the whole exchange, the reply read to its end."""
 
-    def __init__(self, url: str | None = None, model: str | None = None,
-                 api_key: str | None = None, timeout: float = 10.0,
-                 fallback: PromptAligner | None = None):
+    def __init__(
+        self,
+        url: str | None = None,
+        model: str | None = None,
+        api_key: str | None = None,
+        timeout: float = 10.0,
+        fallback: PromptAligner | None = None,
+    ):
         self.url = url or os.environ.get("MOGO_LLM_URL")
         if not self.url:
-            raise ValueError("the LLM aligner needs a server URL: pass url= (--llm-url) or set "
-                             "MOGO_LLM_URL, e.g. http://localhost:8080/v1")
+            raise ValueError(
+                "the LLM aligner needs a server URL: pass url= (--llm-url) or set "
+                "MOGO_LLM_URL, e.g. http://localhost:8080/v1"
+            )
         self.model = model or os.environ.get("MOGO_LLM_MODEL") or "default"
         self.api_key = api_key or os.environ.get("MOGO_LLM_API_KEY")
         if isinstance(timeout, bool) or not isinstance(timeout, Real):
             raise TypeError(f"timeout must be a number of seconds, got {type(timeout).__name__}")
         if not 0 < timeout <= MAX_TIMEOUT:  # nan, inf and 1e300 were a traceback or a wrong note
-            raise ValueError(f"the LLM timeout must be a positive number of seconds up to "
-                             f"{MAX_TIMEOUT:.0f}, got {timeout:g}")
+            raise ValueError(
+                f"the LLM timeout must be a positive number of seconds up to "
+                f"{MAX_TIMEOUT:.0f}, got {timeout:g}"
+            )
         self.timeout = timeout
         self.fallback = fallback or RuleAligner()
 
@@ -104,14 +120,18 @@ class LLMAligner(PromptAligner):
         except urllib.error.HTTPError as error:
             if 300 <= error.code < 400:  # the API key would go along (issue 39)
                 where = error.headers.get("Location")
-                return self._fall_back(text, f"the LLM server answered HTTP {error.code}, a "
-                                             f"redirect to {where!r}, not followed")
+                return self._fall_back(
+                    text,
+                    f"the LLM server answered HTTP {error.code}, a "
+                    f"redirect to {where!r}, not followed",
+                )
             return self._fall_back(text, f"the LLM server answered HTTP {error.code}")
         except http.client.IncompleteRead:
             return self._fall_back(text, "the LLM server's reply was cut short")
         except http.client.HTTPException as error:
-            return self._fall_back(text, f"the LLM server's reply was not HTTP "
-                                         f"({type(error).__name__})")
+            return self._fall_back(
+                text, f"the LLM server's reply was not HTTP ({type(error).__name__})"
+            )
         except (urllib.error.URLError, OSError) as error:
             reason = getattr(error, "reason", error)
             if isinstance(reason, TimeoutError):
@@ -133,16 +153,19 @@ class LLMAligner(PromptAligner):
         return chat + [dict(role="user", content=text)]
 
     def _ask(self, text: str) -> str:
-        body = json.dumps(dict(model=self.model, messages=self.messages(text), temperature=0,
-                               stream=False)).encode()
+        body = json.dumps(
+            dict(model=self.model, messages=self.messages(text), temperature=0, stream=False)
+        ).encode()
         headers = {"Content-Type": "application/json"}
         if self.api_key:
             headers["Authorization"] = f"Bearer {self.api_key}"
-        request = urllib.request.Request(self.url.rstrip("/") + "/chat/completions", body,
-                                         headers, method="POST")
+        request = urllib.request.Request(
+            self.url.rstrip("/") + "/chat/completions", body, headers, method="POST"
+        )
         watchdog = _Watchdog(self.timeout)
-        opener = urllib.request.build_opener(_NoRedirect, watchdog.handler(_HTTP),
-                                             watchdog.handler(_HTTPS))
+        opener = urllib.request.build_opener(
+            _NoRedirect, watchdog.handler(_HTTP), watchdog.handler(_HTTPS)
+        )
         try:
             with watchdog, opener.open(request, timeout=self.timeout) as response:
                 data = response.read(MAX_REPLY_BYTES + 1)
@@ -223,6 +246,7 @@ def _shut(sock: socket.socket) -> None:
 
 class _Watched:
     """A urllib handler whose connections tell their socket to a _Watchdog."""
+
     watchdog: _Watchdog
 
     def do_open(self, http_class, req, **kwargs):
@@ -251,7 +275,7 @@ def last_json_object(content: str) -> dict:
     start = content.rfind("{", 0, end)
     while start >= 0:
         try:
-            value = json.loads(content[start:end + 1])
+            value = json.loads(content[start : end + 1])
         except (json.JSONDecodeError, RecursionError):
             start = content.rfind("{", 0, start)
             continue
@@ -265,8 +289,7 @@ def checked_steps(answer: dict) -> tuple[AlignedStep, ...]:
     """The schema {"prompt": str, "steps": [{"prompt": str, "seconds": 0.5..30}, 1..8]}."""
     steps = answer.get("steps")
     if not isinstance(answer.get("prompt"), str) or not isinstance(steps, list):
-        raise ValueError("does not match the schema: it needs 'prompt' (text) and 'steps' "
-                         "(a list)")
+        raise ValueError("does not match the schema: it needs 'prompt' (text) and 'steps' (a list)")
     if not 1 <= len(steps) <= MAX_STEPS:
         raise ValueError(f"has {len(steps)} steps; 1 to {MAX_STEPS} are allowed")
     checked = []
@@ -275,9 +298,14 @@ def checked_steps(answer: dict) -> tuple[AlignedStep, ...]:
         seconds = step.get("seconds") if isinstance(step, dict) else None
         if not isinstance(prompt, str) or not prompt.strip():
             raise ValueError(f"step {k + 1} has no prompt text")
-        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not (
-                STEP_SECONDS[0] <= seconds <= STEP_SECONDS[1]):
-            raise ValueError(f"step {k + 1} has seconds {seconds!r}; a number from "
-                             f"{STEP_SECONDS[0]} to {STEP_SECONDS[1]:g} is needed")
+        if (
+            isinstance(seconds, bool)
+            or not isinstance(seconds, (int, float))
+            or not (STEP_SECONDS[0] <= seconds <= STEP_SECONDS[1])
+        ):
+            raise ValueError(
+                f"step {k + 1} has seconds {seconds!r}; a number from "
+                f"{STEP_SECONDS[0]} to {STEP_SECONDS[1]:g} is needed"
+            )
         checked.append(AlignedStep(prompt.strip(), float(seconds)))
     return tuple(checked)

@@ -13,6 +13,7 @@ features the decoder writes.
 The model configs (`t2m.config`, `vq.config`) are the arguments that rebuild the torch models;
 they are kept whole, and the runtime reads from them only the sizes declared in CONFIG_KEYS.
 """
+
 from __future__ import annotations
 
 import json
@@ -44,6 +45,7 @@ class FileEntry:
 @dataclass(frozen=True)
 class Graph:
     """An ONNX file of the bundle and its input and output names, in protocol order."""
+
     file: str
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
@@ -52,6 +54,7 @@ class Graph:
 @dataclass(frozen=True)
 class DecoderGraph(Graph):
     """The VQ decoder: the frames of token t depend on tokens t - left_context .. t + lookahead."""
+
     left_context: int
     lookahead: int
 
@@ -59,6 +62,7 @@ class DecoderGraph(Graph):
 @dataclass(frozen=True)
 class Normalization:
     """.npy files (feature_dim,) float32: the graphs see (features - mean) / std."""
+
     mean: str
     std: str
 
@@ -66,6 +70,7 @@ class Normalization:
 @dataclass(frozen=True)
 class FeatureBlock:
     """Columns start:stop of a feature row (see mogo.motion.features)."""
+
     name: str
     start: int
     stop: int
@@ -74,6 +79,7 @@ class FeatureBlock:
 @dataclass(frozen=True)
 class SkeletonSpec:
     """mogo.motion.skeleton.Skeleton as JSON (its fps is the bundle's)."""
+
     name: str
     joint_names: tuple[str, ...]
     parents: tuple[int, ...]  # -1 for the root; what the chains give (checked), for readers
@@ -87,21 +93,37 @@ class SkeletonSpec:
     @classmethod
     def of(cls, skeleton: Skeleton) -> SkeletonSpec:
         rest = None if skeleton.rest_offsets is None else _rows(skeleton.rest_offsets)
-        return cls(skeleton.name, tuple(skeleton.joint_names),
-                   tuple(int(p) for p in skeleton.parents), tuple(map(tuple, skeleton.chains)),
-                   _rows(skeleton.raw_offsets), tuple(skeleton.face_joints),
-                   tuple(skeleton.left_foot), tuple(skeleton.right_foot), rest)
+        return cls(
+            skeleton.name,
+            tuple(skeleton.joint_names),
+            tuple(int(p) for p in skeleton.parents),
+            tuple(map(tuple, skeleton.chains)),
+            _rows(skeleton.raw_offsets),
+            tuple(skeleton.face_joints),
+            tuple(skeleton.left_foot),
+            tuple(skeleton.right_foot),
+            rest,
+        )
 
     def skeleton(self, fps: float) -> Skeleton:
         rest = None if self.rest_offsets is None else np.array(self.rest_offsets, np.float64)
-        return Skeleton(self.name, self.joint_names, self.chains,
-                        np.array(self.raw_offsets, np.float64), rest, self.face_joints,
-                        self.left_foot, self.right_foot, fps)
+        return Skeleton(
+            self.name,
+            self.joint_names,
+            self.chains,
+            np.array(self.raw_offsets, np.float64),
+            rest,
+            self.face_joints,
+            self.left_foot,
+            self.right_foot,
+            fps,
+        )
 
 
 @dataclass(frozen=True)
 class MotionFormat:
     """What a frame of the bundle's motion is."""
+
     fps: float
     skeleton: SkeletonSpec
     features: tuple[FeatureBlock, ...]
@@ -111,8 +133,12 @@ class MotionFormat:
     def of(cls, skeleton: Skeleton, normalization: Normalization) -> MotionFormat:
         """Motion of `skeleton` in the features of mogo.motion.features (what `mogo export`
         writes, from the runtime's own definitions)."""
-        return cls(skeleton.fps, SkeletonSpec.of(skeleton),
-                   tuple(FeatureBlock(*block) for block in feature_layout(skeleton)), normalization)
+        return cls(
+            skeleton.fps,
+            SkeletonSpec.of(skeleton),
+            tuple(FeatureBlock(*block) for block in feature_layout(skeleton)),
+            normalization,
+        )
 
     @property
     def feature_dim(self) -> int:
@@ -124,6 +150,7 @@ class Pretrained:
     """A text encoder the project did not train: where it comes from, under which licence, and
     how far the graph that ships is from its fp32 reference (the lowest cosine of sentence
     embeddings on the check captions)."""
+
     name: str
     license: str
     packages: dict[str, str]  # the registry files it came from -> sha256
@@ -140,6 +167,7 @@ class Repertoire:
     `prompts`, where present: the same captions' prompt embeddings, by the encoder the level
     graphs were trained with; a prompt that encoder cannot read is played as the one of them
     nearest its adapted embedding (mogo.text_side)."""
+
     embeddings: str  # .npy (N, dim) float16
     captions: str  # .json: the N captions, in order
     threshold: float
@@ -152,6 +180,7 @@ class Repertoire:
 class TrainedEncoder:
     """The text encoder the level graphs were trained with, kept beside a pretrained one: a
     prompt all of whose words its tokenizer knows is read by it, exactly as in training."""
+
     tokenizer: str
     encoder: Graph
 
@@ -163,6 +192,7 @@ class Text:
     whose second output is the sentence embedding the `repertoire` is compared in, and
     optionally the encoder trained with the model (`trained`) for the prompts it reads whole;
     any other kind is a text encoder trained with the model, and nothing else."""
+
     tokenizer: str
     max_length: int
     kind: str  # the text encoder's class
@@ -183,6 +213,7 @@ SENTENCE_ENCODER = "SentenceEncoder"
 class T2M:
     """One graph per level, coarse to fine (protocol in mogo.token_generator); the cache
     sizes are in the graphs' input shapes."""
+
     config: dict
     levels: tuple[Graph, ...]
 
@@ -195,6 +226,7 @@ class T2M:
 class VQ:
     """`low_latency_decoder`: optional, a decoder of the same tokens with a shorter lookahead,
     for streams that ask for low latency (the frames come sooner, a little less exact)."""
+
     config: dict
     encoder: Graph
     decoder: DecoderGraph
@@ -218,6 +250,7 @@ class VQ:
 class Defaults:
     """Sampling defaults (mogo.sampling), the KV window in token steps (None: unbounded) and
     the longest motion `generate` lets the model end on its own."""
+
     temperature: float
     top_k: int
     top_p: float
@@ -229,6 +262,7 @@ class Defaults:
 @dataclass(frozen=True)
 class TrainingRun:
     """How one model of the bundle was trained; recipe is the trainer's own record."""
+
     step: int
     recipe: dict | None = None
     data: str | None = None
@@ -240,6 +274,7 @@ class TrainingRun:
 @dataclass(frozen=True)
 class Int8Check:
     """Whether the level graphs are int8: greedy-token agreement with fp32 on check prompts."""
+
     used: bool
     greedy_token_agreement: float
     threshold: float
@@ -248,13 +283,16 @@ class Int8Check:
     scheme: str
 
     def describe(self) -> str:
-        return (f"{'used' if self.used else 'not used'}: greedy token agreement "
-                f"{self.greedy_token_agreement:.1%} (threshold {self.threshold:.0%})")
+        return (
+            f"{'used' if self.used else 'not used'}: greedy token agreement "
+            f"{self.greedy_token_agreement:.1%} (threshold {self.threshold:.0%})"
+        )
 
 
 @dataclass(frozen=True)
 class Fp16Storage:
     """Graphs whose large weights are stored as fp16 (computed in fp32), and what it costs."""
+
     files: tuple[str, ...]
     prompt_embedding_max_abs_difference: float | None = None
     vq_encoder_token_agreement: float | None = None
@@ -299,18 +337,28 @@ class Manifest:
     def graphs(self) -> list[Graph]:
         trained = () if self.text.trained is None else (self.text.trained.encoder,)
         low_latency = () if self.vq.low_latency_decoder is None else (self.vq.low_latency_decoder,)
-        return [self.text.encoder, *trained, *self.t2m.levels, self.vq.encoder, self.vq.decoder,
-                *low_latency]
+        return [
+            self.text.encoder,
+            *trained,
+            *self.t2m.levels,
+            self.vq.encoder,
+            self.vq.decoder,
+            *low_latency,
+        ]
 
     def referenced_files(self) -> set[str]:
         """Every file the manifest names outside `files`."""
         norm, repertoire = self.motion.normalization, self.text.repertoire
-        extra = () if repertoire is None else tuple(
-            f for f in (repertoire.embeddings, repertoire.captions, repertoire.prompts) if f)
+        extra = (
+            ()
+            if repertoire is None
+            else tuple(
+                f for f in (repertoire.embeddings, repertoire.captions, repertoire.prompts) if f
+            )
+        )
         if self.text.trained is not None:
             extra += (self.text.trained.tokenizer,)
-        return {norm.mean, norm.std, self.text.tokenizer, *extra,
-                *(g.file for g in self.graphs())}
+        return {norm.mean, norm.std, self.text.tokenizer, *extra, *(g.file for g in self.graphs())}
 
     @classmethod
     def from_json(cls, data: object, source: str = MANIFEST) -> Manifest:
@@ -320,12 +368,16 @@ class Manifest:
             raise BundleError(f"{source}: not a {FORMAT} manifest")
         version = data.get("format_version")
         if type(version) is not int:
-            raise BundleError(f"{source}: format_version: " + (
-                "missing" if version is None else f"expected an integer, got {version!r}"))
+            raise BundleError(
+                f"{source}: format_version: "
+                + ("missing" if version is None else f"expected an integer, got {version!r}")
+            )
         if version != FORMAT_VERSION:
-            raise BundleError(f"{source}: format version {version!r}; this runtime reads "
-                              f"version {FORMAT_VERSION} (re-export the bundle with "
-                              "`mogo export`, or upgrade mogo)")
+            raise BundleError(
+                f"{source}: format version {version!r}; this runtime reads "
+                f"version {FORMAT_VERSION} (re-export the bundle with "
+                "`mogo export`, or upgrade mogo)"
+            )
         try:
             manifest = read(cls, data, "")
             manifest._check()
@@ -338,6 +390,7 @@ class Manifest:
 
     def dumps(self) -> str:
         """The text of manifest.json: indented, each list of plain values on one line."""
+
         def one_line(match: re.Match) -> str:
             return re.sub(r"\n\s*", "", re.sub(r",\n\s*", ", ", match[0]))
 
@@ -350,24 +403,34 @@ class Manifest:
             for name, kind in keys.items():
                 value = getattr(self, part).config.get(name)
                 if type(value) is not kind or not 1 <= value <= MAX_SIZE:
-                    raise KeyProblem(f"{part}.config.{name}", "missing or not a positive "
-                                     f"integer (at most {MAX_SIZE})")
+                    raise KeyProblem(
+                        f"{part}.config.{name}",
+                        f"missing or not a positive integer (at most {MAX_SIZE})",
+                    )
         if self.vq.config["feature_dim"] != self.feature_dim:
-            raise KeyProblem("vq.config.feature_dim", f"{self.vq.config['feature_dim']}, the "
-                              f"feature layout (motion.features) has {self.feature_dim}")
+            raise KeyProblem(
+                "vq.config.feature_dim",
+                f"{self.vq.config['feature_dim']}, the "
+                f"feature layout (motion.features) has {self.feature_dim}",
+            )
         if not self.t2m.levels:
             raise KeyProblem("t2m.levels", "empty")
         if self.t2m.num_levels != self.vq.levels:
-            raise KeyProblem("t2m.levels", f"{self.t2m.num_levels} graphs for "
-                              f"{self.vq.levels} VQ levels (vq.config.levels)")
+            raise KeyProblem(
+                "t2m.levels",
+                f"{self.t2m.num_levels} graphs for {self.vq.levels} VQ levels (vq.config.levels)",
+            )
         _check_ranges(self)
         _check_text(self.text)
         _check_skeleton(self.motion.skeleton)
         skeleton = self.skeleton()
         expected = MotionFormat.of(skeleton, self.motion.normalization).features
         if self.motion.features != expected:
-            raise KeyProblem("motion.features", "not the layout of mogo.motion.features for "
-                              f"the {skeleton.name} skeleton ({_layout_text(expected)})")
+            raise KeyProblem(
+                "motion.features",
+                "not the layout of mogo.motion.features for "
+                f"the {skeleton.name} skeleton ({_layout_text(expected)})",
+            )
 
 
 CONFIG_KEYS = dict(feature_dim=int, levels=int, codebook_size=int, down_factor=int)  # of vq.config
@@ -386,18 +449,27 @@ def io_types(manifest: Manifest, graph: Graph) -> tuple[list[tuple[str, int | No
     floats = [("tensor(float)", None)] * max(len(graph.inputs), len(graph.outputs))
     trained = manifest.text.trained
     if graph is manifest.text.encoder or (trained is not None and graph is trained.encoder):
-        return ([("tensor(int64)", None)] * len(graph.inputs),
-                [("tensor(float)", text_dim)] + floats[:len(graph.outputs) - 1])
+        return (
+            [("tensor(int64)", None)] * len(graph.inputs),
+            [("tensor(float)", text_dim)] + floats[: len(graph.outputs) - 1],
+        )
     if graph is manifest.vq.encoder:
         return [("tensor(float)", manifest.feature_dim)], [("tensor(int64)", levels)]
     if graph is manifest.vq.decoder or graph is manifest.vq.low_latency_decoder:
         return [("tensor(int64)", levels)], [("tensor(float)", manifest.feature_dim)]
     level = next(k for k, g in enumerate(manifest.t2m.levels) if g is graph)
     classes = manifest.vq.codebook_size + (1 if level == 0 else 0)  # level 0: and the end
-    inputs = [("tensor(float)", text_dim), ("tensor(bool)", None), ("tensor(int64)", levels),
-              ("tensor(int64)", None), ("tensor(int64)", None)]
-    return (inputs[:len(graph.inputs)] + floats[:max(0, len(graph.inputs) - len(inputs))],
-            [("tensor(float)", classes)] + floats[:len(graph.outputs) - 1])
+    inputs = [
+        ("tensor(float)", text_dim),
+        ("tensor(bool)", None),
+        ("tensor(int64)", levels),
+        ("tensor(int64)", None),
+        ("tensor(int64)", None),
+    ]
+    return (
+        inputs[: len(graph.inputs)] + floats[: max(0, len(graph.inputs) - len(inputs))],
+        [("tensor(float)", classes)] + floats[: len(graph.outputs) - 1],
+    )
 
 
 def _check_ranges(manifest: Manifest) -> None:
@@ -408,15 +480,22 @@ def _check_ranges(manifest: Manifest) -> None:
             Sampling.from_defaults({name: value})
         except (TypeError, ValueError) as error:  # Sampling refuses text or bool as a number
             raise KeyProblem(f"defaults.{name}", str(error)) from None
-    positive = {"motion.fps": (manifest.fps, MAX_FPS),
-                "defaults.max_seconds": (d.max_seconds, MAX_GENERATE_SECONDS),
-                "text.max_length": (manifest.text.max_length, MAX_SIZE),
-                "defaults.window": (1 if d.window is None else d.window, MAX_SIZE)}
-    decoders = {"vq.decoder": manifest.vq.decoder,
-                "vq.low_latency_decoder": manifest.vq.low_latency_decoder}
-    at_least_zero = {f"{path}.{name}": getattr(decoder, name)
-                     for path, decoder in decoders.items() if decoder is not None
-                     for name in ("left_context", "lookahead")}
+    positive = {
+        "motion.fps": (manifest.fps, MAX_FPS),
+        "defaults.max_seconds": (d.max_seconds, MAX_GENERATE_SECONDS),
+        "text.max_length": (manifest.text.max_length, MAX_SIZE),
+        "defaults.window": (1 if d.window is None else d.window, MAX_SIZE),
+    }
+    decoders = {
+        "vq.decoder": manifest.vq.decoder,
+        "vq.low_latency_decoder": manifest.vq.low_latency_decoder,
+    }
+    at_least_zero = {
+        f"{path}.{name}": getattr(decoder, name)
+        for path, decoder in decoders.items()
+        if decoder is not None
+        for name in ("left_context", "lookahead")
+    }
     for path, (value, most) in positive.items():
         if not value > 0:
             raise KeyProblem(path, f"{value!r}, must be > 0")
@@ -426,8 +505,7 @@ def _check_ranges(manifest: Manifest) -> None:
         if value < 0:
             raise KeyProblem(path, f"{value!r}, must be >= 0")
         if value > MAX_DECODER_CONTEXT:
-            raise KeyProblem(path, f"{value!r} token steps, must be at most "
-                             f"{MAX_DECODER_CONTEXT}")
+            raise KeyProblem(path, f"{value!r} token steps, must be at most {MAX_DECODER_CONTEXT}")
 
 
 def _check_text(text: Text) -> None:
@@ -436,8 +514,10 @@ def _check_text(text: Text) -> None:
     if text.repertoire is None or text.pretrained is None:
         raise KeyProblem("text", f"a {SENTENCE_ENCODER} needs its pretrained and repertoire")
     if len(text.encoder.outputs) != 2:
-        raise KeyProblem("text.encoder.outputs", "a sentence encoder graph has two: the prompt "
-                         "embedding and the sentence embedding")
+        raise KeyProblem(
+            "text.encoder.outputs",
+            "a sentence encoder graph has two: the prompt embedding and the sentence embedding",
+        )
     if not -1.0 <= text.repertoire.threshold <= 1.0:
         raise KeyProblem("text.repertoire.threshold", "a cosine: between -1 and 1")
 
@@ -453,8 +533,9 @@ def _check_skeleton(spec: SkeletonSpec) -> None:
         raise KeyProblem("motion.skeleton", f"a joint index outside 0..{joints - 1}")
     derived = tuple(int(p) for p in spec.skeleton(0.0).parents)
     if spec.parents != derived:
-        raise KeyProblem("motion.skeleton.parents", f"{list(spec.parents)}, the chains give "
-                          f"{list(derived)}")
+        raise KeyProblem(
+            "motion.skeleton.parents", f"{list(spec.parents)}, the chains give {list(derived)}"
+        )
 
 
 def _layout_text(blocks: tuple[FeatureBlock, ...]) -> str:

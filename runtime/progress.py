@@ -1,4 +1,5 @@
 """A dependency-free progress line on stderr for long jobs (corpus making, conversion)."""
+
 from __future__ import annotations
 
 import sys
@@ -46,5 +47,7 @@ class Progress:
         elapsed = max(now - self.start, 1e-9)
         rate = self.done / elapsed
         eta = (self.total - self.done) / rate if rate > 0 else float("inf")
-        return (f"{self.label}: {self.done}/{self.total} ({100 * self.done / self.total:.0f}%) "
-                f"{rate:.1f} {self.unit}/s, elapsed {elapsed:.0f}s, eta {eta:.0f}s")
+        return (
+            f"{self.label}: {self.done}/{self.total} ({100 * self.done / self.total:.0f}%) "
+            f"{rate:.1f} {self.unit}/s, elapsed {elapsed:.0f}s, eta {eta:.0f}s"
+        )

@@ -10,6 +10,7 @@ error rates in the manifest) tells familiar from far. Where the repertoire also 
 captions' prompt embeddings, a prompt the trained encoder cannot read is played as one of them
 (KnownCaptions.nearest).
 """
+
 from __future__ import annotations
 
 import re
@@ -17,11 +18,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mogo.motion import untrusted
-from mogo.align_words import (NUMBERS, SEQUENCE, TENS, WORD_SYNONYMS, caption_phrases,
-                              spoken_number, spoken_numbers)
+from mogo.align_words import (
+    NUMBERS,
+    SEQUENCE,
+    TENS,
+    WORD_SYNONYMS,
+    caption_phrases,
+    spoken_number,
+    spoken_numbers,
+)
 from mogo.bundle import Bundle, BundleError, read_array
 from mogo.manifest import Repertoire
+from mogo.motion import untrusted
 
 # How many steps, which side, which way and how many times: a prompt says these in the
 # captions' own words ("then", "to the left", "twice"), yet the adapter blurs them ("applauds
@@ -29,14 +37,25 @@ from mogo.manifest import Repertoire
 # prompt is played as, each kind of these the prompt and a caption both name adds SAY_WEIGHT
 # to the cosine where they agree and takes it off where they differ (chosen on the held-out
 # and fresh phrasebooks, docs/text_encoder.md).
-_SIDES = dict(left="left", leftward="left", counterclockwise="left", right="right",
-              rightward="right", clockwise="right", both="both")
+_SIDES = dict(
+    left="left",
+    leftward="left",
+    counterclockwise="left",
+    right="right",
+    rightward="right",
+    clockwise="right",
+    both="both",
+)
 _WAYS = dict(forward="forward", backward="backward")
 _COUNTS = {spoken_number(n): n for n in range(1000)} | {"once": 1, "twice": 2}
-_UNDER_100 = (rf"(?:(?:{'|'.join(TENS[2:])})(?:-(?:{'|'.join(NUMBERS[1:10])}))?"
-              rf"|{'|'.join(sorted(NUMBERS, key=len, reverse=True))})")
-_COUNT = re.compile(rf"\b(?:(?:a|{'|'.join(NUMBERS[2:10])}) hundred(?: and {_UNDER_100})?"
-                    rf"|{_UNDER_100}|once|twice)\b")  # the spellings of _COUNTS
+_UNDER_100 = (
+    rf"(?:(?:{'|'.join(TENS[2:])})(?:-(?:{'|'.join(NUMBERS[1:10])}))?"
+    rf"|{'|'.join(sorted(NUMBERS, key=len, reverse=True))})"
+)
+_COUNT = re.compile(
+    rf"\b(?:(?:a|{'|'.join(NUMBERS[2:10])}) hundred(?: and {_UNDER_100})?"
+    rf"|{_UNDER_100}|once|twice)\b"
+)  # the spellings of _COUNTS
 _AFTER = re.compile(r"\bafter\b(?! that| which)")  # "after X, Y" (SEQUENCE has the others)
 SAY_WEIGHT = 0.1
 
@@ -47,6 +66,7 @@ class Familiarity:
     `nearest`, the closest captions, nearest first; `familiar`: score >= threshold; `played`,
     the known caption a prompt in words the model was not trained on is played as (None: the
     prompt is played as written)."""
+
     score: float
     threshold: float
     nearest: tuple[str, ...]
@@ -69,10 +89,11 @@ class Familiarity:
         nearest = ", ".join(repr(c) for c in self.nearest)
         played = "" if self.played is None else f"; played as {self.played!r}"
         if self.familiar:
-            return (f"close to what this model knows ({self.score:.2f}); nearest: {nearest}"
-                    f"{played}")
-        return (f"far from what this model knows (similarity {self.score:.2f}, below "
-                f"{self.threshold:.2f}); nearest: {nearest}{played}")
+            return f"close to what this model knows ({self.score:.2f}); nearest: {nearest}{played}"
+        return (
+            f"far from what this model knows (similarity {self.score:.2f}, below "
+            f"{self.threshold:.2f}); nearest: {nearest}{played}"
+        )
 
 
 class KnownCaptions:
@@ -87,18 +108,24 @@ class KnownCaptions:
         except ValueError as error:
             raise BundleError(str(error)) from None
         self.embeddings = read_array(path)
-        self.prompts = None if repertoire.prompts is None else read_array(
-            bundle.path(repertoire.prompts))
+        self.prompts = (
+            None if repertoire.prompts is None else read_array(bundle.path(repertoire.prompts))
+        )
         if not isinstance(self.captions, list) or not all(
-                isinstance(caption, str) for caption in self.captions):
+            isinstance(caption, str) for caption in self.captions
+        ):
             raise BundleError(f"{captions}: not a list of captions (strings)")
         if self.embeddings.ndim != 2 or len(self.captions) != len(self.embeddings):
-            raise BundleError(f"{path}: {self.embeddings.shape} embeddings for "
-                              f"{len(self.captions)} captions")
-        if self.prompts is not None and (self.prompts.ndim != 2
-                                         or len(self.prompts) != len(self.captions)):
-            raise BundleError(f"{bundle.path(repertoire.prompts)}: {self.prompts.shape} prompt "
-                              f"embeddings for {len(self.captions)} captions")
+            raise BundleError(
+                f"{path}: {self.embeddings.shape} embeddings for {len(self.captions)} captions"
+            )
+        if self.prompts is not None and (
+            self.prompts.ndim != 2 or len(self.prompts) != len(self.captions)
+        ):
+            raise BundleError(
+                f"{bundle.path(repertoire.prompts)}: {self.prompts.shape} prompt "
+                f"embeddings for {len(self.captions)} captions"
+            )
         if self.prompts is not None:  # the cosine's denominators and what captions say, once
             self._prompt_norms = np.linalg.norm(self.prompts, axis=1)
             self._says = [what_it_says(caption) for caption in self.captions]
@@ -109,13 +136,16 @@ class KnownCaptions:
         `text` says agreeing (SAY_WEIGHT): the level graphs play the exact embeddings they were
         trained on far better than an adapter's approximation of them (docs/text_encoder.md)."""
         says = what_it_says(text)
-        agreement = [sum(1 if said[kind] == value else -1 for kind, value in says.items()
-                         if kind in said) for said in self._says]
+        agreement = [
+            sum(1 if said[kind] == value else -1 for kind, value in says.items() if kind in said)
+            for said in self._says
+        ]
         similarity = self.prompts @ prompt[0] / self._prompt_norms / np.linalg.norm(prompt)
         return int(np.argmax(similarity + SAY_WEIGHT * np.array(agreement)))
 
-    def familiarity(self, sentence: np.ndarray, played: str | None = None, count: int = 3
-                    ) -> Familiarity:
+    def familiarity(
+        self, sentence: np.ndarray, played: str | None = None, count: int = 3
+    ) -> Familiarity:
         """`sentence`: a prompt's unit sentence embedding (dim,); `played`: the caption it is
         played as, if any."""
         similarity = self.embeddings @ sentence
@@ -127,8 +157,12 @@ class KnownCaptions:
                 nearest.append(caption)
             if len(nearest) == count:
                 break
-        return Familiarity(round(float(similarity[order[0]]), 4), self.threshold, tuple(nearest),
-                           None if played is None else shown_caption(played))
+        return Familiarity(
+            round(float(similarity[order[0]]), 4),
+            self.threshold,
+            tuple(nearest),
+            None if played is None else shown_caption(played),
+        )
 
 
 def shown_caption(caption: str) -> str:
@@ -142,7 +176,10 @@ def what_it_says(text: str) -> dict[str, frozenset]:
     text = caption_phrases(spoken_numbers(text)).lower()
     words = [WORD_SYNONYMS.get(w, w) for w in re.findall(r"[a-z]+", text)]
     steps = 1 + len(SEQUENCE.findall(f" {text} ")) + len(_AFTER.findall(text))
-    says = dict(steps=frozenset({steps}), side=frozenset(_SIDES[w] for w in words if w in _SIDES),
-                way=frozenset(_WAYS[w] for w in words if w in _WAYS),
-                count=frozenset(_COUNTS[n] for n in _COUNT.findall(text) if n in _COUNTS))
+    says = dict(
+        steps=frozenset({steps}),
+        side=frozenset(_SIDES[w] for w in words if w in _SIDES),
+        way=frozenset(_WAYS[w] for w in words if w in _WAYS),
+        count=frozenset(_COUNTS[n] for n in _COUNT.findall(text) if n in _COUNTS),
+    )
     return {kind: values for kind, values in says.items() if values}

@@ -22,6 +22,7 @@ Uniforms come from numpy.random.Generator(PCG64(seed)): at the start of every st
 `rng.random(num_levels)`, drawn whether or not every level ends up sampled; level l uses
 entry l. A greedy run draws them too, so the stream never depends on the settings.
 """
+
 from __future__ import annotations
 
 import math
@@ -52,14 +53,24 @@ class Sampling:
     command's flags (--top-p ...), the keyword options of MotionGenerator.generate/stream/play
     and the "defaults" of a bundle's manifest all use these fields' names; adding an option
     means a field here and its use in `choose_tokens`."""
-    temperature: float = field(default=1.0, metadata=dict(
-        help="divides the logits; 0 = greedy (the likeliest token)"))
+
+    temperature: float = field(
+        default=1.0, metadata=dict(help="divides the logits; 0 = greedy (the likeliest token)")
+    )
     top_k: int = field(default=0, metadata=dict(help="keep the k likeliest tokens; 0 = off"))
-    top_p: float = field(default=1.0, metadata=dict(
-        help="keep the likeliest tokens that hold this share of the probability; 1 = off"))
-    guidance: float = field(default=1.0, metadata=dict(
-        help="classifier-free guidance scale; 1 = off (conditional logits only), above 1 "
-             "follows the prompt more, below 1 less (0 = the unconditional logits)"))
+    top_p: float = field(
+        default=1.0,
+        metadata=dict(
+            help="keep the likeliest tokens that hold this share of the probability; 1 = off"
+        ),
+    )
+    guidance: float = field(
+        default=1.0,
+        metadata=dict(
+            help="classifier-free guidance scale; 1 = off (conditional logits only), above 1 "
+            "follows the prompt more, below 1 less (0 = the unconditional logits)"
+        ),
+    )
 
     def __post_init__(self):
         for option in fields(self):
@@ -68,18 +79,22 @@ class Sampling:
             if not math.isfinite(getattr(self, name)):
                 raise SamplingError(name, f"must be finite, got {getattr(self, name)}")
         if self.temperature < 0:
-            raise SamplingError("temperature", f"must be >= 0 (0 = greedy), got "
-                                               f"{self.temperature}")
+            raise SamplingError("temperature", f"must be >= 0 (0 = greedy), got {self.temperature}")
         if 0 < self.temperature < MIN_TEMPERATURE:
-            raise SamplingError("temperature", f"must be 0 (greedy) or at least "
-                                               f"{MIN_TEMPERATURE:g}, got {self.temperature:g}")
+            raise SamplingError(
+                "temperature",
+                f"must be 0 (greedy) or at least {MIN_TEMPERATURE:g}, got {self.temperature:g}",
+            )
         if self.top_k < 0:
             raise SamplingError("top_k", f"must be >= 0 (0 = off), got {number_text(self.top_k)}")
         if not 0 < self.top_p <= 1:
             raise SamplingError("top_p", f"must be in (0, 1] (1 = off), got {self.top_p}")
         if abs(self.guidance) > MAX_GUIDANCE:
-            raise SamplingError("guidance", f"must be between -{MAX_GUIDANCE:.0f} and "
-                                            f"{MAX_GUIDANCE:.0f}, got {self.guidance:g}")
+            raise SamplingError(
+                "guidance",
+                f"must be between -{MAX_GUIDANCE:.0f} and "
+                f"{MAX_GUIDANCE:.0f}, got {self.guidance:g}",
+            )
 
     @property
     def guided(self) -> bool:
@@ -98,10 +113,12 @@ class Sampling:
         known = [option.name for option in fields(self)]
         unknown = sorted(set(options) - set(known))
         if unknown:
-            raise TypeError(f"unknown sampling option {unknown[0]!r}; the options are "
-                            f"{', '.join(known)}")
-        return replace(self, **{name: value for name, value in options.items()
-                                if value is not None})
+            raise TypeError(
+                f"unknown sampling option {unknown[0]!r}; the options are {', '.join(known)}"
+            )
+        return replace(
+            self, **{name: value for name, value in options.items() if value is not None}
+        )
 
 
 def _store_number(sampling: Sampling, name: str, kind: type) -> None:
@@ -109,8 +126,10 @@ def _store_number(sampling: Sampling, name: str, kind: type) -> None:
     text, no bool."""
     value = getattr(sampling, name)
     if isinstance(value, bool) or not isinstance(value, Integral if kind is int else Real):
-        raise TypeError(f"{name} must be {'an integer' if kind is int else 'a number'}, got "
-                        f"{type(value).__name__}")
+        raise TypeError(
+            f"{name} must be {'an integer' if kind is int else 'a number'}, got "
+            f"{type(value).__name__}"
+        )
     try:
         object.__setattr__(sampling, name, kind(value))
     except OverflowError:  # an int beyond float's range
@@ -126,16 +145,33 @@ def step_uniforms(rng: np.random.Generator, num_levels: int) -> np.ndarray:
     return rng.random(num_levels)
 
 
-def choose_token(cond: np.ndarray, uncond: np.ndarray | None, uniform: float,
-                 sampling: Sampling, forbid: int | None = None) -> int:
+def choose_token(
+    cond: np.ndarray,
+    uncond: np.ndarray | None,
+    uniform: float,
+    sampling: Sampling,
+    forbid: int | None = None,
+) -> int:
     """One token id from one level's logits (K,): see the module docstring for the exact rule."""
     rows = None if uncond is None else np.asarray(uncond)[None]
-    return int(choose_tokens(np.asarray(cond)[None], rows, np.array([uniform]), sampling,
-                             None if forbid is None else [forbid])[0])
+    return int(
+        choose_tokens(
+            np.asarray(cond)[None],
+            rows,
+            np.array([uniform]),
+            sampling,
+            None if forbid is None else [forbid],
+        )[0]
+    )
 
 
-def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndarray,
-                  sampling: Sampling, forbid: list[int | None] | None = None) -> np.ndarray:
+def choose_tokens(
+    cond: np.ndarray,
+    uncond: np.ndarray | None,
+    uniforms: np.ndarray,
+    sampling: Sampling,
+    forbid: list[int | None] | None = None,
+) -> np.ndarray:
     """`choose_token` for several rows at once (the levels of a step, padded with -inf to one
     width): row by row the same arithmetic, in a fixed number of numpy calls."""
     z = np.asarray(cond, dtype=np.float64)
@@ -144,8 +180,7 @@ def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndar
             raise ValueError(f"guidance {sampling.guidance} needs unconditional logits")
         u = np.asarray(uncond, dtype=np.float64)
         with np.errstate(invalid="ignore"):  # padding: -inf in both stays -inf
-            z = np.where(np.isneginf(z) & np.isneginf(u), -np.inf,
-                         u + sampling.guidance * (z - u))
+            z = np.where(np.isneginf(z) & np.isneginf(u), -np.inf, u + sampling.guidance * (z - u))
     rows = np.arange(len(z))
     if forbid is not None and any(f is not None for f in forbid):
         z = z.copy()
@@ -163,8 +198,7 @@ def choose_tokens(cond: np.ndarray, uncond: np.ndarray | None, uniforms: np.ndar
     p = np.where(inside, np.exp(z_sorted - z_sorted[:, :1]), 0.0)
     c = np.cumsum(p, axis=1)
     if sampling.top_p < 1:
-        keep = np.count_nonzero(inside & (c - p < sampling.top_p * c[rows, keep - 1, None]),
-                                axis=1)
+        keep = np.count_nonzero(inside & (c - p < sampling.top_p * c[rows, keep - 1, None]), axis=1)
     total = c[rows, keep - 1]
     index = np.count_nonzero(c <= (uniforms * total)[:, None], axis=1)
     return _column(z, z_sorted[rows, index], index)

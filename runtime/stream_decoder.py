@@ -14,6 +14,7 @@ as soon as they can): k times fewer decodes, frames in bursts of k tokens.
 Contexts are counted in tokens. With temporal downsampling a token decodes to several frames;
 that factor is read off each decode (output length / input length), so any factor works.
 """
+
 from __future__ import annotations
 
 import os
@@ -33,17 +34,27 @@ class StreamingDecoder:
     are those mogo.export.onnx.vq_graphs writes. A session passed in is used as it is.
     """
 
-    def __init__(self, session_or_path: ort.InferenceSession | str | os.PathLike,
-                 left_context: int, lookahead: int, codebook_size: int, *,
-                 ids_name: str = "ids", features_name: str = "features",
-                 intra_op_threads: int = 1, every: int = 1):
+    def __init__(
+        self,
+        session_or_path: ort.InferenceSession | str | os.PathLike,
+        left_context: int,
+        lookahead: int,
+        codebook_size: int,
+        *,
+        ids_name: str = "ids",
+        features_name: str = "features",
+        intra_op_threads: int = 1,
+        every: int = 1,
+    ):
         if isinstance(session_or_path, ort.InferenceSession):
             self.session = session_or_path
         else:
             self.session = cpu_session(session_or_path, intra_op_threads)
         if min(left_context, lookahead) < 0 or codebook_size < 1:
-            raise ValueError(f"need left_context, lookahead >= 0 and codebook_size >= 1, got "
-                             f"{left_context}, {lookahead}, {codebook_size}")
+            raise ValueError(
+                f"need left_context, lookahead >= 0 and codebook_size >= 1, got "
+                f"{left_context}, {lookahead}, {codebook_size}"
+            )
         if every < 1:
             raise ValueError(f"every must be >= 1 token, got {every}")
         self.left_context, self.lookahead, self.every = left_context, lookahead, every
@@ -91,10 +102,10 @@ class StreamingDecoder:
         ready = self._ready
         frames_per_token = len(features) // (len(self._tokens) - 2 * cut)
         first = (self.emitted - self._start - cut) * frames_per_token
-        frames = features[first:first + (ready - self.emitted) * frames_per_token]
+        frames = features[first : first + (ready - self.emitted) * frames_per_token]
         self.emitted = ready
         keep_from = max(0, ready - self.left_context)
-        self._tokens = self._tokens[keep_from - self._start:]
+        self._tokens = self._tokens[keep_from - self._start :]
         self._start = keep_from
         return frames
 
@@ -132,16 +143,19 @@ class StreamingDecoder:
             return self._none()
         return self._decode_windows(ids[None])[0]
 
-    def _decode_windows(self, windows: np.ndarray, session: ort.InferenceSession | None = None,
-                        cut: int = 0) -> np.ndarray:
+    def _decode_windows(
+        self, windows: np.ndarray, session: ort.InferenceSession | None = None, cut: int = 0
+    ) -> np.ndarray:
         """Windows (B, tokens, L) -> features (B, frames, D), one call; `session` decodes the
         windows less `cut` tokens at each end (see `push_many`)."""
         session = session or self.session
         (features,) = session.run([self.features_name], {self.ids_name: windows})
         tokens = windows.shape[1] - 2 * cut
         if features.shape[1] % tokens:
-            raise ValueError(f"the decoder made {features.shape[1]} frames from {tokens} "
-                             "tokens, not a whole number per token")
+            raise ValueError(
+                f"the decoder made {features.shape[1]} frames from {tokens} "
+                "tokens, not a whole number per token"
+            )
         return features
 
     def _checked(self, ids: np.ndarray) -> np.ndarray:
@@ -151,13 +165,17 @@ class StreamingDecoder:
         if ids.ndim != 2 or ids.shape[1] != self.levels:
             raise ValueError(f"token ids must be (n, {self.levels}), got shape {ids.shape}")
         if ids.size and (ids.min() < 0 or ids.max() >= self.codebook_size):
-            raise ValueError(f"token ids must lie in [0, {self.codebook_size}), got "
-                             f"[{ids.min()}, {ids.max()}]")
+            raise ValueError(
+                f"token ids must lie in [0, {self.codebook_size}), got [{ids.min()}, {ids.max()}]"
+            )
         return ids.astype(np.int64)
 
 
-def push_many(decoders: Sequence[StreamingDecoder], ids: Sequence[np.ndarray],
-              interior: tuple[ort.InferenceSession, int] | None = None) -> list[np.ndarray]:
+def push_many(
+    decoders: Sequence[StreamingDecoder],
+    ids: Sequence[np.ndarray],
+    interior: tuple[ort.InferenceSession, int] | None = None,
+) -> list[np.ndarray]:
     """[decoder.push(i) for each decoder and its ids], the windows due decoded in one call per
     window length (decoders of one session): the decoder's convolutions keep batch rows
     apart, so each gets the frames of its own push. Streams in step share their window length
@@ -165,9 +183,9 @@ def push_many(decoders: Sequence[StreamingDecoder], ids: Sequence[np.ndarray],
     graph that decodes a window less `cut` tokens at each end, cut) (mogo.serve.interior),
     for the windows whose new tokens lie `cut` tokens or more from both ends: every window of
     a stream past its first left context (the same frames to a float rounding)."""
-    windows = [decoder.feed(i) for decoder, i in zip(decoders, ids)]
+    windows = [decoder.feed(i) for decoder, i in zip(decoders, ids, strict=True)]
     groups: dict[tuple[int, int], list[int]] = {}
-    for k, (decoder, window) in enumerate(zip(decoders, windows)):
+    for k, (decoder, window) in enumerate(zip(decoders, windows, strict=True)):
         if window is not None:
             cut = 0 if interior is None else interior[1]
             if decoder.emitted - decoder._start < cut or decoder.lookahead < cut:
@@ -178,9 +196,10 @@ def push_many(decoders: Sequence[StreamingDecoder], ids: Sequence[np.ndarray],
         first = decoders[ks[0]]
         if any(decoders[k].session is not first.session for k in ks):
             raise ValueError("push_many needs decoders that share one session")
-        decoded = first._decode_windows(np.stack([windows[k] for k in ks]),
-                                        interior[0] if cut else None, cut)
-        for k, features in zip(ks, decoded):
+        decoded = first._decode_windows(
+            np.stack([windows[k] for k in ks]), interior[0] if cut else None, cut
+        )
+        for k, features in zip(ks, decoded, strict=True):
             frames[k] = decoders[k].take(features, cut)
     return frames
 

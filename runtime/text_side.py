@@ -7,6 +7,7 @@ encoder the model was trained with (manifest `text.trained`), a prompt that enco
 whole (every word known, nothing cut) is embedded by it, exactly as in training. The
 repertoire (mogo.repertoire) scores the sentence embedding against the training captions.
 """
+
 from __future__ import annotations
 
 import functools
@@ -20,8 +21,7 @@ from tokenizers import Tokenizer
 
 from mogo._session import NamedGraph
 from mogo.align_words import spoken_numbers
-from mogo.arguments import (UnfamiliarPromptWarning, checked_prompt, read_prompt, short,
-                            word_reading)
+from mogo.arguments import UnfamiliarPromptWarning, checked_prompt, read_prompt, short, word_reading
 from mogo.bundle import Bundle, BundleError
 from mogo.motion.untrusted import parse_json, read_text
 from mogo.repertoire import Familiarity, KnownCaptions
@@ -40,9 +40,14 @@ class TextSide:
         self._graph = NamedGraph(bundle, text.encoder, threads)
         repertoire, trained = text.repertoire, text.trained
         self.repertoire = None if repertoire is None else KnownCaptions(bundle, repertoire)
-        self._trained = None if trained is None else (
-            _tokenizer(bundle.path(trained.tokenizer)),
-            NamedGraph(bundle, trained.encoder, threads))
+        self._trained = (
+            None
+            if trained is None
+            else (
+                _tokenizer(bundle.path(trained.tokenizer)),
+                NamedGraph(bundle, trained.encoder, threads),
+            )
+        )
         self._encoded = functools.lru_cache(ENCODED_PROMPTS)(self._encode_one)
 
     def embed(self, texts: Sequence[str]) -> np.ndarray:
@@ -69,9 +74,14 @@ class TextSide:
         UnfamiliarPromptWarning where it is far from the repertoire (`stacklevel`: the
         caller's frame for the warning)."""
         spec = self._spec
-        text = read_prompt(text, self._counter, spec.max_length,
-                           None if spec.sentence_encoder else len(self.vocabulary()), name,
-                           stacklevel + 1)
+        text = read_prompt(
+            text,
+            self._counter,
+            spec.max_length,
+            None if spec.sentence_encoder else len(self.vocabulary()),
+            name,
+            stacklevel + 1,
+        )
         if self.repertoire is not None and not (familiarity := self.familiarity(text)).familiar:
             warnings.warn(familiarity.describe(), UnfamiliarPromptWarning, stacklevel=stacklevel)
         return text
@@ -94,8 +104,9 @@ class TextSide:
                 return _Encoded(_run(graph, encoding)[0], sentence, None)
         if self.repertoire is not None and self.repertoire.prompts is not None:
             index = self.repertoire.nearest(outputs[0], text)
-            return _Encoded(self.repertoire.prompts[[index]], sentence,
-                            self.repertoire.captions[index])
+            return _Encoded(
+                self.repertoire.prompts[[index]], sentence, self.repertoire.captions[index]
+            )
         return _Encoded(outputs[0], sentence, None)
 
 
@@ -136,9 +147,11 @@ def _tokenizer(path: Path) -> Tokenizer:
         value = pending.pop()
         if isinstance(value, dict):
             if "Regex" in value:
-                raise BundleError(f"{path}: a tokenizer with a regular expression "
-                                  f"({short(str(value['Regex']))}), which may take exponential "
-                                  "time on a prompt; bundles' tokenizers use none")
+                raise BundleError(
+                    f"{path}: a tokenizer with a regular expression "
+                    f"({short(str(value['Regex']))}), which may take exponential "
+                    "time on a prompt; bundles' tokenizers use none"
+                )
             pending.extend(value.values())
         elif isinstance(value, list):
             pending.extend(value)

@@ -17,6 +17,7 @@ mogo.export.onnx.t2m_graphs), by role: the first five inputs are prompt, uncond,
 positions, past_positions, then past key/value pairs layer by layer; output 0 is the logits,
 then the matching presents. The cache sizes (heads, head_dim) are the graph's own input shapes.
 """
+
 from __future__ import annotations
 
 import copy
@@ -43,9 +44,15 @@ class Stopped(Exception):
 class TokenGenerator:
     """The level graphs of one model; `start` opens a stream on them (streams share sessions)."""
 
-    def __init__(self, level_paths: Sequence[str | os.PathLike], graphs: Sequence[Graph],
-                 end_token: int, intra_op_threads: int = 1, level_workers: int = 1,
-                 rows_apart: bool = False):
+    def __init__(
+        self,
+        level_paths: Sequence[str | os.PathLike],
+        graphs: Sequence[Graph],
+        end_token: int,
+        intra_op_threads: int = 1,
+        level_workers: int = 1,
+        rows_apart: bool = False,
+    ):
         """graphs[l]: the input and output names of level l (protocol order).
         level_workers > 1 runs the levels of a step in that many groups at once, balanced by
         layer count (each session then keeps `intra_op_threads`, best 1). rows_apart: batch
@@ -55,11 +62,15 @@ class TokenGenerator:
             raise ValueError(f"level_workers must be >= 1, got {level_workers}")
         if len(level_paths) != len(graphs):
             raise ValueError(f"{len(level_paths)} graph files for {len(graphs)} graph entries")
-        self.sessions = [graph_session(path, graph, intra_op_threads)
-                         for path, graph in zip(level_paths, graphs)]
+        self.sessions = [
+            graph_session(path, graph, intra_op_threads)
+            for path, graph in zip(level_paths, graphs, strict=True)
+        ]
         self.graphs = list(graphs)
-        self.cache_shapes = [_cache_shape(session, path)
-                             for session, path in zip(self.sessions, level_paths)]
+        self.cache_shapes = [
+            _cache_shape(session, path)
+            for session, path in zip(self.sessions, level_paths, strict=True)
+        ]
         self.end_token = end_token
         self.num_levels = len(graphs)
         self.num_classes = end_token + 1  # level 0's logits: every code and the end token
@@ -76,20 +87,37 @@ class TokenGenerator:
         return twin
 
     def _spread_levels(self, level_workers: int) -> None:
-        self.level_groups = balanced_groups([layers for layers, _, _ in self.cache_shapes],
-                                            level_workers)
-        self._pool = (ThreadPoolExecutor(len(self.level_groups) - 1, "mogo-level")
-                      if len(self.level_groups) > 1 else None)
+        self.level_groups = balanced_groups(
+            [layers for layers, _, _ in self.cache_shapes], level_workers
+        )
+        self._pool = (
+            ThreadPoolExecutor(len(self.level_groups) - 1, "mogo-level")
+            if len(self.level_groups) > 1
+            else None
+        )
 
-    def start(self, prompt_embedding: np.ndarray, seed: int = 0,
-              sampling: Sampling = Sampling(), window: int | None = None,
-              allow_end: bool = True) -> TokenStream:
+    def start(
+        self,
+        prompt_embedding: np.ndarray,
+        seed: int = 0,
+        sampling: Sampling = Sampling(),
+        window: int | None = None,
+        allow_end: bool = True,
+    ) -> TokenStream:
         """A new stream; see `TokenStream`."""
         return TokenStream(self, prompt_embedding, seed, sampling, window, allow_end)
 
-    def generate(self, prompt_embedding: np.ndarray, num_frames: int | None = None,
-                 max_frames: int = MAX_FRAMES, sampling: Sampling = Sampling(), seed: int = 0,
-                 window: int | None = None, stop=None, progress: bool = False) -> np.ndarray:
+    def generate(
+        self,
+        prompt_embedding: np.ndarray,
+        num_frames: int | None = None,
+        max_frames: int = MAX_FRAMES,
+        sampling: Sampling = Sampling(),
+        seed: int = 0,
+        window: int | None = None,
+        stop=None,
+        progress: bool = False,
+    ) -> np.ndarray:
         """prompt_embedding (text_dim,) -> token ids (T, L) int64. num_frames given: exactly that
         many steps, the end token masked. None: until level 0 draws the end token or max_frames.
         stop: a threading.Event; once set, the next step raises Stopped. progress=True: a
@@ -109,13 +137,25 @@ class TokenGenerator:
         shown.close()
         return np.array(rows, dtype=np.int64).reshape(-1, self.num_levels)
 
-    def run(self, level: int, prompt: np.ndarray, uncond: np.ndarray, token_ids: np.ndarray,
-            positions: np.ndarray, past_positions: np.ndarray,
-            past: Cache) -> tuple[np.ndarray, Cache]:
+    def run(
+        self,
+        level: int,
+        prompt: np.ndarray,
+        uncond: np.ndarray,
+        token_ids: np.ndarray,
+        positions: np.ndarray,
+        past_positions: np.ndarray,
+        past: Cache,
+    ) -> tuple[np.ndarray, Cache]:
         """One call of a level graph -> logits of the last position (batch, K[+1]), presents."""
         graph = self.graphs[level]
-        feed = dict(zip(graph.inputs, [prompt, uncond, token_ids, positions, past_positions,
-                                       *past], strict=True))  # one array per input, no more
+        feed = dict(
+            zip(
+                graph.inputs,
+                [prompt, uncond, token_ids, positions, past_positions, *past],
+                strict=True,
+            )
+        )  # one array per input, no more
         logits, *presents = self.sessions[level].run(list(graph.outputs), feed)
         return logits, presents
 
@@ -129,9 +169,9 @@ class TokenGenerator:
             return [call(level) for level in group]
 
         others = [self._pool.submit(run_group, group) for group in self.level_groups[1:]]
-        results = dict(zip(self.level_groups[0], run_group(self.level_groups[0])))
-        for group, future in zip(self.level_groups[1:], others):
-            results.update(zip(group, future.result()))
+        results = dict(zip(self.level_groups[0], run_group(self.level_groups[0]), strict=True))
+        for group, future in zip(self.level_groups[1:], others, strict=True):
+            results.update(zip(group, future.result(), strict=True))
         return [results[level] for level in range(self.num_levels)]
 
     def empty_cache(self, level: int, batch: int) -> Cache:
@@ -151,14 +191,21 @@ class TokenStream:
     which it otherwise may from the second step on.
     """
 
-    def __init__(self, generator: TokenGenerator, prompt_embedding: np.ndarray, seed: int,
-                 sampling: Sampling, window: int | None, allow_end: bool):
+    def __init__(
+        self,
+        generator: TokenGenerator,
+        prompt_embedding: np.ndarray,
+        seed: int,
+        sampling: Sampling,
+        window: int | None,
+        allow_end: bool,
+    ):
         if window is not None and window < 1:
             raise ValueError(f"window must be >= 1 steps, got {window}")
         self.generator, self.sampling = generator, sampling
         self.window, self.allow_end = window, allow_end
         self.rng = make_rng(seed)
-        self.uncond = np.array([False, True][:2 if sampling.guided else 1])
+        self.uncond = np.array([False, True][: 2 if sampling.guided else 1])
         self.prompt = self._batch(prompt_embedding)
         self.restart()
 
@@ -173,14 +220,16 @@ class TokenStream:
         so they can share a call of each level graph (`step_together`)."""
         return self.steps, self.positions.tobytes()
 
-    def _drawn(self, logits: np.ndarray, presents: list[Cache], uniforms: np.ndarray
-               ) -> np.ndarray | None:
+    def _drawn(
+        self, logits: np.ndarray, presents: list[Cache], uniforms: np.ndarray
+    ) -> np.ndarray | None:
         """The step after its graph calls: tokens sampled from this stream's logits
         (rows, L, C), its cache moved on by `presents`."""
         g, n = self.generator, self.steps
         forbid = [None if self.allow_end and n > 0 else g.end_token] + [None] * (g.num_levels - 1)
-        row = choose_tokens(logits[0], logits[1] if self.sampling.guided else None, uniforms,
-                            self.sampling, forbid)
+        row = choose_tokens(
+            logits[0], logits[1] if self.sampling.guided else None, uniforms, self.sampling, forbid
+        )
         if row[0] == g.end_token:
             self.ended = True
             return None
@@ -214,7 +263,7 @@ class TokenStream:
         self.slot_tokens = np.concatenate([np.zeros((1, L), np.int64), tokens[:-1]])
         self.last, self.steps, self.ended = tokens[-1], n, False
         if self.window is not None and n > 1 + self.window:
-            keep = np.r_[0, n - self.window:n]
+            keep = np.r_[0, n - self.window : n]
             self.positions, self.slot_tokens = self.positions[keep], self.slot_tokens[keep]
         self._oldest = 1
         self._prefill()
@@ -237,9 +286,17 @@ class TokenStream:
         g = self.generator
         token_ids = np.repeat(self.slot_tokens[None], len(self.uncond), axis=0)
         none = np.zeros(0, np.int64)
-        outputs = g.each_level(lambda level: g.run(level, self.prompt, self.uncond, token_ids,
-                                                   self.positions, none,
-                                                   g.empty_cache(level, len(self.uncond))))
+        outputs = g.each_level(
+            lambda level: g.run(
+                level,
+                self.prompt,
+                self.uncond,
+                token_ids,
+                self.positions,
+                none,
+                g.empty_cache(level, len(self.uncond)),
+            )
+        )
         self.caches = [present for _, present in outputs]
         self._group = None
 
@@ -247,8 +304,8 @@ class TokenStream:
         """Full window: the new slot (the last of every present) replaces the oldest step slot
         in place; the prefix slot 0 stays. Slots are then in ring order, oldest at _oldest."""
         slot = self._oldest
-        for cache, present in zip(self.caches, presents):
-            for held, new in zip(cache, present):
+        for cache, present in zip(self.caches, presents, strict=True):
+            for held, new in zip(cache, present, strict=True):
                 held[:, :, slot] = new[:, :, -1]
         self.positions[slot] = n
         self.slot_tokens[slot] = self.last
@@ -273,7 +330,7 @@ def step_together(streams: Sequence[TokenStream]) -> list[np.ndarray | None]:
             groups.setdefault(key, []).append(k)
     drawn: list[np.ndarray | None] = [None] * len(streams)
     for ks in groups.values():
-        for k, row in zip(ks, _step_group([streams[k] for k in ks])):
+        for k, row in zip(ks, _step_group([streams[k] for k in ks]), strict=True):
             drawn[k] = row
     return drawn
 
@@ -293,18 +350,25 @@ def _step_group(members: list[TokenStream]) -> list[np.ndarray | None]:
     if last is not None and last[0] == members and all(s._group is last for s in members):
         caches = last[1]  # the same streams in the same order: their caches as they lie, no copy
     else:
-        caches = [[stacked(parts) for parts in zip(*(s.caches[level] for s in members))]
-                  for level in range(g.num_levels)]
+        caches = [
+            [stacked(parts) for parts in zip(*(s.caches[level] for s in members), strict=True)]
+            for level in range(g.num_levels)
+        ]
     position, past = np.array([first.steps], np.int64), first.positions
-    outputs = g.each_level(lambda level: g.run(level, prompt, uncond, token_ids, position,
-                                               past, caches[level]))
+    outputs = g.each_level(
+        lambda level: g.run(level, prompt, uncond, token_ids, position, past, caches[level])
+    )
     logits = np.full((len(uncond), g.num_levels, g.num_classes), -np.inf, np.float32)
     for level, (level_logits, _) in enumerate(outputs):
-        logits[:, level, :level_logits.shape[1]] = level_logits
-    drawn = [s._drawn(logits[a:b], [[held[a:b] for held in present] for _, present in outputs],
-                      u) for s, a, b, u in zip(members, rows[:-1], rows[1:], uniforms)]
+        logits[:, level, : level_logits.shape[1]] = level_logits
+    drawn = [
+        s._drawn(logits[a:b], [[held[a:b] for held in present] for _, present in outputs], u)
+        for s, a, b, u in zip(members, rows[:-1], rows[1:], uniforms, strict=True)
+    ]
     group = (members, [present for _, present in outputs])
-    for stream, row in zip(members, drawn):  # the presents are their caches (not a full window)
+    for stream, row in zip(
+        members, drawn, strict=True
+    ):  # the presents are their caches (not a full window)
         took = row is not None and len(stream.positions) > len(past)
         stream._group = group if took and len(members) > 1 else None
     return drawn
@@ -324,10 +388,16 @@ def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:
 def _cache_shape(session, path) -> tuple[int, int, int]:
     """(layers, heads, head_dim) of a level graph: its past inputs, key and value per layer,
     are (batch, heads, past, head_dim) with heads and head_dim fixed."""
-    pasts = session.get_inputs()[len(LEVEL_INPUTS):]
+    pasts = session.get_inputs()[len(LEVEL_INPUTS) :]
     shape = pasts[0].shape if pasts else []
-    if not pasts or len(pasts) % 2 or len(shape) != 4 or not all(
-            isinstance(size, int) for size in (shape[1], shape[3])):
-        raise BundleError(f"{path}: not a level graph: expected key and value pairs of past "
-                          f"inputs (batch, heads, past, head_dim) after {LEVEL_INPUTS}")
+    if (
+        not pasts
+        or len(pasts) % 2
+        or len(shape) != 4
+        or not all(isinstance(size, int) for size in (shape[1], shape[3]))
+    ):
+        raise BundleError(
+            f"{path}: not a level graph: expected key and value pairs of past "
+            f"inputs (batch, heads, past, head_dim) after {LEVEL_INPUTS}"
+        )
     return len(pasts) // 2, shape[1], shape[3]

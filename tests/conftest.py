@@ -2,6 +2,7 @@
 server and its fault tests: minutes on 2 cores); `python -m pytest --full` also runs the tests
 marked slow, which CI runs: training and ONNX export (torch), the benches, Blender, the
 portable bundle."""
+
 import subprocess
 import sys
 from pathlib import Path
@@ -16,13 +17,19 @@ SLOW_FOLDERS = {"export", "bench", "portable"}
 
 
 def pytest_addoption(parser):
-    parser.addoption("--full", action="store_true",
-                     help="the full suite (what CI runs): also the tests marked slow")
+    parser.addoption(
+        "--full",
+        action="store_true",
+        help="the full suite (what CI runs): also the tests marked slow",
+    )
 
 
 def pytest_configure(config):
-    config.addinivalue_line("markers", "slow: run only with --full (tests/export, tests/bench "
-                                       "and tests/portable are slow as a whole)")
+    config.addinivalue_line(
+        "markers",
+        "slow: run only with --full (tests/export, tests/bench "
+        "and tests/portable are slow as a whole)",
+    )
 
 
 def pytest_collection_modifyitems(config, items):
@@ -45,8 +52,11 @@ _LEFT_OUT = pytest.StashKey[int]()
 def pytest_terminal_summary(terminalreporter, config):
     left_out = config.stash.get(_LEFT_OUT, 0)
     if left_out:
-        terminalreporter.write_line(f"{left_out} slow tests were not run: add --full for the "
-                                    "whole suite (what CI runs)", yellow=True)
+        terminalreporter.write_line(
+            f"{left_out} slow tests were not run: add --full for the whole suite (what CI runs)",
+            yellow=True,
+        )
+
 
 BLOCK_TORCH = (
     "import sys\n"
@@ -54,7 +64,8 @@ BLOCK_TORCH = (
     "    def find_spec(self, name, path=None, target=None):\n"
     "        if name.split('.')[0] in ('torch', 'onnxscript') or name.startswith(BLOCKED):\n"
     "            raise ImportError(f'{name} is blocked in this test')\n"
-    "sys.meta_path.insert(0, Block())\n")
+    "sys.meta_path.insert(0, Block())\n"
+)
 
 
 @pytest.fixture
@@ -72,11 +83,16 @@ def one_torch_thread():
 def run_without_torch():
     """Runs a Python script in a fresh interpreter where torch and onnxscript (and with
     `block_export`, mogo.export) cannot be imported; ends by checking torch was never loaded."""
+
     def run(script: str, block_export: bool = True) -> subprocess.CompletedProcess:
         blocked = f"BLOCKED = {('mogo.export',) if block_export else ()!r}\n"
         check = "assert 'torch' not in sys.modules\n"
-        return subprocess.run([sys.executable, "-c", blocked + BLOCK_TORCH + script + check],
-                              capture_output=True, text=True)
+        return subprocess.run(
+            [sys.executable, "-c", blocked + BLOCK_TORCH + script + check],
+            capture_output=True,
+            text=True,
+        )
+
     return run
 
 

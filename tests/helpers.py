@@ -1,5 +1,6 @@
 """Plain helpers the tests share (fixtures are in conftest.py): tiny data, clips, training-run
 records and the two-process runner. Importable as `helpers` from any test folder."""
+
 import contextlib
 import json
 import os
@@ -20,18 +21,37 @@ from mogo.motion.skeleton import SMPL_22
 def mogo_on_two_gloo_processes(*args) -> None:
     """`mogo ARGS` under torchrun, two CPU processes on gloo. On failure the message holds what
     both printed, with every thread's Python stack should one of them abort."""
-    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node",
-               "2", "-m", "mogo", *map(str, args), "--device", "cpu"]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=180,
-                          env=dict(os.environ, OMP_NUM_THREADS="1", PYTHONFAULTHANDLER="1"))
+    command = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nproc_per_node",
+        "2",
+        "-m",
+        "mogo",
+        *map(str, args),
+        "--device",
+        "cpu",
+    ]
+    done = subprocess.run(
+        command,
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env=dict(os.environ, OMP_NUM_THREADS="1", PYTHONFAULTHANDLER="1"),
+    )
     assert done.returncode == 0, f"stdout:\n{done.stdout[-3000:]}\nstderr:\n{done.stderr[-8000:]}"
 
 
 def records(run, kind=None) -> list[dict]:
     """A training run's metrics.jsonl records, without the timings."""
     lines = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
-    return [{k: v for k, v in r.items() if k not in ("seconds", "steps_per_s")}
-            for r in lines if kind is None or r["kind"] == kind]
+    return [
+        {k: v for k, v in r.items() if k not in ("seconds", "steps_per_s")}
+        for r in lines
+        if kind is None or r["kind"] == kind
+    ]
 
 
 def interrupt_after_step(monkeypatch, stop_step: int) -> None:
@@ -98,8 +118,9 @@ def rest_pose(skeleton):
     return pose
 
 
-def travelling_clip(rng, skeleton=SMPL_22, frames=120, turn_degrees=180.0, backwards=False,
-                    jitter=0.02):
+def travelling_clip(
+    rng, skeleton=SMPL_22, frames=120, turn_degrees=180.0, backwards=False, jitter=0.02
+):
     """A jittered rest pose travelling along a curve while turning by `turn_degrees`."""
     facing = np.radians(turn_degrees) * np.linspace(0, 1, frames) ** 2 + rng.uniform(-np.pi, np.pi)
     step = 0.06 * (-1 if backwards else 1)
@@ -128,8 +149,9 @@ def bundle_with_old_text_side(folder) -> str:
     for name in old.files:
         source = "trained_" + name if name in ("text_encoder.onnx", "tokenizer.json") else name
         shutil.copy2(os.path.join(DEFAULT_BUNDLE, source), os.path.join(folder, name))
-    shutil.copy2(os.path.join(OLD_TEXT_SIDE, "manifest.json"),
-                 os.path.join(folder, "manifest.json"))
+    shutil.copy2(
+        os.path.join(OLD_TEXT_SIDE, "manifest.json"), os.path.join(folder, "manifest.json")
+    )
     return str(folder)
 
 
@@ -142,8 +164,11 @@ def served(timeout: float = 60.0) -> Iterator[int]:
 
     port = free_port()
     with tempfile.TemporaryFile("w+") as log:
-        server = subprocess.Popen([sys.executable, "-m", "mogo", "serve", "--port", str(port),
-                                   "--threads", "1"], stderr=log, text=True)
+        server = subprocess.Popen(
+            [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--threads", "1"],
+            stderr=log,
+            text=True,
+        )
         try:
             deadline = time.monotonic() + timeout
             while not _answers(f"http://127.0.0.1:{port}/v1/health"):

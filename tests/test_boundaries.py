@@ -1,5 +1,6 @@
 """The layout's contract: which folder may import which, the runtime on numpy + onnxruntime +
 tokenizers + pillow only, no pickle, and the runtime working with torch unimportable."""
+
 import ast
 import sys
 from pathlib import Path
@@ -23,32 +24,60 @@ MAY_IMPORT = {
     "mogo.serve": (("mogo",), LATER),
     "mogo.export": (("mogo",), ("mogo.bench",)),
     # within export: data (numpy) < models (torch, and runs read back) < onnx < train < cli
-    "mogo.export.data": (("mogo",), ("mogo.bench", "mogo.export.models", "mogo.export.onnx",
-                                     "mogo.export.train", "mogo.export.cli")),
-    "mogo.export.models": (("mogo",), ("mogo.bench", "mogo.export.onnx", "mogo.export.train",
-                                       "mogo.export.cli")),
+    "mogo.export.data": (
+        ("mogo",),
+        (
+            "mogo.bench",
+            "mogo.export.models",
+            "mogo.export.onnx",
+            "mogo.export.train",
+            "mogo.export.cli",
+        ),
+    ),
+    "mogo.export.models": (
+        ("mogo",),
+        ("mogo.bench", "mogo.export.onnx", "mogo.export.train", "mogo.export.cli"),
+    ),
     "mogo.export.onnx": (("mogo",), ("mogo.bench", "mogo.export.train", "mogo.export.cli")),
     "mogo.export.train": (("mogo",), ("mogo.bench", "mogo.export.cli")),
     "mogo.bench": (("mogo",), ()),
-    "mogo.bench.quality": (("mogo",), ("mogo.export.models", "mogo.export.train",
-                                       "mogo.export.onnx", "mogo.bench.speed",
-                                       "mogo.bench.training")),
+    "mogo.bench.quality": (
+        ("mogo",),
+        (
+            "mogo.export.models",
+            "mogo.export.train",
+            "mogo.export.onnx",
+            "mogo.bench.speed",
+            "mogo.bench.training",
+        ),
+    ),
 }
 
 
 ADDON_DIR = RUNTIME_DIR / "blender_addon"  # package data run by Blender, not a room of mogo
 # The add-on's imports: Blender's modules, numpy, and of mogo its public API and the motion
 # maths (the rig solves the rotations), no second implementation of either.
-ADDON_MAY_IMPORT = {"bpy", "mathutils", "addon_utils", "numpy", "mogo", "mogo.motion.rig",
-                    "mogo.motion.bvh", "mogo.motion.quaternion"}
+ADDON_MAY_IMPORT = {
+    "bpy",
+    "mathutils",
+    "addon_utils",
+    "numpy",
+    "mogo",
+    "mogo.motion.rig",
+    "mogo.motion.bvh",
+    "mogo.motion.quaternion",
+}
 
 
 CODE_FOLDERS = ("runtime", "export", "bench", "tests")  # the repository's code (no venvs)
 
 
 def sources(folder: Path):
-    return sorted(p for p in folder.rglob("*.py")
-                  if ".venv" not in p.parts and not p.is_relative_to(ADDON_DIR))
+    return sorted(
+        p
+        for p in folder.rglob("*.py")
+        if ".venv" not in p.parts and not p.is_relative_to(ADDON_DIR)
+    )
 
 
 def package_of(path: Path) -> str:
@@ -88,8 +117,8 @@ def test_no_room_imports_one_above_it(folder):
         allowed, denied = rules_for(package)
         for name in filter(lambda name: within(name, "mogo"), imported_modules(path)):
             assert any(within(name, p) for p in allowed) and not any(
-                within(name, p) for p in denied), (
-                f"{path.relative_to(ROOT)} ({package}) imports {name}")
+                within(name, p) for p in denied
+            ), f"{path.relative_to(ROOT)} ({package}) imports {name}"
 
 
 def test_runtime_imports_only_allowed_packages():
@@ -99,7 +128,8 @@ def test_runtime_imports_only_allowed_packages():
         for name in imported_modules(path):
             top = name.split(".")[0]
             assert top in stdlib or top in ALLOWED_THIRD_PARTY | extra or top == "mogo", (
-                f"{path.name} imports {name}")
+                f"{path.name} imports {name}"
+            )
 
 
 def test_the_blender_addon_uses_the_public_api_and_is_not_imported_by_the_runtime():
@@ -116,7 +146,8 @@ def test_the_blender_addon_uses_the_public_api_and_is_not_imported_by_the_runtim
                 continue
             for forms in names:
                 assert forms[0].split(".")[0] in stdlib or ADDON_MAY_IMPORT & set(forms), (
-                    f"{path.name} imports {forms[-1]}")
+                    f"{path.name} imports {forms[-1]}"
+                )
     for path in (p for folder in CODE_FOLDERS for p in sources(ROOT / folder)):
         assert not any(within(n, "mogo.blender_addon") for n in imported_modules(path)), path
 
@@ -132,15 +163,22 @@ def test_runtime_loads_no_pickle():
                 if "allow_pickle" in keywords or getattr(node.func.value, "id", "") == "np":
                     value = keywords.get("allow_pickle")
                     assert isinstance(value, ast.Constant) and value.value is False, (
-                        f"{path.name}:{node.lineno} np.load without allow_pickle=False")
+                        f"{path.name}:{node.lineno} np.load without allow_pickle=False"
+                    )
 
 
 def import_every_module_without_torch(run_without_torch, folders: list[Path]) -> None:
-    modules = [package_of(p) + ("" if p.stem == "__init__" else f".{p.stem}")
-               for folder in folders for p in sources(folder) if p.stem != "__main__"]
-    result = run_without_torch(f"import importlib\nfor m in {modules!r}:\n"
-                               "    importlib.import_module(m)\nprint('ok', len(sys.modules))\n",
-                               block_export=False)
+    modules = [
+        package_of(p) + ("" if p.stem == "__init__" else f".{p.stem}")
+        for folder in folders
+        for p in sources(folder)
+        if p.stem != "__main__"
+    ]
+    result = run_without_torch(
+        f"import importlib\nfor m in {modules!r}:\n"
+        "    importlib.import_module(m)\nprint('ok', len(sys.modules))\n",
+        block_export=False,
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("ok")
 
@@ -154,8 +192,10 @@ def test_the_export_data_room_imports_with_torch_unimportable(run_without_torch)
 
 
 def test_the_public_api_is_at_the_package_top(run_without_torch):
-    result = run_without_torch("from mogo import MotionGenerator, MotionStream, Motion, Sampling\n"
-                               "import mogo\nprint(sorted(mogo.__all__))\n")
+    result = run_without_torch(
+        "from mogo import MotionGenerator, MotionStream, Motion, Sampling\n"
+        "import mogo\nprint(sorted(mogo.__all__))\n"
+    )
     assert result.returncode == 0, result.stderr
     assert "MotionGenerator" in result.stdout
 
@@ -165,7 +205,9 @@ def test_the_mogo_command_runs_its_runtime_verbs_without_torch(run_without_torch
         "from mogo.cli import main\n"
         f"code = main(['generate', 'a person waves.', '--seconds', '1', '--seed', '0', "
         f"'--out', {str(tmp_path)!r}])\n"
-        "assert code == 0, code\n", block_export=False)
+        "assert code == 0, code\n",
+        block_export=False,
+    )
     assert result.returncode == 0, result.stderr
     assert sorted(p.suffix for p in tmp_path.iterdir()) == [".bvh", ".gif", ".json", ".npy"]
 
@@ -174,6 +216,7 @@ def test_the_runtime_tests_run_without_torch(run_without_torch):
     """tests/runtime/ checks the runtime as a user of the base install has it: no torch."""
     tests = Path(__file__).parent
     for path in sorted((tests / "runtime").glob("test_*.py")):
-        done = run_without_torch(f"import runpy\nsys.path.insert(0, {str(tests)!r})\n"
-                                 f"runpy.run_path({str(path)!r})\n")
+        done = run_without_torch(
+            f"import runpy\nsys.path.insert(0, {str(tests)!r})\nrunpy.run_path({str(path)!r})\n"
+        )
         assert done.returncode == 0, f"{path.name}: {done.stderr[-2000:]}"

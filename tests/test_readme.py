@@ -14,8 +14,10 @@ from helpers import served
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = ["README.md", "docs/serve.md"]
-BLOCKS = {page: re.findall(r"^```python\n(.*?)^```$", (ROOT / page).read_text(), re.M | re.S)
-          for page in PAGES}
+BLOCKS = {
+    page: re.findall(r"^```python\n(.*?)^```$", (ROOT / page).read_text(), re.M | re.S)
+    for page in PAGES
+}
 DEFAULT_SERVER = "127.0.0.1:8765"  # mogo serve's default address, as the pages write it
 
 
@@ -24,8 +26,11 @@ def test_the_page_has_python_blocks(page):
     assert BLOCKS[page]
 
 
-@pytest.mark.parametrize("block", [block for page in PAGES for block in BLOCKS[page]],
-                         ids=[f"{page}:{k}" for page in PAGES for k in range(len(BLOCKS[page]))])
+@pytest.mark.parametrize(
+    "block",
+    [block for page in PAGES for block in BLOCKS[page]],
+    ids=[f"{page}:{k}" for page in PAGES for k in range(len(BLOCKS[page]))],
+)
 def test_the_block_runs_as_pasted(block, tmp_path):
     if DEFAULT_SERVER in block:
         pytest.importorskip("aiohttp", reason='needs the serve extra: pip install -e ".[serve]"')

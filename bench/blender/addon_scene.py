@@ -13,9 +13,10 @@ empty folder Install fills), "prompt",
 "png", "frame", "size", "samples"}. Run with BLENDER_USER_SCRIPTS set to a scratch folder: the
 add-on is installed there, not into the user's Blender.
 """
+
 import json
-import os
 import math
+import os
 import site
 import sys
 import time
@@ -46,20 +47,28 @@ def main() -> None:
     result["install"] = _error_of(bpy.ops.mogo.install_runtime)  # mogo-edge only: no deps
     site.addsitedir(request["site_packages"])  # numpy, onnxruntime, ...: after the folder
     from mogo_blender import environment
+
     result["runtime_file"] = environment.runtime().__file__
     scene = bpy.context.scene
     scene.render.fps = 24  # Blender's default: the add-on sets the motion's own
     settings = scene.mogo
-    settings.prompt, settings.seconds, settings.seed = (request["prompt"], request["seconds"],
-                                                        request["seed"])
+    settings.prompt, settings.seconds, settings.seed = (
+        request["prompt"],
+        request["seconds"],
+        request["seed"],
+    )
     started = time.perf_counter()
     bpy.ops.mogo.generate()
     result["generate_seconds"] = time.perf_counter() - started
     ours = bpy.data.objects["MOGO"]
     first = ours.animation_data.action
-    result.update(fps=scene.render.fps / scene.render.fps_base, frame_start=scene.frame_start,
-                  frame_end=scene.frame_end, keys=len(_hips_keys(first)),
-                  ours=_heads(scene, ours))  # as Generate left it playing
+    result.update(
+        fps=scene.render.fps / scene.render.fps_base,
+        frame_start=scene.frame_start,
+        frame_end=scene.frame_end,
+        keys=len(_hips_keys(first)),
+        ours=_heads(scene, ours),
+    )  # as Generate left it playing
     settings.custom_sampling, settings.top_k = True, 5
     bpy.ops.mogo.generate()  # a second take, with the panel's own sampling: a new action
     result["actions"] = [first.name, ours.animation_data.action.name]
@@ -73,8 +82,9 @@ def main() -> None:
     bpy.ops.mogo.retarget()
     result["retarget_action"] = target.animation_data.action.name
     result["target"] = _heads(scene, target)
-    result["target_rest"] = {b.name: list(target.matrix_world @ b.head_local)
-                             for b in target.data.bones}
+    result["target_rest"] = {
+        b.name: list(target.matrix_world @ b.head_local) for b in target.data.bones
+    }
     if request.get("png"):
         _render(scene, [ours, target], request)
     result["live"] = _live(scene, request.get("live_frames", 20))
@@ -88,6 +98,7 @@ def _live(scene, frames: int) -> dict:
     Blender runs no timers, so the add-on's timer function is called here), the prompt
     switched after `frames` and stopped `frames` after the switch took effect."""
     from mogo_blender import ui  # the installed add-on's own module
+
     scene.mogo.prompt, scene.mogo.live_prompt = "a person walks forward.", "a person jogs."
     bpy.ops.mogo.live(mode="START")
     session, started, switched = ui._CACHE["live"], time.monotonic(), False
@@ -103,26 +114,34 @@ def _live(scene, frames: int) -> dict:
             break
     bpy.ops.mogo.live(mode="STOP")
     ours = bpy.data.objects["MOGO"]
-    return dict(action=ours.animation_data.action.name, written=session.written,
-                prompts=session.stream.prompts, keys=_hips_keys(ours.animation_data.action),
-                plays=_plays(scene, ours), error=str(session.error or ""),
-                running="live" in ui._CACHE)
+    return dict(
+        action=ours.animation_data.action.name,
+        written=session.written,
+        prompts=session.stream.prompts,
+        keys=_hips_keys(ours.animation_data.action),
+        plays=_plays(scene, ours),
+        error=str(session.error or ""),
+        running="live" in ui._CACHE,
+    )
 
 
 def _long_names(target) -> list[str]:
     """Two retarget-style Actions of a prompt too long for Blender's names, as Blender named
     them (the second numbered by Blender itself)."""
     from mogo_blender import scene as addon_scene
-    prompt = ("a person walks forward, then waves with the right hand, then turns around and "
-              "claps")
+
+    prompt = "a person walks forward, then waves with the right hand, then turns around and claps"
     return [addon_scene.new_action(target, prompt, f" on {target.name}").name for _ in (1, 2)]
 
 
 def _hips_keys(action) -> list[float]:
     """The frames of the Hips' rotation keys: in Action.fcurves before Blender 4.4, from 4.4
     in the channel bag of the action's slot (5.0 has no Action.fcurves)."""
-    curves = action.fcurves if bpy.app.version < (4, 4, 0) else \
-        anim_utils.action_get_channelbag_for_slot(action, action.slots[0]).fcurves
+    curves = (
+        action.fcurves
+        if bpy.app.version < (4, 4, 0)
+        else anim_utils.action_get_channelbag_for_slot(action, action.slots[0]).fcurves
+    )
     points = curves.find('pose.bones["Hips"].rotation_quaternion', index=0).keyframe_points
     return [point.co[0] for point in points]
 
@@ -164,18 +183,25 @@ def _target(ours, scale: dict, a_pose: float):
     heads, tails = {}, {}
     for bone in ours.data.bones:  # parents first
         name, parent = bone.name, bone.parent
-        heads[name] = bone.head_local if parent is None else heads[parent.name] + _shape(
-            parent.name, scale, a_pose) @ (bone.head_local - parent.head_local)
-        tails[name] = heads[name] + _shape(name, scale, a_pose) @ (bone.tail_local
-                                                                   - bone.head_local)
+        heads[name] = (
+            bone.head_local
+            if parent is None
+            else heads[parent.name]
+            + _shape(parent.name, scale, a_pose) @ (bone.head_local - parent.head_local)
+        )
+        tails[name] = heads[name] + _shape(name, scale, a_pose) @ (
+            bone.tail_local - bone.head_local
+        )
     lift = Vector((0, 0, ours.data.bones["LeftFoot"].head_local.z - heads["LeftFoot"].z))
-    heads["HeadTop_End"], tails["HeadTop_End"] = tails["Head"], tails["Head"] + Vector((0, 0,
-                                                                                        0.05))
+    heads["HeadTop_End"], tails["HeadTop_End"] = tails["Head"], tails["Head"] + Vector((0, 0, 0.05))
     data = bpy.data.armatures.new("Mannequin")
     target = bpy.data.objects.new("Mannequin", data)
     bpy.context.scene.collection.objects.link(target)
-    target.matrix_world = (Matrix.Translation(TARGET_OFFSET) @ Matrix.Rotation(
-        math.radians(90), 4, "X") @ Matrix.Scale(0.01, 4))
+    target.matrix_world = (
+        Matrix.Translation(TARGET_OFFSET)
+        @ Matrix.Rotation(math.radians(90), 4, "X")
+        @ Matrix.Scale(0.01, 4)
+    )
     local = target.matrix_world.inverted()
     bpy.context.view_layer.objects.active = target
     bpy.ops.object.mode_set(mode="EDIT")
@@ -186,7 +212,8 @@ def _target(ours, scale: dict, a_pose: float):
     for bone in ours.data.bones:
         if bone.parent is not None:
             data.edit_bones["mixamorig:" + bone.name].parent = data.edit_bones[
-                "mixamorig:" + bone.parent.name]
+                "mixamorig:" + bone.parent.name
+            ]
     data.edit_bones["mixamorig:HeadTop_End"].parent = data.edit_bones["mixamorig:Head"]
     bpy.ops.object.mode_set(mode="OBJECT")
     return target
@@ -214,7 +241,7 @@ def _heads(scene, armature) -> dict:
 def _render(scene, armatures, request: dict) -> None:
     """Both armatures as rods parented to their bones, a floor, a camera and a sun; Cycles
     on the CPU (Workbench and EEVEE need a display)."""
-    for armature, colour in zip(armatures, ((0.8, 0.45, 0.15), (0.3, 0.45, 0.75))):
+    for armature, colour in zip(armatures, ((0.8, 0.45, 0.15), (0.3, 0.45, 0.75)), strict=True):
         _rods(armature, colour)
     scene.frame_set(scene.frame_start + request.get("frame", 0))
     bpy.ops.mesh.primitive_plane_add(size=12.0)
@@ -234,8 +261,9 @@ def _rods(armature, colour) -> None:
         if bone.name.endswith("Head"):
             bpy.ops.mesh.primitive_uv_sphere_add(radius=0.1, location=head + (tail - head) * 0.6)
         elif length >= 0.03 and not bone.name.endswith("HeadTop_End"):
-            bpy.ops.mesh.primitive_cone_add(radius1=0.045, radius2=0.03, depth=length,
-                                            location=(head + tail) / 2)
+            bpy.ops.mesh.primitive_cone_add(
+                radius1=0.045, radius2=0.03, depth=length, location=(head + tail) / 2
+            )
             bpy.context.object.rotation_euler = (tail - head).to_track_quat("Z", "Y").to_euler()
         else:
             continue

@@ -7,6 +7,7 @@ REQUEST.json: addon_scene.py's keys (zip, site_packages, prompt, seconds, seed, 
 frame) and "png". Blender 3.4's Python API cannot pick a sidebar tab, so a click on the tab is
 simulated (--enable-event-simulate), at the tab's place in a 1280x800 window.
 """
+
 import json
 import os
 import sys
@@ -29,8 +30,11 @@ def main() -> None:
     preferences = bpy.context.preferences.addons["mogo_blender"].preferences
     preferences.site_packages = request["site_packages"]
     settings = bpy.context.scene.mogo
-    settings.prompt, settings.seconds, settings.seed = (request["prompt"], request["seconds"],
-                                                        request["seed"])
+    settings.prompt, settings.seconds, settings.seed = (
+        request["prompt"],
+        request["seconds"],
+        request["seed"],
+    )
     bpy.ops.mogo.generate()  # with a window: on a worker thread, progress in the status bar
     bpy.app.timers.register(lambda: _retarget(request), first_interval=0.5)
 
@@ -56,8 +60,7 @@ def _shoot(png: str):
     sidebar = next(r for r in area.regions if r.type == "UI")
     window.event_simulate("ESC", "PRESS")  # the splash screen
     for value in ("PRESS", "RELEASE"):
-        window.event_simulate("LEFTMOUSE", value, x=sidebar.x + sidebar.width + TAB[0],
-                              y=TAB[1])
+        window.event_simulate("LEFTMOUSE", value, x=sidebar.x + sidebar.width + TAB[0], y=TAB[1])
     view = next(r for r in area.regions if r.type == "WINDOW")
     with bpy.context.temp_override(window=window, area=area, region=view):
         bpy.ops.view3d.view_axis(type="FRONT")

@@ -5,6 +5,7 @@ scene scripts check the add-on on the Blender versions a distribution does not p
     PYTHON bench/blender/bpy_module.py SCRIPT -- ARGS
 PYTHON: a Python with `pip install bpy==4.x` (its own environment: the wheel is ~350 MB).
 """
+
 import os
 import runpy
 import sys

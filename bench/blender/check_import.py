@@ -16,10 +16,11 @@ Debian/Ubuntu's Blender 3.4 runs on Python 3.11, which no longer accepts the 'rU
 BVH importer uses (every import fails with "invalid mode: 'rU'"); this script patches that in
 its own process only.
 """
+
 import builtins
 import json
-import os
 import math
+import os
 import sys
 
 import bmesh
@@ -43,9 +44,14 @@ def main() -> None:
         bpy.context.scene.render.fps = round(request["fps"])  # ours: 20 (12.5 for KIT has no GLB)
         bpy.ops.import_scene.gltf(filepath=request["file"])
     else:
-        bpy.ops.import_anim.bvh(filepath=request["file"], global_scale=1.0 / request["scale"],
-                                update_scene_fps=True, update_scene_duration=True,
-                                axis_forward="-Z", axis_up="Y")
+        bpy.ops.import_anim.bvh(
+            filepath=request["file"],
+            global_scale=1.0 / request["scale"],
+            update_scene_fps=True,
+            update_scene_duration=True,
+            axis_forward="-Z",
+            axis_up="Y",
+        )
     armature = next(o for o in bpy.context.scene.objects if o.type == "ARMATURE")
     scene = bpy.context.scene
     first, last = armature.animation_data.action.frame_range
@@ -57,8 +63,9 @@ def main() -> None:
         for bone in armature.pose.bones:
             x, y, z = armature.matrix_world @ bone.head  # Blender Z up -> the file's Y up
             heads[bone.name].append((x, z, -y))
-    errors = {label: _errors(heads, reference)
-              for label, reference in request["references"].items()}
+    errors = {
+        label: _errors(heads, reference) for label, reference in request["references"].items()
+    }
     result = dict(fps=scene.render.fps / scene.render.fps_base, frames=frames, errors=errors)
     with open(request["result"], "w") as file:
         json.dump(result, file)
@@ -75,7 +82,7 @@ def main() -> None:
 def _errors(heads: dict, reference: dict) -> dict:
     per_joint, total, count = {}, 0.0, 0
     for name, positions in reference.items():
-        distances = [math.dist(a, b) for a, b in zip(heads[name], positions)]
+        distances = [math.dist(a, b) for a, b in zip(heads[name], positions, strict=True)]
         per_joint[name] = max(distances)
         total, count = total + sum(distances), count + len(distances)
     return dict(mean=total / count, max=max(per_joint.values()), per_joint=per_joint)
@@ -119,8 +126,9 @@ def _mannequin(armature) -> None:
             made = bmesh.ops.create_uvsphere(shapes, u_segments=12, v_segments=8, radius=0.1)
             where = Matrix.Translation(head + (tail - head) * (0.6 if length >= 0.03 else 0))
         else:
-            made = bmesh.ops.create_cone(shapes, cap_ends=True, segments=10, radius1=0.045,
-                                         radius2=0.03, depth=length)
+            made = bmesh.ops.create_cone(
+                shapes, cap_ends=True, segments=10, radius1=0.045, radius2=0.03, depth=length
+            )
             turn = (tail - head).to_track_quat("Z", "Y").to_matrix().to_4x4()
             where = Matrix.Translation((head + tail) / 2) @ turn
         bmesh.ops.transform(shapes, matrix=armature.matrix_world @ where, verts=made["verts"])

@@ -1,6 +1,7 @@
 """The picture the Blender checks render (check_import.py, addon_scene.py): a camera looking
 at a target from an offset, a sun, a grey world, Cycles on the CPU. Run inside Blender: its
 sibling scripts import it."""
+
 import math
 
 import bpy

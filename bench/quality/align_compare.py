@@ -18,6 +18,7 @@ With --evaluator (a `mogo train evaluator` export) the generated clips are also 
 the program's own caption and the real clip: R-precision, FID and MM-Dist over the same
 programs and seeds (mogo.bench.quality.evaluate.score, 20 repeats).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,13 +34,27 @@ from mogo.bench.quality.evaluator import OnnxEvaluator
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.generator import MotionGenerator
 
-DIRECTIONS = {"forward": ["ahead", "straight ahead", "forward"], "backward": ["backwards", "back"],
-              "left": ["over to the left", "to the left"],
-              "right": ["over to the right", "to the right"]}
-WRAPPERS = ["could you have somebody {}", "i want the guy to {}", "make them {}", "{} please",
-            "the character should {}", "{}"]
-JOINERS = [", and afterwards ", " and once that's done, ", "; next, ", ", then ",
-           " and after that "]
+DIRECTIONS = {
+    "forward": ["ahead", "straight ahead", "forward"],
+    "backward": ["backwards", "back"],
+    "left": ["over to the left", "to the left"],
+    "right": ["over to the right", "to the right"],
+}
+WRAPPERS = [
+    "could you have somebody {}",
+    "i want the guy to {}",
+    "make them {}",
+    "{} please",
+    "the character should {}",
+    "{}",
+]
+JOINERS = [
+    ", and afterwards ",
+    " and once that's done, ",
+    "; next, ",
+    ", then ",
+    " and after that ",
+]
 LOCOMOTION = ("walk", "jog", "run")
 
 
@@ -64,29 +79,47 @@ def paraphrase(segment: dict, rng: np.random.Generator) -> str:
         "walk": lambda: pick(["wander {d}", "take a walk {d}", "amble {d}", "go {d} on foot"]),
         "jog": lambda: pick(["jog {d}", "do a little jog {d}", "trot {d}"]),
         "run": lambda: pick(["sprint {d}", "run {d} as fast as possible", "hurry {d}"]),
-        "turn": lambda: pick([f"turn toward the {'left' if p['angle'] > 0 else 'right'}",
-                              f"rotate to the {'left' if p['angle'] > 0 else 'right'}"]),
-        "jump": lambda: pick([f"hop {'forward' if p['forward'] else 'in place'} {times(n)}",
-                              f"jump {'ahead' if p['forward'] else 'on the spot'} {times(n)}"]),
+        "turn": lambda: pick(
+            [
+                f"turn toward the {'left' if p['angle'] > 0 else 'right'}",
+                f"rotate to the {'left' if p['angle'] > 0 else 'right'}",
+            ]
+        ),
+        "jump": lambda: pick(
+            [
+                f"hop {'forward' if p['forward'] else 'in place'} {times(n)}",
+                f"jump {'ahead' if p['forward'] else 'on the spot'} {times(n)}",
+            ]
+        ),
         "squat": lambda: pick([f"do {counted(n, 'squat')}", f"crouch down {times(n)}"]),
         "sit": lambda: pick(["have a seat", "sit down on a chair", "plop down into a chair"]),
         "bow": lambda: pick(["take a bow", "bow to the audience"]),
-        "wave": lambda: pick([f"wave the {hand} hand {times(n)}",
-                              f"give a wave with the {hand} hand"]),
-        "raise_arms": lambda: pick([f"lift the {hand} arm up high",
-                                    f"put the {hand} arm in the air"]),
+        "wave": lambda: pick(
+            [f"wave the {hand} hand {times(n)}", f"give a wave with the {hand} hand"]
+        ),
+        "raise_arms": lambda: pick(
+            [f"lift the {hand} arm up high", f"put the {hand} arm in the air"]
+        ),
         "clap": lambda: pick([f"clap {times(n)}", f"applaud {times(n)}"]),
-        "punch": lambda: pick([f"jab {times(n)} with the {hand} hand",
-                               f"throw {counted(n, 'punch', 'punches')} with the {hand} fist"]),
-        "kick": lambda: pick([f"kick out the {p.get('foot')} leg",
-                              f"do a kick with the {p.get('foot')} foot"]),
-        "spin": lambda: pick([f"spin all the way around to the {p.get('direction')}",
-                              "twirl around"]),
+        "punch": lambda: pick(
+            [
+                f"jab {times(n)} with the {hand} hand",
+                f"throw {counted(n, 'punch', 'punches')} with the {hand} fist",
+            ]
+        ),
+        "kick": lambda: pick(
+            [f"kick out the {p.get('foot')} leg", f"do a kick with the {p.get('foot')} foot"]
+        ),
+        "spin": lambda: pick(
+            [f"spin all the way around to the {p.get('direction')}", "twirl around"]
+        ),
         "stretch": lambda: pick(["stretch out", "do a big stretch"]),
-        "jumping_jacks": lambda: pick([f"do {counted(n, 'star jump')}",
-                                       f"do jumping jacks {times(n)}"]),
-        "idle": lambda: pick([f"stand still for {round(p['seconds'])} seconds",
-                              "wait for a moment"]),
+        "jumping_jacks": lambda: pick(
+            [f"do {counted(n, 'star jump')}", f"do jumping jacks {times(n)}"]
+        ),
+        "idle": lambda: pick(
+            [f"stand still for {round(p['seconds'])} seconds", "wait for a moment"]
+        ),
     }
     text = phrases[segment["primitive"]]()
     return text.format(d=pick(DIRECTIONS[p["direction"]])) if "{d}" in text else text
@@ -101,8 +134,11 @@ def request(program: dict, rng: np.random.Generator) -> str:
 
 
 def straight_locomotion(program: dict) -> list[int]:
-    return [k for k, s in enumerate(program["segments"])
-            if s["primitive"] in LOCOMOTION and abs(s["params"]["turn"]) < 10]
+    return [
+        k
+        for k, s in enumerate(program["segments"])
+        if s["primitive"] in LOCOMOTION and abs(s["params"]["turn"]) < 10
+    ]
 
 
 def went_the_right_way(joints: np.ndarray, start: int, end: int, direction: str) -> bool:
@@ -125,13 +161,22 @@ def unknown_fraction(texts: list[str], vocabulary: set[str]) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="the procedural corpus folder")
-    parser.add_argument("--limit", type=int, default=40,
-                        help="programs with a straight walk/jog/run that are generated")
-    parser.add_argument("--text-limit", type=int, default=2000,
-                        help="programs whose requests are aligned (text measures only)")
+    parser.add_argument(
+        "--limit",
+        type=int,
+        default=40,
+        help="programs with a straight walk/jog/run that are generated",
+    )
+    parser.add_argument(
+        "--text-limit",
+        type=int,
+        default=2000,
+        help="programs whose requests are aligned (text measures only)",
+    )
     parser.add_argument("--seeds", type=int, default=2, help="generations per program")
-    parser.add_argument("--evaluator", type=Path,
-                        help="an evaluator folder: adds R-precision, FID and MM-Dist")
+    parser.add_argument(
+        "--evaluator", type=Path, help="an evaluator folder: adds R-precision, FID and MM-Dist"
+    )
     args = parser.parse_args()
     folder = HumanML3DFolder(args.data, splits=("test",))
     programs = []
@@ -146,14 +191,16 @@ def main() -> None:
     rules = generator.aligner(True)
     requests = [request(p, np.random.default_rng(k)) for k, p in enumerate(programs)]
     alignments = [rules.align(text) for text in requests]
-    matched = [len(a.steps) == len(p["segments"]) for a, p in zip(alignments, programs)]
+    matched = [
+        len(a.steps) == len(p["segments"]) for a, p in zip(alignments, programs, strict=True)
+    ]
     before = unknown_fraction(requests, vocabulary)
     after = unknown_fraction([s.prompt for a in alignments for s in a.steps], vocabulary)
 
     start = time.perf_counter()
     right = {"without": [], "with": []}
     scored: dict[str, list] = {"caption": [], "real": [], "without": [], "with": []}
-    walking = [k for k, p in enumerate(programs) if straight_locomotion(p)][:args.limit]
+    walking = [k for k, p in enumerate(programs) if straight_locomotion(p)][: args.limit]
     for k in walking:
         program, text, alignment = programs[k], requests[k], alignments[k]
         seconds = program["frames"] / program["fps"]
@@ -177,25 +224,38 @@ def main() -> None:
     elapsed = time.perf_counter() - start
 
     checks = len(right["without"])
-    print(f"Held-out paraphrases of {len(programs)} test programs (default bundle, rule "
-          f"aligner); direction over {checks} straight walk/jog/run segments of "
-          f"{len(walking)} programs x {args.seeds} seeds ({elapsed:.0f} s generating).\n")
+    print(
+        f"Held-out paraphrases of {len(programs)} test programs (default bundle, rule "
+        f"aligner); direction over {checks} straight walk/jog/run segments of "
+        f"{len(walking)} programs x {args.seeds} seeds ({elapsed:.0f} s generating).\n"
+    )
     print("| measure | without alignment | with alignment |\n|---|---|---|")
     print(f"| words unknown to the tokenizer | {before:.1%} | {after:.1%} |")
     print(f"| steps = program segments | - | {np.mean(matched):.1%} |")
-    print(f"| direction of travel right | {np.mean(right['without']):.1%} | "
-          f"{np.mean(right['with']):.1%} |")
+    print(
+        f"| direction of travel right | {np.mean(right['without']):.1%} | "
+        f"{np.mean(right['with']):.1%} |"
+    )
     if args.evaluator is None:
         print("| R-precision / FID / MM-Dist | needs --evaluator | needs --evaluator |")
         return
     evaluator = OnnxEvaluator(args.evaluator)
     text = evaluator.embed_text(scored["caption"])
     real = evaluator.embed_motion(scored["real"])
-    rows = {kind: score(text, real, lambda k, m=evaluator.embed_motion(scored[kind]): m,
-                        repeats=20, seed=0) for kind in ("without", "with")}
+    rows = {
+        kind: score(
+            text,
+            real,
+            lambda k, m=evaluator.embed_motion(scored[kind]): m,  # noqa: B008
+            repeats=20,
+            seed=0,  # the embedding bound once per kind, on purpose
+        )
+        for kind in ("without", "with")
+    }
     for column in [c for c in COLUMNS if c in ("R-Precision Top-1", "Top-3", "FID", "MM-Dist")]:
-        cells = " | ".join(f"{rows[k][column][0]:.3f} ± {rows[k][column][1]:.3f}"
-                           for k in ("without", "with"))
+        cells = " | ".join(
+            f"{rows[k][column][0]:.3f} ± {rows[k][column][1]:.3f}" for k in ("without", "with")
+        )
         print(f"| {column} (vs the program's caption and clip, {len(text)} clips) | {cells} |")
 
 

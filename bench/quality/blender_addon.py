@@ -16,6 +16,7 @@ Blender's Python must be the version of this one: the add-on's Install puts the 
 it ships into an empty folder, with pip told to take nothing from an index (no network), and
 the runtime's dependencies come from this environment's site-packages.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,9 +43,13 @@ BPY_MODULE = SCRIPT.with_name("bpy_module.py")
 SCALE = dict(leg=1.2, arm=0.85, torso=1.1)
 A_POSE = 40.0  # degrees the target's arms hang below the T-pose
 # Our joint (Mixamo bone name) -> the chain root its position is measured from, and its scale.
-FOLLOWERS = {"LeftFoot": ("LeftUpLeg", "leg"), "RightFoot": ("RightUpLeg", "leg"),
-             "LeftToeBase": ("LeftUpLeg", "leg"), "LeftHand": ("LeftArm", "arm"),
-             "RightHand": ("RightArm", "arm")}
+FOLLOWERS = {
+    "LeftFoot": ("LeftUpLeg", "leg"),
+    "RightFoot": ("RightUpLeg", "leg"),
+    "LeftToeBase": ("LeftUpLeg", "leg"),
+    "LeftHand": ("LeftArm", "arm"),
+    "RightHand": ("RightArm", "arm"),
+}
 
 
 class PythonMismatch(RuntimeError):
@@ -71,10 +76,17 @@ def as_module(python: str) -> list[str]:
     return [python, str(BPY_MODULE)]
 
 
-def run(launcher: list[str], prompt: str = "a person walks forward.", seconds: float = 3.0,
-        seed: int = 0, png: Path | None = None, frame: int = 30,
-        size: tuple[int, int] = (640, 400), samples: int = 16, timeout: float = 300.0
-        ) -> Figures:
+def run(
+    launcher: list[str],
+    prompt: str = "a person walks forward.",
+    seconds: float = 3.0,
+    seed: int = 0,
+    png: Path | None = None,
+    frame: int = 30,
+    size: tuple[int, int] = (640, 400),
+    samples: int = 16,
+    timeout: float = 300.0,
+) -> Figures:
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         request = _request(folder, prompt, seconds, seed, frame)
@@ -100,11 +112,25 @@ def screenshot(blender: str, png: Path, timeout: float = 300.0) -> None:
         raise RuntimeError("the screenshot needs a virtual display: apt-get install xvfb")
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
-        request = dict(_request(folder, "a person walks forward.", 3.0, 0, 30),
-                       png=str(folder / "screen.png"))
-        done = _blender([xvfb, "-a", "-s", "-screen 0 1280x800x24", blender,
-                         "--enable-event-simulate", "--factory-startup", "--python"],
-                        SCREENSHOT_SCRIPT, folder, request, timeout)
+        request = dict(
+            _request(folder, "a person walks forward.", 3.0, 0, 30), png=str(folder / "screen.png")
+        )
+        done = _blender(
+            [
+                xvfb,
+                "-a",
+                "-s",
+                "-screen 0 1280x800x24",
+                blender,
+                "--enable-event-simulate",
+                "--factory-startup",
+                "--python",
+            ],
+            SCREENSHOT_SCRIPT,
+            folder,
+            request,
+            timeout,
+        )
         if not Path(request["png"]).is_file():
             _explain(done, request)
         _small_png(Path(request["png"]), png)
@@ -115,19 +141,32 @@ def _request(folder: Path, prompt: str, seconds: float, seed: int, frame: int) -
     (folder / "mogo_blender.zip").write_bytes(addon_bytes())
     (folder / "empty").mkdir()
     (folder / "installed").mkdir()
-    return dict(zip=str(folder / "mogo_blender.zip"), empty=str(folder / "empty"),
-                installed=str(folder / "installed"),
-                site_packages=sysconfig.get_paths()["purelib"], prompt=prompt,
-                seconds=seconds, seed=seed, scale=SCALE, a_pose=A_POSE, frame=frame,
-                result=str(folder / "result.json"))
+    return dict(
+        zip=str(folder / "mogo_blender.zip"),
+        empty=str(folder / "empty"),
+        installed=str(folder / "installed"),
+        site_packages=sysconfig.get_paths()["purelib"],
+        prompt=prompt,
+        seconds=seconds,
+        seed=seed,
+        scale=SCALE,
+        a_pose=A_POSE,
+        frame=frame,
+        result=str(folder / "result.json"),
+    )
 
 
-def _blender(launcher: list[str], script: Path, folder: Path, request: dict, timeout: float
-             ) -> subprocess.CompletedProcess:
+def _blender(
+    launcher: list[str], script: Path, folder: Path, request: dict, timeout: float
+) -> subprocess.CompletedProcess:
     (folder / "request.json").write_text(json.dumps(request))
-    return subprocess.run(launcher + [str(script), "--", str(folder / "request.json")],
-                          capture_output=True, text=True, timeout=timeout,
-                          env=_clean_environment(folder / "scripts"))
+    return subprocess.run(
+        launcher + [str(script), "--", str(folder / "request.json")],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=_clean_environment(folder / "scripts"),
+    )
 
 
 def _clean_environment(scripts: Path) -> dict:
@@ -136,9 +175,11 @@ def _clean_environment(scripts: Path) -> dict:
     before it), add-ons installed into `scripts`, pip never reaching an index."""
     environment = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
     environment["PATH"] = os.pathsep.join(
-        p for p in environment.get("PATH", "").split(os.pathsep)
+        p
+        for p in environment.get("PATH", "").split(os.pathsep)
         if not Path(p).resolve().is_relative_to(Path(sys.prefix).resolve())
-        and not (Path(p).parent / "pyvenv.cfg").exists())
+        and not (Path(p).parent / "pyvenv.cfg").exists()
+    )
     environment["BLENDER_USER_SCRIPTS"] = str(scripts)
     # Install: the shipped wheel alone, no index (the dependencies are this environment's)
     environment.update(PIP_NO_INDEX="1", PIP_NO_DEPS="1")
@@ -150,14 +191,18 @@ def _explain(done: subprocess.CompletedProcess, request: dict) -> None:
     (a check); for this environment's site-packages it means another Python version."""
     output = done.stdout + done.stderr
     version = f"{sys.version_info.major}.{sys.version_info.minor}"
-    if ("UserError: MOGO runtime not found" in output  # the dependencies appended after Install
-            or f"missing in {request['site_packages']})" in output or "numpy.core" in output):
+    if (
+        "UserError: MOGO runtime not found" in output  # the dependencies appended after Install
+        or f"missing in {request['site_packages']})" in output
+        or "numpy.core" in output
+    ):
         raise PythonMismatch(f"Blender's Python cannot use this Python {version}'s packages")
     raise RuntimeError(f"Blender failed:\n{output[-3000:]}")
 
 
 def _small_png(rendered: Path, out: Path) -> None:
     from PIL import Image
+
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.open(rendered).convert("RGB").quantize(64).save(out, optimize=True)
 
@@ -174,17 +219,26 @@ def _figures(scene: dict, motion) -> Figures:
     posed = rig.posed_joints(joints, motion.skeleton)
     rigid = np.linalg.norm(armature - joints, axis=-1)
     target = {name.split(":")[-1]: _ours(scene["target"], name) for name in scene["target"]}
-    rest = {name.split(":")[-1]: _ours({"x": [head]}, "x")[0]
-            for name, head in scene["target_rest"].items()}
-    ours = dict(zip(NAMINGS["mixamo"], np.moveaxis(armature, 1, 0)))
+    rest = {
+        name.split(":")[-1]: _ours({"x": [head]}, "x")[0]
+        for name, head in scene["target_rest"].items()
+    }
+    ours = dict(zip(NAMINGS["mixamo"], np.moveaxis(armature, 1, 0), strict=True))
     follow = {}
     for name, (root, part) in FOLLOWERS.items():
         expected = SCALE[part] * (ours[name] - ours[root])
         follow[f"{name} from {root}"] = _worst(target[name] - target[root], expected)
-    follow["Hips (root motion)"] = _worst(target["Hips"] - rest["Hips"],
-                                          SCALE["leg"] * (ours["Hips"] - _rest_hips(motion)))
-    return Figures(scene, len(joints), float(np.abs(armature - posed).max()),
-                   float(rigid.mean()), float(rigid.max()), follow)
+    follow["Hips (root motion)"] = _worst(
+        target["Hips"] - rest["Hips"], SCALE["leg"] * (ours["Hips"] - _rest_hips(motion))
+    )
+    return Figures(
+        scene,
+        len(joints),
+        float(np.abs(armature - posed).max()),
+        float(rigid.mean()),
+        float(rigid.max()),
+        follow,
+    )
 
 
 def _rest_hips(motion) -> np.ndarray:
@@ -197,24 +251,33 @@ def _worst(found: np.ndarray, expected: np.ndarray) -> float:
 
 def table(figures: Figures) -> str:
     scene = figures.scene
-    lines = ["| check | figure |", "|---|---:|", f"| Blender | {scene['blender']} |",
-             f"| frames / keys / scene fps | {figures.frames} / {scene['keys']} / "
-             f"{scene['fps']:g} |",
-             f"| our armature vs the runtime's rig, max (cm) | {figures.rig_max * 100:.4f} |",
-             f"| our armature vs the generated joints, mean / max (cm) | "
-             f"{figures.joints_mean * 100:.2f} / {figures.joints_max * 100:.2f} |"]
-    lines += [f"| target {label} vs ours x its scale, max (cm) | {error * 100:.3f} |"
-              for label, error in figures.follow.items()]
-    lines.append(f"| Generate in Blender, {figures.frames} frames (s) | "
-                 f"{scene['generate_seconds']:.2f} |")
+    lines = [
+        "| check | figure |",
+        "|---|---:|",
+        f"| Blender | {scene['blender']} |",
+        f"| frames / keys / scene fps | {figures.frames} / {scene['keys']} / {scene['fps']:g} |",
+        f"| our armature vs the runtime's rig, max (cm) | {figures.rig_max * 100:.4f} |",
+        f"| our armature vs the generated joints, mean / max (cm) | "
+        f"{figures.joints_mean * 100:.2f} / {figures.joints_max * 100:.2f} |",
+    ]
+    lines += [
+        f"| target {label} vs ours x its scale, max (cm) | {error * 100:.3f} |"
+        for label, error in figures.follow.items()
+    ]
+    lines.append(
+        f"| Generate in Blender, {figures.frames} frames (s) | {scene['generate_seconds']:.2f} |"
+    )
     return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--png", type=Path, help="render a frame of the retargeted walk here")
-    parser.add_argument("--screenshot", type=Path,
-                        help="Blender's window with the panel, on a virtual display, here")
+    parser.add_argument(
+        "--screenshot",
+        type=Path,
+        help="Blender's window with the panel, on a virtual display, here",
+    )
     parser.add_argument("--blender", default=shutil.which("blender"))
     parser.add_argument("--bpy-python", help="a Python with the bpy module, instead of Blender")
     args = parser.parse_args()
@@ -222,8 +285,9 @@ def main() -> None:
         parser.exit(2, "blender_addon: error: no blender on PATH (--blender, --bpy-python)\n")
     if args.screenshot and not args.blender:
         parser.exit(2, "blender_addon: error: --screenshot needs a blender executable\n")
-    figures = run(as_module(args.bpy_python) if args.bpy_python else background(args.blender),
-                  png=args.png)
+    figures = run(
+        as_module(args.bpy_python) if args.bpy_python else background(args.blender), png=args.png
+    )
     print(table(figures))
     if args.png:
         print(f"wrote {args.png}")

@@ -12,6 +12,7 @@ Blender: `apt-get install blender` (Debian, 3.4). Its glTF importer (the .glb ch
 numpy older than 1.24 in the system's Python, which Debian's blender does not pull in:
 `/usr/bin/python3 -m pip install --break-system-packages 'numpy<1.24'`.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,9 +31,14 @@ from mogo.motion.bvh import NAMINGS, save_bvh
 from mogo.motion.mocap import read_bvh
 
 BLENDER_SCRIPT = Path(__file__).resolve().parents[1] / "blender" / "check_import.py"
-PROMPTS = ("a person walks forward.", "a person jumps up and down.",
-           "a person spins around in a circle.", "a person waves with the right hand.",
-           "a person kicks with the left leg.", "a person squats down and stands up.")
+PROMPTS = (
+    "a person walks forward.",
+    "a person jumps up and down.",
+    "a person spins around in a circle.",
+    "a person waves with the right hand.",
+    "a person kicks with the left leg.",
+    "a person squats down and stands up.",
+)
 
 
 @dataclass
@@ -56,25 +62,52 @@ def rig_error(joints: np.ndarray, bvh: Path, naming: str, scale: float) -> np.nd
     return np.linalg.norm(rig_positions(bvh, naming, scale) - joints, axis=-1)
 
 
-def blender_check(file: Path, names: tuple[str, ...], fps: float,
-                  references: dict[str, np.ndarray], scale: float = 1.0,
-                  blender: str = "blender", png: Path | None = None, frame: int = 0,
-                  size: tuple[int, int] = (480, 480), samples: int = 16,
-                  timeout: float = 300.0) -> dict:
+def blender_check(
+    file: Path,
+    names: tuple[str, ...],
+    fps: float,
+    references: dict[str, np.ndarray],
+    scale: float = 1.0,
+    blender: str = "blender",
+    png: Path | None = None,
+    frame: int = 0,
+    size: tuple[int, int] = (480, 480),
+    samples: int = 16,
+    timeout: float = 300.0,
+) -> dict:
     """Blender's import of a .bvh or .glb against reference joints (label -> (T, J, 3) metres,
     in the order of `names`, the file's joint names)."""
     with tempfile.TemporaryDirectory() as folder:
-        request = dict(file=str(file), scale=scale, fps=fps, result=f"{folder}/result.json",
-                       references={label: {name: positions[:, i].tolist()
-                                           for i, name in enumerate(names)}
-                                   for label, positions in references.items()},
-                       frame=frame, size=list(size), samples=samples)
+        request = dict(
+            file=str(file),
+            scale=scale,
+            fps=fps,
+            result=f"{folder}/result.json",
+            references={
+                label: {name: positions[:, i].tolist() for i, name in enumerate(names)}
+                for label, positions in references.items()
+            },
+            frame=frame,
+            size=list(size),
+            samples=samples,
+        )
         if png is not None:
             request.update(png=f"{folder}/frame.png", rest_png=f"{folder}/rest.png")
         Path(folder, "request.json").write_text(json.dumps(request))
-        done = subprocess.run([blender, "-b", "--factory-startup", "--python",
-                               str(BLENDER_SCRIPT), "--", f"{folder}/request.json"],
-                              capture_output=True, text=True, timeout=timeout)
+        done = subprocess.run(
+            [
+                blender,
+                "-b",
+                "--factory-startup",
+                "--python",
+                str(BLENDER_SCRIPT),
+                "--",
+                f"{folder}/request.json",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+        )
         if not Path(request["result"]).is_file():
             raise RuntimeError(f"Blender failed:\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
         result = json.loads(Path(request["result"]).read_text())
@@ -92,8 +125,9 @@ def _side_by_side(paths: list[str], out: Path) -> None:
     sheet.quantize(64).save(out, optimize=True)  # a small file for the docs
 
 
-def run(prompts: tuple[str, ...], seconds: float, seed: int, png: Path | None,
-        blender: str | None) -> list[Check]:
+def run(
+    prompts: tuple[str, ...], seconds: float, seed: int, png: Path | None, blender: str | None
+) -> list[Check]:
     generator = MotionGenerator.load()
     checks = []
     with tempfile.TemporaryDirectory() as folder:
@@ -105,15 +139,21 @@ def run(prompts: tuple[str, ...], seconds: float, seed: int, png: Path | None,
             check = Check(prompt, len(joints), rig_error(joints, path, "mixamo", 1.0))
             if blender:
                 check.blender = blender_check(
-                    path, NAMINGS["mixamo"], motion.fps,
+                    path,
+                    NAMINGS["mixamo"],
+                    motion.fps,
                     dict(joints=joints, rig=rig_positions(path, "mixamo", 1.0)),
-                    blender=blender, png=png if index == 0 else None, frame=len(joints) // 2)
+                    blender=blender,
+                    png=png if index == 0 else None,
+                    frame=len(joints) // 2,
+                )
             checks.append(check)
     return checks
 
 
 def table(checks: list[Check]) -> str:
     """Markdown: per clip and over all, mean / max in cm."""
+
     def pair(values) -> str:
         return f"{np.mean(values) * 100:.2f} / {np.max(values) * 100:.2f}"
 
@@ -147,8 +187,11 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=4.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--png", type=Path, help="render the first clip and the rest pose here")
-    parser.add_argument("--blender", default=shutil.which("blender"),
-                        help="Blender executable (default: blender on PATH; none: skip)")
+    parser.add_argument(
+        "--blender",
+        default=shutil.which("blender"),
+        help="Blender executable (default: blender on PATH; none: skip)",
+    )
     args = parser.parse_args()
     checks = run(PROMPTS, args.seconds, args.seed, args.png, args.blender)
     print(table(checks))

@@ -16,6 +16,7 @@ their interval is 0. MultiModality (`--mm-captions` captions x `--mm-generations
 generations, 10 pairs each) is on captions spread evenly over the sample; the protocol's 100 x 30
 take about 13 minutes on this project's 2-core CPU, so the default is 10 x 30.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -33,8 +34,7 @@ from mogo.generator import MotionGenerator
 from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 from mogo.progress import Progress
 
-COLUMNS = ("R-Precision Top-1", "Top-2", "Top-3", "FID", "MM-Dist", "Diversity",
-           "MultiModality")
+COLUMNS = ("R-Precision Top-1", "Top-2", "Top-3", "FID", "MM-Dist", "Diversity", "MultiModality")
 
 
 @dataclass(frozen=True)
@@ -49,8 +49,9 @@ class TestItem:
         return self.end - self.start
 
 
-def caption_items(folder: HumanML3DFolder, split: str = "test", limit: int | None = None,
-                  seed: int = 0) -> list[TestItem]:
+def caption_items(
+    folder: HumanML3DFolder, split: str = "test", limit: int | None = None, seed: int = 0
+) -> list[TestItem]:
     """Every caption span of MIN..MAX_FRAMES rows of a split (longer spans: their first
     MAX_FRAMES), or a fixed random sample of `limit` of them, in split order."""
     items = []
@@ -63,8 +64,9 @@ def caption_items(folder: HumanML3DFolder, split: str = "test", limit: int | Non
             if end - start >= MIN_FRAMES:
                 items.append(TestItem(clip_id, caption.text, start, min(end, start + MAX_FRAMES)))
     if not items:
-        raise DatasetError(f"{folder.root / f'{split}.txt'}: no caption span of at least "
-                           f"{MIN_FRAMES} frames")
+        raise DatasetError(
+            f"{folder.root / f'{split}.txt'}: no caption span of at least {MIN_FRAMES} frames"
+        )
     if limit is not None and limit < len(items):
         keep = np.sort(np.random.default_rng(seed).permutation(len(items))[:limit])
         items = [items[k] for k in keep]
@@ -84,33 +86,49 @@ def parallel_map(fn: Callable, values: Sequence, threads: int, label: str, unit:
     return results
 
 
-def generate_items(generator: MotionGenerator, items: Sequence[TestItem], seed: int,
-                   threads: int = 1, label: str = "generating") -> list[Motion]:
+def generate_items(
+    generator: MotionGenerator,
+    items: Sequence[TestItem],
+    seed: int,
+    threads: int = 1,
+    label: str = "generating",
+) -> list[Motion]:
     """One motion per item, from its caption, with its ground-truth length; item k's seed is
     seed + k, so any item can be reproduced alone."""
+
     def one(k: int) -> Motion:
         item = items[k]
-        return generator.generate(item.caption, seconds=item.frames / generator.fps,
-                                  seed=seed + k)
+        return generator.generate(item.caption, seconds=item.frames / generator.fps, seed=seed + k)
+
     return parallel_map(one, range(len(items)), threads, label, "clips")
 
 
-def reconstruct(generator: MotionGenerator, clips: Sequence[np.ndarray],
-                threads: int = 1, low_latency: bool = False) -> list[np.ndarray]:
+def reconstruct(
+    generator: MotionGenerator,
+    clips: Sequence[np.ndarray],
+    threads: int = 1,
+    low_latency: bool = False,
+) -> list[np.ndarray]:
     """Each clip's features through the bundle's VQ: encode, then decode to its length
     (`low_latency`: by the bundle's low-latency decoder, the frames a low-latency stream of
     those tokens gets)."""
     skeleton = generator.skeleton
 
     def one(features: np.ndarray) -> np.ndarray:
-        real = Motion(features, np.zeros((len(features), skeleton.num_joints, 3), np.float32),
-                      generator.fps, np.zeros((0, 1), np.int64), skeleton)
+        real = Motion(
+            features,
+            np.zeros((len(features), skeleton.num_joints, 3), np.float32),
+            generator.fps,
+            np.zeros((0, 1), np.int64),
+            skeleton,
+        )
         tokens = generator.encode_motion(real)
         if not low_latency:
             return generator.decode(tokens, [], len(features)).features
         decoder = generator.streaming_decoder(low_latency=True)
-        normalised = decoder.decode_offline(tokens)[:len(features)]
+        normalised = decoder.decode_offline(tokens)[: len(features)]
         return normalised * generator.bundle.std + generator.bundle.mean
+
     return parallel_map(one, clips, threads, "VQ reconstruction", "clips")
 
 
@@ -129,22 +147,35 @@ class EvalOptions:
 
     def check(self) -> None:
         if self.limit is not None and self.limit < metrics.R_PRECISION_BATCH:
-            raise ValueError(f"--limit must be at least {metrics.R_PRECISION_BATCH} (one "
-                             f"R-precision batch), got {self.limit}")
+            raise ValueError(
+                f"--limit must be at least {metrics.R_PRECISION_BATCH} (one "
+                f"R-precision batch), got {self.limit}"
+            )
         if self.repeats < 1 or self.threads < 1 or self.seed < 0:
-            raise ValueError(f"--repeats and --threads must be at least 1 and --seed "
-                             f"non-negative, got {self.repeats}, {self.threads}, {self.seed}")
-        if self.mm_captions < 0 or (self.mm_captions and
-                                    self.mm_generations < metrics.MULTIMODALITY_PAIRS):
-            raise ValueError(f"--mm-captions must be >= 0 and --mm-generations >= "
-                             f"{metrics.MULTIMODALITY_PAIRS}, got {self.mm_captions}, "
-                             f"{self.mm_generations}")
+            raise ValueError(
+                f"--repeats and --threads must be at least 1 and --seed "
+                f"non-negative, got {self.repeats}, {self.threads}, {self.seed}"
+            )
+        if self.mm_captions < 0 or (
+            self.mm_captions and self.mm_generations < metrics.MULTIMODALITY_PAIRS
+        ):
+            raise ValueError(
+                f"--mm-captions must be >= 0 and --mm-generations >= "
+                f"{metrics.MULTIMODALITY_PAIRS}, got {self.mm_captions}, "
+                f"{self.mm_generations}"
+            )
         if self.evaluator is not None and not Path(self.evaluator).is_dir():
             raise FileNotFoundError(f"{self.evaluator}: no such evaluator folder")
 
 
-def score(text: np.ndarray, real: np.ndarray, motions: Callable[[int], np.ndarray],
-          repeats: int, seed: int, per_caption: np.ndarray | None = None) -> dict:
+def score(
+    text: np.ndarray,
+    real: np.ndarray,
+    motions: Callable[[int], np.ndarray],
+    repeats: int,
+    seed: int,
+    per_caption: np.ndarray | None = None,
+) -> dict:
     """The protocol's numbers for one row: motions(repeat) -> the row's motion embeddings
     (N, D) aligned with `text`; per_caption (captions, generations, D) for MultiModality.
     -> {column: (mean, interval)}."""
@@ -153,14 +184,20 @@ def score(text: np.ndarray, real: np.ndarray, motions: Callable[[int], np.ndarra
     def once(k: int) -> np.ndarray:
         rng = np.random.default_rng([seed, k])
         motion = motions(k)
-        values = [*metrics.r_precision(text, motion, rng), metrics.fid(real, motion),
-                  metrics.matching_score(text, motion), metrics.diversity(motion, rng, pairs)]
+        values = [
+            *metrics.r_precision(text, motion, rng),
+            metrics.fid(real, motion),
+            metrics.matching_score(text, motion),
+            metrics.diversity(motion, rng, pairs),
+        ]
         if per_caption is not None:
             values.append(metrics.multimodality(per_caption, rng))
         return np.array(values)
 
     mean, interval = metrics.repeat_with_interval(once, repeats)
-    return {column: (float(m), float(i)) for column, m, i in zip(COLUMNS, mean, interval)}
+    return {
+        column: (float(m), float(i)) for column, m, i in zip(COLUMNS, mean, interval, strict=True)
+    }
 
 
 def evaluate(options: EvalOptions, evaluator: TextMotionEvaluator | None = None) -> dict:
@@ -173,7 +210,7 @@ def evaluate(options: EvalOptions, evaluator: TextMotionEvaluator | None = None)
     evaluator = evaluator or OnnxEvaluator(options.evaluator, options.threads)
     generator = MotionGenerator.load(options.bundle)
     items = caption_items(folder, "test", options.limit, options.seed)
-    real_features = [folder.features(item.clip_id)[item.start:item.end] for item in items]
+    real_features = [folder.features(item.clip_id)[item.start : item.end] for item in items]
     text = evaluator.embed_text([item.caption for item in items])
     real = evaluator.embed_motion(real_features)
     vq = evaluator.embed_motion(reconstruct(generator, real_features, options.threads))
@@ -183,44 +220,59 @@ def evaluate(options: EvalOptions, evaluator: TextMotionEvaluator | None = None)
     def bundle_motions(repeat: int) -> np.ndarray:
         key = repeat if options.regenerate else 0
         if key not in generated:
-            label = f"generating (repeat {repeat + 1}/{options.repeats})" if options.regenerate \
+            label = (
+                f"generating (repeat {repeat + 1}/{options.repeats})"
+                if options.regenerate
                 else "generating"
-            motions = generate_items(generator, items, options.seed + key * len(items),
-                                     options.threads, label)
+            )
+            motions = generate_items(
+                generator, items, options.seed + key * len(items), options.threads, label
+            )
             generated[key] = evaluator.embed_motion([m.features for m in motions])
         return generated[key]
 
     per_caption = None
     if options.mm_captions:
-        chosen = items[::max(1, len(items) // options.mm_captions)][:options.mm_captions]
+        chosen = items[:: max(1, len(items) // options.mm_captions)][: options.mm_captions]
         repeated = [item for item in chosen for _ in range(options.mm_generations)]
-        motions = generate_items(generator, repeated, options.seed + 10 ** 6, options.threads,
-                                 "multimodality")
+        motions = generate_items(
+            generator, repeated, options.seed + 10**6, options.threads, "multimodality"
+        )
         per_caption = evaluator.embed_motion([m.features for m in motions]).reshape(
-            len(chosen), options.mm_generations, -1)
-    rows = {"Ground truth": score(text, real, lambda k: real, options.repeats, options.seed),
-            "VQ reconstruction": score(text, real, lambda k: vq, options.repeats, options.seed),
-            "Bundle": score(text, real, bundle_motions, options.repeats, options.seed,
-                            per_caption)}
-    notes = [f"{len(items)} test caption spans, ground-truth lengths, {options.repeats} repeats "
-             f"(mean ± 95% interval)" + ("; motions regenerated every repeat"
-                                         if options.regenerate else
-                                         "; motions generated once, batches and pairs redrawn "
-                                         "every repeat"),
-             f"Diversity over {min(metrics.DIVERSITY_PAIRS, len(items))} pairs"]
+            len(chosen), options.mm_generations, -1
+        )
+    rows = {
+        "Ground truth": score(text, real, lambda k: real, options.repeats, options.seed),
+        "VQ reconstruction": score(text, real, lambda k: vq, options.repeats, options.seed),
+        "Bundle": score(text, real, bundle_motions, options.repeats, options.seed, per_caption),
+    }
+    notes = [
+        f"{len(items)} test caption spans, ground-truth lengths, {options.repeats} repeats "
+        f"(mean ± 95% interval)"
+        + (
+            "; motions regenerated every repeat"
+            if options.regenerate
+            else "; motions generated once, batches and pairs redrawn every repeat"
+        ),
+        f"Diversity over {min(metrics.DIVERSITY_PAIRS, len(items))} pairs",
+    ]
     if per_caption is not None:
-        notes.append(f"MultiModality: {len(per_caption)} captions x {options.mm_generations} "
-                     f"generations, {metrics.MULTIMODALITY_PAIRS} pairs each")
-    return dict(rows=rows, items=len(items), notes=notes,
-                evaluator=str(getattr(evaluator, "folder", type(evaluator).__name__)))
+        notes.append(
+            f"MultiModality: {len(per_caption)} captions x {options.mm_generations} "
+            f"generations, {metrics.MULTIMODALITY_PAIRS} pairs each"
+        )
+    return dict(
+        rows=rows,
+        items=len(items),
+        notes=notes,
+        evaluator=str(getattr(evaluator, "folder", type(evaluator).__name__)),
+    )
 
 
 def format_table(result: dict) -> str:
     """The paper's table: `mean±interval` per column, 3 decimals."""
-    lines = ["| Methods | " + " | ".join(COLUMNS) + " |",
-             "|---|" + "---|" * len(COLUMNS)]
+    lines = ["| Methods | " + " | ".join(COLUMNS) + " |", "|---|" + "---|" * len(COLUMNS)]
     for name, row in result["rows"].items():
         cells = [f"{row[c][0]:.3f}±{row[c][1]:.3f}" if c in row else "-" for c in COLUMNS]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines + [""] + [f"- {note}" for note in result["notes"]])
-

@@ -6,6 +6,7 @@ can score a bundle, e.g. a wrapper around the official HumanML3D evaluator. `Onn
 runs the folder `mogo train evaluator` exports (evaluator.json, two ONNX graphs, tokenizer,
 the mean/std its motion input is normalised with) on onnxruntime.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,8 +42,10 @@ class OnnxEvaluator:
         self.folder = Path(folder)
         path = self.folder / MANIFEST
         if not path.is_file():
-            raise FileNotFoundError(f"{self.folder}: no {MANIFEST} (an evaluator folder is "
-                                    f"RUN/evaluator of `mogo train evaluator`)")
+            raise FileNotFoundError(
+                f"{self.folder}: no {MANIFEST} (an evaluator folder is "
+                f"RUN/evaluator of `mogo train evaluator`)"
+            )
         manifest = json.loads(path.read_text())
         if manifest.get("format") != "mogo-evaluator":
             raise ValueError(f"{path}: not a mogo evaluator manifest")
@@ -61,10 +64,12 @@ class OnnxEvaluator:
     def embed_text(self, captions: Sequence[str]) -> np.ndarray:
         out = []
         for first in range(0, len(captions), BATCH):
-            encodings = self.tokenizer.encode_batch(list(captions[first:first + BATCH]))
+            encodings = self.tokenizer.encode_batch(list(captions[first : first + BATCH]))
             ids = np.array([e.ids for e in encodings], np.int64)
             mask = np.array([e.attention_mask for e in encodings], np.int64)
-            out.append(self._text.run(None, dict(zip(self._text_names, (ids, mask))))[0])
+            out.append(
+                self._text.run(None, dict(zip(self._text_names, (ids, mask), strict=True)))[0]
+            )
         return np.concatenate(out) if out else np.zeros((0, self.embed_dim), np.float32)
 
     def embed_motion(self, features: Sequence[np.ndarray]) -> np.ndarray:
@@ -74,19 +79,24 @@ class OnnxEvaluator:
         order = np.argsort([len(c) for c in clips], kind="stable")
         out = np.zeros((len(clips), self.embed_dim), np.float32)
         for first in range(0, len(order), BATCH):
-            rows = order[first:first + BATCH]
+            rows = order[first : first + BATCH]
             lengths = np.array([len(clips[r]) for r in rows], np.int64)
             batch = np.zeros((len(rows), lengths.max(), self.feature_dim), np.float32)
             for i, r in enumerate(rows):
-                batch[i, :lengths[i]] = (clips[r] - self.mean) / self.std
-            out[rows] = self._motion.run(None, dict(zip(self._motion_names, (batch, lengths))))[0]
+                batch[i, : lengths[i]] = (clips[r] - self.mean) / self.std
+            out[rows] = self._motion.run(
+                None, dict(zip(self._motion_names, (batch, lengths), strict=True))
+            )[0]
         return out
 
     def _checked(self, clip: np.ndarray, index: int) -> np.ndarray:
         if clip.ndim != 2 or clip.shape[1] != self.feature_dim:
-            raise ValueError(f"motion {index}: expected features (T, {self.feature_dim}), got "
-                             f"shape {clip.shape}")
+            raise ValueError(
+                f"motion {index}: expected features (T, {self.feature_dim}), got shape {clip.shape}"
+            )
         if len(clip) < self.min_frames:
-            raise ValueError(f"motion {index}: {len(clip)} frames, the evaluator needs at least "
-                             f"{self.min_frames}")
-        return clip[:self.max_frames]
+            raise ValueError(
+                f"motion {index}: {len(clip)} frames, the evaluator needs at least "
+                f"{self.min_frames}"
+            )
+        return clip[: self.max_frames]

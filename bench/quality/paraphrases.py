@@ -17,6 +17,7 @@ no key word an earlier book's: measured once, used for no choice), and BLIND (wr
 run on it: measured once, used for no choice). Direction, hand, foot and count words are the
 corpus's own (there is no other way to say "left").
 """
+
 from __future__ import annotations
 
 import re
@@ -26,49 +27,96 @@ import numpy as np
 
 from mogo.export.data.captions import number_word, times_word
 
-SUBJECTS = ("a dancer", "an old man", "the athlete", "a girl", "a soldier", "my character",
-            "a tired hiker", "the boy")
-DIRECTION = dict(forward=("forward", "straight ahead"), backward=("backward", "backwards"),
-                 left=("to the left", "leftward"), right=("to the right", "rightward"))
+SUBJECTS = (
+    "a dancer",
+    "an old man",
+    "the athlete",
+    "a girl",
+    "a soldier",
+    "my character",
+    "a tired hiker",
+    "the boy",
+)
+DIRECTION = dict(
+    forward=("forward", "straight ahead"),
+    backward=("backward", "backwards"),
+    left=("to the left", "leftward"),
+    right=("to the right", "rightward"),
+)
 CURVE = {True: "along an arc to the left", False: "along an arc to the right"}
 # primitive -> phrases; {d} direction, {n} count, {h} hand, {f} foot, {s} seconds, {a} angle,
 # {c} curve; the KEY word(s) of each phrase are its action
 PHRASES = {
-    "walk": ("plods {d}{c}", "trudges {d}{c}", "saunters {d}{c}", "tiptoes {d}{c}",
-             "ambles {d}{c}", "wanders {d}{c}"),
+    "walk": (
+        "plods {d}{c}",
+        "trudges {d}{c}",
+        "saunters {d}{c}",
+        "tiptoes {d}{c}",
+        "ambles {d}{c}",
+        "wanders {d}{c}",
+    ),
     "jog": ("lopes {d}{c}", "goes at an easy canter {d}{c}", "does a light trot-like lope {d}{c}"),
     "run": ("bolts {d}{c}", "hurries {d}{c}", "rushes {d}{c}", "scurries {d}{c}"),
     "turn": ("swivels {a} degrees to the {t}", "wheels around {a} degrees to the {t}"),
-    "spin": ("twirls all the way around to the {sd}", "whirls around to the {sd}",
-             "pirouettes to the {sd}"),
+    "spin": (
+        "twirls all the way around to the {sd}",
+        "whirls around to the {sd}",
+        "pirouettes to the {sd}",
+    ),
     "jump": ("bounces {where} {n}", "springs {where} {n}", "bounds {where} {n}"),
     "squat": ("does {cnt} knee dips", "hunkers down {n}", "dips low {n}"),
     "sit": ("plops onto a stool", "settles onto a bench", "perches on a stool"),
     "bow": ("curtsies", "gives a deep curtsy", "kowtows"),
     "wave": ("greets someone with the {h} hand {n}", "signals goodbye with the {h} hand {n}"),
-    "raise_arms": ("reaches up high with the {h} arm", "holds the {h} arm aloft",
-                   "thrusts the {h} arm skyward"),
+    "raise_arms": (
+        "reaches up high with the {h} arm",
+        "holds the {h} arm aloft",
+        "thrusts the {h} arm skyward",
+    ),
     "clap": ("applauds {n}", "gives applause {n}"),
-    "punch": ("jabs {n} with the {h} fist", "strikes {n} with the {h} fist",
-              "boxes {n} with the {h} fist"),
+    "punch": (
+        "jabs {n} with the {h} fist",
+        "strikes {n} with the {h} fist",
+        "boxes {n} with the {h} fist",
+    ),
     "kick": ("boots out the {f} leg", "punts with the {f} foot", "lashes out with the {f} foot"),
     "stretch": ("limbers up with both arms overhead", "reaches overhead and elongates the body"),
     "jumping_jacks": ("does {cnt} star jumps", "does {cnt} star jumps in a row"),
-    "idle": ("remains motionless for {secs} seconds", "lingers motionless for {secs} seconds",
-             "freezes for {secs} seconds"),
+    "idle": (
+        "remains motionless for {secs} seconds",
+        "lingers motionless for {secs} seconds",
+        "freezes for {secs} seconds",
+    ),
 }
-KEY = {"walk": ("plods", "trudges", "saunters", "tiptoes", "ambles", "wanders"),
-       "jog": ("lopes", "canter", "lope"), "run": ("bolts", "hurries", "rushes", "scurries"),
-       "turn": ("swivels", "wheels"), "spin": ("twirls", "whirls", "pirouettes"),
-       "jump": ("bounces", "springs", "bounds"), "squat": ("dips", "hunkers"),
-       "sit": ("plops", "settles", "perches", "stool", "bench"),
-       "bow": ("curtsies", "curtsy", "kowtows"), "wave": ("greets", "signals", "goodbye"),
-       "raise_arms": ("reaches", "holds", "aloft", "thrusts", "skyward"),
-       "clap": ("applauds", "applause"), "punch": ("jabs", "strikes", "boxes"),
-       "kick": ("boots", "punts", "lashes"), "stretch": ("limbers", "elongates", "overhead"),
-       "jumping_jacks": ("star",), "idle": ("remains", "lingers", "freezes", "motionless")}
-FRESH_SUBJECTS = ("a robot", "the android", "my avatar", "a ninja", "the mannequin",
-                  "an astronaut", "the toddler", "a chef")
+KEY = {
+    "walk": ("plods", "trudges", "saunters", "tiptoes", "ambles", "wanders"),
+    "jog": ("lopes", "canter", "lope"),
+    "run": ("bolts", "hurries", "rushes", "scurries"),
+    "turn": ("swivels", "wheels"),
+    "spin": ("twirls", "whirls", "pirouettes"),
+    "jump": ("bounces", "springs", "bounds"),
+    "squat": ("dips", "hunkers"),
+    "sit": ("plops", "settles", "perches", "stool", "bench"),
+    "bow": ("curtsies", "curtsy", "kowtows"),
+    "wave": ("greets", "signals", "goodbye"),
+    "raise_arms": ("reaches", "holds", "aloft", "thrusts", "skyward"),
+    "clap": ("applauds", "applause"),
+    "punch": ("jabs", "strikes", "boxes"),
+    "kick": ("boots", "punts", "lashes"),
+    "stretch": ("limbers", "elongates", "overhead"),
+    "jumping_jacks": ("star",),
+    "idle": ("remains", "lingers", "freezes", "motionless"),
+}
+FRESH_SUBJECTS = (
+    "a robot",
+    "the android",
+    "my avatar",
+    "a ninja",
+    "the mannequin",
+    "an astronaut",
+    "the toddler",
+    "a chef",
+)
 FRESH_PHRASES = {
     "walk": ("treks {d}{c}", "meanders {d}{c}", "hikes {d}{c}"),
     "jog": ("goes at a jogger's pace {d}{c}", "moves at an unhurried running gait {d}{c}"),
@@ -86,20 +134,41 @@ FRESH_PHRASES = {
     "kick": ("swings the {f} leg out hard", "lets fly with the {f} foot"),
     "stretch": ("extends the whole body upward", "loosens up with the arms over the head"),
     "jumping_jacks": ("does {cnt} side-straddle hops", "does {cnt} star-shaped jumps"),
-    "idle": ("holds still for {secs} seconds", "pauses for {secs} seconds",
-             "stays put for {secs} seconds"),
+    "idle": (
+        "holds still for {secs} seconds",
+        "pauses for {secs} seconds",
+        "stays put for {secs} seconds",
+    ),
 }
-FRESH_KEY = {"walk": ("treks", "meanders", "hikes"), "jog": ("jogger", "unhurried", "gait"),
-             "run": ("tears", "zooms", "hurtles"), "turn": ("reorients", "faces", "further"),
-             "spin": ("twists", "revolution", "complete"), "jump": ("airborne", "off"),
-             "squat": ("sinks", "bend", "drops"), "sit": ("armchair", "rests", "bench", "load"),
-             "bow": ("reverence", "nods", "greeting"), "wave": ("flaps", "hi", "says"),
-             "raise_arms": ("elevates", "ceiling"), "clap": ("slaps", "palms", "smacks"),
-             "punch": ("thumps", "hits"), "kick": ("swings", "hard", "fly"),
-             "stretch": ("extends", "upward", "loosens"), "jumping_jacks": ("straddle", "shaped"),
-             "idle": ("holds", "pauses", "put")}
-UNSEEN_SUBJECTS = ("a skeleton", "the cyborg", "a goblin", "an elf", "a troll",
-                   "a snowman", "the scarecrow", "a gnome")
+FRESH_KEY = {
+    "walk": ("treks", "meanders", "hikes"),
+    "jog": ("jogger", "unhurried", "gait"),
+    "run": ("tears", "zooms", "hurtles"),
+    "turn": ("reorients", "faces", "further"),
+    "spin": ("twists", "revolution", "complete"),
+    "jump": ("airborne", "off"),
+    "squat": ("sinks", "bend", "drops"),
+    "sit": ("armchair", "rests", "bench", "load"),
+    "bow": ("reverence", "nods", "greeting"),
+    "wave": ("flaps", "hi", "says"),
+    "raise_arms": ("elevates", "ceiling"),
+    "clap": ("slaps", "palms", "smacks"),
+    "punch": ("thumps", "hits"),
+    "kick": ("swings", "hard", "fly"),
+    "stretch": ("extends", "upward", "loosens"),
+    "jumping_jacks": ("straddle", "shaped"),
+    "idle": ("holds", "pauses", "put"),
+}
+UNSEEN_SUBJECTS = (
+    "a skeleton",
+    "the cyborg",
+    "a goblin",
+    "an elf",
+    "a troll",
+    "a snowman",
+    "the scarecrow",
+    "a gnome",
+)
 UNSEEN_PHRASES = {
     "walk": ("pads {d}{c}", "sets off on foot {d}{c}"),
     "jog": ("moves at a steady clip {d}{c}", "goes along at a brisk clip {d}{c}"),
@@ -113,66 +182,117 @@ UNSEEN_PHRASES = {
     "wave": ("wags the {h} hand {n}", "bids farewell with the {h} hand {n}"),
     "raise_arms": ("hoists the {h} arm", "sticks the {h} arm up"),
     "clap": ("pats the hands together {n}", "beats the hands together {n}"),
-    "punch": ("socks {n} with the {h} fist", "pummels {n} with the {h} fist",
-              "lands a blow {n} with the {h} fist"),
+    "punch": (
+        "socks {n} with the {h} fist",
+        "pummels {n} with the {h} fist",
+        "lands a blow {n} with the {h} fist",
+    ),
     "kick": ("flicks the {f} foot out", "snaps the {f} foot forward"),
     "stretch": ("warms up with both arms toward the sky", "unfolds both arms toward the sky"),
     "jumping_jacks": ("does {cnt} spread-eagle hops", "does {cnt} calisthenic hops"),
     "idle": ("stands like a statue for {secs} seconds", "does nothing for {secs} seconds"),
 }
-UNSEEN_KEY = {"walk": ("pads", "sets"), "jog": ("clip",), "run": ("charges", "darts", "flees"),
-              "turn": ("heading",), "spin": ("rotation", "loop"), "jump": ("leaves", "pops"),
-              "squat": ("heels", "haunches"), "sit": ("flops", "sofa", "parks", "couch"),
-              "bow": ("salutes", "inclines", "respectfully"), "wave": ("wags", "farewell"),
-              "raise_arms": ("hoists", "sticks"), "clap": ("pats", "beats"),
-              "punch": ("socks", "pummels", "blow"), "kick": ("flicks", "snaps"),
-              "stretch": ("warms", "unfolds", "sky"), "jumping_jacks": ("eagle", "calisthenic"),
-              "idle": ("statue", "nothing")}
+UNSEEN_KEY = {
+    "walk": ("pads", "sets"),
+    "jog": ("clip",),
+    "run": ("charges", "darts", "flees"),
+    "turn": ("heading",),
+    "spin": ("rotation", "loop"),
+    "jump": ("leaves", "pops"),
+    "squat": ("heels", "haunches"),
+    "sit": ("flops", "sofa", "parks", "couch"),
+    "bow": ("salutes", "inclines", "respectfully"),
+    "wave": ("wags", "farewell"),
+    "raise_arms": ("hoists", "sticks"),
+    "clap": ("pats", "beats"),
+    "punch": ("socks", "pummels", "blow"),
+    "kick": ("flicks", "snaps"),
+    "stretch": ("warms", "unfolds", "sky"),
+    "jumping_jacks": ("eagle", "calisthenic"),
+    "idle": ("statue", "nothing"),
+}
 
-LATE_SUBJECTS = ("a marionette", "the penguin", "a plush toy", "the mascot", "a clay figurine",
-                 "the automaton", "a paper cutout", "the chess piece")
+LATE_SUBJECTS = (
+    "a marionette",
+    "the penguin",
+    "a plush toy",
+    "the mascot",
+    "a clay figurine",
+    "the automaton",
+    "a paper cutout",
+    "the chess piece",
+)
 LATE_PHRASES = {
     "walk": ("wends its way {d}{c}", "picks its way {d}{c}"),
     "jog": ("moves in an easy gallop {d}{c}", "goes at a relaxed jogging tempo {d}{c}"),
     "run": ("careers {d}{c}", "streaks {d}{c}", "barrels {d}{c}"),
     "turn": ("revolves {a} degrees to the {t}", "re-aims the body {a} degrees to the {t}"),
-    "spin": ("whizzes round a full circle to the {sd}",
-             "goes all the way around like a top to the {sd}"),
+    "spin": (
+        "whizzes round a full circle to the {sd}",
+        "goes all the way around like a top to the {sd}",
+    ),
     "jump": ("launches into the air {where} {n}", "catapults upward {where} {n}"),
     "squat": ("drops into a deep knee flex {n}", "does {cnt} low knee flexes"),
     "sit": ("sinks into a recliner", "takes a pew", "seats itself on an ottoman"),
-    "bow": ("doffs an imaginary hat and bends low", "gives an obeisance",
-            "bends courteously at the hips"),
+    "bow": (
+        "doffs an imaginary hat and bends low",
+        "gives an obeisance",
+        "bends courteously at the hips",
+    ),
     "wave": ("waggles the {h} hand {n}", "hails someone with the {h} hand {n}"),
     "raise_arms": ("hefts the {h} arm up high", "points the {h} arm at the clouds"),
     "clap": ("cracks the palms together {n}", "knocks the hands together {n}"),
     "punch": ("throws a haymaker {n} with the {h} fist", "clobbers the air {n} with the {h} fist"),
     "kick": ("drives the {f} shin forward", "lets the {f} foot fly out"),
-    "stretch": ("reaches tall and lengthens the whole body",
-                "unkinks the back with both arms overhead"),
+    "stretch": (
+        "reaches tall and lengthens the whole body",
+        "unkinks the back with both arms overhead",
+    ),
     "jumping_jacks": ("does {cnt} open-and-shut jumps", "does {cnt} starfish jumps"),
     "idle": ("keeps stock-still for {secs} seconds", "loiters in place for {secs} seconds"),
 }
-LATE_KEY = {"walk": ("wends", "way"), "jog": ("gallop", "tempo"),
-            "run": ("careers", "streaks", "barrels"), "turn": ("revolves", "aims"),
-            "spin": ("whizzes", "top"), "jump": ("launches", "catapults"),
-            "squat": ("flex", "flexes"), "sit": ("recliner", "pew", "ottoman"),
-            "bow": ("doffs", "obeisance", "courteously"), "wave": ("waggles", "hails"),
-            "raise_arms": ("hefts", "clouds"), "clap": ("cracks", "knocks"),
-            "punch": ("haymaker", "clobbers"), "kick": ("shin", "fly"),
-            "stretch": ("lengthens", "unkinks"), "jumping_jacks": ("shut", "starfish"),
-            "idle": ("stock", "loiters")}
+LATE_KEY = {
+    "walk": ("wends", "way"),
+    "jog": ("gallop", "tempo"),
+    "run": ("careers", "streaks", "barrels"),
+    "turn": ("revolves", "aims"),
+    "spin": ("whizzes", "top"),
+    "jump": ("launches", "catapults"),
+    "squat": ("flex", "flexes"),
+    "sit": ("recliner", "pew", "ottoman"),
+    "bow": ("doffs", "obeisance", "courteously"),
+    "wave": ("waggles", "hails"),
+    "raise_arms": ("hefts", "clouds"),
+    "clap": ("cracks", "knocks"),
+    "punch": ("haymaker", "clobbers"),
+    "kick": ("shin", "fly"),
+    "stretch": ("lengthens", "unkinks"),
+    "jumping_jacks": ("shut", "starfish"),
+    "idle": ("stock", "loiters"),
+}
 
-BLIND_SUBJECTS = ("the koala", "a cartoon hedgehog", "a stickman", "the hologram",
-                  "a wind-up toy", "the kangaroo", "an owl", "a snow leopard")
+BLIND_SUBJECTS = (
+    "the koala",
+    "a cartoon hedgehog",
+    "a stickman",
+    "the hologram",
+    "a wind-up toy",
+    "the kangaroo",
+    "an owl",
+    "a snow leopard",
+)
 BLIND_PHRASES = {
     "walk": ("promenades {d}{c}", "traipses {d}{c}", "moseys {d}{c}"),
-    "jog": ("moves along at a comfortable dogtrot {d}{c}",
-            "keeps up a gentle running rhythm {d}{c}"),
+    "jog": (
+        "moves along at a comfortable dogtrot {d}{c}",
+        "keeps up a gentle running rhythm {d}{c}",
+    ),
     "run": ("hightails it {d}{c}", "goes flat out {d}{c}", "belts {d}{c}"),
     "turn": ("shifts orientation {a} degrees to the {t}", "angles itself {a} degrees to the {t}"),
-    "spin": ("gyrates a whole turn to the {sd}",
-             "goes round in a complete circle like a dreidel to the {sd}"),
+    "spin": (
+        "gyrates a whole turn to the {sd}",
+        "goes round in a complete circle like a dreidel to the {sd}",
+    ),
     "jump": ("hurls itself upward {where} {n}", "clears the ground {where} {n}"),
     "squat": ("bobs down {n}", "sinks the backside toward the floor {n}"),
     "sit": ("lowers itself onto a pouf", "rests its bottom on a crate"),
@@ -182,25 +302,38 @@ BLIND_PHRASES = {
     "clap": ("smites the palms together {n}", "bangs the hands together {n}"),
     "punch": ("wallops {n} with the {h} fist", "throws a hook {n} with the {h} fist"),
     "kick": ("hoofs out with the {f} foot", "fires the {f} foot forward"),
-    "stretch": ("uncoils the spine with both arms high",
-                "draws itself out tall with arms above the head"),
+    "stretch": (
+        "uncoils the spine with both arms high",
+        "draws itself out tall with arms above the head",
+    ),
     "jumping_jacks": ("does {cnt} arms-and-legs-apart jumps", "does {cnt} snow-angel jumps"),
     "idle": ("bides its time for {secs} seconds", "is inert for {secs} seconds"),
 }
-BLIND_KEY = {"walk": ("promenades", "traipses", "moseys"), "jog": ("dogtrot", "rhythm"),
-             "run": ("hightails", "flat", "belts"), "turn": ("orientation", "angles"),
-             "spin": ("gyrates", "dreidel"), "jump": ("hurls", "clears"),
-             "squat": ("bobs", "backside"), "sit": ("pouf", "bottom", "crate"),
-             "bow": ("salaam", "deference"), "wave": ("howdy", "flutters"),
-             "raise_arms": ("hoicks", "rafters"), "clap": ("smites", "bangs"),
-             "punch": ("wallops", "hook"), "kick": ("hoofs", "fires"),
-             "stretch": ("uncoils", "draws"), "jumping_jacks": ("apart", "angel"),
-             "idle": ("bides", "inert")}
+BLIND_KEY = {
+    "walk": ("promenades", "traipses", "moseys"),
+    "jog": ("dogtrot", "rhythm"),
+    "run": ("hightails", "flat", "belts"),
+    "turn": ("orientation", "angles"),
+    "spin": ("gyrates", "dreidel"),
+    "jump": ("hurls", "clears"),
+    "squat": ("bobs", "backside"),
+    "sit": ("pouf", "bottom", "crate"),
+    "bow": ("salaam", "deference"),
+    "wave": ("howdy", "flutters"),
+    "raise_arms": ("hoicks", "rafters"),
+    "clap": ("smites", "bangs"),
+    "punch": ("wallops", "hook"),
+    "kick": ("hoofs", "fires"),
+    "stretch": ("uncoils", "draws"),
+    "jumping_jacks": ("apart", "angel"),
+    "idle": ("bides", "inert"),
+}
 
 
 @dataclass(frozen=True)
 class Phrasebook:
     """Subjects, phrases by primitive, and the key words that must be unseen in training."""
+
     name: str
     subjects: tuple[str, ...]
     phrases: dict[str, tuple[str, ...]]
@@ -215,23 +348,31 @@ BLIND = Phrasebook("blind paraphrases", BLIND_SUBJECTS, BLIND_PHRASES, BLIND_KEY
 PHRASEBOOKS = (HELD_OUT, FRESH, UNSEEN, LATE, BLIND)
 
 
-def paraphrase(primitive: str, params: dict, rng: np.random.Generator,
-               book: Phrasebook = HELD_OUT) -> str:
+def paraphrase(
+    primitive: str, params: dict, rng: np.random.Generator, book: Phrasebook = HELD_OUT
+) -> str:
     """One segment as a sentence in words of the phrasebook (see the module docstring)."""
+
     def pick(options):
         return options[int(rng.integers(len(options)))]
 
     turn = params.get("turn", 0)
     n = params.get("count", 1)
     values = dict(
-        d=pick(DIRECTION[params["direction"]]) if "direction" in params
-        and primitive in ("walk", "jog", "run") else "",
-        c=f" {CURVE[turn > 0]}" if turn else "", n=times_word(n), cnt=number_word(n),
+        d=pick(DIRECTION[params["direction"]])
+        if "direction" in params and primitive in ("walk", "jog", "run")
+        else "",
+        c=f" {CURVE[turn > 0]}" if turn else "",
+        n=times_word(n),
+        cnt=number_word(n),
         h="both" if params.get("hand") == "both" else params.get("hand", "right"),
-        f=params.get("foot", "right"), a=abs(params.get("angle", 0)),
-        t="left" if params.get("angle", 0) > 0 else "right", sd=params.get("direction", "left"),
+        f=params.get("foot", "right"),
+        a=abs(params.get("angle", 0)),
+        t="left" if params.get("angle", 0) > 0 else "right",
+        sd=params.get("direction", "left"),
         where="forward" if params.get("forward") else "in place",
-        secs=number_word(round(params.get("seconds", 2))))
+        secs=number_word(round(params.get("seconds", 2))),
+    )
     text = pick(book.phrases[primitive]).format(**values)
     for part in ("hand", "arm", "fist"):  # "with the both hand" -> "with both hands"
         text = text.replace(f"the both {part}", f"both {part}s")
@@ -241,8 +382,11 @@ def paraphrase(primitive: str, params: dict, rng: np.random.Generator,
 def in_every_book(items) -> dict[str, list[str]]:
     """Each phrasebook's name -> its paraphrase of each item (anything with `primitive` and
     `params`, as mogo.bench.quality.semantic.SemanticItem), one generator (seed 0) a book."""
-    return {book.name: [paraphrase(item.primitive, item.params, rng, book) for item in items]
-            for book in PHRASEBOOKS for rng in [np.random.default_rng(0)]}
+    return {
+        book.name: [paraphrase(item.primitive, item.params, rng, book) for item in items]
+        for book in PHRASEBOOKS
+        for rng in [np.random.default_rng(0)]
+    }
 
 
 def unseen_key_words(training_words: set[str], book: Phrasebook = HELD_OUT) -> list[str]:

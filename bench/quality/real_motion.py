@@ -11,6 +11,7 @@ vq_reconstruction does for the corpus. Per clip: MPJPE (global joints, mm), spli
 distance); OUT/ID.gif (original left, round trip right), OUT/contact_sheet.png and
 OUT/real_motion.md, the table printed.
 """
+
 from __future__ import annotations
 
 import subprocess
@@ -25,8 +26,14 @@ from mogo.clip import Motion
 from mogo.generator import MotionGenerator
 
 PYBULLET = "pybullet==3.2.7"
-WHEEL_PLATFORM = ("--python-version", "3.11", "--implementation", "cp", "--platform",
-                  "manylinux2014_x86_64")
+WHEEL_PLATFORM = (
+    "--python-version",
+    "3.11",
+    "--implementation",
+    "cp",
+    "--platform",
+    "manylinux2014_x86_64",
+)
 MOTIONS = "pybullet_data/data/motions/"
 SHEET_SECONDS = 0.4  # between the frames of a contact-sheet row: the clips are short
 SHEET_SIZE = 96  # pixels a frame: 20 rows of up to 11 pairs
@@ -39,8 +46,20 @@ def deepmimic_clips(cache: Path) -> list[Path]:
     wheels = sorted(cache.glob("pybullet-*.whl"))
     if not wheels:
         print(f"fetching {PYBULLET} (about 100 MB, no install) into {cache}", flush=True)
-        command = [sys.executable, "-m", "pip", "download", PYBULLET, "--no-deps",
-                   "--only-binary", ":all:", *WHEEL_PLATFORM, "--dest", str(cache), "--quiet"]
+        command = [
+            sys.executable,
+            "-m",
+            "pip",
+            "download",
+            PYBULLET,
+            "--no-deps",
+            "--only-binary",
+            ":all:",
+            *WHEEL_PLATFORM,
+            "--dest",
+            str(cache),
+            "--quiet",
+        ]
         if subprocess.run(command).returncode != 0:
             raise ValueError(f"pip could not download {PYBULLET} into {cache}")
         wheels = sorted(cache.glob("pybullet-*.whl"))
@@ -49,9 +68,10 @@ def deepmimic_clips(cache: Path) -> list[Path]:
     clips = []
     with zipfile.ZipFile(wheels[-1]) as wheel:
         for name in sorted(wheel.namelist()):
-            relative = name[len(MOTIONS):]
-            if name.startswith(MOTIONS) and (relative.startswith(("humanoid3d_", "walker/"))
-                                             and relative.endswith(".txt")):
+            relative = name[len(MOTIONS) :]
+            if name.startswith(MOTIONS) and (
+                relative.startswith(("humanoid3d_", "walker/")) and relative.endswith(".txt")
+            ):
                 path = out / relative.replace("/", "_")
                 path.write_bytes(wheel.read(name))
                 clips.append(path)
@@ -63,8 +83,7 @@ def deepmimic_clips(cache: Path) -> list[Path]:
 def errors_mm(original: np.ndarray, rebuilt: np.ndarray) -> tuple[float, float, float]:
     """MPJPE of joints (T, J, 3), and its pose (root-aligned) and trajectory (root) parts."""
     total = np.linalg.norm(rebuilt - original, axis=-1).mean()
-    pose = np.linalg.norm((rebuilt - rebuilt[:, :1]) - (original - original[:, :1]),
-                          axis=-1).mean()
+    pose = np.linalg.norm((rebuilt - rebuilt[:, :1]) - (original - original[:, :1]), axis=-1).mean()
     trajectory = np.linalg.norm(rebuilt[:, 0] - original[:, 0], axis=-1).mean()
     return 1000 * total, 1000 * pose, 1000 * trajectory
 
@@ -76,29 +95,47 @@ def measure(generator: MotionGenerator, clips: list[Path], out: Path) -> list[tu
     for path in clips:
         motion = Motion.from_file(path)
         rebuilt = reconstruct(generator, motion.features)
-        original = motion.joints[:len(rebuilt)]
+        original = motion.joints[: len(rebuilt)]
         total, pose, trajectory = errors_mm(original, rebuilt)
         name = path.stem.replace("humanoid3d_", "")
-        sheet.append(write_pair(original, rebuilt, f"{name} (DeepMimic)",
-                                f"VQ round trip, MPJPE {total:.0f} mm", generator.fps,
-                                out / f"{name}.gif", SHEET_SECONDS))
+        sheet.append(
+            write_pair(
+                original,
+                rebuilt,
+                f"{name} (DeepMimic)",
+                f"VQ round trip, MPJPE {total:.0f} mm",
+                generator.fps,
+                out / f"{name}.gif",
+                SHEET_SECONDS,
+            )
+        )
         rows.append((name, len(original) / generator.fps, total, pose, trajectory))
-        print(f"{name}: {len(original)} frames, MPJPE {total:.1f} mm (pose {pose:.1f}, "
-              f"trajectory {trajectory:.1f})", flush=True)
+        print(
+            f"{name}: {len(original)} frames, MPJPE {total:.1f} mm (pose {pose:.1f}, "
+            f"trajectory {trajectory:.1f})",
+            flush=True,
+        )
     contact_sheet(sheet, out / "contact_sheet.png", SHEET_SIZE)
     return rows
 
 
 def table(rows: list[tuple]) -> str:
     """The markdown table: a row per clip, then the mean and median over clips."""
-    lines = ["| clip | seconds | MPJPE (mm) | pose, root-aligned (mm) | trajectory (mm) |",
-             "| --- | ---: | ---: | ---: | ---: |"]
-    lines += [f"| {name} | {seconds:.1f} | {total:.0f} | {pose:.0f} | {trajectory:.0f} |"
-              for name, seconds, total, pose, trajectory in rows]
+    lines = [
+        "| clip | seconds | MPJPE (mm) | pose, root-aligned (mm) | trajectory (mm) |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
+    lines += [
+        f"| {name} | {seconds:.1f} | {total:.0f} | {pose:.0f} | {trajectory:.0f} |"
+        for name, seconds, total, pose, trajectory in rows
+    ]
     values = np.array([row[2:] for row in rows])
     for label, summary in (("mean", values.mean(0)), ("median", np.median(values, 0))):
-        lines.append(f"| **{label}** of {len(rows)} | {sum(r[1] for r in rows):.1f} | "
-                     + " | ".join(f"**{v:.0f}**" for v in summary) + " |")
+        lines.append(
+            f"| **{label}** of {len(rows)} | {sum(r[1] for r in rows):.1f} | "
+            + " | ".join(f"**{v:.0f}**" for v in summary)
+            + " |"
+        )
     return "\n".join(lines)
 
 

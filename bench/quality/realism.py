@@ -10,6 +10,7 @@ markdown table (each animator measure the mean over N random performers doing th
 segment) and writes OUT/realism.md and OUT/realism_sheet.png: per move a row of real frames,
 then v1's, then v2's; and OUT/corpus_v2_sheet.png, a row per primitive v2 adds.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,18 +33,30 @@ PLANTED = 0.03  # m: an ankle this close to its lowest height bears weight
 AIRBORNE = 0.05  # m: every foot joint this far above its lowest, the body is in the air
 # The segment each real clip is measured against (forward, straight, at normal speed).
 MOVES = {
-    "walk": (("humanoid3d_walk", "walker_0walk_forward"),
-             Segment("walk", {"direction": "forward", "speed": "normal", "steps": 8, "turn": 0})),
-    "run": (("humanoid3d_run",),
-            Segment("run", {"direction": "forward", "speed": "fast", "steps": 8, "turn": 0})),
+    "walk": (
+        ("humanoid3d_walk", "walker_0walk_forward"),
+        Segment("walk", {"direction": "forward", "speed": "normal", "steps": 8, "turn": 0}),
+    ),
+    "run": (
+        ("humanoid3d_run",),
+        Segment("run", {"direction": "forward", "speed": "fast", "steps": 8, "turn": 0}),
+    ),
     "jump": (("humanoid3d_jump",), Segment("jump", {"forward": True, "count": 1})),
     "kick": (("humanoid3d_kick",), Segment("kick", {"foot": "right"})),
     "punch": (("humanoid3d_punch",), Segment("punch", {"hand": "right", "count": 1})),
 }
-GAIT_MEASURES = ("speed (m/s)", "step length / leg", "cadence (steps/min)", "pelvis bob (mm)",
-                 "pelvis sway (mm)", "arm swing (mm)", "knee flexion in stance (deg)",
-                 "knee flexion in swing (deg)", "foot clearance (mm)",
-                 "step time spread (% of a step)")
+GAIT_MEASURES = (
+    "speed (m/s)",
+    "step length / leg",
+    "cadence (steps/min)",
+    "pelvis bob (mm)",
+    "pelvis sway (mm)",
+    "arm swing (mm)",
+    "knee flexion in stance (deg)",
+    "knee flexion in swing (deg)",
+    "foot clearance (mm)",
+    "step time spread (% of a step)",
+)
 
 
 def _leg(joints: np.ndarray) -> float:
@@ -55,8 +68,9 @@ def _knee_flexion(joints: np.ndarray) -> np.ndarray:
     """(T, 2) degrees each knee bends away from straight."""
     thigh = joints[:, HIPS] - joints[:, KNEES]
     shin = joints[:, ANKLES] - joints[:, KNEES]
-    cosine = np.sum(thigh * shin, -1) / np.linalg.norm(thigh, axis=-1) / np.linalg.norm(shin,
-                                                                                       axis=-1)
+    cosine = (
+        np.sum(thigh * shin, -1) / np.linalg.norm(thigh, axis=-1) / np.linalg.norm(shin, axis=-1)
+    )
     return 180.0 - np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
 
 
@@ -101,8 +115,9 @@ def gait_measures(joints: np.ndarray) -> dict[str, float]:
         "knee flexion in stance (deg)": float(np.median(flexion[planted])),
         "knee flexion in swing (deg)": float(flexion.max(0).mean()),
         "foot clearance (mm)": 1000 * np.ptp(ankles, axis=0).mean(),
-        "step time spread (% of a step)": (100 * intervals.std() / intervals.mean()
-                                           if len(intervals) > 2 else np.nan),
+        "step time spread (% of a step)": (
+            100 * intervals.std() / intervals.mean() if len(intervals) > 2 else np.nan
+        ),
     }
 
 
@@ -112,11 +127,14 @@ def jump_measures(joints: np.ndarray) -> dict[str, float]:
     takeoff = int(np.argmax(air)) if air.any() else len(joints) - 1
     pelvis = joints[:, PELVIS, 1]
     stand = pelvis[0]
-    return {"crouch before take-off (mm)": 1000 * (stand - pelvis[:takeoff + 1].min()),
-            "time in the air (s)": air.sum() / FPS,
-            "pelvis rise (mm)": 1000 * (pelvis.max() - stand),
-            "distance (m)": float(np.linalg.norm(joints[-1, PELVIS, [0, 2]]
-                                                 - joints[0, PELVIS, [0, 2]]))}
+    return {
+        "crouch before take-off (mm)": 1000 * (stand - pelvis[: takeoff + 1].min()),
+        "time in the air (s)": air.sum() / FPS,
+        "pelvis rise (mm)": 1000 * (pelvis.max() - stand),
+        "distance (m)": float(
+            np.linalg.norm(joints[-1, PELVIS, [0, 2]] - joints[0, PELVIS, [0, 2]])
+        ),
+    }
 
 
 def kick_measures(joints: np.ndarray) -> dict[str, float]:
@@ -124,24 +142,34 @@ def kick_measures(joints: np.ndarray) -> dict[str, float]:
     foot = int(np.argmax(ankles.max(0)))
     up = np.flatnonzero(ankles[:, foot] > AIRBORNE)
     peak = int(np.argmax(ankles[:, foot]))
-    reach = np.einsum("tc,tc->t", joints[:, ANKLES[foot]] - joints[:, PELVIS],
-                      facing_directions(joints, SMPL_22))
-    return {"kicking ankle's peak height (mm)": 1000 * ankles[peak, foot],
-            "kicking ankle's reach in front (mm)": 1000 * reach.max(),
-            "lift-off to peak (s)": (peak - up[0]) / FPS if len(up) else np.nan,
-            "foot off the floor (s)": len(up) / FPS}
+    reach = np.einsum(
+        "tc,tc->t", joints[:, ANKLES[foot]] - joints[:, PELVIS], facing_directions(joints, SMPL_22)
+    )
+    return {
+        "kicking ankle's peak height (mm)": 1000 * ankles[peak, foot],
+        "kicking ankle's reach in front (mm)": 1000 * reach.max(),
+        "lift-off to peak (s)": (peak - up[0]) / FPS if len(up) else np.nan,
+        "foot off the floor (s)": len(up) / FPS,
+    }
 
 
 def punch_measures(joints: np.ndarray) -> dict[str, float]:
     forward = facing_directions(joints, SMPL_22)
     reach = np.einsum("tjc,tc->tj", joints[:, WRISTS] - joints[:, (16, 17)], forward)
     speed = np.linalg.norm(np.diff(joints[:, WRISTS], axis=0), axis=-1).max(0) * FPS
-    return {"fist's reach in front of the shoulder (mm)": 1000 * reach.max(),
-            "fist's top speed (m/s)": float(speed.max())}
+    return {
+        "fist's reach in front of the shoulder (mm)": 1000 * reach.max(),
+        "fist's top speed (m/s)": float(speed.max()),
+    }
 
 
-MEASURE = {"walk": gait_measures, "run": gait_measures, "jump": jump_measures,
-           "kick": kick_measures, "punch": punch_measures}
+MEASURE = {
+    "walk": gait_measures,
+    "run": gait_measures,
+    "jump": jump_measures,
+    "kick": kick_measures,
+    "punch": punch_measures,
+}
 
 
 def _animated(segment: Segment, natural: bool, seed: int) -> np.ndarray:
@@ -154,23 +182,37 @@ def measure_all(cache: Path, clips: int) -> tuple[list[tuple], dict[str, dict]]:
     rows, shown = [], {}
     for move, (names, segment) in MOVES.items():
         real = [Motion.from_file(real_files[name]).joints.astype(np.float64) for name in names]
-        sources = {"v1": [_animated(segment, False, s) for s in range(clips)],
-                   "v2": [_animated(segment, True, s) for s in range(clips)], "real": real}
+        sources = {
+            "v1": [_animated(segment, False, s) for s in range(clips)],
+            "v2": [_animated(segment, True, s) for s in range(clips)],
+            "real": real,
+        }
         values = {k: [MEASURE[move](j) for j in v] for k, v in sources.items()}
         for name in values["real"][0]:
-            rows.append((move, name) + tuple(float(np.nanmean([m[name] for m in values[k]]))
-                                             for k in ("v1", "v2", "real")))
+            rows.append(
+                (move, name)
+                + tuple(
+                    float(np.nanmean([m[name] for m in values[k]])) for k in ("v1", "v2", "real")
+                )
+            )
         shown[move] = {k: v[0] for k, v in sources.items()}
     return rows, shown
 
 
 def table(rows: list[tuple], clips: int) -> str:
-    lines = [f"| move | measure | corpus v1 (mean of {clips}) | corpus v2 (mean of {clips}) | "
-             "real (DeepMimic) |", "| --- | --- | ---: | ---: | ---: |"]
+    lines = [
+        f"| move | measure | corpus v1 (mean of {clips}) | corpus v2 (mean of {clips}) | "
+        "real (DeepMimic) |",
+        "| --- | --- | ---: | ---: | ---: |",
+    ]
     for move, name, *values in rows:
-        lines.append(f"| {move} | {name} | " + " | ".join(
-            "n/a" if np.isnan(v) else f"{v:.2f}" if abs(v) < 10 else f"{v:.0f}"
-            for v in values) + " |")
+        lines.append(
+            f"| {move} | {name} | "
+            + " | ".join(
+                "n/a" if np.isnan(v) else f"{v:.2f}" if abs(v) < 10 else f"{v:.0f}" for v in values
+            )
+            + " |"
+        )
     return "\n".join(lines)
 
 
@@ -186,8 +228,9 @@ def sheet(shown: dict[str, dict], path: Path, size: int = 72, columns: int = 8) 
             label = f"{move}: {'DeepMimic' if source == 'real' else 'corpus ' + source}"
             frames = render_frames(joints, label, camera=camera)
             for c, t in enumerate(times):
-                sheet.paste(frames[t].convert("RGB").resize((size, size)),
-                            (c * size, (3 * m + r) * size))
+                sheet.paste(
+                    frames[t].convert("RGB").resize((size, size)), (c * size, (3 * m + r) * size)
+                )
     sheet.quantize(32).save(path, optimize=True)
 
 
@@ -209,11 +252,16 @@ def primitives_sheet(path: Path, size: int = 64, columns: int = 8, seed: int = 0
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "mogo",
-                        help="where pybullet's wheel is fetched to (as mogo real-motion)")
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=Path.home() / ".cache" / "mogo",
+        help="where pybullet's wheel is fetched to (as mogo real-motion)",
+    )
     parser.add_argument("--out", type=Path, default=Path("realism"))
-    parser.add_argument("--clips", type=int, default=8,
-                        help="random performers per animator measure")
+    parser.add_argument(
+        "--clips", type=int, default=8, help="random performers per animator measure"
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     rows, shown = measure_all(args.cache, args.clips)

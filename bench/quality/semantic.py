@@ -13,6 +13,7 @@ the same caption: a generated walk must travel between half and twice as far.
 The checks are calibrated on the real test clips (which must pass at a high rate for the
 checks to be honest; the report gives that rate next to the generated clips').
 """
+
 from __future__ import annotations
 
 import json
@@ -55,27 +56,46 @@ def program_items(data: str | Path, ids: list[str]) -> list[SemanticItem]:
     for clip_id in ids:
         path = Path(data) / "programs" / f"{clip_id}.json"
         if not path.is_file():
-            raise FileNotFoundError(f"{path}: no program (semantic checks need the procedural "
-                                    f"corpus's programs/)")
+            raise FileNotFoundError(
+                f"{path}: no program (semantic checks need the procedural corpus's programs/)"
+            )
         program = json.loads(path.read_text())
         segments = program["segments"]
         for caption in program["captions"]:
             span = caption["span"]
-            matching = ([s for s in segments if list(s["span"]) == list(span)] if span
-                        else segments if len(segments) == 1 else [])
+            matching = (
+                [s for s in segments if list(s["span"]) == list(span)]
+                if span
+                else segments
+                if len(segments) == 1
+                else []
+            )
             if len(matching) == 1:
                 s = matching[0]
-                items.append(SemanticItem(clip_id, caption["text"], s["primitive"], s["params"],
-                                          int(s["span"][0]), int(s["span"][1])))
+                items.append(
+                    SemanticItem(
+                        clip_id,
+                        caption["text"],
+                        s["primitive"],
+                        s["params"],
+                        int(s["span"][0]),
+                        int(s["span"][1]),
+                    )
+                )
     return items
 
 
 # -- measurements --------------------------------------------------------------------------
 
+
 def facing(joints: np.ndarray) -> np.ndarray:
     """Unit facing directions (T, 2) as (x, z), from hips and shoulders (HumanML3D's rule)."""
-    across = (joints[:, J["right_hip"]] - joints[:, J["left_hip"]]
-              + joints[:, J["right_shoulder"]] - joints[:, J["left_shoulder"]])
+    across = (
+        joints[:, J["right_hip"]]
+        - joints[:, J["left_hip"]]
+        + joints[:, J["right_shoulder"]]
+        - joints[:, J["left_shoulder"]]
+    )
     forward = np.stack([across[:, 2], -across[:, 0]], 1)  # up x across, in (x, z)
     return forward / np.maximum(np.linalg.norm(forward, axis=1, keepdims=True), 1e-9)
 
@@ -111,8 +131,9 @@ def airborne(joints: np.ndarray) -> np.ndarray:
 def raised_hands(joints: np.ndarray) -> set[str]:
     """Hands whose wrist rises above the head's top at any point (the neck + 0.1 m)."""
     top = joints[:, J["neck"], 1] + 0.1
-    return {side for side in ("left", "right")
-            if np.mean(joints[:, J[f"{side}_wrist"], 1] > top) > 0.1}
+    return {
+        side for side in ("left", "right") if np.mean(joints[:, J[f"{side}_wrist"], 1] > top) > 0.1
+    }
 
 
 def _side_set(value: str) -> set[str]:
@@ -120,6 +141,7 @@ def _side_set(value: str) -> set[str]:
 
 
 # -- checks --------------------------------------------------------------------------------
+
 
 @dataclass
 class Verdict:
@@ -159,8 +181,7 @@ def _jump(joints, params, reference) -> Verdict:
     count = runs(airborne(joints))
     forward = float(travel(joints)[0])
     moved = forward >= MIN_TRAVEL if params["forward"] else abs(forward) < MIN_TRAVEL
-    return Verdict(count == params["count"] and moved, dict(count=count,
-                                                            forward=round(forward, 2)))
+    return Verdict(count == params["count"] and moved, dict(count=count, forward=round(forward, 2)))
 
 
 def _pelvis_dips(joints: np.ndarray, depth: float) -> int:
@@ -193,20 +214,30 @@ def _hands_up(joints, params, reference) -> Verdict:
 
 def _punch(joints, params, reference) -> Verdict:
     f = facing(joints)
-    reach = {side: float(np.max(np.sum(
-        (joints[:, J[f"{side}_wrist"]] - joints[:, J[f"{side}_shoulder"]]
-         )[:, [0, 2]] * f, axis=1))) for side in ("left", "right")}
+    reach = {
+        side: float(
+            np.max(
+                np.sum(
+                    (joints[:, J[f"{side}_wrist"]] - joints[:, J[f"{side}_shoulder"]])[:, [0, 2]]
+                    * f,
+                    axis=1,
+                )
+            )
+        )
+        for side in ("left", "right")
+    }
     hand = max(reach, key=reach.get)
-    return Verdict(hand == params["hand"] and reach[hand] > 0.4,
-                   dict(hand=hand, reach=round(reach[hand], 2)))
+    return Verdict(
+        hand == params["hand"] and reach[hand] > 0.4, dict(hand=hand, reach=round(reach[hand], 2))
+    )
 
 
 def _kick(joints, params, reference) -> Verdict:
-    lift = {side: float(np.ptp(joints[:, J[f"{side}_ankle"], 1]))
-            for side in ("left", "right")}
+    lift = {side: float(np.ptp(joints[:, J[f"{side}_ankle"], 1])) for side in ("left", "right")}
     foot = max(lift, key=lift.get)
-    return Verdict(foot == params["foot"] and lift[foot] > 0.2,
-                   dict(foot=foot, lift=round(lift[foot], 2)))
+    return Verdict(
+        foot == params["foot"] and lift[foot] > 0.2, dict(foot=foot, lift=round(lift[foot], 2))
+    )
 
 
 def _sit(joints, params, reference) -> Verdict:
@@ -217,8 +248,9 @@ def _sit(joints, params, reference) -> Verdict:
 def _bow(joints, params, reference) -> Verdict:
     head = float(np.ptp(joints[:, J["head"], 1]))
     pelvis = float(np.ptp(joints[:, J["pelvis"], 1]))
-    return Verdict(head > 0.08 and pelvis < 0.12, dict(head=round(head, 2),
-                                                       pelvis=round(pelvis, 2)))
+    return Verdict(
+        head > 0.08 and pelvis < 0.12, dict(head=round(head, 2), pelvis=round(pelvis, 2))
+    )
 
 
 def _stretch(joints, params, reference) -> Verdict:
@@ -233,26 +265,50 @@ def _idle(joints, params, reference) -> Verdict:
     turned = abs(heading_change(joints))
     relative = joints[:, [J["left_wrist"], J["right_wrist"]]] - joints[:, J["pelvis"]][:, None]
     hands = float(np.max(np.ptp(relative, axis=0)))
-    return Verdict(distance < MIN_TRAVEL and pelvis < 0.1 and turned < 30 and hands < 0.2,
-                   dict(distance=round(distance, 2), pelvis=round(pelvis, 2),
-                        turned=round(turned), hands=round(hands, 2)))
+    return Verdict(
+        distance < MIN_TRAVEL and pelvis < 0.1 and turned < 30 and hands < 0.2,
+        dict(
+            distance=round(distance, 2),
+            pelvis=round(pelvis, 2),
+            turned=round(turned),
+            hands=round(hands, 2),
+        ),
+    )
 
 
 CHECKS: dict[str, Callable[[np.ndarray, dict, np.ndarray | None], Verdict]] = dict(
-    walk=_locomotion, jog=_locomotion, run=_locomotion, turn=_turn, spin=_spin, jump=_jump,
-    squat=_squat, jumping_jacks=_jumping_jacks, clap=_clap, wave=_hands_up,
-    raise_arms=_hands_up, punch=_punch, kick=_kick, sit=_sit, bow=_bow, stretch=_stretch,
+    walk=_locomotion,
+    jog=_locomotion,
+    run=_locomotion,
+    turn=_turn,
+    spin=_spin,
+    jump=_jump,
+    squat=_squat,
+    jumping_jacks=_jumping_jacks,
+    clap=_clap,
+    wave=_hands_up,
+    raise_arms=_hands_up,
+    punch=_punch,
+    kick=_kick,
+    sit=_sit,
+    bow=_bow,
+    stretch=_stretch,
     idle=_idle,
     # corpus v2's stepping moves travel as walking does (forward where they have no direction);
     # its keyed moves have no check yet and are left out of the report
-    crouch_walk=_locomotion, tiptoe=_locomotion, carry=_locomotion,
-    **dict.fromkeys(("march", "skip", "limp", "stumble"),
-                    lambda joints, params, reference: _locomotion(
-                        joints, {"direction": "forward", **params}, reference)))
+    crouch_walk=_locomotion,
+    tiptoe=_locomotion,
+    carry=_locomotion,
+    **dict.fromkeys(
+        ("march", "skip", "limp", "stumble"),
+        lambda joints, params, reference: _locomotion(
+            joints, {"direction": "forward", **params}, reference
+        ),
+    ),
+)
 
 
-def check(item: SemanticItem, joints: np.ndarray, reference: np.ndarray | None = None
-          ) -> Verdict:
+def check(item: SemanticItem, joints: np.ndarray, reference: np.ndarray | None = None) -> Verdict:
     """Does `joints` (T, 22, 3) do what the item's primitive and parameters say? `reference`:
     the real clip of the item, for the checks judged against it (distance of travel)."""
     if item.primitive not in CHECKS:
@@ -263,7 +319,7 @@ def check(item: SemanticItem, joints: np.ndarray, reference: np.ndarray | None =
 def pass_rates(items: list[SemanticItem], verdicts: list[Verdict]) -> dict[str, tuple[int, int]]:
     """-> {primitive: (passed, total)}, primitives in alphabetical order."""
     rates: dict[str, list[int]] = {}
-    for item, verdict in zip(items, verdicts):
+    for item, verdict in zip(items, verdicts, strict=True):
         counts = rates.setdefault(item.primitive, [0, 0])
         counts[0] += verdict.passed
         counts[1] += 1
@@ -281,8 +337,9 @@ def stratified(items: list[SemanticItem], per_primitive: int, seed: int) -> list
     return chosen
 
 
-def semantic_report(generator, data: str | Path, per_primitive: int = 20, seed: int = 0,
-                    threads: int = 1) -> dict[str, dict[str, tuple[int, int]]]:
+def semantic_report(
+    generator, data: str | Path, per_primitive: int = 20, seed: int = 0, threads: int = 1
+) -> dict[str, dict[str, tuple[int, int]]]:
     """Pass rates per primitive -> {primitive: dict(real=..., generated=..., other=...)}, each
     (passed, total), of the primitives with a check: `real`, every single-segment caption of
     the test split on its real clip; `generated`, `per_primitive` of them generated by
@@ -297,30 +354,46 @@ def semantic_report(generator, data: str | Path, per_primitive: int = 20, seed: 
     def real(item: SemanticItem) -> np.ndarray:
         if item.clip_id not in clips:
             clips[item.clip_id] = folder.joints(item.clip_id)
-        return clips[item.clip_id][item.start:item.end]
+        return clips[item.clip_id][item.start : item.end]
 
     chosen = stratified(items, per_primitive, seed)
     rng = np.random.default_rng(seed)
     others = [[o for o in chosen if o.primitive != item.primitive] for item in chosen]
-    other = [check(item, real(group[rng.integers(len(group))]), real(item))
-             for item, group in zip(chosen, others)]
+    other = [
+        check(item, real(group[rng.integers(len(group))]), real(item))
+        for item, group in zip(chosen, others, strict=True)
+    ]
     motions = generate_items(generator, chosen, seed, threads, "semantic check")
-    generated = [check(item, motion.joints, real(item)) for item, motion in zip(chosen, motions)]
-    columns = dict(real=pass_rates(items, [check(item, real(item), real(item)) for item in items]),
-                   generated=pass_rates(chosen, generated), other=pass_rates(chosen, other))
-    return {primitive: {name: rates[primitive] for name, rates in columns.items()}
-            for primitive in columns["real"]}
+    generated = [
+        check(item, motion.joints, real(item)) for item, motion in zip(chosen, motions, strict=True)
+    ]
+    columns = dict(
+        real=pass_rates(items, [check(item, real(item), real(item)) for item in items]),
+        generated=pass_rates(chosen, generated),
+        other=pass_rates(chosen, other),
+    )
+    return {
+        primitive: {name: rates[primitive] for name, rates in columns.items()}
+        for primitive in columns["real"]
+    }
 
 
 def format_semantic(report: dict[str, dict[str, tuple[int, int]]]) -> str:
     def cell(counts: tuple[int, int]) -> str:
         return f"{counts[0] / counts[1]:.0%} ({counts[0]}/{counts[1]})"
 
-    totals = {name: tuple(map(sum, zip(*(row[name] for row in report.values()))))
-              for name in ("real", "generated", "other")}
-    lines = ["| primitive | real clips pass | generated clips pass | a real clip of another "
-             "primitive passes |", "|---|---|---|---|"]
+    totals = {
+        name: tuple(map(sum, zip(*(row[name] for row in report.values()), strict=True)))
+        for name in ("real", "generated", "other")
+    }
+    lines = [
+        "| primitive | real clips pass | generated clips pass | a real clip of another "
+        "primitive passes |",
+        "|---|---|---|---|",
+    ]
     for primitive, row in {**report, "all": totals}.items():
-        lines.append(f"| {primitive} | {cell(row['real'])} | {cell(row['generated'])} | "
-                     f"{cell(row['other'])} |")
+        lines.append(
+            f"| {primitive} | {cell(row['real'])} | {cell(row['generated'])} | "
+            f"{cell(row['other'])} |"
+        )
     return "\n".join(lines)

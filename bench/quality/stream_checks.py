@@ -8,6 +8,7 @@ of spin; between half and twice the distance, as semantic.py judges a walk). A o
 action (sit down, bow, ...) must happen in the first window, by its clip check, and hold in
 every later one (the idle check: in place, steady, facing one way, the hands still).
 """
+
 from __future__ import annotations
 
 import math
@@ -35,8 +36,12 @@ class Action:
 def _loco(gait: str, direction: str) -> Action:
     words = {"left": "to the left", "right": "to the right"}.get(direction, direction)
     verb = {"walk": "walks", "jog": "jogs", "run": "runs"}[gait]
-    return Action(f"{gait} {direction}", f"a person {verb} {words}.", gait,
-                  dict(direction=direction, speed="normal", turn=0, steps=40))
+    return Action(
+        f"{gait} {direction}",
+        f"a person {verb} {words}.",
+        gait,
+        dict(direction=direction, speed="normal", turn=0, steps=40),
+    )
 
 
 REPERTOIRE = (
@@ -48,8 +53,13 @@ REPERTOIRE = (
     Action("spin", "a person spins to the left.", "spin", dict(direction="left")),
     Action("idle", "a person stands still.", "idle", dict(seconds=3.0)),
     Action("sit down", "a person sits down.", "sit", {}, False),
-    Action("jump 3x", "a person jumps on the spot three times.", "jump",
-           dict(forward=False, count=3), False),
+    Action(
+        "jump 3x",
+        "a person jumps on the spot three times.",
+        "jump",
+        dict(forward=False, count=3),
+        False,
+    ),
     Action("bow", "a person bows.", "bow", {}, False),
     Action("turn left", "a person turns left.", "turn", dict(angle=90), False),
     Action("kick", "a person kicks with the right foot.", "kick", dict(foot="right"), False),
@@ -66,7 +76,7 @@ def reference(action: Action, frames: int, seed: int = 0) -> np.ndarray:
     repeats = math.ceil((frames + 2 * FPS) / len(clip)) + 1
     clip = animate(segments * repeats, np.random.default_rng(seed)).joints
     start = (len(clip) - frames) // 2
-    return clip[start:start + frames]
+    return clip[start : start + frames]
 
 
 class WindowCheck:
@@ -106,7 +116,7 @@ def window_passes(check: WindowCheck, joints: np.ndarray) -> list[bool]:
     """One verdict per whole window of the stream: a continuing action's check in each; a
     one-off's: whether it happened in the first, then the hold in each later one."""
     n = check.frames
-    windows = [joints[k:k + n] for k in range(0, len(joints) - n + 1, n)]
+    windows = [joints[k : k + n] for k in range(0, len(joints) - n + 1, n)]
     if check.action.continuing:
         return [check.continuing(w) for w in windows]
     return [check.happened(windows[0])] + [S._idle(w, {}, None).passed for w in windows[1:]]
@@ -116,7 +126,7 @@ def reaction_frames(check: WindowCheck, after: np.ndarray, hop: int = 5) -> int 
     """Frames from a switch until the new action is under way: the first start, in `hop`
     frames, of a window that passes its check (a one-off: that happens in it); None: never."""
     for start in range(0, len(after) - check.frames + 1, hop):
-        window = after[start:start + check.frames]
+        window = after[start : start + check.frames]
         if check.continuing(window) if check.action.continuing else check.happened(window):
             return start
     return None
@@ -134,7 +144,9 @@ def drift(joints: np.ndarray) -> dict:
     feet = joints[:, FEET]
     speed = np.linalg.norm(np.diff(feet[:, :, [0, 2]], axis=0), axis=2) * FPS
     contact = feet[1:, :, 1] < CONTACT_HEIGHT
-    return dict(pelvis_low=float(np.percentile(pelvis, 1)),
-                pelvis_high=float(np.percentile(pelvis, 99)),
-                under_floor=float(max(0.0, -feet[:, :, 1].min())),
-                slide=float(speed[contact].mean()) if contact.any() else 0.0)
+    return dict(
+        pelvis_low=float(np.percentile(pelvis, 1)),
+        pelvis_high=float(np.percentile(pelvis, 99)),
+        under_floor=float(max(0.0, -feet[:, :, 1].min())),
+        slide=float(speed[contact].mean()) if contact.any() else 0.0,
+    )

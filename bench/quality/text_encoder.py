@@ -17,6 +17,7 @@ Prints markdown tables:
 - the text encoder's cost per prompt (median ms, batch of one, on `--threads`) and the
   bundle's size.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,8 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.bench.quality.paraphrases import (HELD_OUT, PHRASEBOOKS, caption_words, in_every_book,
-                                            unseen_key_words)
+from mogo.bench.quality.paraphrases import (
+    HELD_OUT,
+    PHRASEBOOKS,
+    caption_words,
+    in_every_book,
+    unseen_key_words,
+)
 from mogo.bench.quality.semantic import SemanticItem, check, program_items, stratified
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.data.outside_repertoire import TEST
@@ -36,20 +42,31 @@ from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
 from mogo.repertoire import shown_caption
 
 
-def pass_rate(generator: MotionGenerator, items: list[SemanticItem], prompts: list[str],
-              real: list[np.ndarray], align: bool, seeds: int = 1, **sampling
-              ) -> tuple[float, dict[str, list[int]]]:
+def pass_rate(
+    generator: MotionGenerator,
+    items: list[SemanticItem],
+    prompts: list[str],
+    real: list[np.ndarray],
+    align: bool,
+    seeds: int = 1,
+    **sampling,
+) -> tuple[float, dict[str, list[int]]]:
     """Share of generations that pass their item's check, `seeds` per item (item k of n with
     seeds k, n + k, 2n + k, ...); and per primitive [passed, generated]. `sampling`: options
     of MotionGenerator.generate (guidance=2, ...)."""
     per: dict[str, list[int]] = {}
-    for k, (item, prompt) in enumerate(zip(items, prompts)):
+    for k, (item, prompt) in enumerate(zip(items, prompts, strict=True)):
         for seed in range(k, seeds * len(items), len(items)):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
-                    motion = generator.generate(prompt, seconds=item.frames / generator.fps,
-                                                seed=seed, align=align, **sampling)
+                    motion = generator.generate(
+                        prompt,
+                        seconds=item.frames / generator.fps,
+                        seed=seed,
+                        align=align,
+                        **sampling,
+                    )
                     passed = check(item, motion.joints, real[k]).passed
                 except ValueError:  # the aligner found no motion in the prompt
                     passed = False
@@ -76,18 +93,24 @@ def known_captions(items: list[SemanticItem]) -> dict[str, tuple]:
     return {caption: c.most_common(1)[0][0] for caption, c in counts.items()}
 
 
-def played_rates(generator: MotionGenerator, items: list[SemanticItem], prompts: list[str],
-                 known: dict[str, tuple]) -> tuple[int, float, float]:
+def played_rates(
+    generator: MotionGenerator,
+    items: list[SemanticItem],
+    prompts: list[str],
+    known: dict[str, tuple],
+) -> tuple[int, float, float]:
     """Of the prompts played as a known caption (`generator.known(p).played`): how many, the
     share of them whose caption is of their item's action, and of its action and what it says
     (a caption of several actions is neither)."""
-    played = [(item, generator.known(p).played) for item, p in zip(items, prompts)]
+    played = [(item, generator.known(p).played) for item, p in zip(items, prompts, strict=True)]
     played = [(said(item), known.get(caption)) for item, caption in played if caption is not None]
     if not played:
         return 0, float("nan"), float("nan")
-    return (len(played), float(np.mean([got is not None and got[0] == want[0]
-                                        for want, got in played])),
-            float(np.mean([got == want for want, got in played])))
+    return (
+        len(played),
+        float(np.mean([got is not None and got[0] == want[0] for want, got in played])),
+        float(np.mean([got == want for want, got in played])),
+    )
 
 
 def encoder_ms(generator: MotionGenerator, prompts: list[str]) -> float:
@@ -106,10 +129,18 @@ def main() -> None:
     parser.add_argument("--before", type=Path, required=True, help="the bundle compared with")
     parser.add_argument("--after", type=Path, default=DEFAULT_BUNDLE)
     parser.add_argument("--per-primitive", type=int, default=6)
-    parser.add_argument("--seeds", type=int, default=1,
-                        help="generations per item (seeds k, n + k, ...): less noise, more time")
-    parser.add_argument("--guidance", type=float, default=None,
-                        help="classifier-free guidance scale (default: each bundle's own)")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=1,
+        help="generations per item (seeds k, n + k, ...): less noise, more time",
+    )
+    parser.add_argument(
+        "--guidance",
+        type=float,
+        default=None,
+        help="classifier-free guidance scale (default: each bundle's own)",
+    )
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     if args.seeds < 1:
@@ -120,62 +151,93 @@ def main() -> None:
     books = in_every_book(items)
     seen = [w for book in PHRASEBOOKS for w in unseen_key_words(trained, book)]
     captions = [item.caption for item in items]
-    real = [folder.joints(item.clip_id)[item.start:item.end] for item in items]
+    real = [folder.joints(item.clip_id)[item.start : item.end] for item in items]
     bundles = {"before": args.before, "after": args.after}
-    generators = {name: MotionGenerator.load(path, threads=args.threads)
-                  for name, path in bundles.items()}
+    generators = {
+        name: MotionGenerator.load(path, threads=args.threads) for name, path in bundles.items()
+    }
     sampling = {} if args.guidance is None else dict(guidance=args.guidance)
-    print(f"{len(items)} test items ({args.per_primitive} per primitive), {args.seeds} seed(s) "
-          f"each{f', guidance {args.guidance:g}' if sampling else ''}; key words seen in "
-          f"training captions: {', '.join(seen) or 'none'}.\n")
-    print("| bundle | " + " | ".join(f"{b} | {b}, --align rules" for b in books) +
-          " | own captions |\n|---|" + "---|---|" * len(books) + "---|")
+    print(
+        f"{len(items)} test items ({args.per_primitive} per primitive), {args.seeds} seed(s) "
+        f"each{f', guidance {args.guidance:g}' if sampling else ''}; key words seen in "
+        f"training captions: {', '.join(seen) or 'none'}.\n"
+    )
+    print(
+        "| bundle | "
+        + " | ".join(f"{b} | {b}, --align rules" for b in books)
+        + " | own captions |\n|---|"
+        + "---|---|" * len(books)
+        + "---|"
+    )
     detail = {}
     for name, generator in generators.items():
         cells = []
         for book, prompts in books.items():
-            plain, detail[name, book] = pass_rate(generator, items, prompts, real, False,
-                                                  args.seeds, **sampling)
+            plain, detail[name, book] = pass_rate(
+                generator, items, prompts, real, False, args.seeds, **sampling
+            )
             aligned, _ = pass_rate(generator, items, prompts, real, True, args.seeds, **sampling)
             cells += [f"{plain:.1%}", f"{aligned:.1%}"]
         own, _ = pass_rate(generator, items, captions, real, False, args.seeds, **sampling)
         print(f"| {name} ({generator.manifest.text.kind}) | {' | '.join(cells)} | {own:.1%} |")
-    print("\n| primitive | " + " | ".join(f"{book}, {name}" for name, book in detail) +
-          " |\n|---|" + "---|" * len(detail))
+    print(
+        "\n| primitive | "
+        + " | ".join(f"{book}, {name}" for name, book in detail)
+        + " |\n|---|"
+        + "---|" * len(detail)
+    )
     for primitive in detail["after", HELD_OUT.name]:
         cells = " | ".join(f"{d[primitive][0]}/{d[primitive][1]}" for d in detail.values())
         print(f"| {primitive} | {cells} |")
     known = known_captions(program_items(args.data, folder.ids("train")))
-    print("\nCaption played (where a bundle plays a prompt as a known caption): share of its "
-          "own action / of its action and the " + ", ".join(SAID) + " it says\n\n| bundle | "
-          + " | ".join([*books, "own captions"]) + " |\n|---|" + "---|" * (len(books) + 1))
+    print(
+        "\nCaption played (where a bundle plays a prompt as a known caption): share of its "
+        "own action / of its action and the "
+        + ", ".join(SAID)
+        + " it says\n\n| bundle | "
+        + " | ".join([*books, "own captions"])
+        + " |\n|---|"
+        + "---|" * (len(books) + 1)
+    )
     for name, generator in generators.items():
         if generator.repertoire is None or generator.repertoire.prompts is None:
             continue
-        cells = [played_rates(generator, items, prompts, known)
-                 for prompts in [*books.values(), captions]]
-        print(f"| {name} | " + " | ".join(f"{action:.0%} / {both:.0%} (n {n})"
-                                          for n, action, both in cells) + " |")
+        cells = [
+            played_rates(generator, items, prompts, known)
+            for prompts in [*books.values(), captions]
+        ]
+        print(
+            f"| {name} | "
+            + " | ".join(f"{action:.0%} / {both:.0%} (n {n})" for n, action, both in cells)
+            + " |"
+        )
     _repertoire_table(generators["after"], folder, books)
     print("\n| bundle | text encoder ms per prompt (median) | bundle MB |\n|---|---|---|")
     probe = [f"{p} ({k})" for k, p in enumerate(books[HELD_OUT.name][:60])]  # nothing cached
     for name, generator in generators.items():
-        print(f"| {name} | {encoder_ms(generator, probe):.1f} | "
-              f"{generator.manifest.total_bytes / 1e6:.1f} |")
+        print(
+            f"| {name} | {encoder_ms(generator, probe):.1f} | "
+            f"{generator.manifest.total_bytes / 1e6:.1f} |"
+        )
 
 
-def _repertoire_table(generator: MotionGenerator, folder: HumanML3DFolder,
-                      books: dict[str, list[str]]) -> None:
+def _repertoire_table(
+    generator: MotionGenerator, folder: HumanML3DFolder, books: dict[str, list[str]]
+) -> None:
     if generator.repertoire is None:
         return
     test = sorted({c.text for clip in folder.ids("test") for c in folder.captions(clip)})
     test = [test[k] for k in np.random.default_rng(0).permutation(len(test))[:500]]
-    rows = {"test captions (accepted)": (test, True),
-            **{f"{book} (accepted)": (prompts, True) for book, prompts in books.items()},
-            "outside prompts, TEST list (refused)": (list(TEST), False)}
+    rows = {
+        "test captions (accepted)": (test, True),
+        **{f"{book} (accepted)": (prompts, True) for book, prompts in books.items()},
+        "outside prompts, TEST list (refused)": (list(TEST), False),
+    }
     threshold = generator.repertoire.threshold
-    print(f"\nRepertoire check (threshold {threshold:.3f}, set at export on val captions and "
-          "the CALIBRATION list):\n\n| prompts | n | rate |\n|---|---|---|")
+    print(
+        f"\nRepertoire check (threshold {threshold:.3f}, set at export on val captions and "
+        "the CALIBRATION list):\n\n| prompts | n | rate |\n|---|---|---|"
+    )
     for label, (texts, inside) in rows.items():
         familiar = [generator.known(t).familiar for t in texts]
         rate = np.mean(familiar) if inside else 1 - np.mean(familiar)

@@ -7,6 +7,7 @@ included, in mm) and writes OUT/ID.gif, the original (left) beside the reconstru
 and OUT/contact_sheet.png: a row per clip, a frame every 1.5 s, original above reconstruction.
 Clips are the first N test-split clips of at least 4 seconds (mirrors skipped).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,15 +31,14 @@ def reconstruct(generator: MotionGenerator, features: np.ndarray) -> np.ndarray:
     """Features (T, D) -> joints (T', J, 3) of their VQ round trip (T' = T cut to whole
     tokens)."""
     joints = features_to_joints(features, generator.skeleton)
-    motion = Motion(features, joints, generator.fps, np.zeros((0, 0), np.int64),
-                    generator.skeleton)
+    motion = Motion(features, joints, generator.fps, np.zeros((0, 0), np.int64), generator.skeleton)
     tokens = generator.encode_motion(motion)
     return generator.decode(tokens, [(0, "")]).joints
 
 
 def side_by_side(left: list[Image.Image], right: list[Image.Image]) -> list[Image.Image]:
     frames = []
-    for a, b in zip(left, right):
+    for a, b in zip(left, right, strict=True):
         frame = Image.new("RGB", (a.width + b.width, a.height))
         frame.paste(a.convert("RGB"), (0, 0))
         frame.paste(b.convert("RGB"), (a.width, 0))
@@ -46,9 +46,15 @@ def side_by_side(left: list[Image.Image], right: list[Image.Image]) -> list[Imag
     return frames
 
 
-def write_pair(original: np.ndarray, rebuilt: np.ndarray, left_title: str, right_title: str,
-               fps: float, gif: Path, every: float = SHEET_SECONDS
-               ) -> list[tuple[Image.Image, Image.Image]]:
+def write_pair(
+    original: np.ndarray,
+    rebuilt: np.ndarray,
+    left_title: str,
+    right_title: str,
+    fps: float,
+    gif: Path,
+    every: float = SHEET_SECONDS,
+) -> list[tuple[Image.Image, Image.Image]]:
     """`gif`: the original (left) beside its reconstruction (right); returns the contact
     sheet's row for them: a pair of frames every `every` seconds."""
     left = render_frames(original, left_title, fps)
@@ -59,8 +65,9 @@ def write_pair(original: np.ndarray, rebuilt: np.ndarray, left_title: str, right
     return [(left[t], right[t]) for t in range(0, len(frames), step)]
 
 
-def contact_sheet(rows: list[list[tuple[Image.Image, Image.Image]]], path: Path,
-                  size: int = THUMBNAIL) -> None:
+def contact_sheet(
+    rows: list[list[tuple[Image.Image, Image.Image]]], path: Path, size: int = THUMBNAIL
+) -> None:
     """A PNG: per clip, its row of originals above its row of reconstructions, frames of
     `size` pixels."""
     columns = max(len(row) for row in rows)
@@ -68,8 +75,9 @@ def contact_sheet(rows: list[list[tuple[Image.Image, Image.Image]]], path: Path,
     for r, row in enumerate(rows):
         for c, (a, b) in enumerate(row):
             for k, image in enumerate((a, b)):
-                sheet.paste(image.convert("RGB").resize((size, size)),
-                            (c * size, (2 * r + k) * size))
+                sheet.paste(
+                    image.convert("RGB").resize((size, size)), (c * size, (2 * r + k) * size)
+                )
     sheet.quantize(64).save(path, optimize=True)
 
 
@@ -92,13 +100,20 @@ def main() -> None:
             continue
         original = features_to_joints(features, generator.skeleton)
         rebuilt = reconstruct(generator, features)
-        original = original[:len(rebuilt)]
+        original = original[: len(rebuilt)]
         error = 1000 * np.linalg.norm(rebuilt - original, axis=-1).mean()
         errors.append(error)
         caption = folder.first_caption(clip_id)
-        rows.append(write_pair(original, rebuilt, f"{clip_id} original: {caption}",
-                               f"VQ reconstruction, MPJPE {error:.1f} mm", generator.fps,
-                               args.out / f"{clip_id}.gif"))
+        rows.append(
+            write_pair(
+                original,
+                rebuilt,
+                f"{clip_id} original: {caption}",
+                f"VQ reconstruction, MPJPE {error:.1f} mm",
+                generator.fps,
+                args.out / f"{clip_id}.gif",
+            )
+        )
         print(f"{clip_id}: {len(rebuilt)} frames, MPJPE {error:.1f} mm  ({caption})", flush=True)
     if not rows:
         raise SystemExit(f"no test clip of at least {MIN_FRAMES} frames in {args.data}")

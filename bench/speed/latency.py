@@ -17,6 +17,7 @@ Two parts:
    Each row has its floor: weight and cache bytes over the measured memory bandwidth, or FLOPs
    over the measured matrix FLOP/s, whichever is larger.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -53,8 +54,14 @@ def product(bundle_dir: Path, settings: Settings) -> dict:
         calls[f"ttff {t}"] = lambda g=g: time_to_first_frame(g, seed=0)
         calls[f"clip {t}"] = lambda g=g: g.generate(PROMPT, seconds=seconds, seed=0)
     medians = interleaved(calls, settings.clip_repeats, settings.round_budget_s)
-    rows = {t: dict(ttff_ms=1e3 * medians[f"ttff {t}"], clip_s=medians[f"clip {t}"],
-                    real_time_factor=seconds / medians[f"clip {t}"]) for t in generators}
+    rows = {
+        t: dict(
+            ttff_ms=1e3 * medians[f"ttff {t}"],
+            clip_s=medians[f"clip {t}"],
+            real_time_factor=seconds / medians[f"clip {t}"],
+        )
+        for t in generators
+    }
     log(f"a {settings.long_steps}-step stream per thread count, stepped in turn")
     streams = {t: g.stream(PROMPT, seed=1) for t, g in generators.items()}
     step_times = {t: np.zeros(settings.long_steps) for t in generators}
@@ -65,20 +72,26 @@ def product(bundle_dir: Path, settings: Settings) -> dict:
             step_times[t][n] = time.perf_counter() - start
     points = long_stream_points(settings.long_steps)
     for t, g in generators.items():
-        means = {n: span_ms(step_times[t][n:n + SPAN]) for n in points}
-        rows[t].update(stream_step_ms=means,
-                       stream_flatness=old_over_fresh(streams[t], g.stream(PROMPT, seed=2)))
+        means = {n: span_ms(step_times[t][n : n + SPAN]) for n in points}
+        rows[t].update(
+            stream_step_ms=means,
+            stream_flatness=old_over_fresh(streams[t], g.stream(PROMPT, seed=2)),
+        )
     bundle = Bundle.load(bundle_dir)
-    return dict(threads=rows, disk_mb=bundle.manifest.total_bytes / 1e6,
-                peak_rss_mib=runtime_peak_rss(bundle_dir), clip_seconds=seconds,
-                window=bundle.manifest.defaults.window,
-                binned_step_ms={t: binned(step_times[t]) for t in generators})
+    return dict(
+        threads=rows,
+        disk_mb=bundle.manifest.total_bytes / 1e6,
+        peak_rss_mib=runtime_peak_rss(bundle_dir),
+        clip_seconds=seconds,
+        window=bundle.manifest.defaults.window,
+        binned_step_ms={t: binned(step_times[t]) for t in generators},
+    )
 
 
 def span_ms(times: np.ndarray) -> float:
     """Milliseconds per step over a span: the median of its means over decode bursts (one
     decoder call every STREAM_DECODE_EVERY steps), so a stray slow step does not move it."""
-    blocks = times[:len(times) - len(times) % STREAM_DECODE_EVERY]
+    blocks = times[: len(times) - len(times) % STREAM_DECODE_EVERY]
     return 1e3 * float(np.median(blocks.reshape(-1, STREAM_DECODE_EVERY).mean(1)))
 
 
@@ -106,8 +119,11 @@ def long_stream_points(steps: int) -> list[int]:
 def binned(times: np.ndarray, bins: int = 50) -> list[tuple[int, float]]:
     """(first step, mean ms) of equal bins of the stream, for the plot."""
     edges = np.linspace(0, len(times), bins + 1).astype(int)
-    return [(int(a), 1e3 * float(times[a:b].mean())) for a, b in zip(edges[:-1], edges[1:])
-            if b > a]
+    return [
+        (int(a), 1e3 * float(times[a:b].mean()))
+        for a, b in zip(edges[:-1], edges[1:], strict=True)
+        if b > a
+    ]
 
 
 def runtime_peak_rss(bundle_dir: Path) -> float:
@@ -121,9 +137,11 @@ def runtime_peak_rss(bundle_dir: Path) -> float:
         f"s = g.stream({PROMPT!r}, seed=0)\n"
         "for _ in range(2000): s.step()\n"
         "assert 'torch' not in sys.modules\n"
-        "print(open('/proc/self/status').read() if sys.platform == 'linux' else '')\n")
-    done = subprocess.run([sys.executable, "-c", script, str(bundle_dir)], capture_output=True,
-                          text=True, check=True)
+        "print(open('/proc/self/status').read() if sys.platform == 'linux' else '')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(bundle_dir)], capture_output=True, text=True, check=True
+    )
     # VmHWM is this process's own peak; ru_maxrss would carry the parent's over exec
     peaks = [line.split()[1] for line in done.stdout.splitlines() if line.startswith("VmHWM")]
     return int(peaks[0]) / 1024 if peaks else float("nan")  # kB; Linux only
@@ -133,40 +151,55 @@ def runtime_peak_rss(bundle_dir: Path) -> float:
 def product_markdown(result: dict) -> str:
     rows = result["threads"]
     points = list(next(iter(rows.values()))["stream_step_ms"])
-    lines = [f"| threads | time to first frame (ms) | {CLIP_FRAMES}-frame clip (ms) | "
-             "real-time factor | " + " | ".join(f"stream step {n}+ (ms)" for n in points)
-             + " | last / step 10, in turn |",
-             "|---:|---:|---:|---:|" + "---:|" * len(points) + "---:|"]
+    lines = [
+        f"| threads | time to first frame (ms) | {CLIP_FRAMES}-frame clip (ms) | "
+        "real-time factor | "
+        + " | ".join(f"stream step {n}+ (ms)" for n in points)
+        + " | last / step 10, in turn |",
+        "|---:|---:|---:|---:|" + "---:|" * len(points) + "---:|",
+    ]
     for t, row in rows.items():
         steps = " | ".join(f"{row['stream_step_ms'][n]:.2f}" for n in points)
-        lines.append(f"| {t} | {row['ttff_ms']:.1f} | {1e3 * row['clip_s']:.1f} | "
-                     f"{row['real_time_factor']:.0f}x | {steps} | {row['stream_flatness']:.2f} |")
+        lines.append(
+            f"| {t} | {row['ttff_ms']:.1f} | {1e3 * row['clip_s']:.1f} | "
+            f"{row['real_time_factor']:.0f}x | {steps} | {row['stream_flatness']:.2f} |"
+        )
     lines.append("")
-    lines.append(f"Size on disk {result['disk_mb']:.1f} MB; peak RSS of a runtime-only process "
-                 f"(load, one clip, 2,000 stream steps) {result['peak_rss_mib']:.0f} MiB. "
-                 f"Stream steps: {SPAN} steps from each point, decoder bursts included, as "
-                 f"the stream ran (the machine's own drift included); the last column steps the "
-                 f"long stream and a fresh one at step 10 in turn. The sliding window holds "
-                 f"{result['window']} steps.")
+    lines.append(
+        f"Size on disk {result['disk_mb']:.1f} MB; peak RSS of a runtime-only process "
+        f"(load, one clip, 2,000 stream steps) {result['peak_rss_mib']:.0f} MiB. "
+        f"Stream steps: {SPAN} steps from each point, decoder bursts included, as "
+        f"the stream ran (the machine's own drift included); the last column steps the "
+        f"long stream and a fresh one at step 10 in turn. The sliding window holds "
+        f"{result['window']} steps."
+    )
     return "\n".join(lines)
 
 
 def step_markdown(size: str, result: dict) -> str:
     lengths = list(next(iter(result["backends"].values()))["step_ms"])
     reference = max(lengths)
-    head = (f"| {size} model: backend | " + " | ".join(f"cache {n} (ms)" for n in lengths)
-            + f" | {CLIP_FRAMES}-step clip (s) | floor at {reference} (ms) | measured / floor |")
+    head = (
+        f"| {size} model: backend | "
+        + " | ".join(f"cache {n} (ms)" for n in lengths)
+        + f" | {CLIP_FRAMES}-step clip (s) | floor at {reference} (ms) | measured / floor |"
+    )
     lines = [head, "|---|" + "---:|" * (len(lengths) + 3)]
     for name, row in result["backends"].items():
         cells = " | ".join(f"{row['step_ms'][n]:.2f}" for n in lengths)
         floor = row["floor_ms"][reference]
-        lines.append(f"| {name} | {cells} | {row['clip_s']:.2f} | {floor:.2f} | "
-                     f"{row['step_ms'][reference] / floor:.1f} |")
+        lines.append(
+            f"| {name} | {cells} | {row['clip_s']:.2f} | {floor:.2f} | "
+            f"{row['step_ms'][reference] / floor:.1f} |"
+        )
     c = result["config"]
     lines.append("")
-    lines.append(f"{result['parameters'] / 1e6:.0f}M parameters (width {c['dim']}, layers "
-                 f"{c['layers']}, heads {c['heads']}); weights read per step: "
-                 + ", ".join(f"{k} {v:.0f} MB" for k, v in result["weight_mb"].items()) + ".")
+    lines.append(
+        f"{result['parameters'] / 1e6:.0f}M parameters (width {c['dim']}, layers "
+        f"{c['layers']}, heads {c['heads']}); weights read per step: "
+        + ", ".join(f"{k} {v:.0f} MB" for k, v in result["weight_mb"].items())
+        + "."
+    )
     return "\n".join(lines)
 
 
@@ -176,17 +209,20 @@ def speedups(result: dict, threads: tuple[int, ...]) -> list[str]:
     rows, lines = result["backends"], []
     reference = max(next(iter(rows.values()))["step_ms"])
     for t in threads:
-        ort_rows = {n: r for n, r in rows.items()
-                    if n.startswith("onnxruntime") and r["threads"] == t}
+        ort_rows = {
+            n: r for n, r in rows.items() if n.startswith("onnxruntime") and r["threads"] == t
+        }
         best = min(ort_rows, key=lambda n: ort_rows[n]["step_ms"][reference])
         plural = "s" * (t > 1)
         cached = rows[f"torch eager + KV cache, {t} thread{plural}"]
         recompute = rows[f"torch eager, recompute, {t} thread{plural}"]
-        lines.append(f"{t} thread{plural}: best onnxruntime ({best}) "
-                     f"{cached['step_ms'][reference] / ort_rows[best]['step_ms'][reference]:.1f}x "
-                     f"faster per step than torch eager with the cache (cache {reference}), "
-                     f"{recompute['clip_s'] / ort_rows[best]['clip_s']:.0f}x faster per clip "
-                     "than recomputing the prefix")
+        lines.append(
+            f"{t} thread{plural}: best onnxruntime ({best}) "
+            f"{cached['step_ms'][reference] / ort_rows[best]['step_ms'][reference]:.1f}x "
+            f"faster per step than torch eager with the cache (cache {reference}), "
+            f"{recompute['clip_s'] / ort_rows[best]['clip_s']:.0f}x faster per clip "
+            "than recomputing the prefix"
+        )
     return lines
 
 
@@ -194,16 +230,22 @@ def write_plots(out: Path, report: dict) -> list[Path]:
     paths = []
     for size, result in report["steps"].items():
         path = out / f"step_vs_cache_{size}.png"
-        series = {name: [(max(n, 1), ms) for n, ms in row["step_ms"].items()]
-                  for name, row in result["backends"].items()}
-        log_line_chart(path, f"one time step, {size} model", "KV cache length (slots)",
-                       "ms per step", series)
+        series = {
+            name: [(max(n, 1), ms) for n, ms in row["step_ms"].items()]
+            for name, row in result["backends"].items()
+        }
+        log_line_chart(
+            path, f"one time step, {size} model", "KV cache length (slots)", "ms per step", series
+        )
         paths.append(path)
     path = out / "long_stream.png"
-    series = {f"{t} thread{'s' * (int(t) > 1)}": [(max(n, 1), ms) for n, ms in values]
-              for t, values in report["product"]["binned_step_ms"].items()}
-    log_line_chart(path, "stream step time along a long stream (bundle)", "step",
-                   "ms per step", series)
+    series = {
+        f"{t} thread{'s' * (int(t) > 1)}": [(max(n, 1), ms) for n, ms in values]
+        for t, values in report["product"]["binned_step_ms"].items()
+    }
+    log_line_chart(
+        path, "stream step time along a long stream (bundle)", "step", "ms per step", series
+    )
     return paths + [path]
 
 
@@ -214,8 +256,10 @@ def run(bundle_dir: Path, out: Path, work: Path, settings: Settings) -> dict:
     log("memory bandwidth and matrix FLOP/s")
     bandwidth = {t: machine.read_bandwidth(t) for t in settings.threads}
     flops = {t: machine.matmul_flops(t) for t in settings.threads}
-    report["floors"] = dict(read_gb_per_s={t: b / 1e9 for t, b in bandwidth.items()},
-                            matmul_gflop_per_s={t: f / 1e9 for t, f in flops.items()})
+    report["floors"] = dict(
+        read_gb_per_s={t: b / 1e9 for t, b in bandwidth.items()},
+        matmul_gflop_per_s={t: f / 1e9 for t, f in flops.items()},
+    )
     report["product"] = product(bundle_dir, settings)
     configs = size_configs(bundle_dir)
     for size in settings.sizes:
@@ -223,12 +267,19 @@ def run(bundle_dir: Path, out: Path, work: Path, settings: Settings) -> dict:
     (out / "bench.json").write_text(json.dumps(report, indent=1) + "\n")
     plots = write_plots(out, report)
     print(f"## MOGO latency on {report['machine']}\n")
-    print("Floors: memory read "
-          + ", ".join(f"{v:.1f} GB/s ({t} thread{'s' * (t > 1)})"
-                      for t, v in report["floors"]["read_gb_per_s"].items())
-          + "; float32 matrix products "
-          + ", ".join(f"{v:.0f} GFLOP/s ({t} thread{'s' * (t > 1)})"
-                      for t, v in report["floors"]["matmul_gflop_per_s"].items()) + ".\n")
+    print(
+        "Floors: memory read "
+        + ", ".join(
+            f"{v:.1f} GB/s ({t} thread{'s' * (t > 1)})"
+            for t, v in report["floors"]["read_gb_per_s"].items()
+        )
+        + "; float32 matrix products "
+        + ", ".join(
+            f"{v:.0f} GFLOP/s ({t} thread{'s' * (t > 1)})"
+            for t, v in report["floors"]["matmul_gflop_per_s"].items()
+        )
+        + ".\n"
+    )
     print(f"### The bundle through the runtime ({bundle_dir})\n")
     print(product_markdown(report["product"]) + "\n")
     for size, result in report["steps"].items():

@@ -2,6 +2,7 @@
 memory read bandwidth (a large matrix-vector product) and float32 matrix FLOP/s, both in torch
 at the thread count used. A step can be no faster than its bytes over the bandwidth
 nor its FLOPs over the peak; the larger of the two is its floor."""
+
 from __future__ import annotations
 
 import os
@@ -56,6 +57,8 @@ def describe() -> str:
     import onnxruntime
 
     model, flags = cpu()
-    return (f"{model}, {os.cpu_count()} cores ({features_line(flags)}), Python "
-            f"{platform.python_version()}, onnxruntime {onnxruntime.__version__}, torch "
-            f"{torch.__version__}")
+    return (
+        f"{model}, {os.cpu_count()} cores ({features_line(flags)}), Python "
+        f"{platform.python_version()}, onnxruntime {onnxruntime.__version__}, torch "
+        f"{torch.__version__}"
+    )

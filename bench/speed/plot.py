@@ -1,6 +1,7 @@
 """A small line chart as a PNG with pillow alone (no plotting library to install): log-log
 axes (or linear ones), one coloured line per series, a legend. Enough to see how step time
 grows with the cache."""
+
 from __future__ import annotations
 
 import math
@@ -12,12 +13,28 @@ from PIL import Image, ImageDraw, ImageFont
 WIDTH, HEIGHT = 760, 460
 LEFT, RIGHT, TOP, BOTTOM = 70, 250, 40, 50  # margins around the plot area
 FONT = ImageFont.load_default(size=12)  # pillow's own; at its default size spaces vanish
-COLOURS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
-           "#7f7f7f", "#bcbd22", "#17becf"]
+COLOURS = [
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#bcbd22",
+    "#17becf",
+]
 
 
-def log_line_chart(path: Path, title: str, x_label: str, y_label: str,
-                   series: dict[str, list[tuple[float, float]]], log: bool = True) -> None:
+def log_line_chart(
+    path: Path,
+    title: str,
+    x_label: str,
+    y_label: str,
+    series: dict[str, list[tuple[float, float]]],
+    log: bool = True,
+) -> None:
     """series: name -> [(x, y), ...], all values > 0; drawn on log10 axes (log=False: linear
     axes from 0, any values >= 0)."""
     points = [p for values in series.values() for p in values]
@@ -36,9 +53,12 @@ def log_line_chart(path: Path, title: str, x_label: str, y_label: str,
         fy = (scale(y) - y_range[0]) / (y_range[1] - y_range[0])
         return LEFT + fx * plot_w, TOP + (1 - fy) * plot_h
 
-    ticks = ((lambda r: [10**d for d in range(r[0], r[1] + 1)]) if log
-             else (lambda r: list(np.arange(r[0], r[1] + r[2] / 2, r[2]))))
-    x_low, y_low = (10**x_range[0], 10**y_range[0]) if log else (x_range[0], y_range[0])
+    ticks = (
+        (lambda r: [10**d for d in range(r[0], r[1] + 1)])
+        if log
+        else (lambda r: list(np.arange(r[0], r[1] + r[2] / 2, r[2])))
+    )
+    x_low, y_low = (10 ** x_range[0], 10 ** y_range[0]) if log else (x_range[0], y_range[0])
     for tick in ticks(x_range):
         px, _ = to_pixel(tick, y_low)
         draw.line([(px, TOP), (px, TOP + plot_h)], fill="#dddddd")
@@ -59,8 +79,11 @@ def log_line_chart(path: Path, title: str, x_label: str, y_label: str,
         for px, py in pixels:
             draw.ellipse([px - 3, py - 3, px + 3, py + 3], fill=colour)
         legend_y = TOP + 16 * k
-        draw.line([(WIDTH - RIGHT + 15, legend_y + 6), (WIDTH - RIGHT + 35, legend_y + 6)],
-                  fill=colour, width=3)
+        draw.line(
+            [(WIDTH - RIGHT + 15, legend_y + 6), (WIDTH - RIGHT + 35, legend_y + 6)],
+            fill=colour,
+            width=3,
+        )
         draw.text((WIDTH - RIGHT + 40, legend_y - 1), name, fill="black", font=FONT)
     image.save(path, optimize=True)
 

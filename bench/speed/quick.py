@@ -6,6 +6,7 @@ at batch 1 and the sampler), at 1 and 2 threads, beside the README's figures.
 
     mogo bench --quick [--bundle DIR] [--threads 1 2]
 """
+
 from __future__ import annotations
 
 import os
@@ -21,12 +22,19 @@ from mogo.motion.skeleton import MAX_FRAMES
 PROMPT = "a person walks forward, then waves with the right hand."
 # The README's Performance table: threads -> (time to first frame in ms, 9.8-s clip in s).
 README = {1: (101.0, 0.523), 2: (101.0, 0.402)}
-README_MACHINE = ("a 2-core Intel Xeon VM, Sapphire Rapids class (AVX2, AVX-512, AVX-512 VNNI, "
-                  "AMX), 2026-11-27")
+README_MACHINE = (
+    "a 2-core Intel Xeon VM, Sapphire Rapids class (AVX2, AVX-512, AVX-512 VNNI, AMX), 2026-11-27"
+)
 # /proc/cpuinfo flag -> name: what onnxruntime's int8 and float kernels are chosen by.
-FEATURES = {"avx2": "AVX2", "avx512f": "AVX-512", "avx512_vnni": "AVX-512 VNNI",
-            "avx_vnni": "AVX-VNNI", "amx_int8": "AMX-INT8", "asimd": "NEON",
-            "asimddp": "NEON dot product"}
+FEATURES = {
+    "avx2": "AVX2",
+    "avx512f": "AVX-512",
+    "avx512_vnni": "AVX-512 VNNI",
+    "avx_vnni": "AVX-VNNI",
+    "amx_int8": "AMX-INT8",
+    "asimd": "NEON",
+    "asimddp": "NEON dot product",
+}
 VNNI = {"avx512_vnni", "avx_vnni", "asimddp"}  # int8 dot products in one instruction
 TOKEN_STEPS = 16  # token steps per timed call
 ROUNDS, BUDGET_S = 5, 10.0  # a round past the budget only if fewer than 3 ran
@@ -65,14 +73,19 @@ def time_to_first_frame(generator: MotionGenerator, seed: int) -> None:
 def token_steps(generator: MotionGenerator):
     """A call that draws TOKEN_STEPS token steps of one stream (past its prefill, the bundle's
     window, never ending): the level graphs' share of every frame."""
-    tokens = generator.tokens.start(generator.embed([PROMPT])[0], seed=0,
-                                    sampling=generator.sampling(),
-                                    window=generator.defaults.window, allow_end=False)
+    tokens = generator.tokens.start(
+        generator.embed([PROMPT])[0],
+        seed=0,
+        sampling=generator.sampling(),
+        window=generator.defaults.window,
+        allow_end=False,
+    )
     tokens.step()
 
     def run() -> None:
         for _ in range(TOKEN_STEPS):
             tokens.step()
+
     return run
 
 
@@ -87,28 +100,42 @@ def measure(bundle: Path, threads: tuple[int, ...]) -> dict[int, dict[str, float
         calls[f"step {t}"] = token_steps(g)
     log(f"first frame, a {seconds:g}-s clip and {TOKEN_STEPS} token steps, threads {threads}")
     medians = interleaved(calls, ROUNDS, BUDGET_S)
-    return {t: dict(first_ms=1e3 * medians[f"first {t}"], clip_s=medians[f"clip {t}"],
-                    step_ms=1e3 * medians[f"step {t}"] / TOKEN_STEPS) for t in threads}
+    return {
+        t: dict(
+            first_ms=1e3 * medians[f"first {t}"],
+            clip_s=medians[f"clip {t}"],
+            step_ms=1e3 * medians[f"step {t}"] / TOKEN_STEPS,
+        )
+        for t in threads
+    }
 
 
 def report(rows: dict[int, dict[str, float]], model: str, flags: set[str] | None) -> str:
-    lines = [f"this machine: {model}, {os.cpu_count()} cores, Python "
-             f"{platform.python_version()}, onnxruntime {onnxruntime.__version__}",
-             f"  {features_line(flags)}",
-             f"README: {README_MACHINE}", "",
-             "| threads | first frame, here / README | 9.8-s clip, here / README "
-             "| token step (6 level graphs), here |",
-             "|---:|---:|---:|---:|"]
+    lines = [
+        f"this machine: {model}, {os.cpu_count()} cores, Python "
+        f"{platform.python_version()}, onnxruntime {onnxruntime.__version__}",
+        f"  {features_line(flags)}",
+        f"README: {README_MACHINE}",
+        "",
+        "| threads | first frame, here / README | 9.8-s clip, here / README "
+        "| token step (6 level graphs), here |",
+        "|---:|---:|---:|---:|",
+    ]
     for t, row in rows.items():
         first, clip = README.get(t, (None, None))
-        lines.append(f"| {t} | {_beside(row['first_ms'], first, '{:.0f} ms')} | "
-                     f"{_beside(row['clip_s'], clip, '{:.3f} s')} | {row['step_ms']:.2f} ms |")
+        lines.append(
+            f"| {t} | {_beside(row['first_ms'], first, '{:.0f} ms')} | "
+            f"{_beside(row['clip_s'], clip, '{:.3f} s')} | {row['step_ms']:.2f} ms |"
+        )
     lines.append("")
-    lines.append(f"Medians of {ROUNDS} interleaved rounds at most; other work on this machine "
-                 "slows them.")
+    lines.append(
+        f"Medians of {ROUNDS} interleaved rounds at most; other work on this machine slows them."
+    )
     if flags is not None and not flags & VNNI:
-        lines.append("No VNNI here: the bundle's int8 level graphs run on slower integer "
-                     "kernels than on the README's kind of machine (docs/performance.md).")
+        lines.append(
+            "No VNNI here: the bundle's int8 level graphs run on slower integer "
+            "kernels than on the README's kind of machine (docs/performance.md)."
+        )
     return "\n".join(lines)
 
 

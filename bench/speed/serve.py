@@ -27,6 +27,7 @@ even on a busy machine; 1000 / (fps * CPU ms) streams per core is the ceiling it
 and wall time (`--engine-only` runs these two alone). `engine_profile` (`--profile N`) splits a stream step's
 CPU among its parts (the level graphs, sampling, the VQ decoder, joints, foot planting).
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -48,9 +49,18 @@ import numpy as np
 
 from mogo.bench.speed.plot import log_line_chart
 
-PROMPTS = ["a person walks forward", "a person jogs in a circle", "a person jumps on the spot",
-           "a person waves with the right hand", "a person squats", "a person kicks",
-           "a person turns left", "a person claps", "a person runs forward", "a person bows"]
+PROMPTS = [
+    "a person walks forward",
+    "a person jogs in a circle",
+    "a person jumps on the spot",
+    "a person waves with the right hand",
+    "a person squats",
+    "a person kicks",
+    "a person turns left",
+    "a person claps",
+    "a person runs forward",
+    "a person bows",
+]
 FPS = 20.0
 WARM_CLIENTS = 4
 PARTS = {  # the parts of a served stream step (--profile): the function whose time is each
@@ -74,9 +84,15 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-async def client(url: str, k: int, seconds: float, switch_at: float | None,
-                 binary: bool = True, delay: float = 0.0, first_only: bool = False
-                 ) -> tuple[float, list[float]]:
+async def client(
+    url: str,
+    k: int,
+    seconds: float,
+    switch_at: float | None,
+    binary: bool = True,
+    delay: float = 0.0,
+    first_only: bool = False,
+) -> tuple[float, list[float]]:
     """One client, `delay` seconds from now: its first-frame latency (seconds from its start
     message) and its frame arrival times (seconds, monotonic), frame by frame, for `seconds`
     (or until the first frame, `first_only`); `binary`: frames as the protocol's binary bursts
@@ -107,15 +123,29 @@ async def client(url: str, k: int, seconds: float, switch_at: float | None,
     return (arrivals[0] - sent if arrivals else math.inf), arrivals
 
 
-def clients_process(url: str, delays: list[float], seconds: float, binary: bool,
-                    first_only: bool = False) -> list[tuple[float, list[float]]]:
+def clients_process(
+    url: str, delays: list[float], seconds: float, binary: bool, first_only: bool = False
+) -> list[tuple[float, list[float]]]:
     """What the clients' process runs: one client a delay, all on one event loop; client k
     switches its prompt once, between 30% and 70% of `seconds`."""
+
     async def run():
         n = len(delays)
-        return await asyncio.gather(*(
-            client(url, k, seconds, None if first_only else seconds * (0.3 + 0.4 * k / n),
-                   binary, delay, first_only) for k, delay in enumerate(delays)))
+        return await asyncio.gather(
+            *(
+                client(
+                    url,
+                    k,
+                    seconds,
+                    None if first_only else seconds * (0.3 + 0.4 * k / n),
+                    binary,
+                    delay,
+                    first_only,
+                )
+                for k, delay in enumerate(delays)
+            )
+        )
+
     return asyncio.run(run())
 
 
@@ -129,8 +159,9 @@ def wait_until_empty(base: str, timeout: float = 60.0) -> None:
         if streams == 0:
             return
         if time.monotonic() > deadline:
-            raise RuntimeError(f"mogo serve still holds {streams} streams {timeout:.0f} s after "
-                               "its clients left")
+            raise RuntimeError(
+                f"mogo serve still holds {streams} streams {timeout:.0f} s after its clients left"
+            )
         time.sleep(0.1)
 
 
@@ -138,8 +169,7 @@ def percentiles_ms(seconds: list[float]) -> dict:
     """p50, p90, p99 and max, each a value measured (no interpolation): a client that got no
     frame (inf) makes them inf, not NaN."""
     values = np.asarray(seconds) * 1e3
-    percentiles = {f"p{q}": float(np.percentile(values, q, method="higher"))
-                   for q in (50, 90, 99)}
+    percentiles = {f"p{q}": float(np.percentile(values, q, method="higher")) for q in (50, 90, 99)}
     return dict(percentiles, max=float(values.max()))
 
 
@@ -148,15 +178,23 @@ def burst(pool: ProcessPoolExecutor, base: str, size: int, binary: bool) -> dict
     (size 1: 7 times)."""
     firsts = []
     for _ in range(7 if size == 1 else 1):
-        results = pool.submit(clients_process, f"{base}/v1/stream", [0.0] * size, 60.0, binary,
-                              True).result()
+        results = pool.submit(
+            clients_process, f"{base}/v1/stream", [0.0] * size, 60.0, binary, True
+        ).result()
         firsts += [first for first, _ in results]
         wait_until_empty(base)
     return dict(burst=size, first_frame_ms=percentiles_ms(firsts))
 
 
-def measure(pool: ProcessPoolExecutor, base: str, pid: int, clients: int, seconds: float,
-            spread: float, binary: bool = True) -> dict:
+def measure(
+    pool: ProcessPoolExecutor,
+    base: str,
+    pid: int,
+    clients: int,
+    seconds: float,
+    spread: float,
+    binary: bool = True,
+) -> dict:
     """N clients arriving evenly over `spread` seconds; their frame rate, lateness and first
     frames, the server's CPU use."""
     delays = [spread * k / clients for k in range(clients)]
@@ -173,16 +211,22 @@ def measure(pool: ProcessPoolExecutor, base: str, pid: int, clients: int, second
         rates.append((len(times) - 1) / (times[-1] - times[0]) if times[-1] > times[0] else FPS)
         late.append(np.maximum(0.0, times - (times[0] + np.arange(len(times)) / FPS)))
     late = np.concatenate(late) if late else np.array([np.inf])
-    row = dict(clients=clients, fps=float(np.mean(rates)), fps_min=float(np.min(rates)),
-               p50_ms=float(np.percentile(late, 50) * 1e3),
-               p99_ms=float(np.percentile(late, 99) * 1e3), cpu_cores=cpu / wall,
-               first_frame_ms=percentiles_ms([first for first, _ in results]))
+    row = dict(
+        clients=clients,
+        fps=float(np.mean(rates)),
+        fps_min=float(np.min(rates)),
+        p50_ms=float(np.percentile(late, 50) * 1e3),
+        p99_ms=float(np.percentile(late, 99) * 1e3),
+        cpu_cores=cpu / wall,
+        first_frame_ms=percentiles_ms([first for first, _ in results]),
+    )
     row["real_time"] = row["fps_min"] >= 0.97 * FPS and row["p99_ms"] <= 1e3 / FPS
     return row
 
 
-def engine_cost(clients: int, threads: int, ticks: int = 40,
-                profile: cProfile.Profile | None = None) -> dict:
+def engine_cost(
+    clients: int, threads: int, ticks: int = 40, profile: cProfile.Profile | None = None
+) -> dict:
     """CPU ms per stream step and wall ms per tick of the Engine alone, streams past their
     first frames; `profile` records the measured ticks."""
     from mogo.generator import MotionGenerator
@@ -216,8 +260,13 @@ def engine_cost(clients: int, threads: int, ticks: int = 40,
         profile.disable()
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     engine.shutdown()
-    return dict(clients=clients, steps=steps, cpu_ms_per_step=cpu * 1e3 / steps,
-                wall_ms_per_tick=wall * 1e3 / ticks, cores=cpu / wall)
+    return dict(
+        clients=clients,
+        steps=steps,
+        cpu_ms_per_step=cpu * 1e3 / steps,
+        wall_ms_per_tick=wall * 1e3 / ticks,
+        cores=cpu / wall,
+    )
 
 
 def engine_profile(clients: int) -> list[tuple[str, float]]:
@@ -228,9 +277,17 @@ def engine_profile(clients: int) -> list[tuple[str, float]]:
     steps = engine_cost(clients, 1, profile=profile)["steps"]
     stats = pstats.Stats(profile).stats  # (file, line, name) -> (..., total, cumulative, ...)
     whole = sum(entry[2] for entry in stats.values())
-    parts = [(part, sum(entry[3] for (file, _, name), entry in stats.items()
-                        if file.endswith(module) and name == function))
-             for part, (module, function) in PARTS.items()]
+    parts = [
+        (
+            part,
+            sum(
+                entry[3]
+                for (file, _, name), entry in stats.items()
+                if file.endswith(module) and name == function
+            ),
+        )
+        for part, (module, function) in PARTS.items()
+    ]
     parts.append(("the rest: the engine's and streams' Python", whole - sum(s for _, s in parts)))
     return [(part, seconds * 1e3 / steps) for part, seconds in parts + [("a stream step", whole)]]
 
@@ -264,39 +321,70 @@ def engine_first_frame(threads: int, repeats: int = 7) -> dict:
 
 
 def engine_table(rows: list[dict]) -> str:
-    lines = ["| streams | CPU per stream step | wall per tick (real time: <= 50 ms) | cores used |",
-             "|---:|---:|---:|---:|"]
-    lines += [f"| {r['clients']} | {r['cpu_ms_per_step']:.2f} ms | {r['wall_ms_per_tick']:.1f} ms "
-              f"| {r['cores']:.2f} |" for r in rows]
+    lines = [
+        "| streams | CPU per stream step | wall per tick (real time: <= 50 ms) | cores used |",
+        "|---:|---:|---:|---:|",
+    ]
+    lines += [
+        f"| {r['clients']} | {r['cpu_ms_per_step']:.2f} ms | {r['wall_ms_per_tick']:.1f} ms "
+        f"| {r['cores']:.2f} |"
+        for r in rows
+    ]
     return "\n".join(lines)
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| clients | frames/s per client (mean / min) | lateness p50 | lateness p99 | "
-             "first frame p50 / p99 | server CPU (cores) | real time |",
-             "|---:|---:|---:|---:|---:|---:|:---:|"]
+    lines = [
+        "| clients | frames/s per client (mean / min) | lateness p50 | lateness p99 | "
+        "first frame p50 / p99 | server CPU (cores) | real time |",
+        "|---:|---:|---:|---:|---:|---:|:---:|",
+    ]
     for r in rows:
         first = r["first_frame_ms"]
-        lines.append(f"| {r['clients']} | {r['fps']:.1f} / {r['fps_min']:.1f} | "
-                     f"{r['p50_ms']:.0f} ms | {r['p99_ms']:.0f} ms | {first['p50']:.0f} / "
-                     f"{first['p99']:.0f} ms | {r['cpu_cores']:.2f} | "
-                     f"{'yes' if r['real_time'] else 'no'} |")
+        lines.append(
+            f"| {r['clients']} | {r['fps']:.1f} / {r['fps_min']:.1f} | "
+            f"{r['p50_ms']:.0f} ms | {r['p99_ms']:.0f} ms | {first['p50']:.0f} / "
+            f"{first['p99']:.0f} ms | {r['cpu_cores']:.2f} | "
+            f"{'yes' if r['real_time'] else 'no'} |"
+        )
     return "\n".join(lines)
 
 
 def burst_table(rows: list[dict]) -> str:
-    lines = ["| clients arriving at once | first frame p50 | p90 | p99 | max |",
-             "|---:|---:|---:|---:|---:|"]
-    lines += [f"| {r['burst']} | " + " | ".join(f"{r['first_frame_ms'][p]:.0f} ms" for p in
-                                               ("p50", "p90", "p99", "max")) + " |" for r in rows]
+    lines = [
+        "| clients arriving at once | first frame p50 | p90 | p99 | max |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    lines += [
+        f"| {r['burst']} | "
+        + " | ".join(f"{r['first_frame_ms'][p]:.0f} ms" for p in ("p50", "p90", "p99", "max"))
+        + " |"
+        for r in rows
+    ]
     return "\n".join(lines)
 
 
-def run(clients: list[int], bursts: list[int], seconds: float, spread: float,
-        threads: int | None, bundle: str | None, out: Path, binary: bool = True) -> dict:
+def run(
+    clients: list[int],
+    bursts: list[int],
+    seconds: float,
+    spread: float,
+    threads: int | None,
+    bundle: str | None,
+    out: Path,
+    binary: bool = True,
+) -> dict:
     port = free_port()
-    command = [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--max-streams",
-               str(max(*clients, *bursts, WARM_CLIENTS))]
+    command = [
+        sys.executable,
+        "-m",
+        "mogo",
+        "serve",
+        "--port",
+        str(port),
+        "--max-streams",
+        str(max(*clients, *bursts, WARM_CLIENTS)),
+    ]
     command += ["--threads", str(threads)] if threads else []
     command += ["--bundle", bundle] if bundle else []
     server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
@@ -319,29 +407,48 @@ def run(clients: list[int], bursts: list[int], seconds: float, spread: float,
         server.wait(timeout=30)
     held = [r["clients"] for r in rows if r["real_time"]]
     engine = [engine_cost(n, threads or 2) for n in clients]
-    result = dict(bursts=bursts_measured, rows=rows, engine=engine,
-                  largest_real_time=max(held) if held else 0, seconds=seconds, spread=spread,
-                  binary=binary)
+    result = dict(
+        bursts=bursts_measured,
+        rows=rows,
+        engine=engine,
+        largest_real_time=max(held) if held else 0,
+        seconds=seconds,
+        spread=spread,
+        binary=binary,
+    )
     out.mkdir(parents=True, exist_ok=True)
     (out / "serve_bench.json").write_text(json.dumps(result, indent=1))
-    log_line_chart(out / "serve_bench.png", "mogo serve: N clients arriving over "
-                   f"{spread:g} s", "clients", "see legend", {
-                       "frames/s per client": [(r["clients"], max(r["fps"], 0.1)) for r in rows],
-                       "p99 lateness, ms (min 1)": [(r["clients"], max(r["p99_ms"], 1.0))
-                                                    for r in rows],
-                       "server CPU, % of a core": [(r["clients"], max(100 * r["cpu_cores"], 1))
-                                                   for r in rows]})
-    log_line_chart(out / "serve_bursts.png", "mogo serve: first frame of clients arriving at "
-                   "once", "clients arriving at once", "first frame, ms", {
-                       f"{p}": [(r["burst"], max(r["first_frame_ms"][p], 1.0))
-                                for r in bursts_measured] for p in ("p50", "p99", "max")})
+    log_line_chart(
+        out / "serve_bench.png",
+        f"mogo serve: N clients arriving over {spread:g} s",
+        "clients",
+        "see legend",
+        {
+            "frames/s per client": [(r["clients"], max(r["fps"], 0.1)) for r in rows],
+            "p99 lateness, ms (min 1)": [(r["clients"], max(r["p99_ms"], 1.0)) for r in rows],
+            "server CPU, % of a core": [(r["clients"], max(100 * r["cpu_cores"], 1)) for r in rows],
+        },
+    )
+    log_line_chart(
+        out / "serve_bursts.png",
+        "mogo serve: first frame of clients arriving at once",
+        "clients arriving at once",
+        "first frame, ms",
+        {
+            f"{p}": [(r["burst"], max(r["first_frame_ms"][p], 1.0)) for r in bursts_measured]
+            for p in ("p50", "p99", "max")
+        },
+    )
     return result
 
 
 def engine_only(clients: list[int], threads: int | None, out: Path) -> dict:
     threads = threads or 2
-    result = dict(threads=threads, first_frame=engine_first_frame(threads),
-                  engine=[engine_cost(n, threads) for n in clients])
+    result = dict(
+        threads=threads,
+        first_frame=engine_first_frame(threads),
+        engine=[engine_cost(n, threads) for n in clients],
+    )
     out.mkdir(parents=True, exist_ok=True)
     (out / "serve_engine.json").write_text(json.dumps(result, indent=1))
     return result
@@ -349,24 +456,40 @@ def engine_only(clients: list[int], threads: int | None, out: Path) -> dict:
 
 def main_from_args(args) -> None:
     if args.profile:
-        print(f"Where the CPU of a stream step goes: {args.profile} streams past their first "
-              "frames, the engine alone on one thread, cProfile:\n")
+        print(
+            f"Where the CPU of a stream step goes: {args.profile} streams past their first "
+            "frames, the engine alone on one thread, cProfile:\n"
+        )
         print(profile_table(engine_profile(args.profile)))
         return
     if args.engine_only:
         result = engine_only(args.clients, args.threads, Path(args.out))
-        print(f"The engine alone (no sockets, {result['threads']} threads), streams past "
-              "their first frames:\n")
+        print(
+            f"The engine alone (no sockets, {result['threads']} threads), streams past "
+            "their first frames:\n"
+        )
         print(engine_table(result["engine"]))
         first = result["first_frame"]
-        print(f"\nfirst frame, one stream, engine warm: {first['wall_ms']:.0f} ms wall, "
-              f"{first['cpu_ms']:.0f} ms CPU (medians of 7)")
+        print(
+            f"\nfirst frame, one stream, engine warm: {first['wall_ms']:.0f} ms wall, "
+            f"{first['cpu_ms']:.0f} ms CPU (medians of 7)"
+        )
         print(f"wrote {Path(args.out) / 'serve_engine.json'}")
         return
-    result = run(args.clients, args.burst, args.seconds, args.spread, args.threads, args.bundle,
-                 Path(args.out), not args.json)
-    print(f"Clients arriving at once on the idle server ({'JSON' if args.json else 'binary'} "
-          "frames), first-frame latency:\n")
+    result = run(
+        args.clients,
+        args.burst,
+        args.seconds,
+        args.spread,
+        args.threads,
+        args.bundle,
+        Path(args.out),
+        not args.json,
+    )
+    print(
+        f"Clients arriving at once on the idle server ({'JSON' if args.json else 'binary'} "
+        "frames), first-frame latency:\n"
+    )
     print(burst_table(result["bursts"]))
     print(f"\nN clients arriving over {args.spread:g} s, {args.seconds:g} s each:\n")
     print(table(result["rows"]))

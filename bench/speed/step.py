@@ -2,6 +2,7 @@
 model size against the KV cache length, on onnxruntime fp32 and int8, torch eager with the KV
 cache and torch eager recomputing the prefix, each row with its floor (bytes over bandwidth or
 FLOPs over peak, whichever is larger). Random weights: the cost does not depend on them."""
+
 from __future__ import annotations
 
 import hashlib
@@ -41,13 +42,21 @@ def exported_model(config: T2MConfig, work: Path) -> tuple[T2M, Path, list[Graph
     model = T2M(config).eval()
     index = folder / "graphs.json"
     if index.is_file():
-        return model, folder, [Graph(g["file"], tuple(g["inputs"]), tuple(g["outputs"]))
-                               for g in json.loads(index.read_text())]
+        return (
+            model,
+            folder,
+            [
+                Graph(g["file"], tuple(g["inputs"]), tuple(g["outputs"]))
+                for g in json.loads(index.read_text())
+            ],
+        )
     (folder / "int8").mkdir(parents=True, exist_ok=True)
     graphs = []
     for level in range(config.num_levels):
-        log(f"exporting level {level + 1}/{config.num_levels} ({config.layers[level]} layers, "
-            f"width {config.dim}) fp32 and int8 into {folder}")
+        log(
+            f"exporting level {level + 1}/{config.num_levels} ({config.layers[level]} layers, "
+            f"width {config.dim}) fp32 and int8 into {folder}"
+        )
         path = folder / f"level_{level}.onnx"
         graphs.append(export_level(model, level, path))
         quantize_level_graph(path, folder / "int8" / path.name)
@@ -63,12 +72,20 @@ def onnx_step(generator: TokenGenerator, config: T2MConfig, length: int) -> Call
     token_ids = np.zeros((1, 1, config.num_levels), np.int64)
     position = np.array([length], np.int64)
     past_positions = np.arange(length, dtype=np.int64)
-    caches = [[rng.standard_normal((1, heads, length, head_dim)).astype(np.float32)
-               for _ in range(2 * layers)] for layers, heads, head_dim in generator.cache_shapes]
+    caches = [
+        [
+            rng.standard_normal((1, heads, length, head_dim)).astype(np.float32)
+            for _ in range(2 * layers)
+        ]
+        for layers, heads, head_dim in generator.cache_shapes
+    ]
 
     def step() -> None:
-        outputs = generator.each_level(lambda level: generator.run(
-            level, prompt, uncond, token_ids, position, past_positions, caches[level]))
+        outputs = generator.each_level(
+            lambda level: generator.run(
+                level, prompt, uncond, token_ids, position, past_positions, caches[level]
+            )
+        )
         for logits, _ in outputs:
             choose_token(logits[0], None, 0.5, DEFAULT_SAMPLING)
 
@@ -85,24 +102,34 @@ def torch_step(model: T2M, length: int, threads: int, cached: bool) -> Callable[
     positions = torch.tensor([length]) if cached else torch.arange(length + 1)
     token_ids = torch.zeros(1, len(positions), config.num_levels, dtype=torch.long)
     past_positions = torch.arange(length) if cached else None
-    pasts = [[(torch.randn(1, config.heads[l], length, config.head_dim, generator=g),
-               torch.randn(1, config.heads[l], length, config.head_dim, generator=g))
-              for _ in range(config.layers[l])] if cached else None
-             for l in range(config.num_levels)]
+    pasts = [
+        [
+            (
+                torch.randn(1, config.heads[l], length, config.head_dim, generator=g),
+                torch.randn(1, config.heads[l], length, config.head_dim, generator=g),
+            )
+            for _ in range(config.layers[l])
+        ]
+        if cached
+        else None
+        for l in range(config.num_levels)
+    ]
 
     @torch.inference_mode()
     def step() -> None:
         torch.set_num_threads(threads)
         for level in range(config.num_levels):
-            logits, _ = model.level_forward(level, prompt, uncond, token_ids, positions,
-                                            past_positions, pasts[level])
+            logits, _ = model.level_forward(
+                level, prompt, uncond, token_ids, positions, past_positions, pasts[level]
+            )
             choose_token(logits[0].numpy(), None, 0.5, DEFAULT_SAMPLING)
 
     return step
 
 
-def step_backends(model: T2M, folder: Path, graphs: list[Graph],
-                  threads: tuple[int, ...]) -> dict[str, tuple[str, int, Callable]]:
+def step_backends(
+    model: T2M, folder: Path, graphs: list[Graph], threads: tuple[int, ...]
+) -> dict[str, tuple[str, int, Callable]]:
     """name -> (weights kind for the floor, cores used, factory(length) -> step callable)."""
     end = model.config.end_token
     backends = {}
@@ -113,16 +140,23 @@ def step_backends(model: T2M, folder: Path, graphs: list[Graph],
             generators = {f"onnxruntime {kind}, {t} thread{'s' * (t > 1)}": single}
             if t > 1:
                 generators[f"onnxruntime {kind}, {t} threads"] = TokenGenerator(
-                    paths, graphs, end, intra_op_threads=t)
+                    paths, graphs, end, intra_op_threads=t
+                )
                 generators[f"onnxruntime {kind}, {t} level groups"] = single.with_level_workers(t)
             for name, generator in generators.items():
                 backends[name] = (kind, t, lambda n, g=generator: onnx_step(g, model.config, n))
     for t in threads:
         plural = "s" * (t > 1)
         backends[f"torch eager + KV cache, {t} thread{plural}"] = (
-            "fp32", t, lambda n, t=t: torch_step(model, n, t, cached=True))
+            "fp32",
+            t,
+            lambda n, t=t: torch_step(model, n, t, cached=True),
+        )
         backends[f"torch eager, recompute, {t} thread{plural}"] = (
-            "fp32 recompute", t, lambda n, t=t: torch_step(model, n, t, cached=False))
+            "fp32 recompute",
+            t,
+            lambda n, t=t: torch_step(model, n, t, cached=False),
+        )
     return backends
 
 
@@ -158,20 +192,32 @@ def step_flops(config: T2MConfig, length: int, positions: int = 1) -> float:
 
 def kv_bytes(config: T2MConfig, length: int) -> int:
     """float32 key and value bytes of a `length`-slot cache, all levels."""
-    return sum(4 * 2 * config.layers[l] * config.heads[l] * config.head_dim * length
-               for l in range(config.num_levels))
+    return sum(
+        4 * 2 * config.layers[l] * config.heads[l] * config.head_dim * length
+        for l in range(config.num_levels)
+    )
 
 
-def step_table(size: str, config: T2MConfig, work: Path, settings: Settings,
-               bandwidth: dict[int, float], flops: dict[int, float]) -> dict:
+def step_table(
+    size: str,
+    config: T2MConfig,
+    work: Path,
+    settings: Settings,
+    bandwidth: dict[int, float],
+    flops: dict[int, float],
+) -> dict:
     """Part 2 for one model size."""
     model, folder, graphs = exported_model(config, work)
     backends = step_backends(model, folder, graphs, settings.threads)
-    weights = {"fp32": touched_weight_bytes([folder / g.file for g in graphs]),
-               "int8": touched_weight_bytes([folder / "int8" / g.file for g in graphs])}
+    weights = {
+        "fp32": touched_weight_bytes([folder / g.file for g in graphs]),
+        "int8": touched_weight_bytes([folder / "int8" / g.file for g in graphs]),
+    }
     weights["fp32 recompute"] = weights["fp32"]
-    rows = {name: dict(kind=kind, threads=threads, step_ms={}, floor_ms={})
-            for name, (kind, threads, _) in backends.items()}
+    rows = {
+        name: dict(kind=kind, threads=threads, step_ms={}, floor_ms={})
+        for name, (kind, threads, _) in backends.items()
+    }
     for length in settings.lengths:
         log(f"{size}: {len(backends)} backends at cache length {length}")
         calls = {name: factory(length) for name, (_, _, factory) in backends.items()}
@@ -186,14 +232,18 @@ def step_table(size: str, config: T2MConfig, work: Path, settings: Settings,
             rows[name]["floor_ms"][length] = 1e3 * floor
     for row in rows.values():
         row["clip_s"] = clip_seconds(row["step_ms"])
-    return dict(config=asdict(config), parameters=sum(p.numel() for p in model.parameters()),
-                weight_mb={k: v / 1e6 for k, v in weights.items() if k != "fp32 recompute"},
-                backends=rows)
+    return dict(
+        config=asdict(config),
+        parameters=sum(p.numel() for p in model.parameters()),
+        weight_mb={k: v / 1e6 for k, v in weights.items() if k != "fp32 recompute"},
+        backends=rows,
+    )
 
 
 def clip_seconds(step_ms: dict[int, float]) -> float:
     """A 196-step clip from the measured step times: step n has n cache slots (no window),
     its time linearly interpolated between the measured lengths."""
     lengths = sorted(step_ms)
-    return float(np.interp(np.arange(CLIP_FRAMES), lengths,
-                           [step_ms[n] for n in lengths]).sum()) / 1e3
+    return (
+        float(np.interp(np.arange(CLIP_FRAMES), lengths, [step_ms[n] for n in lengths]).sum()) / 1e3
+    )

@@ -3,6 +3,7 @@
 
 Prints a markdown table with the projected time and size of the default 20,000-clip corpus.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,21 +25,31 @@ def main() -> None:
     parser.add_argument("--corpus", nargs="+", choices=sorted(CORPORA), default=[DEFAULT_CORPUS])
     args = parser.parse_args()
 
-    print("| corpus | clips | workers | seconds | clips/s | projected minutes for 20,000 | "
-          "projected GB for 20,000 |")
+    print(
+        "| corpus | clips | workers | seconds | clips/s | projected minutes for 20,000 | "
+        "projected GB for 20,000 |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|")
     for corpus in args.corpus:
         for workers in args.workers:
             with tempfile.TemporaryDirectory() as tmp:
                 start = time.perf_counter()
-                synthesize_corpus(Path(tmp) / "corpus", args.clips, args.seed, progress=False,
-                                  workers=workers, corpus=corpus)
+                synthesize_corpus(
+                    Path(tmp) / "corpus",
+                    args.clips,
+                    args.seed,
+                    progress=False,
+                    workers=workers,
+                    corpus=corpus,
+                )
                 seconds = time.perf_counter() - start
                 size = sum(p.stat().st_size for p in Path(tmp).rglob("*") if p.is_file())
             rate = args.clips / seconds
-            print(f"| {corpus} | {args.clips} | {workers} | {seconds:.1f} | {rate:.1f} | "
-                  f"{FULL_CORPUS / rate / 60:.1f} | {size * FULL_CORPUS / args.clips / 1e9:.2f} |",
-                  flush=True)
+            print(
+                f"| {corpus} | {args.clips} | {workers} | {seconds:.1f} | {rate:.1f} | "
+                f"{FULL_CORPUS / rate / 60:.1f} | {size * FULL_CORPUS / args.clips / 1e9:.2f} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
 """What every `mogo bench` measurement shares: its settings, the interleaved timer, the log."""
+
 from __future__ import annotations
 
 import sys
@@ -20,12 +21,14 @@ class Settings:
     sizes: tuple[str, ...] = ("bundle", "paper")
 
 
-SMOKE = Settings(lengths=(1, 8), long_steps=300, rounds=3, round_budget_s=2.0, clip_repeats=2,
-                 sizes=("tiny",))
+SMOKE = Settings(
+    lengths=(1, 8), long_steps=300, rounds=3, round_budget_s=2.0, clip_repeats=2, sizes=("tiny",)
+)
 
 
-def interleaved(calls: dict[str, Callable[[], object]], rounds: int, budget_s: float,
-                warmup: int = 1) -> dict[str, float]:
+def interleaved(
+    calls: dict[str, Callable[[], object]], rounds: int, budget_s: float, warmup: int = 1
+) -> dict[str, float]:
     """Median seconds of each call, the calls timed one after another in every round, the
     order rotating; stops adding rounds once `budget_s` is spent (after 3 rounds at least)."""
     for call in calls.values():
@@ -35,7 +38,7 @@ def interleaved(calls: dict[str, Callable[[], object]], rounds: int, budget_s: f
     times: dict[str, list[float]] = {name: [] for name in names}
     spent, done = 0.0, 0
     while done < rounds and (done < 3 or spent < budget_s):
-        for name in names[done % len(names):] + names[:done % len(names)]:
+        for name in names[done % len(names) :] + names[: done % len(names)]:
             start = time.perf_counter()
             calls[name]()
             elapsed = time.perf_counter() - start

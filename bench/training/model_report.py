@@ -5,6 +5,7 @@ Prints a markdown table: the VQ's reconstruction of whole test clips (MPJPE on r
 joints, root trajectory included, and with the first k levels) and the transformer's
 teacher-forced test loss and token accuracy per level (eval mode, the spans' captions).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,13 +43,15 @@ def main() -> None:
     values = validate(model, spans, tokenizer, 64, process)
     by_levels = " / ".join(f"{v:.1f}" for v in recon["mpjpe_mm_by_levels"])
     accuracy = " / ".join(f"{values[f'acc_{l}']:.3f}" for l in range(t2m.config.num_levels))
-    print(f"| {args.split} split | value |\n|---|---|\n"
-          f"| VQ MPJPE, {len(clips)} whole clips (mm) | {recon['mpjpe_mm']:.1f} |\n"
-          f"| VQ MPJPE with the first 1..L levels (mm) | {by_levels} |\n"
-          f"| VQ feature L1 (normalised) | {recon['feature_l1']:.4f} |\n"
-          f"| T2M teacher-forced loss (sum over levels), {len(spans)} spans | "
-          f"{values['loss']:.3f} |\n"
-          f"| T2M token accuracy per level | {accuracy} |")
+    print(
+        f"| {args.split} split | value |\n|---|---|\n"
+        f"| VQ MPJPE, {len(clips)} whole clips (mm) | {recon['mpjpe_mm']:.1f} |\n"
+        f"| VQ MPJPE with the first 1..L levels (mm) | {by_levels} |\n"
+        f"| VQ feature L1 (normalised) | {recon['feature_l1']:.4f} |\n"
+        f"| T2M teacher-forced loss (sum over levels), {len(spans)} spans | "
+        f"{values['loss']:.3f} |\n"
+        f"| T2M token accuracy per level | {accuracy} |"
+    )
 
 
 if __name__ == "__main__":

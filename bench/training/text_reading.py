@@ -15,6 +15,7 @@ action is read right by
 - a vote of the 10 nearest labelled texts (cosine);
 - a linear softmax head (cross-entropy weighted by class, AdamW, a little input noise).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,8 +43,9 @@ def labelled_texts(run: Path, known: dict[str, tuple]) -> tuple[np.ndarray, np.n
     caption's, so its caption is found by its target."""
     arrays = np.load(run / CAPTIONS)
     texts, targets = arrays["train_text"], arrays["train_target"]
-    caption_of = {targets[k].tobytes(): str(texts[k])
-                  for k in np.flatnonzero(~arrays["train_variant"])}
+    caption_of = {
+        targets[k].tobytes(): str(texts[k]) for k in np.flatnonzero(~arrays["train_variant"])
+    }
     said = [known.get(shown_caption(caption_of[target.tobytes()])) for target in targets]
     keep = np.array([s is not None for s in said])
     return arrays["train_sentence"][keep], np.array([s[0] for s in said if s is not None])
@@ -60,8 +62,10 @@ def vote_head(x: np.ndarray, y: np.ndarray, actions: list[str]):
 
     def read(e: np.ndarray) -> np.ndarray:
         nearest = np.argsort(-(e @ x.T), axis=1)[:, :NEIGHBOURS]
-        return np.array([np.bincount(labels[row], minlength=len(actions)).argmax()
-                         for row in nearest])
+        return np.array(
+            [np.bincount(labels[row], minlength=len(actions)).argmax() for row in nearest]
+        )
+
     return read
 
 
@@ -84,6 +88,7 @@ def linear_head(x: np.ndarray, y: np.ndarray, actions: list[str], steps: int = 3
     @torch.no_grad()
     def read(e: np.ndarray) -> np.ndarray:
         return head(torch.from_numpy(e)).argmax(1).numpy()
+
     return read
 
 
@@ -107,15 +112,21 @@ def main() -> None:
     prompts = {**in_every_book(items), "own captions": [item.caption for item in items]}
     x, y = labelled_texts(args.run, known)
     actions = sorted(set(y))
-    heads = {"nearest centroid": centroid_head(x, y, actions),
-             f"{NEIGHBOURS} nearest vote": vote_head(x, y, actions),
-             "linear head": linear_head(x, y, actions)}
+    heads = {
+        "nearest centroid": centroid_head(x, y, actions),
+        f"{NEIGHBOURS} nearest vote": vote_head(x, y, actions),
+        "linear head": linear_head(x, y, actions),
+    }
     embedder = SentenceEmbedder(args.run / ENCODER)
     generator = MotionGenerator.load(args.bundle, threads=2)
     truth = np.array([actions.index(item.primitive) for item in items])
-    print(f"{len(items)} test items ({args.per_primitive} per primitive); heads learnt from "
-          f"{len(y)} labelled train texts of {args.run}.\n\n| prompts | the bundle's caption | "
-          + " | ".join(heads) + " |\n|---|---|" + "---|" * len(heads))
+    print(
+        f"{len(items)} test items ({args.per_primitive} per primitive); heads learnt from "
+        f"{len(y)} labelled train texts of {args.run}.\n\n| prompts | the bundle's caption | "
+        + " | ".join(heads)
+        + " |\n|---|---|"
+        + "---|" * len(heads)
+    )
     for name, texts in prompts.items():
         n, bundle, _ = played_rates(generator, items, texts, known)
         sentences = embedder.embed([spoken_numbers(t) for t in texts])

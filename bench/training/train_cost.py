@@ -9,6 +9,7 @@ steps. The GPU's rate is not assumed: it is what the H100 runs of the shipped mo
 10.4 min), the same models and batches, so steps = minutes x that rate / FLOPs a step. Prints a
 markdown table. Torch.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,8 +31,9 @@ def _step(model: torch.nn.Module, kind: str, batch: int, frames: int) -> None:
         loss = model(torch.randn(batch, frames, model.config.feature_dim)).losses["total"]
     else:
         tokens = torch.randint(model.config.codebook_size, (batch, frames, model.config.num_levels))
-        loss = model.loss(torch.randn(batch, model.config.text_dim), tokens,
-                          torch.full((batch,), frames))[0]
+        loss = model.loss(
+            torch.randn(batch, model.config.text_dim), tokens, torch.full((batch,), frames)
+        )[0]
     loss.backward()
 
 
@@ -51,20 +53,26 @@ def measure(kind: str, batch: int) -> tuple[float, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--batch", type=int, default=8, help="batch counted on the CPU")
-    parser.add_argument("--minutes", type=float, default=10.0,
-                        help="GPU minutes for VQ and transformer together")
+    parser.add_argument(
+        "--minutes", type=float, default=10.0, help="GPU minutes for VQ and transformer together"
+    )
     args = parser.parse_args()
-    print("| model | GFLOP a step (recipe batch) | CPU GFLOP/s | H100 sustained TFLOP/s "
-          "| H100 steps/s | steps in half the minutes |")
+    print(
+        "| model | GFLOP a step (recipe batch) | CPU GFLOP/s | H100 sustained TFLOP/s "
+        "| H100 steps/s | steps in half the minutes |"
+    )
     print("|---|---:|---:|---:|---:|---:|")
     for kind, (batch, steps, seconds, _) in H100_RUNS.items():
         flops, cpu_seconds = measure(kind, args.batch)
         per_step = flops * batch / args.batch
         rate = per_step * steps / seconds
         fit = 60 * args.minutes / 2 * rate / per_step
-        print(f"| {kind} (batch {batch}) | {per_step / 1e9:.0f} | "
-              f"{flops / cpu_seconds / 1e9:.1f} | {rate / 1e12:.1f} | {steps / seconds:.1f} | "
-              f"{fit:.0f} |", flush=True)
+        print(
+            f"| {kind} (batch {batch}) | {per_step / 1e9:.0f} | "
+            f"{flops / cpu_seconds / 1e9:.1f} | {rate / 1e12:.1f} | {steps / seconds:.1f} | "
+            f"{fit:.0f} |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

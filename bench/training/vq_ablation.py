@@ -8,6 +8,7 @@ then decodes every test-split clip whole with each variant's best.pt and prints 
 table, also written to RUNS/ablation.md and RUNS/ablation.json. MPJPE is on global joint
 positions recovered from the features (root trajectory included), in mm.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,11 +48,32 @@ def train_variants(args: argparse.Namespace) -> None:
         checkpoint = run / "checkpoint.pt"
         if checkpoint.is_file() and load_checkpoint(checkpoint)["step"] >= args.steps:
             continue
-        command = [sys.executable, "-m", "mogo", "train", "vq", "--data",
-                   str(args.data), "--out", str(run), "--steps", str(args.steps),
-                   "--batch-size", str(args.batch_size), "--warmup", str(args.warmup),
-                   "--device", args.device, "--config", args.config, "--val-every", str(args.steps),
-                   "--log-every", str(max(1, args.steps // 10)), *extra]
+        command = [
+            sys.executable,
+            "-m",
+            "mogo",
+            "train",
+            "vq",
+            "--data",
+            str(args.data),
+            "--out",
+            str(run),
+            "--steps",
+            str(args.steps),
+            "--batch-size",
+            str(args.batch_size),
+            "--warmup",
+            str(args.warmup),
+            "--device",
+            args.device,
+            "--config",
+            args.config,
+            "--val-every",
+            str(args.steps),
+            "--log-every",
+            str(max(1, args.steps // 10)),
+            *extra,
+        ]
         if checkpoint.is_file():
             command.append("--resume")
         pending.append((name, run, command))
@@ -85,27 +107,41 @@ def evaluate(args: argparse.Namespace) -> list[dict]:
         metrics = reconstruction_metrics(model, clip_batches(clips, device))
         state = load_checkpoint(run / "best.pt")
         c = model.config
-        rows.append(dict(variant=name, levels=c.levels, scale_bias=c.scale_bias,
-                         decorrelation=c.decorrelation, causal=c.causal, step=state["step"],
-                         test_clips=len(clips), **metrics))
+        rows.append(
+            dict(
+                variant=name,
+                levels=c.levels,
+                scale_bias=c.scale_bias,
+                decorrelation=c.decorrelation,
+                causal=c.causal,
+                step=state["step"],
+                test_clips=len(clips),
+                **metrics,
+            )
+        )
         print(f"evaluated {name}: MPJPE {metrics['mpjpe_mm']:.1f} mm", flush=True)
     return rows
 
 
 def markdown(rows: list[dict], args: argparse.Namespace) -> str:
-    lines = [f"MoSA-VQ ablation: {args.steps} steps of {args.batch_size} crops each, test split "
-             f"of {args.data} ({rows[0]['test_clips']} clips decoded whole).", "",
-             "| variant | MPJPE (mm) | feature L1 | MPJPE with the first 1 / 3 / 6 levels (mm) "
-             "| share of error removed per level | mean perplexity | codebook usage |",
-             "|---|---:|---:|---|---|---:|---:|"]
+    lines = [
+        f"MoSA-VQ ablation: {args.steps} steps of {args.batch_size} crops each, test split "
+        f"of {args.data} ({rows[0]['test_clips']} clips decoded whole).",
+        "",
+        "| variant | MPJPE (mm) | feature L1 | MPJPE with the first 1 / 3 / 6 levels (mm) "
+        "| share of error removed per level | mean perplexity | codebook usage |",
+        "|---|---:|---:|---|---|---:|---:|",
+    ]
     for r in rows:
         by = r["mpjpe_mm_by_levels"]
         firsts = " / ".join(f"{by[k - 1]:.1f}" if k <= len(by) else "-" for k in (1, 3, 6))
         gains = " ".join(f"{g:.2f}" for g in r["level_gain"])
         perplexity = sum(r["perplexity"]) / len(r["perplexity"])
         usage = sum(r["codebook_usage"]) / len(r["codebook_usage"])
-        lines.append(f"| {r['variant']} | {r['mpjpe_mm']:.1f} | {r['feature_l1']:.4f} | "
-                     f"{firsts} | {gains} | {perplexity:.0f} | {usage:.0%} |")
+        lines.append(
+            f"| {r['variant']} | {r['mpjpe_mm']:.1f} | {r['feature_l1']:.4f} | "
+            f"{firsts} | {gains} | {perplexity:.0f} | {usage:.0%} |"
+        )
     return "\n".join(lines) + "\n"
 
 

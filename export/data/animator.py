@@ -7,6 +7,7 @@ feet on the floor, the first frame facing +Z). Every clip draws its own performe
 proportions, tempo, movement size, arm swing, stance) from the rng, so no two clips are alike
 and the same rng state always gives the same clip.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -16,8 +17,22 @@ import numpy as np
 
 from mogo.export.data.animator_body import FPS, Body, Track, pose_joints
 from mogo.export.data.animator_more import KEYED_V2
-from mogo.export.data.animator_moves import (Place, bow, clap, idle, jump, jumping_jacks, kick,
-                                             perform, punch, raise_arms, sit, squat, stretch, wave)
+from mogo.export.data.animator_moves import (
+    Place,
+    bow,
+    clap,
+    idle,
+    jump,
+    jumping_jacks,
+    kick,
+    perform,
+    punch,
+    raise_arms,
+    sit,
+    squat,
+    stretch,
+    wave,
+)
 from mogo.export.data.animator_steps import locomotion, turning
 
 
@@ -30,6 +45,7 @@ class Segment:
 @dataclass(frozen=True)
 class Choice:
     """One of a few values, equally likely."""
+
     values: tuple
 
     def draw(self, rng: np.random.Generator):
@@ -39,6 +55,7 @@ class Choice:
 @dataclass(frozen=True)
 class Count:
     """A whole number from low to high, equally likely."""
+
     low: int
     high: int
 
@@ -50,6 +67,7 @@ class Count:
 class Degrees:
     """A signed whole angle (+ = to the left): 0 with probability `straight`, else a magnitude
     from low to high, half the time snapped to a multiple of `snap`."""
+
     low: int
     high: int
     snap: int
@@ -67,20 +85,24 @@ class Degrees:
 @dataclass(frozen=True)
 class Seconds:
     """A duration from low to high in multiples of `step`."""
+
     low: float
     high: float
     step: float
 
     def draw(self, rng: np.random.Generator) -> float:
-        return float(self.low + self.step * int(rng.integers(round((self.high - self.low)
-                                                                   / self.step) + 1)))
+        return float(
+            self.low + self.step * int(rng.integers(round((self.high - self.low) / self.step) + 1))
+        )
 
 
 SIDE = Choice(("left", "right"))
 HANDS = Choice(("left", "right", "both"))
-_PATH = {"direction": Choice(("forward", "backward", "left", "right")),
-         "speed": Choice(("slow", "normal", "fast")),
-         "turn": Degrees(30, 180, 45, straight=0.5)}
+_PATH = {
+    "direction": Choice(("forward", "backward", "left", "right")),
+    "speed": Choice(("slow", "normal", "fast")),
+    "turn": Degrees(30, 180, 45, straight=0.5),
+}
 _AHEAD = {"speed": _PATH["speed"], "turn": _PATH["turn"]}  # forward only
 PRIMITIVES: dict[str, dict] = {
     "walk": {**_PATH, "steps": Count(3, 6)},
@@ -104,8 +126,12 @@ PRIMITIVES: dict[str, dict] = {
     "crouch_walk": {**_PATH, "steps": Count(3, 6)},
     "tiptoe": {**_PATH, "steps": Count(3, 6)},
     "march": {**_AHEAD, "steps": Count(4, 8)},
-    "limp": {"foot": SIDE, "speed": Choice(("slow", "normal")), "turn": _PATH["turn"],
-             "steps": Count(4, 7)},
+    "limp": {
+        "foot": SIDE,
+        "speed": Choice(("slow", "normal")),
+        "turn": _PATH["turn"],
+        "steps": Count(4, 7),
+    },
     "skip": {**_AHEAD, "steps": Count(4, 8)},
     "carry": {**_PATH, "direction": Choice(("forward", "backward")), "steps": Count(3, 6)},
     "stumble": {"steps": Count(4, 6)},
@@ -125,15 +151,43 @@ PRIMITIVES: dict[str, dict] = {
     "uppercut": {"hand": SIDE, "count": Count(1, 4)},
     "duck": {"count": Count(1, 3)},
 }
-V1 = ("walk", "jog", "run", "turn", "jump", "squat", "sit", "bow", "wave", "raise_arms", "clap",
-      "punch", "kick", "spin", "stretch", "jumping_jacks", "idle")
+V1 = (
+    "walk",
+    "jog",
+    "run",
+    "turn",
+    "jump",
+    "squat",
+    "sit",
+    "bow",
+    "wave",
+    "raise_arms",
+    "clap",
+    "punch",
+    "kick",
+    "spin",
+    "stretch",
+    "jumping_jacks",
+    "idle",
+)
 CORPORA = {"v1": V1, "v2": tuple(PRIMITIVES)}  # each corpus version's primitives
 DEFAULT_CORPUS = "v1"  # the shipped bundle's; v2 once a model trained on it ships
-GAITS = ("walk", "jog", "run", "crouch_walk", "tiptoe", "march", "limp", "skip", "carry",
-         "stumble")
-KEYED = {"idle": idle, "squat": squat, "sit": sit, "bow": bow, "wave": wave,
-         "raise_arms": raise_arms, "clap": clap, "punch": punch, "kick": kick,
-         "stretch": stretch, "jump": jump, "jumping_jacks": jumping_jacks, **KEYED_V2}
+GAITS = ("walk", "jog", "run", "crouch_walk", "tiptoe", "march", "limp", "skip", "carry", "stumble")
+KEYED = {
+    "idle": idle,
+    "squat": squat,
+    "sit": sit,
+    "bow": bow,
+    "wave": wave,
+    "raise_arms": raise_arms,
+    "clap": clap,
+    "punch": punch,
+    "kick": kick,
+    "stretch": stretch,
+    "jump": jump,
+    "jumping_jacks": jumping_jacks,
+    **KEYED_V2,
+}
 
 
 @dataclass
@@ -145,8 +199,9 @@ class Animation:
 
 def _known(primitive: str) -> dict:
     if primitive not in PRIMITIVES:
-        raise ValueError(f"unknown primitive {primitive!r}; expected one of "
-                         f"{', '.join(sorted(PRIMITIVES))}")
+        raise ValueError(
+            f"unknown primitive {primitive!r}; expected one of {', '.join(sorted(PRIMITIVES))}"
+        )
     return PRIMITIVES[primitive]
 
 
@@ -159,8 +214,9 @@ def sample_segment(primitive: str, rng: np.random.Generator) -> Segment:
     return Segment(primitive, params)
 
 
-def _play(segment: Segment, place: Place, body: Body,
-          rng: np.random.Generator) -> tuple[Track, Place]:
+def _play(
+    segment: Segment, place: Place, body: Body, rng: np.random.Generator
+) -> tuple[Track, Place]:
     _known(segment.primitive)
     params = segment.params
     if segment.primitive in GAITS:
@@ -168,14 +224,16 @@ def _play(segment: Segment, place: Place, body: Body,
     if segment.primitive == "turn":
         return turning("turn", np.radians(params["angle"]), place, body, rng)
     if segment.primitive == "spin":
-        return turning("spin", 2 * np.pi * (1 if params["direction"] == "left" else -1),
-                       place, body, rng)
+        return turning(
+            "spin", 2 * np.pi * (1 if params["direction"] == "left" else -1), place, body, rng
+        )
     keys = KEYED[segment.primitive](params, body, rng)
     return perform(keys, place, body, rng, exact=segment.primitive == "idle")
 
 
-def animate(segments: Sequence[Segment], rng: np.random.Generator,
-            natural: bool = False) -> Animation:
+def animate(
+    segments: Sequence[Segment], rng: np.random.Generator, natural: bool = False
+) -> Animation:
     """Joint positions of a program of segments, played back to back by one random performer
     (`natural`: corpus v2's, whose steps vary)."""
     if not segments:

@@ -5,6 +5,7 @@ Channels are world-space time series. The spine, neck and head are posed by angl
 kinematics; legs and arms reach their targets by two-bone inverse kinematics, so feet stay
 exactly where the footstep planner puts them and no bone ever changes length.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
@@ -22,13 +23,15 @@ X_AXIS, Z_AXIS = np.eye(3)[0], np.eye(3)[2]
 STAND_REACH = 0.996  # hip-to-ankle distance of a relaxed stance, as a share of the leg length
 MAX_REACH = 0.999  # the pelvis is lowered wherever a foot target is further than this
 # Share of the torso's bend / lean / twist taken by pelvis, spine1, spine2, spine3 and neck.
-TORSO_SHARES = np.array([
-    [0.30, 0.00, 0.00],
-    [0.25, 0.35, 0.30],
-    [0.20, 0.35, 0.35],
-    [0.15, 0.20, 0.25],
-    [0.10, 0.10, 0.10],
-])
+TORSO_SHARES = np.array(
+    [
+        [0.30, 0.00, 0.00],
+        [0.25, 0.35, 0.30],
+        [0.20, 0.35, 0.35],
+        [0.15, 0.20, 0.25],
+        [0.10, 0.10, 0.10],
+    ]
+)
 ELBOW_POLE = np.array([0.1, -0.3, -1.0])  # chest frame, x mirrored per arm: back, down, out
 FLARED_POLE = np.array([1.0, -0.3, 0.0])  # elbow out to the side
 KNEE_POLE = np.array([0.15, 0.4, 1.0])  # foot frame, x mirrored per leg: forward, up, a bit out
@@ -38,6 +41,7 @@ LEG_BONES, ARM_BONES = [4, 5, 7, 8], [18, 19, 20, 21]
 @dataclass(frozen=True)
 class Body:
     """One performer: bone vectors (metres) and movement style, fixed for a whole clip."""
+
     offsets: np.ndarray  # (22, 3) bone vectors from each joint's parent, facing +Z
     tempo: float  # > 1 moves faster
     energy: float  # > 1 moves bigger
@@ -51,22 +55,32 @@ class Body:
     asymmetry: float = 0.0  # the left steps' length over the right's, minus one, halved
 
     @classmethod
-    def sample(cls, rng: np.random.Generator, natural: bool = False) -> "Body":
+    def sample(cls, rng: np.random.Generator, natural: bool = False) -> Body:
         """A random performer; `natural` (corpus v2) also draws an uneven, varying gait,
         after every v1 draw so that v1 corpora stay what they were."""
         offsets = SMPL_22.rest_offsets * rng.uniform(0.96, 1.04)
         offsets[LEG_BONES] *= rng.uniform(0.98, 1.02)
         offsets[ARM_BONES] *= rng.uniform(0.98, 1.02)
-        body = cls(offsets=offsets, tempo=rng.uniform(0.9, 1.1), energy=rng.uniform(0.85, 1.15),
-                   arm_swing=rng.uniform(0.7, 1.3), stance=rng.uniform(0.085, 0.115),
-                   toe_out=np.radians(rng.uniform(3.0, 12.0)),
-                   posture=np.radians(rng.uniform(-2.0, 6.0)),
-                   arm_rest=np.array([rng.uniform(-0.05, 0.1), rng.uniform(0.06, 0.2),
-                                      rng.uniform(0.975, 0.995), 0.0]))
+        body = cls(
+            offsets=offsets,
+            tempo=rng.uniform(0.9, 1.1),
+            energy=rng.uniform(0.85, 1.15),
+            arm_swing=rng.uniform(0.7, 1.3),
+            stance=rng.uniform(0.085, 0.115),
+            toe_out=np.radians(rng.uniform(3.0, 12.0)),
+            posture=np.radians(rng.uniform(-2.0, 6.0)),
+            arm_rest=np.array(
+                [rng.uniform(-0.05, 0.1), rng.uniform(0.06, 0.2), rng.uniform(0.975, 0.995), 0.0]
+            ),
+        )
         if not natural:
             return body
-        return replace(body, natural=True, variation=rng.uniform(0.02, 0.05),
-                       asymmetry=rng.uniform(-0.04, 0.04))
+        return replace(
+            body,
+            natural=True,
+            variation=rng.uniform(0.02, 0.05),
+            asymmetry=rng.uniform(-0.04, 0.04),
+        )
 
     def length(self, joint: int) -> float:
         return float(np.linalg.norm(self.offsets[joint]))
@@ -88,7 +102,7 @@ class Body:
     def stand_height(self) -> float:
         """Pelvis height of the relaxed stance."""
         across = self.stance - self.offsets[1, 0]
-        drop = np.sqrt((STAND_REACH * self.leg) ** 2 - across ** 2)
+        drop = np.sqrt((STAND_REACH * self.leg) ** 2 - across**2)
         return float(self.ankle_height + drop - self.offsets[1, 1])
 
     def shoulder_width(self) -> float:
@@ -100,6 +114,7 @@ class Body:
 class Track:
     """Per-frame channels of a motion, world space, angles in radians; per-limb axes are
     ordered (left, right)."""
+
     pelvis: np.ndarray  # (T, 3) pelvis position
     yaw: np.ndarray  # (T,) facing: + turns left (counter-clockwise from above), 0 faces +Z
     torso: np.ndarray  # (T, 3) bend forward, lean left, twist left
@@ -115,7 +130,7 @@ class Track:
         return len(self.yaw)
 
     @classmethod
-    def concat(cls, tracks: list["Track"]) -> "Track":
+    def concat(cls, tracks: list[Track]) -> Track:
         return cls(*(np.concatenate([getattr(t, f.name) for t in tracks]) for f in fields(cls)))
 
 
@@ -153,8 +168,12 @@ def curve(times, values, t: np.ndarray) -> np.ndarray:
     k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
     s = np.clip((t - times[k]) / h[k], 0.0, 1.0)[:, None]
     span = h[k][:, None]
-    out = ((2 * s ** 3 - 3 * s ** 2 + 1) * v[k] + (s ** 3 - 2 * s ** 2 + s) * span * slope[k]
-           + (3 * s ** 2 - 2 * s ** 3) * v[k + 1] + (s ** 3 - s ** 2) * span * slope[k + 1])
+    out = (
+        (2 * s**3 - 3 * s**2 + 1) * v[k]
+        + (s**3 - 2 * s**2 + s) * span * slope[k]
+        + (3 * s**2 - 2 * s**3) * v[k + 1]
+        + (s**3 - s**2) * span * slope[k + 1]
+    )
     return out.reshape((len(t),) + values.shape[1:])
 
 
@@ -180,16 +199,17 @@ def _smooth_min(x: np.ndarray, radius: int) -> np.ndarray:
     return smooth(_windows(x[:, None], radius)[:, 0].min(axis=-1), radius)
 
 
-def two_bone_ik(root: np.ndarray, target: np.ndarray, pole: np.ndarray, upper: float,
-                lower: float) -> tuple[np.ndarray, np.ndarray]:
+def two_bone_ik(
+    root: np.ndarray, target: np.ndarray, pole: np.ndarray, upper: float, lower: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Middle and end joints (..., 3) of a limb reaching from `root` toward `target`, bending
     toward `pole`. A target out of reach pulls the end in along the line: bones never stretch."""
     offset = target - root
     distance = np.linalg.norm(offset, axis=-1, keepdims=True)
     direction = offset / np.maximum(distance, 1e-9)
     distance = np.clip(distance, abs(upper - lower) + 1e-6, (upper + lower) * (1 - 1e-6))
-    along = (upper ** 2 - lower ** 2 + distance ** 2) / (2 * distance)
-    out = np.sqrt(np.maximum(upper ** 2 - along ** 2, 0.0))
+    along = (upper**2 - lower**2 + distance**2) / (2 * distance)
+    out = np.sqrt(np.maximum(upper**2 - along**2, 0.0))
     bend = pole - np.sum(pole * direction, axis=-1, keepdims=True) * direction
     bend /= np.linalg.norm(bend, axis=-1, keepdims=True)
     return root + along * direction + out * bend, root + distance * direction
@@ -225,7 +245,7 @@ def pose_joints(track: Track, body: Body) -> np.ndarray:
     # Lower the pelvis where a leg could not otherwise reach its foot.
     hips = qrot(pelvis_frame[:, None], o[[1, 2]])  # (T, 2, 3) relative to the pelvis
     across = np.linalg.norm((track.pelvis[:, None] + hips - ankle)[..., [0, 2]], axis=-1)
-    room = np.sqrt(np.maximum((MAX_REACH * body.leg) ** 2 - across ** 2, 0.0))
+    room = np.sqrt(np.maximum((MAX_REACH * body.leg) ** 2 - across**2, 0.0))
     highest = np.min(ankle[..., 1] + room - hips[..., 1], axis=-1)
     pelvis = track.pelvis.copy()
     pelvis[:, 1] += _smooth_min(np.minimum(highest - pelvis[:, 1], 0.0), 3)
@@ -233,7 +253,7 @@ def pose_joints(track: Track, body: Body) -> np.ndarray:
 
     # Spine, neck and head by forward kinematics.
     frame = pelvis_frame
-    for joint, rotation in zip((3, 6, 9), rotations[1:4]):
+    for joint, rotation in zip((3, 6, 9), rotations[1:4], strict=True):
         joints[:, joint] = joints[:, SMPL_22.parents[joint]] + qrot(frame, o[joint])
         frame = qmul(frame, rotation)
     chest = frame
@@ -242,8 +262,13 @@ def pose_joints(track: Track, body: Body) -> np.ndarray:
 
     # Legs reach the feet; knees point along the feet.
     joints[:, [1, 2]] = pelvis[:, None] + hips
-    knees, ankles = two_bone_ik(joints[:, [1, 2]], ankle, qrot(foot_frame, _mirrored(KNEE_POLE)),
-                                body.length(4), body.length(7))
+    knees, ankles = two_bone_ik(
+        joints[:, [1, 2]],
+        ankle,
+        qrot(foot_frame, _mirrored(KNEE_POLE)),
+        body.length(4),
+        body.length(7),
+    )
     joints[:, [4, 5]], joints[:, [7, 8]] = knees, ankles
     pitch = qfrom_axis_angle(X_AXIS, track.foot_pitch)
     joints[:, [10, 11]] = ankles + qrot(qmul(foot_frame, pitch), ball)
@@ -254,11 +279,14 @@ def pose_joints(track: Track, body: Body) -> np.ndarray:
     shoulders = joints[:, [13, 14]] + qrot(chest2, o[[16, 17]])
     joints[:, [16, 17]] = shoulders
     swing, spread, reach, flare = np.moveaxis(track.arms, -1, 0)  # (T, 2) each
-    direction = np.stack([SIDES * np.sin(spread), -np.cos(spread) * np.cos(swing),
-                          np.cos(spread) * np.sin(swing)], -1)
+    direction = np.stack(
+        [SIDES * np.sin(spread), -np.cos(spread) * np.cos(swing), np.cos(spread) * np.sin(swing)],
+        -1,
+    )
     wrist = shoulders + qrot(chest2, direction * (reach * body.arm)[..., None])
     flare = flare[..., None]
     elbow_pole = qrot(chest2, (1 - flare) * _mirrored(ELBOW_POLE) + flare * _mirrored(FLARED_POLE))
     joints[:, [18, 19]], joints[:, [20, 21]] = two_bone_ik(
-        shoulders, wrist, elbow_pole, body.length(18), body.length(20))
+        shoulders, wrist, elbow_pole, body.length(18), body.length(20)
+    )
     return joints

@@ -1,6 +1,7 @@
 """Corpus v2's keyed moves: what game and animation users ask for beyond v1's set (hopping,
 climbing a step, crawling, lying down, handling things, gestures, dance and boxing). Same
 contract as animator_moves: key poses from the relaxed stance back to it."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,14 +27,22 @@ def hop(params: dict, body: Body, rng: np.random.Generator) -> list:
     balance = both(arm(25 * DEG, 35 * DEG, 0.9, 0.3))
 
     def at(drop: float, up: float, toes: float) -> np.ndarray:
-        return pose(body, pelvis=(shift, drop + up, 0.0), arms=balance,
-                    feet=limbs(foot, (0.0, 0.24 + up, -0.16), (0.0, up, 0.0)),
-                    pitch=limbs(foot, 40 * DEG, toes))
+        return pose(
+            body,
+            pelvis=(shift, drop + up, 0.0),
+            arms=balance,
+            feet=limbs(foot, (0.0, 0.24 + up, -0.16), (0.0, up, 0.0)),
+            pitch=limbs(foot, 40 * DEG, toes),
+        )
 
     keys = [(0.45, at(-0.02, 0.0, 0.0))]
     for _ in range(params["count"]):
-        keys += [(0.14, at(-0.07, 0.0, 0.0)), (0.1, at(0.0, 0.4 * height, 30 * DEG)),
-                 (0.1, at(0.02, height, 15 * DEG)), (0.12, at(-0.06, 0.0, 0.0))]
+        keys += [
+            (0.14, at(-0.07, 0.0, 0.0)),
+            (0.1, at(0.0, 0.4 * height, 30 * DEG)),
+            (0.1, at(0.02, height, 15 * DEG)),
+            (0.12, at(-0.06, 0.0, 0.0)),
+        ]
     down = pose(body, pelvis=(shift, -0.02, 0.0), arms=balance)
     return keys + [(0.35, down), (0.4, pose(body))]
 
@@ -48,25 +57,49 @@ def step_up(params: dict, body: Body, rng: np.random.Generator) -> list:
         return limbs(lead, lead_at, trail_at)
 
     floor, top = (0.0, 0.0, 0.0), (0.0, STEP_HEIGHT, ahead)
-    keys = [(0.35, pose(body, pelvis=(0.0, -0.02, 0.0), torso=(0.1, 0.0, 0.0))),
-            (0.3, pose(body, pelvis=(0.0, -0.03, 0.05), torso=(0.2, 0.0, 0.0),
-                       feet=feet((0.0, STEP_HEIGHT + 0.12, 0.6 * ahead), floor))),
-            (0.25, pose(body, pelvis=(0.0, -0.06, 0.15), torso=(0.3, 0.0, 0.0),
-                        feet=feet(top, floor))),
-            (0.45, pose(body, pelvis=(0.0, STEP_HEIGHT - 0.02, ahead - 0.02),
-                        torso=(0.15, 0.0, 0.0),
-                        feet=feet(top, (0.0, STEP_HEIGHT + 0.1, 0.6 * ahead)))),
-            (0.3, pose(body, pelvis=(0.0, STEP_HEIGHT, ahead), feet=feet(top, top))),
-            (rng.uniform(0.3, 0.7), pose(body, pelvis=(0.0, STEP_HEIGHT, ahead),
-                                         feet=feet(top, top))),
-            (0.35, pose(body, pelvis=(0.0, STEP_HEIGHT - 0.08, ahead - 0.1),
-                        torso=(0.1, 0.0, 0.0),
-                        feet=feet(top, (0.0, STEP_HEIGHT + 0.04, 0.5 * ahead)))),
-            (0.35, pose(body, pelvis=(0.0, 0.0, 0.1), torso=(0.05, 0.0, 0.0),
-                        feet=feet(top, floor))),
-            (0.3, pose(body, pelvis=(0.0, -0.02, 0.02),
-                       feet=feet((0.0, STEP_HEIGHT + 0.05, 0.4 * ahead), floor))),
-            (0.35, pose(body))]
+    keys = [
+        (0.35, pose(body, pelvis=(0.0, -0.02, 0.0), torso=(0.1, 0.0, 0.0))),
+        (
+            0.3,
+            pose(
+                body,
+                pelvis=(0.0, -0.03, 0.05),
+                torso=(0.2, 0.0, 0.0),
+                feet=feet((0.0, STEP_HEIGHT + 0.12, 0.6 * ahead), floor),
+            ),
+        ),
+        (0.25, pose(body, pelvis=(0.0, -0.06, 0.15), torso=(0.3, 0.0, 0.0), feet=feet(top, floor))),
+        (
+            0.45,
+            pose(
+                body,
+                pelvis=(0.0, STEP_HEIGHT - 0.02, ahead - 0.02),
+                torso=(0.15, 0.0, 0.0),
+                feet=feet(top, (0.0, STEP_HEIGHT + 0.1, 0.6 * ahead)),
+            ),
+        ),
+        (0.3, pose(body, pelvis=(0.0, STEP_HEIGHT, ahead), feet=feet(top, top))),
+        (rng.uniform(0.3, 0.7), pose(body, pelvis=(0.0, STEP_HEIGHT, ahead), feet=feet(top, top))),
+        (
+            0.35,
+            pose(
+                body,
+                pelvis=(0.0, STEP_HEIGHT - 0.08, ahead - 0.1),
+                torso=(0.1, 0.0, 0.0),
+                feet=feet(top, (0.0, STEP_HEIGHT + 0.04, 0.5 * ahead)),
+            ),
+        ),
+        (0.35, pose(body, pelvis=(0.0, 0.0, 0.1), torso=(0.05, 0.0, 0.0), feet=feet(top, floor))),
+        (
+            0.3,
+            pose(
+                body,
+                pelvis=(0.0, -0.02, 0.02),
+                feet=feet((0.0, STEP_HEIGHT + 0.05, 0.4 * ahead), floor),
+            ),
+        ),
+        (0.35, pose(body)),
+    ]
     return keys
 
 
@@ -77,20 +110,37 @@ def crawl(params: dict, body: Body, rng: np.random.Generator) -> list:
     reach = rng.uniform(0.2, 0.28) * body.energy  # metres per crawling cycle
     low, shin = -0.42, body.length(7) + 0.02
 
-    def on_all_fours(at: float, knees: tuple[float, float], lifts=(0.0, 0.0),
-                     hands=(0.0, 0.0)) -> np.ndarray:
+    def on_all_fours(
+        at: float, knees: tuple[float, float], lifts=(0.0, 0.0), hands=(0.0, 0.0)
+    ) -> np.ndarray:
         feet = np.array([[0.0, lifts[s], knees[s]] for s in range(2)])  # ankles behind knees
         arms = np.array([arm(80 * DEG + hands[s], 12 * DEG, 0.95, 0.2) for s in range(2)])
-        return pose(body, pelvis=(0.0, low, at + shin), torso=(84 * DEG, 0.0, 0.0), arms=arms,
-                    feet=feet)
+        return pose(
+            body, pelvis=(0.0, low, at + shin), torso=(84 * DEG, 0.0, 0.0), arms=arms, feet=feet
+        )
 
     def kneeling(at: float) -> np.ndarray:
-        return pose(body, pelvis=(0.0, low + 0.02, at + shin), torso=(0.35, 0.0, 0.0),
-                    arms=both(arm(50 * DEG, 15 * DEG, 0.9)), feet=both((0.0, 0.0, at)))
+        return pose(
+            body,
+            pelvis=(0.0, low + 0.02, at + shin),
+            torso=(0.35, 0.0, 0.0),
+            arms=both(arm(50 * DEG, 15 * DEG, 0.9)),
+            feet=both((0.0, 0.0, at)),
+        )
 
-    keys = [(0.5, pose(body, pelvis=(0.0, -0.3, 0.1), torso=(0.5, 0.0, 0.0),
-                       arms=both(arm(40 * DEG, 15 * DEG, 0.9)))),
-            (0.45, kneeling(0.0)), (0.5, on_all_fours(0.0, (0.0, 0.0)))]
+    keys = [
+        (
+            0.5,
+            pose(
+                body,
+                pelvis=(0.0, -0.3, 0.1),
+                torso=(0.5, 0.0, 0.0),
+                arms=both(arm(40 * DEG, 15 * DEG, 0.9)),
+            ),
+        ),
+        (0.45, kneeling(0.0)),
+        (0.5, on_all_fours(0.0, (0.0, 0.0))),
+    ]
     knees = [0.0, 0.0]
     for k in range(2 * params["count"]):
         side = k % 2
@@ -98,30 +148,67 @@ def crawl(params: dict, body: Body, rng: np.random.Generator) -> list:
         knees[side] = start + 0.75 * reach  # a quarter cycle ahead of the hips
         lifts = (0.04 * (side == 0), 0.04 * (side == 1))
         hand = (25 * DEG * (side == 1), 25 * DEG * (side == 0))  # the opposite hand reaches
-        keys += [(0.22, on_all_fours(start + reach / 4, tuple(knees), lifts, hand)),
-                 (0.22, on_all_fours(start + reach / 2, tuple(knees)))]
+        keys += [
+            (0.22, on_all_fours(start + reach / 4, tuple(knees), lifts, hand)),
+            (0.22, on_all_fours(start + reach / 2, tuple(knees))),
+        ]
     end = params["count"] * reach
-    return keys + [(0.5, kneeling(end)),
-                   (0.5, pose(body, pelvis=(0.0, -0.3, end + 0.1), torso=(0.5, 0.0, 0.0),
-                              feet=both((0.0, 0.0, end)))),
-                   (0.55, pose(body, pelvis=(0.0, 0.0, end), feet=both((0.0, 0.0, end))))]
+    return keys + [
+        (0.5, kneeling(end)),
+        (
+            0.5,
+            pose(
+                body,
+                pelvis=(0.0, -0.3, end + 0.1),
+                torso=(0.5, 0.0, 0.0),
+                feet=both((0.0, 0.0, end)),
+            ),
+        ),
+        (0.55, pose(body, pelvis=(0.0, 0.0, end), feet=both((0.0, 0.0, end)))),
+    ]
 
 
 def lie_down(params: dict, body: Body, rng: np.random.Generator) -> list:
     """Sit down on the floor, lie back flat, stay a moment, sit up and stand."""
     seat = 0.09 - body.offsets[1, 1] - body.stand_height
-    crouch = pose(body, pelvis=(0.0, -0.35, -0.15), torso=(0.55, 0.0, 0.0),
-                  arms=both(arm(60 * DEG, 10 * DEG, 0.9)))
-    seated = pose(body, pelvis=(0.0, seat, -0.42), torso=(-0.15, 0.0, 0.0),
-                  arms=both(arm(-30 * DEG, 20 * DEG, 1.0)))
+    crouch = pose(
+        body,
+        pelvis=(0.0, -0.35, -0.15),
+        torso=(0.55, 0.0, 0.0),
+        arms=both(arm(60 * DEG, 10 * DEG, 0.9)),
+    )
+    seated = pose(
+        body,
+        pelvis=(0.0, seat, -0.42),
+        torso=(-0.15, 0.0, 0.0),
+        arms=both(arm(-30 * DEG, 20 * DEG, 1.0)),
+    )
     legs_out = both((0.0, 0.0, 0.3))
-    lying = pose(body, pelvis=(0.0, seat - 0.02, -0.5), torso=(-85 * DEG, 0.0, 0.0),
-                 arms=both(arm(5 * DEG, 15 * DEG, 0.98)), feet=legs_out)
-    propped = pose(body, pelvis=(0.0, seat, -0.45), torso=(-40 * DEG, 0.0, 0.0),
-                   arms=both(arm(-40 * DEG, 20 * DEG, 1.0)), feet=legs_out)
-    return [(0.6, crouch), (0.55, seated), (0.5, propped), (0.6, lying),
-            (rng.uniform(0.6, 1.2), lying), (0.6, propped), (0.5, seated), (0.6, crouch),
-            (0.65, pose(body))]
+    lying = pose(
+        body,
+        pelvis=(0.0, seat - 0.02, -0.5),
+        torso=(-85 * DEG, 0.0, 0.0),
+        arms=both(arm(5 * DEG, 15 * DEG, 0.98)),
+        feet=legs_out,
+    )
+    propped = pose(
+        body,
+        pelvis=(0.0, seat, -0.45),
+        torso=(-40 * DEG, 0.0, 0.0),
+        arms=both(arm(-40 * DEG, 20 * DEG, 1.0)),
+        feet=legs_out,
+    )
+    return [
+        (0.6, crouch),
+        (0.55, seated),
+        (0.5, propped),
+        (0.6, lying),
+        (rng.uniform(0.6, 1.2), lying),
+        (0.6, propped),
+        (0.5, seated),
+        (0.6, crouch),
+        (0.65, pose(body)),
+    ]
 
 
 def pick_up(params: dict, body: Body, rng: np.random.Generator) -> list:
@@ -129,11 +216,20 @@ def pick_up(params: dict, body: Body, rng: np.random.Generator) -> list:
     on the thing, stand up holding it in front, then lower it."""
     hand = params["hand"]
     lean = {"left": 0.06, "right": -0.06, "both": 0.0}[hand]
-    down = pose(body, pelvis=(0.0, -0.33, -0.15), torso=(0.75, lean, 0.0),
-                arms=limbs(hand, arm(55 * DEG, 5 * DEG, 1.0), arm(30 * DEG, 15 * DEG, 0.9)))
+    down = pose(
+        body,
+        pelvis=(0.0, -0.33, -0.15),
+        torso=(0.75, lean, 0.0),
+        arms=limbs(hand, arm(55 * DEG, 5 * DEG, 1.0), arm(30 * DEG, 15 * DEG, 0.9)),
+    )
     holding = pose(body, arms=limbs(hand, arm(45 * DEG, -8 * DEG, 0.6, 0.3), body.arm_rest))
-    return [(0.7, down), (rng.uniform(0.2, 0.4), down), (0.7, holding),
-            (rng.uniform(0.4, 0.8), holding), (0.5, pose(body))]
+    return [
+        (0.7, down),
+        (rng.uniform(0.2, 0.4), down),
+        (0.7, holding),
+        (rng.uniform(0.4, 0.8), holding),
+        (0.5, pose(body)),
+    ]
 
 
 def _staggered(body: Body, rng: np.random.Generator) -> np.ndarray:
@@ -145,10 +241,20 @@ def push(params: dict, body: Body, rng: np.random.Generator) -> list:
     """Stagger the feet, hands up at the chest, push forward with both arms `count` times,
     leaning into it."""
     feet = _staggered(body, rng)
-    set_ = pose(body, pelvis=(0.0, -0.03, 0.0), torso=(0.15, 0.0, 0.0),
-                arms=both(arm(75 * DEG, -5 * DEG, 0.45, 0.5)), feet=feet)
-    pushed = pose(body, pelvis=(0.0, -0.05, 0.08), torso=(0.3, 0.0, 0.0),
-                  arms=both(arm(85 * DEG, -6 * DEG, 0.97, 0.2)), feet=feet)
+    set_ = pose(
+        body,
+        pelvis=(0.0, -0.03, 0.0),
+        torso=(0.15, 0.0, 0.0),
+        arms=both(arm(75 * DEG, -5 * DEG, 0.45, 0.5)),
+        feet=feet,
+    )
+    pushed = pose(
+        body,
+        pelvis=(0.0, -0.05, 0.08),
+        torso=(0.3, 0.0, 0.0),
+        arms=both(arm(85 * DEG, -6 * DEG, 0.97, 0.2)),
+        feet=feet,
+    )
     keys = [(0.2, pose(body, pelvis=(0.0, -0.02, 0.0), feet=feet)), (0.35, set_)]
     for _ in range(params["count"]):
         keys += [(0.35, pushed), (0.4, set_)]
@@ -159,10 +265,20 @@ def pull(params: dict, body: Body, rng: np.random.Generator) -> list:
     """Stagger the feet, reach forward with both hands, pull them in to the chest `count`
     times, leaning back."""
     feet = _staggered(body, rng)
-    reach = pose(body, pelvis=(0.0, -0.04, 0.05), torso=(0.25, 0.0, 0.0),
-                 arms=both(arm(88 * DEG, -5 * DEG, 0.97, 0.2)), feet=feet)
-    pulled = pose(body, pelvis=(0.0, -0.06, -0.08), torso=(-0.12, 0.0, 0.0),
-                  arms=both(arm(60 * DEG, 0.0, 0.4, 0.3)), feet=feet)
+    reach = pose(
+        body,
+        pelvis=(0.0, -0.04, 0.05),
+        torso=(0.25, 0.0, 0.0),
+        arms=both(arm(88 * DEG, -5 * DEG, 0.97, 0.2)),
+        feet=feet,
+    )
+    pulled = pose(
+        body,
+        pelvis=(0.0, -0.06, -0.08),
+        torso=(-0.12, 0.0, 0.0),
+        arms=both(arm(60 * DEG, 0.0, 0.4, 0.3)),
+        feet=feet,
+    )
     keys = [(0.2, pose(body, pelvis=(0.0, -0.02, 0.0), feet=feet)), (0.4, reach)]
     for _ in range(params["count"]):
         keys += [(0.4, pulled), (0.4, reach)]
@@ -176,30 +292,60 @@ def throw(params: dict, body: Body, rng: np.random.Generator) -> list:
     step = limbs(_other(hand), (0.0, 0.0, 0.3), (0.0, 0.0, 0.0))
     lifted = limbs(_other(hand), (0.0, 0.06, 0.15), (0.0, 0.0, 0.0))
     other = arm(60 * DEG, 20 * DEG, 0.85, 0.3)
-    windup = pose(body, pelvis=(0.0, -0.02, -0.03), torso=(-0.1, 0.0, side * 35 * DEG),
-                  arms=limbs(hand, arm(200 * DEG, 25 * DEG, 0.8, 1.0), other), feet=lifted)
-    release = pose(body, pelvis=(0.0, -0.05, 0.12), torso=(0.25, 0.0, -side * 30 * DEG),
-                   arms=limbs(hand, arm(110 * DEG, 5 * DEG, 0.99, 0.5),
-                              arm(10 * DEG, 25 * DEG, 0.9)), feet=step)
-    through = pose(body, pelvis=(0.0, -0.07, 0.15), torso=(0.45, 0.0, -side * 35 * DEG),
-                   arms=limbs(hand, arm(35 * DEG, -25 * DEG, 0.95, 0.2),
-                              arm(0.0, 20 * DEG, 0.95)), feet=step)
-    return [(0.55, windup), (rng.uniform(0.1, 0.3), windup), (0.18, release), (0.25, through),
-            (0.5, pose(body, pelvis=(0.0, 0.0, 0.15), feet=step)),
-            (0.3, pose(body, pelvis=(0.0, -0.01, 0.22),
-                       feet=limbs(hand, (0.0, 0.07, 0.15), (0.0, 0.0, 0.3)))),
-            (0.3, pose(body, pelvis=(0.0, 0.0, 0.3), feet=both((0.0, 0.0, 0.3))))]
+    windup = pose(
+        body,
+        pelvis=(0.0, -0.02, -0.03),
+        torso=(-0.1, 0.0, side * 35 * DEG),
+        arms=limbs(hand, arm(200 * DEG, 25 * DEG, 0.8, 1.0), other),
+        feet=lifted,
+    )
+    release = pose(
+        body,
+        pelvis=(0.0, -0.05, 0.12),
+        torso=(0.25, 0.0, -side * 30 * DEG),
+        arms=limbs(hand, arm(110 * DEG, 5 * DEG, 0.99, 0.5), arm(10 * DEG, 25 * DEG, 0.9)),
+        feet=step,
+    )
+    through = pose(
+        body,
+        pelvis=(0.0, -0.07, 0.15),
+        torso=(0.45, 0.0, -side * 35 * DEG),
+        arms=limbs(hand, arm(35 * DEG, -25 * DEG, 0.95, 0.2), arm(0.0, 20 * DEG, 0.95)),
+        feet=step,
+    )
+    return [
+        (0.55, windup),
+        (rng.uniform(0.1, 0.3), windup),
+        (0.18, release),
+        (0.25, through),
+        (0.5, pose(body, pelvis=(0.0, 0.0, 0.15), feet=step)),
+        (
+            0.3,
+            pose(
+                body,
+                pelvis=(0.0, -0.01, 0.22),
+                feet=limbs(hand, (0.0, 0.07, 0.15), (0.0, 0.0, 0.3)),
+            ),
+        ),
+        (0.3, pose(body, pelvis=(0.0, 0.0, 0.3), feet=both((0.0, 0.0, 0.3)))),
+    ]
 
 
 def point(params: dict, body: Body, rng: np.random.Generator) -> list:
     """The named arm straight out, pointing forward, up or out to its own side; held, then
     lowered."""
     hand, direction = params["hand"], params["at"]
-    swing, spread = {"forward": (88 * DEG, -5 * DEG), "up": (150 * DEG, 10 * DEG),
-                     "sideways": (88 * DEG, 80 * DEG)}[direction]
+    swing, spread = {
+        "forward": (88 * DEG, -5 * DEG),
+        "up": (150 * DEG, 10 * DEG),
+        "sideways": (88 * DEG, 80 * DEG),
+    }[direction]
     turn = {"forward": 0.0, "up": 0.0, "sideways": 12 * DEG}[direction]
-    pointing = pose(body, torso=(0.0, 0.0, SIDES[LIMBS[hand][0]] * turn),
-                    arms=limbs(hand, arm(swing, spread, 1.0), body.arm_rest))
+    pointing = pose(
+        body,
+        torso=(0.0, 0.0, SIDES[LIMBS[hand][0]] * turn),
+        arms=limbs(hand, arm(swing, spread, 1.0), body.arm_rest),
+    )
     return [(0.45, pointing), (rng.uniform(0.6, 1.1), pointing), (0.5, pose(body))]
 
 
@@ -211,15 +357,23 @@ def look_around(params: dict, body: Body, rng: np.random.Generator) -> list:
     def looking(side: float, bend: float) -> np.ndarray:
         return pose(body, torso=(bend, 0.0, side * twist))
 
-    return [(0.6, looking(first, 0.0)), (rng.uniform(0.4, 0.7), looking(first, -0.05)),
-            (0.9, looking(-first, 0.0)), (rng.uniform(0.4, 0.7), looking(-first, 0.05)),
-            (0.6, pose(body))]
+    return [
+        (0.6, looking(first, 0.0)),
+        (rng.uniform(0.4, 0.7), looking(first, -0.05)),
+        (0.9, looking(-first, 0.0)),
+        (rng.uniform(0.4, 0.7), looking(-first, 0.05)),
+        (0.6, pose(body)),
+    ]
 
 
 def shrug(params: dict, body: Body, rng: np.random.Generator) -> list:
     """Forearms out to the sides, palms up, the head tipped, `count` times."""
-    up = pose(body, pelvis=(0.0, 0.01, 0.0), torso=(-0.06, rng.uniform(-0.06, 0.06), 0.0),
-              arms=both(arm(25 * DEG, 40 * DEG, 0.68, 0.6)))
+    up = pose(
+        body,
+        pelvis=(0.0, 0.01, 0.0),
+        torso=(-0.06, rng.uniform(-0.06, 0.06), 0.0),
+        arms=both(arm(25 * DEG, 40 * DEG, 0.68, 0.6)),
+    )
     keys = []
     for _ in range(params["count"]):
         keys += [(0.35, up), (0.25, up), (0.35, pose(body))]
@@ -229,8 +383,11 @@ def shrug(params: dict, body: Body, rng: np.random.Generator) -> list:
 def salute(params: dict, body: Body, rng: np.random.Generator) -> list:
     """The right hand up to the brow, elbow out, held, snapped down."""
     hand = params["hand"]
-    saluting = pose(body, torso=(-0.03, 0.0, 0.0),
-                    arms=limbs(hand, arm(128 * DEG, 48 * DEG, 0.38, 1.0), body.arm_rest))
+    saluting = pose(
+        body,
+        torso=(-0.03, 0.0, 0.0),
+        arms=limbs(hand, arm(128 * DEG, 48 * DEG, 0.38, 1.0), body.arm_rest),
+    )
     return [(0.4, saluting), (rng.uniform(0.7, 1.2), saluting), (0.35, pose(body))]
 
 
@@ -247,22 +404,30 @@ def dance(params: dict, body: Body, rng: np.random.Generator) -> list:
         feet[side] = (out, lift, 0.0)
         feet[1 - side] = (-tap, tap_lift, 0.0)
         shift = (out + tap) / 2
-        swing = np.array([arm(50 * DEG, (35 if k == side else -10) * DEG, 0.6, 0.5)
-                          for k in range(2)])
+        swing = np.array(
+            [arm(50 * DEG, (35 if k == side else -10) * DEG, 0.6, 0.5) for k in range(2)]
+        )
         bounce = -0.03 - 0.03 * (tap > 0.5 * width)
-        return pose(body, pelvis=(s * shift, bounce, 0.0), arms=swing, feet=feet,
-                    torso=(0.05, -s * 6 * DEG * shift / width, s * 10 * DEG * shift / width))
+        return pose(
+            body,
+            pelvis=(s * shift, bounce, 0.0),
+            arms=swing,
+            feet=feet,
+            torso=(0.05, -s * 6 * DEG * shift / width, s * 10 * DEG * shift / width),
+        )
 
     keys = []
     for _ in range(params["count"]):
         for side in (first, 1 - first):
-            keys += [(0.12, at(side, width / 2, 0.0, 0.05, 0.0)),
-                     (0.12, at(side, width, 0.0, 0.0, 0.0)),
-                     (0.12, at(side, width, width / 2, 0.0, 0.05)),
-                     (0.12, at(side, width, width, 0.0, 0.01)),
-                     (0.12, at(side, width, width / 2, 0.0, 0.05)),
-                     (0.12, at(side, width, 0.0, 0.0, 0.0)),
-                     (0.12, at(side, width / 2, 0.0, 0.05, 0.0))]
+            keys += [
+                (0.12, at(side, width / 2, 0.0, 0.05, 0.0)),
+                (0.12, at(side, width, 0.0, 0.0, 0.0)),
+                (0.12, at(side, width, width / 2, 0.0, 0.05)),
+                (0.12, at(side, width, width, 0.0, 0.01)),
+                (0.12, at(side, width, width / 2, 0.0, 0.05)),
+                (0.12, at(side, width, 0.0, 0.0, 0.0)),
+                (0.12, at(side, width / 2, 0.0, 0.05, 0.0)),
+            ]
     return keys + [(0.2, pose(body))]
 
 
@@ -271,10 +436,18 @@ def uppercut(params: dict, body: Body, rng: np.random.Generator) -> list:
     shoulders turning into it, `count` times."""
     hand, side = params["hand"], SIDES[LIMBS[params["hand"]][0]]
     guard = pose(body, pelvis=(0.0, -0.03, 0.0), arms=both(GUARD))
-    load = pose(body, pelvis=(0.0, -0.1, 0.0), torso=(0.12, side * 0.1, side * 15 * DEG),
-                arms=limbs(hand, arm(20 * DEG, 5 * DEG, 0.55, 0.0), GUARD))
-    strike = pose(body, pelvis=(0.0, 0.0, 0.02), torso=(-0.08, 0.0, -side * 20 * DEG),
-                  arms=limbs(hand, arm(125 * DEG, -15 * DEG, 0.62, 0.1), GUARD))
+    load = pose(
+        body,
+        pelvis=(0.0, -0.1, 0.0),
+        torso=(0.12, side * 0.1, side * 15 * DEG),
+        arms=limbs(hand, arm(20 * DEG, 5 * DEG, 0.55, 0.0), GUARD),
+    )
+    strike = pose(
+        body,
+        pelvis=(0.0, 0.0, 0.02),
+        torso=(-0.08, 0.0, -side * 20 * DEG),
+        arms=limbs(hand, arm(125 * DEG, -15 * DEG, 0.62, 0.1), GUARD),
+    )
     keys = [(0.35, guard)]
     for _ in range(params["count"]):
         keys += [(0.2, load), (0.14, strike), (0.28, guard)]
@@ -288,15 +461,44 @@ def duck(params: dict, body: Body, rng: np.random.Generator) -> list:
     guard = pose(body, pelvis=(0.0, -0.03, 0.0), torso=(0.1, 0.0, 0.0), arms=both(GUARD))
     keys = [(0.35, guard)]
     for _ in range(params["count"]):
-        keys += [(0.3, pose(body, pelvis=(side * 0.08, -0.25, -0.03), torso=(0.45, side * 0.2, 0.0),
-                            arms=both(GUARD))),
-                 (0.3, pose(body, pelvis=(-side * 0.06, -0.06, 0.0), torso=(0.15, -side * 0.1, 0.0),
-                            arms=both(GUARD)))]
+        keys += [
+            (
+                0.3,
+                pose(
+                    body,
+                    pelvis=(side * 0.08, -0.25, -0.03),
+                    torso=(0.45, side * 0.2, 0.0),
+                    arms=both(GUARD),
+                ),
+            ),
+            (
+                0.3,
+                pose(
+                    body,
+                    pelvis=(-side * 0.06, -0.06, 0.0),
+                    torso=(0.15, -side * 0.1, 0.0),
+                    arms=both(GUARD),
+                ),
+            ),
+        ]
         side = -side
     return keys + [(0.3, guard), (0.4, pose(body))]
 
 
-KEYED_V2 = {"hop": hop, "step_up": step_up, "crawl": crawl, "lie_down": lie_down,
-            "pick_up": pick_up, "push": push, "pull": pull, "throw": throw, "point": point,
-            "look_around": look_around, "shrug": shrug, "salute": salute, "dance": dance,
-            "uppercut": uppercut, "duck": duck}
+KEYED_V2 = {
+    "hop": hop,
+    "step_up": step_up,
+    "crawl": crawl,
+    "lie_down": lie_down,
+    "pick_up": pick_up,
+    "push": push,
+    "pull": pull,
+    "throw": throw,
+    "point": point,
+    "look_around": look_around,
+    "shrug": shrug,
+    "salute": salute,
+    "dance": dance,
+    "uppercut": uppercut,
+    "duck": duck,
+}

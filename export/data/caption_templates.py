@@ -6,6 +6,7 @@ A template is a verb phrase: `<verb>` marks a verb to conjugate ("walks" / "walk
 `{slot}` a phrase chosen at random from the synonyms that say the segment's params.
 IDs are never renumbered; new templates get new IDs.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -59,19 +60,22 @@ _LOCOMOTION = (
 )
 
 TEMPLATES: dict[str, tuple[Template, ...]] = {
-    "walk": _LOCOMOTION + (
+    "walk": _LOCOMOTION
+    + (
         T("walk.1", "<stroll> {dir} {path}", _is("speed", "slow")),
         T("walk.2", "<sidestep> {lateral} {speed} {path}", _is("direction", "left", "right")),
         T("walk.3", "<back> up {speed} {path}", _is("direction", "backward")),
         T("walk.4", "<stride> {dir} {path}", _is("speed", "fast")),
         H("walk.5", "<shuffle> {dir} {path}", _is("speed", "slow")),
     ),
-    "jog": _LOCOMOTION + (
+    "jog": _LOCOMOTION
+    + (
         T("jog.1", "<trot> {dir} {speed} {path}"),
         T("jog.2", "<go> for a {speed_adj} jog {dir} {path}"),
         H("jog.3", "<run> {dir} at an easy jog {path}", _is("speed", "slow", "normal")),
     ),
-    "run": _LOCOMOTION + (
+    "run": _LOCOMOTION
+    + (
         T("run.1", "<sprint> {dir} {path}", _is("speed", "fast")),
         T("run.2", "<dash> {dir} {path}", _is("speed", "fast")),
         T("run.3", "<race> {dir} {speed} {path}"),

@@ -1,6 +1,7 @@
 """HumanML3D-style captions for animator programs: the templates of
 mogo.export.data.caption_templates rendered with a segment's params, and segments joined into
 one sentence."""
+
 from __future__ import annotations
 
 import re
@@ -11,13 +12,26 @@ import numpy as np
 from mogo.align import conjugate  # shared with prompt alignment
 from mogo.align_words import spoken_number
 from mogo.export.data.animator import Segment
-from mogo.export.data.caption_templates import (JOINERS, POOLS, SUBJECTS, TEMPLATES, Sentence,
-                                                Template)
+from mogo.export.data.caption_templates import (
+    JOINERS,
+    POOLS,
+    SUBJECTS,
+    TEMPLATES,
+    Sentence,
+    Template,
+)
 
 _VERB = re.compile(r"<(\w+)>")
-_REPETITION_NOUNS = {"jump": "jump", "squat": "squat", "clap": "clap", "punch": "punch",
-                     "jumping_jacks": "jumping jack", "hop": "hop", "shrug": "shrug",
-                     "uppercut": "uppercut"}
+_REPETITION_NOUNS = {
+    "jump": "jump",
+    "squat": "squat",
+    "clap": "clap",
+    "punch": "punch",
+    "jumping_jacks": "jumping jack",
+    "hop": "hop",
+    "shrug": "shrug",
+    "uppercut": "uppercut",
+}
 _GAITS = {"walk": ("walk", "steps"), "jog": ("jog", "strides"), "run": ("run", "strides")}
 
 
@@ -31,7 +45,7 @@ def times_word(n: int) -> str:
 
 
 def count_noun(n: int, noun: str) -> str:
-    """"a squat", "three punches"."""
+    """ "a squat", "three punches"."""
     if n == 1:
         return f"an {noun}" if noun[0] in "aeiou" else f"a {noun}"
     plural = noun + "es" if noun.endswith(("s", "sh", "ch", "x", "z")) else noun + "s"
@@ -40,8 +54,11 @@ def count_noun(n: int, noun: str) -> str:
 
 def _reference(subject: str) -> tuple[str, str]:
     """(pronoun or definite noun, possessive) that refer back to the subject."""
-    return {"a man": ("he", "his"), "a woman": ("she", "her"),
-            "a figure": ("the figure", "its")}.get(subject, ("the person", "their"))
+    return {
+        "a man": ("he", "his"),
+        "a woman": ("she", "her"),
+        "a figure": ("the figure", "its"),
+    }.get(subject, ("the person", "their"))
 
 
 def _side(signed_degrees: float) -> str:
@@ -53,9 +70,16 @@ def _turn_size(degrees: float) -> tuple[list[str], list[str]]:
     rounded to the nearest eighth of a circle ("about" when that rounding is coarse)."""
     eighths = max(1, round(abs(degrees) / 45))
     about = "about " if abs(abs(degrees) - 45 * eighths) > 10 else ""
-    fractions = {1: ["a slight", "an eighth of a"], 2: ["a quarter", "a ninety-degree"],
-                 3: ["a three-eighths"], 4: ["a half", "a half-circle"], 5: ["a five-eighths"],
-                 6: ["a three-quarter"], 7: ["an almost full"], 8: ["a full"]}
+    fractions = {
+        1: ["a slight", "an eighth of a"],
+        2: ["a quarter", "a ninety-degree"],
+        3: ["a three-eighths"],
+        4: ["a half", "a half-circle"],
+        5: ["a five-eighths"],
+        6: ["a three-quarter"],
+        7: ["an almost full"],
+        8: ["a full"],
+    }
     amount = spoken_number(45 * eighths) if eighths <= 8 else str(45 * eighths)
     amounts = [f"{about}{amount} degrees"]
     if eighths == 2:
@@ -73,14 +97,24 @@ def _path(turn: float) -> list[str]:
     if size < 10:
         return ["", "in a straight line", "straight"]
     if size < 60:
-        return [f"veering slightly to the {side}", f"in a gentle curve to the {side}",
-                f"bearing slightly {side}"]
+        return [
+            f"veering slightly to the {side}",
+            f"in a gentle curve to the {side}",
+            f"bearing slightly {side}",
+        ]
     if size < 135:
-        return [f"in a curve to the {side}", f"curving to the {side}",
-                f"while turning {side}", f"along a path that bends to the {side}"]
+        return [
+            f"in a curve to the {side}",
+            f"curving to the {side}",
+            f"while turning {side}",
+            f"along a path that bends to the {side}",
+        ]
     if size < 225:
-        return [f"in a half circle to the {side}", f"in a u-turn to the {side}",
-                f"turning around to the {side}"]
+        return [
+            f"in a half circle to the {side}",
+            f"in a u-turn to the {side}",
+            f"turning around to the {side}",
+        ]
     return [f"in a circle to the {side}", f"in a full circle to the {side}"]
 
 
@@ -97,22 +131,32 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
         slots["path"] = _path(params["turn"])
     if "speed" in params:
         speed = params["speed"]
-        slots["speed"] = {"slow": ["slowly", "at a slow pace", "leisurely"],
-                          "normal": ["", "at a normal pace", "at a steady pace"],
-                          "fast": ["quickly", "at a fast pace", "briskly"]}[speed]
-        slots["speed_adv"] = {"slow": ["slowly"], "normal": ["", "steadily"],
-                              "fast": ["quickly", "rapidly"]}[speed]
-        slots["speed_adj"] = {"slow": ["slow", "gentle"], "normal": ["steady", "normal"],
-                              "fast": ["fast", "quick"]}[speed]
-        slots["step_adj"] = {"slow": ["small", "slow"], "normal": [""],
-                             "fast": ["quick", "big"]}[speed]
+        slots["speed"] = {
+            "slow": ["slowly", "at a slow pace", "leisurely"],
+            "normal": ["", "at a normal pace", "at a steady pace"],
+            "fast": ["quickly", "at a fast pace", "briskly"],
+        }[speed]
+        slots["speed_adv"] = {
+            "slow": ["slowly"],
+            "normal": ["", "steadily"],
+            "fast": ["quickly", "rapidly"],
+        }[speed]
+        slots["speed_adj"] = {
+            "slow": ["slow", "gentle"],
+            "normal": ["steady", "normal"],
+            "fast": ["fast", "quick"],
+        }[speed]
+        slots["step_adj"] = {"slow": ["small", "slow"], "normal": [""], "fast": ["quick", "big"]}[
+            speed
+        ]
     if "direction" in params and primitive != "spin":
         direction = params["direction"]
-        slots["dir"] = {"forward": ["forward", "forwards", "ahead"],
-                        "backward": ["backward", "backwards"],
-                        "left": ["to the left", "sideways to the left", "leftward"],
-                        "right": ["to the right", "sideways to the right", "rightward"],
-                        }[direction]
+        slots["dir"] = {
+            "forward": ["forward", "forwards", "ahead"],
+            "backward": ["backward", "backwards"],
+            "left": ["to the left", "sideways to the left", "leftward"],
+            "right": ["to the right", "sideways to the right", "rightward"],
+        }[direction]
         if direction in ("left", "right"):
             slots["lateral"] = [f"to the {direction}", direction]
     if "angle" in params:
@@ -131,8 +175,9 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
     if primitive == "jumping_jacks":
         slots["star_reps"] = [count_noun(params["count"], "star jump")]
     if primitive == "jump":
-        slots["jump_dir"] = (["forward", "forwards", "ahead"] if params["forward"]
-                             else ["in place", "on the spot"])
+        slots["jump_dir"] = (
+            ["forward", "forwards", "ahead"] if params["forward"] else ["in place", "on the spot"]
+        )
     if "hand" in params:
         hand = params["hand"]
         if hand == "both":
@@ -141,16 +186,16 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
         else:
             slots["hand"] = [f"the {hand} hand", f"{possessive} {hand} hand"]
             slots["arm"] = [f"the {hand} arm", f"{possessive} {hand} arm"]
-            slots["fist"] = [f"the {hand} fist", f"{possessive} {hand} fist",
-                             f"the {hand} hand"]
+            slots["fist"] = [f"the {hand} fist", f"{possessive} {hand} fist", f"the {hand} hand"]
             slots["side"] = [hand]
             if "count" in params:
                 slots["side_reps"] = [count_noun(params["count"], f"{hand} punch")]
     if "at" in params:
-        slots["point_at"] = {"forward": ["forward", "ahead", "straight ahead"],
-                             "up": ["up", "upward", "at the sky"],
-                             "sideways": [f"to the {params['hand']}",
-                                          f"out to the {params['hand']} side"]}[params["at"]]
+        slots["point_at"] = {
+            "forward": ["forward", "ahead", "straight ahead"],
+            "up": ["up", "upward", "at the sky"],
+            "sideways": [f"to the {params['hand']}", f"out to the {params['hand']} side"],
+        }[params["at"]]
     if "foot" in params:
         foot = params["foot"]
         slots["leg"] = [f"the {foot} leg", f"{possessive} {foot} leg", f"the {foot} foot"]
@@ -158,8 +203,11 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
     if "seconds" in params:
         seconds = round(params["seconds"])
         words = number_word(seconds)
-        slots["secs"] = (["a moment", "a second"] if seconds <= 1
-                         else [f"{words} seconds", f"about {words} seconds"])
+        slots["secs"] = (
+            ["a moment", "a second"]
+            if seconds <= 1
+            else [f"{words} seconds", f"about {words} seconds"]
+        )
     return slots
 
 
@@ -194,8 +242,9 @@ def _choose(options: Sequence[Template], rng: np.random.Generator) -> Template:
     return options[int(rng.integers(len(options)))]
 
 
-def render(template: Template, primitive: str, params: dict, rng: np.random.Generator,
-           subject: str) -> tuple[str, str]:
+def render(
+    template: Template, primitive: str, params: dict, rng: np.random.Generator, subject: str
+) -> tuple[str, str]:
     """A template as a finite verb phrase ("walks forward") and a gerund ("walking forward")."""
     slots = _slots(primitive, params, _reference(subject)[1])
     filled = template.text.format_map(_Choices(slots, rng))
@@ -204,8 +253,9 @@ def render(template: Template, primitive: str, params: dict, rng: np.random.Gene
     return _tidy(finite), _tidy(gerund)
 
 
-def _phrase(segment: Segment, rng: np.random.Generator, pool: str,
-            subject: str) -> tuple[str, str, str]:
+def _phrase(
+    segment: Segment, rng: np.random.Generator, pool: str, subject: str
+) -> tuple[str, str, str]:
     fitting = [t for t in templates(segment.primitive, pool) if t.fits(segment.params)]
     if not fitting:
         raise ValueError(f"no {pool} caption template fits {segment.primitive} {segment.params}")
@@ -213,16 +263,16 @@ def _phrase(segment: Segment, rng: np.random.Generator, pool: str,
     return (template.id,) + render(template, segment.primitive, segment.params, rng, subject)
 
 
-def caption_segment(segment: Segment, rng: np.random.Generator,
-                    pool: str = "train") -> Sentence:
+def caption_segment(segment: Segment, rng: np.random.Generator, pool: str = "train") -> Sentence:
     """One segment as a sentence: "a person waves with the right hand."."""
     subject = SUBJECTS[int(rng.integers(len(SUBJECTS)))]
     template_id, finite, _ = _phrase(segment, rng, pool, subject)
     return Sentence(f"{subject} {finite}.", (template_id,))
 
 
-def caption_program(segments: Sequence[Segment], rng: np.random.Generator,
-                    pool: str = "train") -> Sentence:
+def caption_program(
+    segments: Sequence[Segment], rng: np.random.Generator, pool: str = "train"
+) -> Sentence:
     """A whole program as one sentence, its segments in order, joined by joiner templates
     from the same pool (joiners are pooled too, so held-out captions also join unseen)."""
     if not segments:

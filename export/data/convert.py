@@ -1,5 +1,6 @@
 """Bring your own motion: joint-position clips (.npy), BVH files and DeepMimic motions ->
 a HumanML3D-layout folder."""
+
 from __future__ import annotations
 
 import hashlib
@@ -14,12 +15,19 @@ import numpy as np
 from mogo.export.data.normalization import feature_statistics
 from mogo.motion.deepmimic import is_deepmimic
 from mogo.motion.features import joints_to_features
-from mogo.motion.mocap import (BODY_LENGTH_RANGE, UNITS, body_length, check_coordinates,
-                               check_length, read_mocap, resample)
+from mogo.motion.mocap import (
+    BODY_LENGTH_RANGE,
+    UNITS,
+    body_length,
+    check_coordinates,
+    check_length,
+    read_mocap,
+    resample,
+)
 from mogo.motion.rigs import Source
 from mogo.motion.skeleton import SKELETONS, SMPL_22, Skeleton
-from mogo.progress import Progress
 from mogo.motion.untrusted import read_npy
+from mogo.progress import Progress
 
 SPLIT_FRACTIONS = (("train", 0.80), ("val", 0.05), ("test", 0.15))
 
@@ -42,6 +50,7 @@ MOCAP_SUFFIXES = (".bvh", ".txt", ".json")  # .txt: a DeepMimic motion, or a cli
 class ClipReader:
     """How a folder's clips are read: the skeleton, the .npy clips' frame rate (None: the
     skeleton's), the rig map of BVH files whose joint names no built-in map knows."""
+
     skeleton: Skeleton
     source_fps: float | None = None
     mapping: dict[str, Source] | None = None
@@ -55,8 +64,10 @@ class ClipReader:
             check_length(path, len(joints), fps)
         else:
             if self.skeleton is not SMPL_22:
-                raise ValueError(f"{path}: motion capture converts onto the humanml3d "
-                                 f"skeleton only, not {self.skeleton.name}")
+                raise ValueError(
+                    f"{path}: motion capture converts onto the humanml3d "
+                    f"skeleton only, not {self.skeleton.name}"
+                )
             clip = read_mocap(path, self.mapping)
             joints, fps, description = clip.joints, clip.fps, clip.description
             _check_joints(path, joints, self.skeleton)
@@ -78,9 +89,14 @@ def _is_motion(path: Path) -> bool:
         return is_deepmimic(handle.read(4096).decode("utf-8", errors="replace"))
 
 
-def convert_joint_folder(joints_dir: Path, out_dir: Path, skeleton_name: str = "humanml3d",
-                         source_fps: float | None = None, progress: bool = True,
-                         mapping: dict[str, Source] | None = None) -> None:
+def convert_joint_folder(
+    joints_dir: Path,
+    out_dir: Path,
+    skeleton_name: str = "humanml3d",
+    source_fps: float | None = None,
+    progress: bool = True,
+    mapping: dict[str, Source] | None = None,
+) -> None:
     """Convert every clip in `joints_dir` (see clip_files; .npy: T x J x 3, metres, Y up).
 
     Writes new_joint_vecs/, new_joints/, Mean.npy, Std.npy and train/val/test.txt; a caption
@@ -90,8 +106,10 @@ def convert_joint_folder(joints_dir: Path, out_dir: Path, skeleton_name: str = "
     half-written folder; an `out_dir` that holds files is refused.
     """
     if source_fps is not None and not (math.isfinite(source_fps) and source_fps >= 1):
-        raise ValueError(f"the source frame rate (--fps) must be a number of frames per second, "
-                         f"at least 1, got {source_fps}")
+        raise ValueError(
+            f"the source frame rate (--fps) must be a number of frames per second, "
+            f"at least 1, got {source_fps}"
+        )
     reader = ClipReader(SKELETONS[skeleton_name], source_fps, mapping)
     if not joints_dir.is_dir():
         raise NotADirectoryError(f"joint folder not found: {joints_dir}")
@@ -99,8 +117,10 @@ def convert_joint_folder(joints_dir: Path, out_dir: Path, skeleton_name: str = "
     if not files:
         raise ValueError(f"no .npy, .bvh or DeepMimic motion files in {joints_dir}")
     if out_dir.is_file() or (out_dir.is_dir() and any(out_dir.iterdir())):
-        raise ValueError(f"{out_dir}: exists and is not an empty folder; give a new --out "
-                         "(nothing is overwritten)")
+        raise ValueError(
+            f"{out_dir}: exists and is not an empty folder; give a new --out "
+            "(nothing is overwritten)"
+        )
     for path in files:  # every clip checked before the long part starts
         description = reader.read(path)[1]
         if description:
@@ -121,8 +141,9 @@ def convert_joint_folder(joints_dir: Path, out_dir: Path, skeleton_name: str = "
     print(f"converted {len(files)} clips into {out_dir} ({counts})")
 
 
-def _convert_into(out_dir: Path, files: list[Path], reader: ClipReader,
-                  progress: bool) -> dict[str, list[str]]:
+def _convert_into(
+    out_dir: Path, files: list[Path], reader: ClipReader, progress: bool
+) -> dict[str, list[str]]:
     for sub in ("new_joint_vecs", "new_joints", "texts"):
         (out_dir / sub).mkdir()
     splits: dict[str, list[str]] = {name: [] for name, _ in SPLIT_FRACTIONS}
@@ -136,8 +157,9 @@ def _convert_into(out_dir: Path, files: list[Path], reader: ClipReader,
         bar.close()
 
     mean, std = feature_statistics(
-        np.load(out_dir / "new_joint_vecs" / f"{i}.npy") for i in splits["train"] or
-        [p.stem for p in files])
+        np.load(out_dir / "new_joint_vecs" / f"{i}.npy")
+        for i in splits["train"] or [p.stem for p in files]
+    )
     np.save(out_dir / "Mean.npy", mean)
     np.save(out_dir / "Std.npy", std)
     for name, ids in splits.items():
@@ -163,12 +185,13 @@ def read_clip(path: Path, skeleton: Skeleton) -> np.ndarray:
     the wrong shape, not finite numbers, or not in metres (judged by the body's size)."""
     joints = read_npy(path)  # its size checked against the file's before reading
     if not (np.issubdtype(joints.dtype, np.floating) or np.issubdtype(joints.dtype, np.integer)):
-        raise ValueError(f"{path}: holds {joints.dtype} values, expected joint positions "
-                         "(numbers)")
+        raise ValueError(f"{path}: holds {joints.dtype} values, expected joint positions (numbers)")
     expected = (skeleton.num_joints, 3)
     if joints.ndim != 3 or joints.shape[1:] != expected:
-        raise ValueError(f"{path}: shape {joints.shape}, expected (T, {expected[0]}, 3) for the "
-                         f"{skeleton.name} skeleton (--skeleton)")
+        raise ValueError(
+            f"{path}: shape {joints.shape}, expected (T, {expected[0]}, 3) for the "
+            f"{skeleton.name} skeleton (--skeleton)"
+        )
     if len(joints) < 2:
         raise ValueError(f"{path}: {len(joints)} frame(s); a clip needs at least 2")
     joints = joints.astype(np.float64)
@@ -187,9 +210,17 @@ def _check_metres(path: Path, joints: np.ndarray, skeleton: Skeleton) -> None:
     low, high = BODY_LENGTH_RANGE
     if low <= body <= high:
         return
-    fits = [(abs(math.log(body / factor / 1.5)), unit, factor) for unit, factor in UNITS[1:]
-            if body > 0 and low <= body / factor <= high]
-    hint = (f"; in {min(fits)[1]}? divide by {min(fits)[2]:.4g}" if fits
-            else "; the joints must be in metres")
-    raise ValueError(f"{path}: the body measures {body:.3g} from ankle to head along the "
-                     f"bones, a person {low:g} to {high:g} m{hint}")
+    fits = [
+        (abs(math.log(body / factor / 1.5)), unit, factor)
+        for unit, factor in UNITS[1:]
+        if body > 0 and low <= body / factor <= high
+    ]
+    hint = (
+        f"; in {min(fits)[1]}? divide by {min(fits)[2]:.4g}"
+        if fits
+        else "; the joints must be in metres"
+    )
+    raise ValueError(
+        f"{path}: the body measures {body:.3g} from ankle to head along the "
+        f"bones, a person {low:g} to {high:g} m{hint}"
+    )

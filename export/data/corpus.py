@@ -10,6 +10,7 @@ go in the same split as their originals, as in HumanML3D.
 Two corpus versions: v1 (17 primitives, the shipped bundle's corpus, byte for byte what it
 was) and v2 (39 primitives, performers whose steps vary, animator.CORPORA).
 """
+
 from __future__ import annotations
 
 import json
@@ -21,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.export.data.animator import (CORPORA, DEFAULT_CORPUS, Segment, animate,
-                                       sample_segment)
+from mogo.export.data.animator import CORPORA, DEFAULT_CORPUS, Segment, animate, sample_segment
 from mogo.export.data.animator_body import FPS
 from mogo.export.data.caption_templates import JOINERS, TEMPLATES
 from mogo.export.data.captions import caption_program, caption_segment
@@ -47,6 +47,7 @@ PARAPHRASE_TRIES = 10  # draws to find a caption not already on the clip
 @dataclass(frozen=True)
 class Plan:
     """What every clip needs to know about the corpus."""
+
     out: Path
     seed: int
     corpus: str
@@ -72,14 +73,19 @@ def heldout_pairs(seed: int, corpus: str = DEFAULT_CORPUS) -> list[tuple[str, st
 def mirror_segment(segment: Segment) -> Segment:
     """The left-right mirror of a segment: sides swapped, turns reversed."""
     swap = {"left": "right", "right": "left"}
-    params = {name: -value if name in ("turn", "angle")
-              else swap.get(value, value) if isinstance(value, str) else value
-              for name, value in segment.params.items()}
+    params = {
+        name: -value
+        if name in ("turn", "angle")
+        else swap.get(value, value)
+        if isinstance(value, str)
+        else value
+        for name, value in segment.params.items()
+    }
     return Segment(segment.primitive, params)
 
 
 def _pairs(segments: list[Segment]) -> set[tuple[str, str]]:
-    return {(a.primitive, b.primitive) for a, b in zip(segments[:-1], segments[1:])}
+    return {(a.primitive, b.primitive) for a, b in zip(segments[:-1], segments[1:], strict=True)}
 
 
 def _draw_program(rng: np.random.Generator, plan: Plan, force_pair: bool) -> list[Segment]:
@@ -108,12 +114,12 @@ def _draw_clip(rng: np.random.Generator, plan: Plan, split: str):
         animation = animate(segments, rng, natural=plan.corpus != "v1")
         if MIN_FRAMES <= animation.joints.shape[0] <= MAX_FRAMES:
             return segments, animation, attempt
-    raise RuntimeError(f"no program within {MIN_FRAMES}-{MAX_FRAMES} frames "
-                       f"in {MAX_ATTEMPTS} draws")
+    raise RuntimeError(
+        f"no program within {MIN_FRAMES}-{MAX_FRAMES} frames in {MAX_ATTEMPTS} draws"
+    )
 
 
-def _captions(segments: list[Segment], spans, rng: np.random.Generator,
-              pool: str) -> list[dict]:
+def _captions(segments: list[Segment], spans, rng: np.random.Generator, pool: str) -> list[dict]:
     """WHOLE_CAPTIONS lines: whole-program paraphrases, and for multi-segment programs one
     line per segment with its time span; texts on one clip are distinct where possible."""
     whole = WHOLE_CAPTIONS if len(segments) == 1 else WHOLE_CAPTIONS - 1
@@ -125,13 +131,19 @@ def _captions(segments: list[Segment], spans, rng: np.random.Generator,
             if sentence.text not in seen:
                 break
         seen.add(sentence.text)
-        captions.append({"text": sentence.text, "template_ids": list(sentence.template_ids),
-                         "span": None})
+        captions.append(
+            {"text": sentence.text, "template_ids": list(sentence.template_ids), "span": None}
+        )
     if len(segments) > 1:
-        for segment, (start, end) in zip(segments, spans):
+        for segment, (start, end) in zip(segments, spans, strict=True):
             sentence = caption_segment(segment, rng, pool)
-            captions.append({"text": sentence.text, "template_ids": list(sentence.template_ids),
-                             "span": [int(start), int(end)]})
+            captions.append(
+                {
+                    "text": sentence.text,
+                    "template_ids": list(sentence.template_ids),
+                    "span": [int(start), int(end)],
+                }
+            )
     return captions
 
 
@@ -139,9 +151,12 @@ def _write_clip(plan: Plan, clip_id: str, joints: np.ndarray, program: dict) -> 
     features, canonical = joints_to_features(joints, SMPL_22)
     np.save(plan.out / "new_joint_vecs" / f"{clip_id}.npy", features)
     np.save(plan.out / "new_joints" / f"{clip_id}.npy", canonical)
-    lines = [format_caption_line(c["text"], *((c["span"][0] / FPS, c["span"][1] / FPS)
-                                             if c["span"] else (0.0, 0.0)))
-             for c in program["captions"]]
+    lines = [
+        format_caption_line(
+            c["text"], *((c["span"][0] / FPS, c["span"][1] / FPS) if c["span"] else (0.0, 0.0))
+        )
+        for c in program["captions"]
+    ]
     (plan.out / "texts" / f"{clip_id}.txt").write_text("\n".join(lines) + "\n")
     (plan.out / "programs" / f"{clip_id}.json").write_text(json.dumps(program, indent=1) + "\n")
 
@@ -162,24 +177,39 @@ def make_clip(index: int, plan: Plan) -> ClipResult:
     captions = _captions(segments, spans, rng, pool)
     clip_id = f"{index:06d}"
     program = {
-        "id": clip_id, "mirror_of": None, "seed": [plan.seed, index], "split": split,
-        "frames": int(animation.joints.shape[0]), "fps": FPS, "caption_pool": pool,
+        "id": clip_id,
+        "mirror_of": None,
+        "seed": [plan.seed, index],
+        "split": split,
+        "frames": int(animation.joints.shape[0]),
+        "fps": FPS,
+        "caption_pool": pool,
         "heldout_pairs": sorted(map(list, _pairs(segments) & plan.heldout_pairs)),
-        "segments": [{"primitive": s.primitive, "params": s.params, "span": list(span)}
-                     for s, span in zip(segments, spans)],
+        "segments": [
+            {"primitive": s.primitive, "params": s.params, "span": list(span)}
+            for s, span in zip(segments, spans, strict=True)
+        ],
         "captions": captions,
     }
     _write_clip(plan, clip_id, animation.joints, program)
     mirrored = dict(program, id="M" + clip_id, mirror_of=clip_id)
-    mirrored["segments"] = [dict(s, params=mirror_segment(seg).params)
-                            for s, seg in zip(program["segments"], segments)]
+    mirrored["segments"] = [
+        dict(s, params=mirror_segment(seg).params)
+        for s, seg in zip(program["segments"], segments, strict=True)
+    ]
     mirrored["captions"] = [dict(c, text=mirror_text(c["text"])) for c in captions]
     _write_clip(plan, "M" + clip_id, mirror_joints(animation.joints, SMPL_22), mirrored)
     return ClipResult(clip_id, split, attempts)
 
 
-def synthesize_corpus(out: Path, num_clips: int, seed: int, progress: bool = True,
-                      workers: int | None = None, corpus: str = DEFAULT_CORPUS) -> dict:
+def synthesize_corpus(
+    out: Path,
+    num_clips: int,
+    seed: int,
+    progress: bool = True,
+    workers: int | None = None,
+    corpus: str = DEFAULT_CORPUS,
+) -> dict:
     """Write `num_clips` clips of corpus version `corpus` and their mirrors to `out` (which
     must be new or empty); returns the corpus summary also written as corpus.json."""
     out = Path(out)
@@ -205,21 +235,28 @@ def synthesize_corpus(out: Path, num_clips: int, seed: int, progress: bool = Tru
             bar.update()
     elapsed = bar.close()
 
-    mean, std = feature_statistics(np.load(out / "new_joint_vecs" / f"{clip_id}.npy")
-                                   for clip_id in splits["train"] or splits["test"])
+    mean, std = feature_statistics(
+        np.load(out / "new_joint_vecs" / f"{clip_id}.npy")
+        for clip_id in splits["train"] or splits["test"]
+    )
     np.save(out / "Mean.npy", mean)
     np.save(out / "Std.npy", std)
     for name, ids in splits.items():
         (out / f"{name}.txt").write_text("".join(f"{i}\n" for i in ids))
     summary = {
-        "generator_version": GENERATOR_VERSION, "corpus": corpus, "seed": seed,
-        "clips": num_clips, "primitives": len(CORPORA[corpus]),
+        "generator_version": GENERATOR_VERSION,
+        "corpus": corpus,
+        "seed": seed,
+        "clips": num_clips,
+        "primitives": len(CORPORA[corpus]),
         "ids_per_split": {name: len(ids) for name, ids in splits.items()},
-        "fps": FPS, "frames": [MIN_FRAMES, MAX_FRAMES],
+        "fps": FPS,
+        "frames": [MIN_FRAMES, MAX_FRAMES],
         "program_draws_per_clip": round(attempts / num_clips, 3),
         "heldout_pairs": [list(p) for p in sorted(plan.heldout_pairs)],
-        "heldout_templates": sorted({t.id for name in CORPORA[corpus] for t in TEMPLATES[name]
-                                     if t.heldout})
+        "heldout_templates": sorted(
+            {t.id for name in CORPORA[corpus] for t in TEMPLATES[name] if t.heldout}
+        )
         + [j.id for j in JOINERS if j.heldout],
         "heldout_caption_share_of_test": HELDOUT_CAPTION_SHARE,
         "std_floor": STD_FLOOR,
@@ -228,8 +265,9 @@ def synthesize_corpus(out: Path, num_clips: int, seed: int, progress: bool = Tru
     (out / "corpus.json").write_text(json.dumps(summary, indent=1) + "\n")
     if progress:
         counts = ", ".join(f"{len(ids)} {name}" for name, ids in splits.items())
-        print(f"wrote {num_clips} clips and their mirrors to {out} ({counts} IDs) "
-              f"in {elapsed:.0f}s")
+        print(
+            f"wrote {num_clips} clips and their mirrors to {out} ({counts} IDs) in {elapsed:.0f}s"
+        )
     return summary
 
 

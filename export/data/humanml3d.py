@@ -8,6 +8,7 @@ KIT-ML, `mogo data synth` or `mogo data convert`) for training, evaluation and `
 A caption line is `caption#word/POS ...#start#end`. Everything that breaks the layout is a
 DatasetError naming the file (and the line).
 """
+
 from __future__ import annotations
 
 import math
@@ -72,13 +73,19 @@ def parse_caption_line(line: str, fps: float, where: str) -> Caption:
     return Caption(text.strip(), tuple(tokens), int(start * fps), int(end * fps))
 
 
-def format_caption_line(text: str, start_seconds: float = 0.0, end_seconds: float = 0.0,
-                        tokens: tuple[tuple[str, str], ...] = ()) -> str:
+def format_caption_line(
+    text: str,
+    start_seconds: float = 0.0,
+    end_seconds: float = 0.0,
+    tokens: tuple[tuple[str, str], ...] = (),
+) -> str:
     """One text-file line; 0.0#0.0 marks a caption of the whole clip."""
     if "#" in text or "\n" in text:
         raise ValueError(f"a caption may not contain '#' or a newline: {text!r}")
     token_field = " ".join(f"{word}/{pos}" for word, pos in tokens)
-    return f"{text}#{token_field}#{float(round(start_seconds, 3))!r}#{float(round(end_seconds, 3))!r}"
+    return (
+        f"{text}#{token_field}#{float(round(start_seconds, 3))!r}#{float(round(end_seconds, 3))!r}"
+    )
 
 
 class HumanML3DFolder:
@@ -93,18 +100,28 @@ class HumanML3DFolder:
     exported with.
     """
 
-    def __init__(self, root: str | os.PathLike, root_contact_scale: float = 1.0,
-                 splits: tuple[str, ...] = SPLITS):
+    def __init__(
+        self,
+        root: str | os.PathLike,
+        root_contact_scale: float = 1.0,
+        splits: tuple[str, ...] = SPLITS,
+    ):
         self.root = Path(root)
         if not self.root.is_dir():
             raise DatasetError(f"{self.root}: dataset folder not found")
         unknown = [name for name in splits if name not in SPLITS]
         if unknown:
             raise ValueError(f"unknown split {unknown[0]!r}; expected one of {', '.join(SPLITS)}")
-        missing = [f"{self.root / sub}: folder missing (HumanML3D layout)"
-                   for sub in ("new_joint_vecs", "texts") if not (self.root / sub).is_dir()]
-        missing += [f"{self.root / f'{name}.txt'}: split file missing" for name in splits
-                    if not (self.root / f"{name}.txt").is_file()]
+        missing = [
+            f"{self.root / sub}: folder missing (HumanML3D layout)"
+            for sub in ("new_joint_vecs", "texts")
+            if not (self.root / sub).is_dir()
+        ]
+        missing += [
+            f"{self.root / f'{name}.txt'}: split file missing"
+            for name in splits
+            if not (self.root / f"{name}.txt").is_file()
+        ]
         if missing:  # all of them at once: a folder that is not the layout at all says so
             raise DatasetError("; ".join(missing))
         if not root_contact_scale > 0:
@@ -123,8 +140,7 @@ class HumanML3DFolder:
 
     def ids(self, split: str) -> list[str]:
         if split not in self._splits:
-            raise ValueError(f"unknown split {split!r}; expected one of "
-                             f"{', '.join(self._splits)}")
+            raise ValueError(f"unknown split {split!r}; expected one of {', '.join(self._splits)}")
         if not self._splits[split]:
             raise DatasetError(f"{self.root / f'{split}.txt'}: lists no clip IDs")
         return list(self._splits[split])
@@ -136,8 +152,10 @@ class HumanML3DFolder:
             raise DatasetError(f"{path}: no such clip {clip_id!r}")
         features = _load_array(path)
         if features.ndim != 2 or features.shape[1] != self.feature_dim or len(features) == 0:
-            raise DatasetError(f"{path}: expected (T, {self.feature_dim}) features with T >= 1, "
-                               f"got shape {features.shape}")
+            raise DatasetError(
+                f"{path}: expected (T, {self.feature_dim}) features with T >= 1, "
+                f"got shape {features.shape}"
+            )
         return features
 
     def joints(self, clip_id: str) -> np.ndarray:
@@ -145,8 +163,10 @@ class HumanML3DFolder:
         path = self.root / "new_joints" / f"{clip_id}.npy"
         joints = _load_array(path)
         if joints.shape[1:] != (self.skeleton.num_joints, 3):
-            raise DatasetError(f"{path}: expected (T, {self.skeleton.num_joints}, 3) joints, "
-                               f"got shape {joints.shape}")
+            raise DatasetError(
+                f"{path}: expected (T, {self.skeleton.num_joints}, 3) joints, "
+                f"got shape {joints.shape}"
+            )
         return joints
 
     def has_captions(self, clip_id: str) -> bool:
@@ -157,8 +177,11 @@ class HumanML3DFolder:
         if not path.is_file():
             raise DatasetError(f"{path}: no caption file for clip {clip_id!r}")
         lines = path.read_text(encoding="utf-8").splitlines()
-        return [parse_caption_line(line, self.fps, f"{path}:{number}")
-                for number, line in enumerate(lines, 1) if line.strip()]
+        return [
+            parse_caption_line(line, self.fps, f"{path}:{number}")
+            for number, line in enumerate(lines, 1)
+            if line.strip()
+        ]
 
     def first_caption(self, clip_id: str) -> str:
         """The text of the clip's first caption ("" where it has none)."""
@@ -174,27 +197,31 @@ class HumanML3DFolder:
 
     def _checked(self, x: np.ndarray) -> np.ndarray:
         if x.shape[-1] != self.feature_dim:
-            raise ValueError(f"expected {self.feature_dim}-dim features, "
-                             f"got shape {tuple(x.shape)}")
+            raise ValueError(
+                f"expected {self.feature_dim}-dim features, got shape {tuple(x.shape)}"
+            )
         return x
 
     def _statistics(self, root_contact_scale: float) -> tuple[Skeleton, np.ndarray, np.ndarray]:
         """Mean.npy's size names the skeleton; Std.npy must match it and be positive."""
         mean = _load_array(self.root / "Mean.npy")
         if mean.ndim != 1:
-            raise DatasetError(f"{self.root / 'Mean.npy'}: expected a vector (D,), "
-                               f"got shape {mean.shape}")
+            raise DatasetError(
+                f"{self.root / 'Mean.npy'}: expected a vector (D,), got shape {mean.shape}"
+            )
         try:
             skeleton = skeleton_for_feature_dim(mean.shape[0])
         except ValueError as error:
             raise DatasetError(f"{self.root / 'Mean.npy'}: {error}") from None
         std = _load_array(self.root / "Std.npy")
         if std.shape != mean.shape:
-            raise DatasetError(f"{self.root / 'Std.npy'}: shape {std.shape} does not match "
-                               f"Mean.npy's {mean.shape}")
+            raise DatasetError(
+                f"{self.root / 'Std.npy'}: shape {std.shape} does not match Mean.npy's {mean.shape}"
+            )
         if np.any(std <= 0):
-            raise DatasetError(f"{self.root / 'Std.npy'}: {int(np.sum(std <= 0))} entries are "
-                               f"zero or negative")
+            raise DatasetError(
+                f"{self.root / 'Std.npy'}: {int(np.sum(std <= 0))} entries are zero or negative"
+            )
         std[:4] /= root_contact_scale  # std is a fresh float32 copy from _load_array
         std[-4:] /= root_contact_scale
         return skeleton, mean, std
@@ -212,8 +239,9 @@ class HumanML3DFolder:
         missing = [i for i in ids if i not in available]
         if missing:
             shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
-            raise DatasetError(f"{path}: {len(missing)} listed IDs have no "
-                               f"new_joint_vecs/ID.npy: {shown}")
+            raise DatasetError(
+                f"{path}: {len(missing)} listed IDs have no new_joint_vecs/ID.npy: {shown}"
+            )
         return ids
 
 

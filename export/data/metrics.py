@@ -8,6 +8,7 @@ Gaussians; Diversity the mean distance of 300 random pairs of motions; MultiModa
 distance of 10 random pairs among the generations of one caption. Each is repeated (20 times)
 and reported as mean and 95% interval, 1.96 * std / sqrt(times).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -50,8 +51,13 @@ def pairwise_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(squared, 0, None))
 
 
-def r_precision(text: np.ndarray, motion: np.ndarray, rng: np.random.Generator,
-                batch: int = R_PRECISION_BATCH, top_k: int = 3) -> np.ndarray:
+def r_precision(
+    text: np.ndarray,
+    motion: np.ndarray,
+    rng: np.random.Generator,
+    batch: int = R_PRECISION_BATCH,
+    top_k: int = 3,
+) -> np.ndarray:
     """Top-1..top_k retrieval rates (top_k,): the pairs (text[i], motion[i]) are shuffled and cut
     into batches of `batch` (a last partial batch is dropped, as the standard loaders do); each
     caption ranks the batch's motions by distance and hits at k when its own is among the k
@@ -62,7 +68,7 @@ def r_precision(text: np.ndarray, motion: np.ndarray, rng: np.random.Generator,
     order = rng.permutation(len(text))
     hits, count = np.zeros(top_k), 0
     for first in range(0, len(order) - batch + 1, batch):
-        rows = order[first:first + batch]
+        rows = order[first : first + batch]
         distances = pairwise_distances(text[rows], motion[rows])
         own = np.diag(distances)[:, None]
         rank = (distances <= own).sum(1) - 1  # others at least as near as the own motion
@@ -77,37 +83,42 @@ def matching_score(text: np.ndarray, motion: np.ndarray) -> float:
     return float(np.linalg.norm(text - motion, axis=1).mean())
 
 
-def diversity(embeddings: np.ndarray, rng: np.random.Generator,
-              pairs: int = DIVERSITY_PAIRS) -> float:
+def diversity(
+    embeddings: np.ndarray, rng: np.random.Generator, pairs: int = DIVERSITY_PAIRS
+) -> float:
     """Mean distance between `pairs` random pairs of motions (two independent draws of indices
     without replacement, as in the reference code)."""
     embeddings = _checked(embeddings, "embeddings")
     if len(embeddings) < pairs:
-        raise ValueError(f"diversity over {pairs} pairs needs at least {pairs} motions, "
-                         f"got {len(embeddings)}")
+        raise ValueError(
+            f"diversity over {pairs} pairs needs at least {pairs} motions, got {len(embeddings)}"
+        )
     first = rng.choice(len(embeddings), pairs, replace=False)
     second = rng.choice(len(embeddings), pairs, replace=False)
     return float(np.linalg.norm(embeddings[first] - embeddings[second], axis=1).mean())
 
 
-def multimodality(embeddings: np.ndarray, rng: np.random.Generator,
-                  pairs: int = MULTIMODALITY_PAIRS) -> float:
+def multimodality(
+    embeddings: np.ndarray, rng: np.random.Generator, pairs: int = MULTIMODALITY_PAIRS
+) -> float:
     """embeddings (N captions, R generations, D): the mean distance of `pairs` random pairs of
     generations of the same caption, averaged over captions."""
     embeddings = np.asarray(embeddings, np.float64)
     if embeddings.ndim != 3 or embeddings.shape[1] < pairs:
-        raise ValueError(f"multimodality needs (captions, generations >= {pairs}, D) "
-                         f"embeddings, got shape {embeddings.shape}")
+        raise ValueError(
+            f"multimodality needs (captions, generations >= {pairs}, D) "
+            f"embeddings, got shape {embeddings.shape}"
+        )
     n, r = embeddings.shape[:2]
     first = np.stack([rng.choice(r, pairs, replace=False) for _ in range(n)])
     second = np.stack([rng.choice(r, pairs, replace=False) for _ in range(n)])
     rows = np.arange(n)[:, None]
-    return float(np.linalg.norm(embeddings[rows, first] - embeddings[rows, second],
-                                axis=-1).mean())
+    return float(np.linalg.norm(embeddings[rows, first] - embeddings[rows, second], axis=-1).mean())
 
 
-def repeat_with_interval(fn: Callable[[int], float | np.ndarray], times: int = REPEATS
-                         ) -> tuple[np.ndarray, np.ndarray]:
+def repeat_with_interval(
+    fn: Callable[[int], float | np.ndarray], times: int = REPEATS
+) -> tuple[np.ndarray, np.ndarray]:
     """fn(repeat index) -> a value (or an array of values); -> (mean, 95% interval) over
     `times` repeats, the interval 1.96 * std / sqrt(times) (population std, as the reference
     code's np.std)."""
@@ -127,6 +138,7 @@ def _checked(x: np.ndarray, name: str) -> np.ndarray:
 def _checked_pair(text: np.ndarray, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     text, motion = _checked(text, "text"), _checked(motion, "motion")
     if text.shape != motion.shape:
-        raise ValueError(f"text and motion embeddings differ in shape: {text.shape} and "
-                         f"{motion.shape}")
+        raise ValueError(
+            f"text and motion embeddings differ in shape: {text.shape} and {motion.shape}"
+        )
     return text, motion

@@ -4,6 +4,7 @@ people (none of the held-out paraphrases' key words, mogo.bench.quality.paraphra
 `mogo export --text` sets the repertoire threshold on the val captions and INSIDE against
 CALIBRATION; the bench (mogo.bench.quality.text_encoder) measures its error rates on TEST and
 the held-out paraphrases, which no threshold ever saw."""
+
 from __future__ import annotations
 
 # free phrasings of the repertoire -> a caption in the corpus's words (the adapter's noise was
@@ -16,8 +17,7 @@ INSIDE = {
     "a man goes for a jog in a circle": "a man jogs in a circle.",
     "a person jogs slowly backwards": "a person jogs backward slowly.",
     "a lady turns around to face the other way": "a woman turns around to the left.",
-    "a man rotates his body a quarter turn to the right":
-        "a man turns ninety degrees to the right.",
+    "a man rotates his body a quarter turn to the right": "a man turns ninety degrees to the right.",
     "the dancer spins around once": "a person spins around to the left.",
     "someone leaps into the air twice": "someone jumps twice.",
     "a child hops up and down on the spot": "a person jumps on the spot.",

@@ -2,6 +2,7 @@
 
 Runtime dependencies only (no torch), so it works after a plain `pip install .`.
 """
+
 from __future__ import annotations
 
 from pathlib import Path

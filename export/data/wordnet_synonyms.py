@@ -14,6 +14,7 @@ counts, so a word whose usual meaning is another stays out ("crouch" is first "s
 "squat"). Verbs the hand-written lists (mogo.align_words.VERBS) already have are left to
 them.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,7 +39,7 @@ HEADS = {
     "stretch": ([("stretch", 2)], 0),
     "idle": ([("stand", 1)], 0),
 }
-NOTICE = '''WordNet Release 3.0. This software and database is being provided to you, the LICENSEE,
+NOTICE = """WordNet Release 3.0. This software and database is being provided to you, the LICENSEE,
 by Princeton University under the following license. By obtaining, using and/or copying
 this software and database, you agree that you have read, understood, and will comply with
 these terms and conditions.: Permission to use, copy, modify and distribute this software
@@ -55,7 +56,7 @@ DOCUMENTATION WILL NOT INFRINGE ANY THIRD PARTY PATENTS, COPYRIGHTS, TRADEMARKS 
 RIGHTS. The name of Princeton University or Princeton may not be used in advertising or
 publicity pertaining to distribution of the software and/or database. Title to copyright
 in this software, database and any associated documentation shall at all times remain with
-Princeton University and LICENSEE agrees to preserve same.'''
+Princeton University and LICENSEE agrees to preserve same."""
 
 
 def read_index(wordnet: Path, pos: str) -> dict[str, tuple[list[str], int]]:
@@ -79,10 +80,12 @@ def read_synsets(wordnet: Path, pos: str) -> dict[str, tuple[list[str], list[str
             parts = line.split("|")[0].split()
             count = int(parts[3], 16)
             k = 4 + 2 * count
-            pointers = [parts[k + 1 + 4 * i:k + 5 + 4 * i] for i in range(int(parts[k]))]
-            synsets[parts[0]] = ([parts[4 + 2 * i] for i in range(count)],
-                                 [p[1] for p in pointers if p[0] == "~" and p[2] == pos[0]],
-                                 parts[1])
+            pointers = [parts[k + 1 + 4 * i : k + 5 + 4 * i] for i in range(int(parts[k]))]
+            synsets[parts[0]] = (
+                [parts[4 + 2 * i] for i in range(count)],
+                [p[1] for p in pointers if p[0] == "~" and p[2] == pos[0]],
+                parts[1],
+            )
     return synsets
 
 
@@ -125,25 +128,32 @@ def people(wordnet: Path) -> tuple[list[str], list[str]]:
             seen.add(offset)
             frontier += synsets[offset][1]
     kinds = {w for offset in seen for w in synsets[offset][0]}
-    return (sorted(w for w in kinds if w.isalpha() and w.islower() and nouns.get(w, (0, 0))[1]),
-            sorted(w for w, (_, tagged) in read_index(wordnet, "adj").items()
-                   if w.isalpha() and tagged > 2))
+    return (
+        sorted(w for w in kinds if w.isalpha() and w.islower() and nouns.get(w, (0, 0))[1]),
+        sorted(
+            w for w, (_, tagged) in read_index(wordnet, "adj").items() if w.isalpha() and tagged > 2
+        ),
+    )
 
 
 def render_people(nouns: list[str], adjectives: list[str], command: str) -> str:
     notice = "\n".join("# " + line for line in NOTICE.splitlines())
-    return (f'"""Kinds of people and adjectives, from WordNet 3.0 (generated: do not edit); the '
-            f"text\nadapter's training puts them in its captions' subjects. Regenerate with\n"
-            f"`{command}`\n(mogo.export.data.wordnet_synonyms says how)."
-            f'"""\n{notice}\n\nPEOPLE = {tuple(nouns)!r}\nADJECTIVES = {tuple(adjectives)!r}\n')
+    return (
+        f'"""Kinds of people and adjectives, from WordNet 3.0 (generated: do not edit); the '
+        f"text\nadapter's training puts them in its captions' subjects. Regenerate with\n"
+        f"`{command}`\n(mogo.export.data.wordnet_synonyms says how)."
+        f'"""\n{notice}\n\nPEOPLE = {tuple(nouns)!r}\nADJECTIVES = {tuple(adjectives)!r}\n'
+    )
 
 
 def render(table: dict[str, list[str]], command: str) -> str:
     notice = "\n".join("# " + line for line in NOTICE.splitlines())
     rows = "\n".join(f"    {primitive!r}: {tuple(verbs)!r}," for primitive, verbs in table.items())
-    return (f'"""Verbs by the primitive they ask for, from WordNet 3.0 (generated: do not edit).\n'
-            f"Regenerate with\n`{command}`\n(mogo.export.data.wordnet_synonyms says how)."
-            f'"""\n{notice}\n\nWORDNET_VERBS = {{\n{rows}\n}}\n')
+    return (
+        f'"""Verbs by the primitive they ask for, from WordNet 3.0 (generated: do not edit).\n'
+        f"Regenerate with\n`{command}`\n(mogo.export.data.wordnet_synonyms says how)."
+        f'"""\n{notice}\n\nWORDNET_VERBS = {{\n{rows}\n}}\n'
+    )
 
 
 def main() -> None:
@@ -156,13 +166,17 @@ def main() -> None:
     args = parser.parse_args()
     hand_written = {verb for verbs in VERBS.values() for verb in verbs}
     table = verb_table(args.wordnet, hand_written)
-    command = ("python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py \\\n"
-               "    --people-out export/data/wordnet_people.py")
+    command = (
+        "python -m mogo.export.data.wordnet_synonyms --out runtime/align_wordnet.py \\\n"
+        "    --people-out export/data/wordnet_people.py"
+    )
     nouns, adjectives = people(args.wordnet)
     args.out.write_text(render(table, command))
     args.people_out.write_text(render_people(nouns, adjectives, command))
-    print(f"wrote {args.out}: {sum(map(len, table.values()))} verbs; {args.people_out}: "
-          f"{len(nouns)} people, {len(adjectives)} adjectives")
+    print(
+        f"wrote {args.out}: {sum(map(len, table.values()))} verbs; {args.people_out}: "
+        f"{len(nouns)} people, {len(adjectives)} adjectives"
+    )
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ retrieval among many that R-precision measures), and there is no margin to tune.
 Its ONNX export, for `mogo.bench.quality.evaluator` to embed without torch, is in
 mogo.export.onnx.evaluator_graphs.
 """
+
 from __future__ import annotations
 
 import math
@@ -54,9 +55,19 @@ class EvaluatorConfig:
 
     @classmethod
     def tiny(cls, vocab_size: int, feature_dim: int = 263) -> EvaluatorConfig:
-        return cls(vocab_size, feature_dim, embed_dim=16, text_width=32, text_layers=1,
-                   text_heads=2, max_length=16, motion_width=32, motion_layers=1,
-                   motion_heads=2, dropout=0.0)
+        return cls(
+            vocab_size,
+            feature_dim,
+            embed_dim=16,
+            text_width=32,
+            text_layers=1,
+            text_heads=2,
+            max_length=16,
+            motion_width=32,
+            motion_layers=1,
+            motion_heads=2,
+            dropout=0.0,
+        )
 
 
 def downsampled_lengths(lengths: Tensor) -> Tensor:
@@ -73,10 +84,10 @@ class MotionEncoder(nn.Module):
         w = config.motion_width
         self.conv1 = nn.Conv1d(config.feature_dim, w, kernel_size=4, stride=2, padding=1)
         self.conv2 = nn.Conv1d(w, w, kernel_size=4, stride=2, padding=1)
-        self.position_embedding = nn.Parameter(
-            0.02 * torch.randn(config.max_frames // DOWN + 1, w))
-        self.layers = nn.ModuleList(TextLayer(w, config.motion_heads, config.dropout)
-                                    for _ in range(config.motion_layers))
+        self.position_embedding = nn.Parameter(0.02 * torch.randn(config.max_frames // DOWN + 1, w))
+        self.layers = nn.ModuleList(
+            TextLayer(w, config.motion_heads, config.dropout) for _ in range(config.motion_layers)
+        )
         self.ln_f = nn.LayerNorm(w)
         self.drop = nn.Dropout(config.dropout)
 
@@ -87,7 +98,7 @@ class MotionEncoder(nn.Module):
         x = F.gelu(self.conv2(x))
         mask = _mask(downsampled_lengths(lengths), x.shape[-1])  # (B, S) bool
         x = x.transpose(1, 2) * mask[..., None]
-        x = self.drop(x + self.position_embedding[:x.shape[1]])
+        x = self.drop(x + self.position_embedding[: x.shape[1]])
         for layer in self.layers:
             x = layer(x, mask)
         weights = mask[..., None].to(x.dtype)
@@ -104,9 +115,16 @@ class Evaluator(nn.Module):
     def __init__(self, config: EvaluatorConfig):
         super().__init__()
         self.config = config
-        self.text_encoder = SmallTextEncoder(SmallTextEncoderConfig(
-            config.vocab_size, config.text_width, config.text_layers, config.text_heads,
-            config.max_length, config.dropout))
+        self.text_encoder = SmallTextEncoder(
+            SmallTextEncoderConfig(
+                config.vocab_size,
+                config.text_width,
+                config.text_layers,
+                config.text_heads,
+                config.max_length,
+                config.dropout,
+            )
+        )
         self.motion_encoder = MotionEncoder(config)
         self.text_projection = nn.Linear(config.text_width, config.embed_dim)
         self.motion_projection = nn.Linear(config.motion_width, config.embed_dim)
@@ -114,15 +132,17 @@ class Evaluator(nn.Module):
 
     def embed_text(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor:
         """-> (B, embed_dim), unit length."""
-        return F.normalize(self.text_projection(self.text_encoder(token_ids, attention_mask)),
-                           dim=-1)
+        return F.normalize(
+            self.text_projection(self.text_encoder(token_ids, attention_mask)), dim=-1
+        )
 
     def embed_motion(self, features: Tensor, lengths: Tensor) -> Tensor:
         """Normalised features (B, T, D) and lengths (B,) -> (B, embed_dim), unit length."""
         return F.normalize(self.motion_projection(self.motion_encoder(features, lengths)), dim=-1)
 
-    def loss(self, token_ids: Tensor, attention_mask: Tensor, features: Tensor,
-             lengths: Tensor) -> tuple[Tensor, Tensor]:
+    def loss(
+        self, token_ids: Tensor, attention_mask: Tensor, features: Tensor, lengths: Tensor
+    ) -> tuple[Tensor, Tensor]:
         """Symmetric InfoNCE over the batch -> (loss, in-batch top-1 retrieval accuracy)."""
         text = self.embed_text(token_ids, attention_mask)
         motion = self.embed_motion(features, lengths)

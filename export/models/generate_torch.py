@@ -10,6 +10,7 @@ give the same tokens. With the cache, `window=W` bounds memory and step time: on
 holds more than the prefix and W steps, the oldest step slots are dropped (kept keys keep their
 absolute positions, so their distances stay exact). Until then the window changes nothing.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -21,22 +22,31 @@ from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
 
 
 @torch.no_grad()
-def generate(model: T2M, prompt_embedding: torch.Tensor, num_frames: int | None = None,
-             max_frames: int = MAX_FRAMES, sampling: Sampling = Sampling(), seed: int = 0,
-             use_cache: bool = True, window: int | None = None) -> np.ndarray:
+def generate(
+    model: T2M,
+    prompt_embedding: torch.Tensor,
+    num_frames: int | None = None,
+    max_frames: int = MAX_FRAMES,
+    sampling: Sampling = Sampling(),
+    seed: int = 0,
+    use_cache: bool = True,
+    window: int | None = None,
+) -> np.ndarray:
     """prompt_embedding (text_dim,) -> token ids (T, L) int64.
 
     num_frames given: exactly that many steps, the end token masked throughout. None: until
     level 0 draws the end token (masked at step 0, so T >= 1) or max_frames steps.
     """
     if model.training:
-        raise ValueError("generate needs model.eval() (dropout, prompt dropout and token "
-                         "corruption are training-only)")
+        raise ValueError(
+            "generate needs model.eval() (dropout, prompt dropout and token "
+            "corruption are training-only)"
+        )
     if window is not None and (window < 1 or not use_cache):
         raise ValueError(f"window needs use_cache=True and >= 1 steps, got {window}")
     config = model.config
     L = config.num_levels
-    uncond = torch.tensor([False, True][:2 if sampling.guided else 1])
+    uncond = torch.tensor([False, True][: 2 if sampling.guided else 1])
     prompt = prompt_embedding.reshape(1, -1).expand(len(uncond), -1)
     rng = make_rng(seed)
     steps = max_frames if num_frames is None else num_frames
@@ -51,14 +61,16 @@ def generate(model: T2M, prompt_embedding: torch.Tensor, num_frames: int | None 
         end_allowed = num_frames is None and step > 0
         row = []
         for level in range(L):
-            logits, present = model.level_forward(level, prompt, uncond, inputs, positions,
-                                                  cache_positions, caches[level])
+            logits, present = model.level_forward(
+                level, prompt, uncond, inputs, positions, cache_positions, caches[level]
+            )
             if use_cache:
                 caches[level] = present
             logits = logits.double().numpy()
             forbid = None if level > 0 or end_allowed else config.end_token
-            token = choose_token(logits[0], logits[1] if sampling.guided else None,
-                                 uniforms[level], sampling, forbid)
+            token = choose_token(
+                logits[0], logits[1] if sampling.guided else None, uniforms[level], sampling, forbid
+            )
             if token == config.end_token:
                 return ids
             row.append(token)

@@ -6,6 +6,7 @@ integration included: the root yaw half-angle a[t] is the sum of feature 0 over 
 root XZ the sum of the frame velocities (features 1:3 of the previous frame) turned by -2 a[t]
 about +Y, and every joint's root-relative position is turned the same way and moved to the root.
 """
+
 from __future__ import annotations
 
 import torch
@@ -35,7 +36,7 @@ def features_to_joints(features: Tensor) -> Tensor:
     root_x, root_z = torch.cumsum(step_x, dim=-1), torch.cumsum(step_z, dim=-1)  # (..., T)
     root = torch.stack([root_x, features[..., 3], root_z], dim=-1)  # (..., T, 3)
 
-    relative = features[..., 4:4 + 3 * (J - 1)].unflatten(-1, (J - 1, 3))  # (..., T, J-1, 3)
+    relative = features[..., 4 : 4 + 3 * (J - 1)].unflatten(-1, (J - 1, 3))  # (..., T, J-1, 3)
     x, z = unturn(relative[..., 0], relative[..., 2], cos[..., None], sin[..., None])
     joints = torch.stack([x + root_x[..., None], relative[..., 1], z + root_z[..., None]], dim=-1)
     return torch.cat([root[..., None, :], joints], dim=-2)

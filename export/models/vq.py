@@ -23,6 +23,7 @@ their right context adds up to at most n tokens and makes the others causal: a s
 tokens for a frame instead of the centred decoder's 31. `decoder_receptive_field` derives the
 decoder's context from its layers.
 """
+
 from __future__ import annotations
 
 import math
@@ -51,6 +52,7 @@ class VQConfig:
     codes as in the paper and prototype; 64-dim codes (not 512) because the EMA codebooks and
     the nearest-code search scale with it and the latent of a 192-wide model needs no more.
     """
+
     feature_dim: int = 263  # D: 263 HumanML3D, 251 KIT-ML
     width: int = 192
     depth: int = 3  # residual blocks per stage
@@ -81,20 +83,37 @@ class VQConfig:
         for name in ("feature_dim", "width", "stages", "dilation_growth", "levels", "code_dim"):
             need(getattr(self, name) >= 1, f"{name} must be >= 1", getattr(self, name))
         need(self.depth >= 0, "depth must be >= 0", self.depth)
-        need(self.decoder_lookahead is None or self.decoder_lookahead >= 0,
-             "decoder_lookahead must be >= 0", self.decoder_lookahead)
+        need(
+            self.decoder_lookahead is None or self.decoder_lookahead >= 0,
+            "decoder_lookahead must be >= 0",
+            self.decoder_lookahead,
+        )
         need(self.down_factor in (1, 2, 4), "down_factor must be 1, 2 or 4", self.down_factor)
-        need(self.stages >= self.down_stages, f"stages must be >= log2(down_factor) = "
-             f"{self.down_stages}", self.stages)
+        need(
+            self.stages >= self.down_stages,
+            f"stages must be >= log2(down_factor) = {self.down_stages}",
+            self.stages,
+        )
         need(self.codebook_size >= 2, "codebook_size must be >= 2", self.codebook_size)
         need(0 <= self.dropout < 1, "dropout must be in [0, 1)", self.dropout)
-        need(0 <= self.quantizer_dropout <= 1, "quantizer_dropout must be in [0, 1]",
-             self.quantizer_dropout)
+        need(
+            0 <= self.quantizer_dropout <= 1,
+            "quantizer_dropout must be in [0, 1]",
+            self.quantizer_dropout,
+        )
         need(0 < self.ema_decay < 1, "ema_decay must be in (0, 1)", self.ema_decay)
-        need(self.recon_loss in RECON_LOSSES, f"recon_loss must be one of {RECON_LOSSES}",
-             self.recon_loss)
-        for name in ("joint_weight", "commitment", "modulation", "decorrelation",
-                     "dead_code_threshold"):
+        need(
+            self.recon_loss in RECON_LOSSES,
+            f"recon_loss must be one of {RECON_LOSSES}",
+            self.recon_loss,
+        )
+        for name in (
+            "joint_weight",
+            "commitment",
+            "modulation",
+            "decorrelation",
+            "dead_code_threshold",
+        ):
             need(getattr(self, name) >= 0, f"{name} must be >= 0", getattr(self, name))
         if self.joint_weight > 0:
             try:
@@ -126,8 +145,15 @@ class Conv(nn.Module):
     """Conv1d over (B, C, T) with explicit zero padding: centred, or causal (all on the left),
     so that output i never sees an input after the last frame it covers."""
 
-    def __init__(self, c_in: int, c_out: int, kernel: int, stride: int = 1, dilation: int = 1,
-                 causal: bool = False):
+    def __init__(
+        self,
+        c_in: int,
+        c_out: int,
+        kernel: int,
+        stride: int = 1,
+        dilation: int = 1,
+        causal: bool = False,
+    ):
         super().__init__()
         total = (kernel - 1) * dilation + 1 - stride  # keeps T' = T / stride
         self.left = total if causal else total // 2
@@ -146,8 +172,13 @@ class ResBlock(nn.Module):
 
     def __init__(self, width: int, dilation: int, dropout: float, causal: bool):
         super().__init__()
-        self.net = nn.Sequential(nn.ReLU(), Conv(width, width, 3, dilation=dilation, causal=causal),
-                                 nn.ReLU(), Conv(width, width, 1), nn.Dropout(dropout))
+        self.net = nn.Sequential(
+            nn.ReLU(),
+            Conv(width, width, 3, dilation=dilation, causal=causal),
+            nn.ReLU(),
+            Conv(width, width, 1),
+            nn.Dropout(dropout),
+        )
 
     def forward(self, x: Tensor) -> Tensor:
         return x + self.net(x)
@@ -155,9 +186,13 @@ class ResBlock(nn.Module):
 
 def res_stack(config: VQConfig, reverse: bool) -> nn.Sequential:
     """`depth` blocks with dilations 1, g, g^2, ... (reversed in the decoder, to mirror)."""
-    dilations = [config.dilation_growth ** i for i in range(config.depth)]
-    return nn.Sequential(*(ResBlock(config.width, d, config.dropout, config.causal)
-                           for d in (dilations[::-1] if reverse else dilations)))
+    dilations = [config.dilation_growth**i for i in range(config.depth)]
+    return nn.Sequential(
+        *(
+            ResBlock(config.width, d, config.dropout, config.causal)
+            for d in (dilations[::-1] if reverse else dilations)
+        )
+    )
 
 
 class Encoder(nn.Module):
@@ -192,8 +227,11 @@ class Decoder(nn.Module):
             if stage >= config.stages - config.down_stages:
                 layers.append(nn.Upsample(scale_factor=2, mode="nearest"))
             layers.append(Conv(W, W, 3, causal=causal))
-        layers += [Conv(W, W, 3, causal=causal), nn.ReLU(),
-                   Conv(W, config.feature_dim, 3, causal=causal)]
+        layers += [
+            Conv(W, W, 3, causal=causal),
+            nn.ReLU(),
+            Conv(W, config.feature_dim, 3, causal=causal),
+        ]
         self.net = nn.Sequential(*layers)
         if config.decoder_lookahead is not None:
             budget = config.decoder_lookahead
@@ -247,14 +285,21 @@ class MoSAVQ(nn.Module):
     """Encoder, residual quantizer and decoder, with the normalisation statistics as buffers
     (`mean`, `std`, (D,)) so that a checkpoint (state_dict + asdict(config)) is self-contained."""
 
-    def __init__(self, config: VQConfig, mean: np.ndarray | Tensor | None = None,
-                 std: np.ndarray | Tensor | None = None):
+    def __init__(
+        self,
+        config: VQConfig,
+        mean: np.ndarray | Tensor | None = None,
+        std: np.ndarray | Tensor | None = None,
+    ):
         super().__init__()
         self.config = config
         D = config.feature_dim
         for name, value, default in (("mean", mean, 0.0), ("std", std, 1.0)):
-            value = torch.full((D,), default) if value is None else \
-                torch.as_tensor(value, dtype=torch.float32).clone()
+            value = (
+                torch.full((D,), default)
+                if value is None
+                else torch.as_tensor(value, dtype=torch.float32).clone()
+            )
             if value.shape != (D,):
                 raise ValueError(f"{name} must have shape ({D},), got {tuple(value.shape)}")
             self.register_buffer(name, value)
@@ -276,21 +321,28 @@ class MoSAVQ(nn.Module):
         commitment * commit + modulation * modulation + decorrelation * decorrelation.
         decoder_only: fine-tune the decoder alone, on the tokens of the frozen encoder."""
         if x.shape[1] % self.config.down_factor:
-            raise ValueError(f"{x.shape[1]} frames is not a multiple of down_factor "
-                             f"{self.config.down_factor}")
+            raise ValueError(
+                f"{x.shape[1]} frames is not a multiple of down_factor {self.config.down_factor}"
+            )
         if decoder_only:
             return self._decoder_forward(x)
         z_hat, ids, stats = self.quantizer.quantize(self.encoder(x))
         recon = self.decoder(z_hat)
         c = self.config
-        losses = dict(recon=self._distance(recon, x),
-                      joints=self._joint_loss(recon, x),
-                      commit=stats.pop("commit"),
-                      modulation=stats.pop("modulation"),
-                      decorrelation=stats.pop("decorrelation"))
-        losses["total"] = (losses["recon"] + c.joint_weight * losses["joints"]
-                           + c.commitment * losses["commit"] + c.modulation * losses["modulation"]
-                           + c.decorrelation * losses["decorrelation"])
+        losses = dict(
+            recon=self._distance(recon, x),
+            joints=self._joint_loss(recon, x),
+            commit=stats.pop("commit"),
+            modulation=stats.pop("modulation"),
+            decorrelation=stats.pop("decorrelation"),
+        )
+        losses["total"] = (
+            losses["recon"]
+            + c.joint_weight * losses["joints"]
+            + c.commitment * losses["commit"]
+            + c.modulation * losses["modulation"]
+            + c.decorrelation * losses["decorrelation"]
+        )
         return VQOutput(recon, ids, losses, stats)
 
     def _decoder_forward(self, x: Tensor) -> VQOutput:
@@ -305,15 +357,24 @@ class MoSAVQ(nn.Module):
         self.encoder.train(encoder_was_training)
         recon = self.decoder(self.quantizer.dequantize(ids, active))
         zero = torch.zeros((), device=x.device)
-        losses = dict(recon=self._distance(recon, x), joints=self._joint_loss(recon, x),
-                      commit=zero, modulation=zero, decorrelation=zero)
+        losses = dict(
+            recon=self._distance(recon, x),
+            joints=self._joint_loss(recon, x),
+            commit=zero,
+            modulation=zero,
+            decorrelation=zero,
+        )
         losses["total"] = losses["recon"] + self.config.joint_weight * losses["joints"]
         L, K = self.config.levels, self.config.codebook_size
         counts = torch.zeros(L, K, device=x.device).scatter_add_(
-            1, ids.reshape(-1, L).T, active.repeat_interleave(ids.shape[1], dim=0).T)
+            1, ids.reshape(-1, L).T, active.repeat_interleave(ids.shape[1], dim=0).T
+        )
         probs = counts / counts.sum(1, keepdim=True).clamp_min(1)
-        stats = dict(perplexity=(-(probs * probs.clamp_min(1e-12).log()).sum(1)).exp(),
-                     usage=(counts > 0).float().mean(1), dead_codes=torch.zeros(L, device=x.device))
+        stats = dict(
+            perplexity=(-(probs * probs.clamp_min(1e-12).log()).sum(1)).exp(),
+            usage=(counts > 0).float().mean(1),
+            dead_codes=torch.zeros(L, device=x.device),
+        )
         return VQOutput(recon, ids, losses, stats)
 
     def joints(self, x: Tensor) -> Tensor:
@@ -366,7 +427,12 @@ def reconstruction_metrics(model: MoSAVQ, batches: Iterable[Tensor]) -> dict:
     probs = counts / counts.sum(1, keepdim=True)
     perplexity = (-(probs * probs.clamp_min(1e-12).log()).sum(1)).exp()
     gain = (l1[:-1] - l1[1:]) / (l1[0] - l1[-1]).clamp_min(1e-12)
-    return dict(mpjpe_mm=mpjpe[-1].item(), feature_l1=l1[-1].item(),
-                mpjpe_mm_by_levels=mpjpe[1:].tolist(), feature_l1_by_levels=l1[1:].tolist(),
-                level_gain=gain.tolist(), codebook_usage=(counts > 0).double().mean(1).tolist(),
-                perplexity=perplexity.tolist())
+    return dict(
+        mpjpe_mm=mpjpe[-1].item(),
+        feature_l1=l1[-1].item(),
+        mpjpe_mm_by_levels=mpjpe[1:].tolist(),
+        feature_l1_by_levels=l1[1:].tolist(),
+        level_gain=gain.tolist(),
+        codebook_usage=(counts > 0).double().mean(1).tolist(),
+        perplexity=perplexity.tolist(),
+    )

@@ -4,6 +4,7 @@ The manifest (its schema: mogo.manifest) holds everything the runtime needs to k
 the model: graph input/output names, fps, skeleton and feature layout, normalisation files, the
 decoder's context, sampling defaults, how it was trained, and each file's size and sha256.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -21,8 +22,19 @@ from mogo.bundle import Bundle, write_manifest
 from mogo.export.models.t2m import T2M as T2MModel
 from mogo.export.onnx.t2m_graphs import export_level, export_text_encoder
 from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder, random_ids
-from mogo.manifest import (T2M, VQ, Defaults, Fp16Storage, Graph, Int8Check, Manifest, MotionFormat,
-                           Normalization, Text, TrainingRun)
+from mogo.manifest import (
+    T2M,
+    VQ,
+    Defaults,
+    Fp16Storage,
+    Graph,
+    Int8Check,
+    Manifest,
+    MotionFormat,
+    Normalization,
+    Text,
+    TrainingRun,
+)
 from mogo.motion.skeleton import MAX_SECONDS, Skeleton
 from mogo.sampling import Sampling
 from mogo.token_generator import TokenGenerator
@@ -36,8 +48,15 @@ DEFAULTS = dict(**asdict(DEFAULT_SAMPLING), window=128, max_seconds=MAX_SECONDS)
 
 def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) -> Manifest:
     """`mogo export`: the trained runs (their best.pt) -> a bundle folder; returns the manifest."""
-    from mogo.export.models.runs import (load_checkpoint, load_t2m, load_vq, read_tokens,
-                                         t2m_checkpoint, tokens_sha256, vq_checkpoint)
+    from mogo.export.models.runs import (
+        load_checkpoint,
+        load_t2m,
+        load_vq,
+        read_tokens,
+        t2m_checkpoint,
+        tokens_sha256,
+        vq_checkpoint,
+    )
     from mogo.motion.skeleton import skeleton_for_feature_dim
 
     vq = load_vq(vq_run)
@@ -45,20 +64,40 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
     vq_state = load_checkpoint(vq_checkpoint(vq_run))
     t2m_state = load_checkpoint(t2m_checkpoint(t2m_run))
     if t2m_state["config"]["vq"]["sha256"] != tokens_sha256(vq_state, vq_checkpoint(vq_run)):
-        raise ValueError(f"{t2m_run} was trained on the tokens of another VQ checkpoint than "
-                         f"{vq_checkpoint(vq_run)}")
+        raise ValueError(
+            f"{t2m_run} was trained on the tokens of another VQ checkpoint than "
+            f"{vq_checkpoint(vq_run)}"
+        )
     skeleton = skeleton_for_feature_dim(vq.config.feature_dim)
-    train, val = (list(dict.fromkeys(str(c) for c in read_tokens(
-        Path(t2m_run) / "tokens" / f"{split}.npz")["captions"])) for split in ("train", "val"))
+    train, val = (
+        list(
+            dict.fromkeys(
+                str(c) for c in read_tokens(Path(t2m_run) / "tokens" / f"{split}.npz")["captions"]
+            )
+        )
+        for split in ("train", "val")
+    )
     provenance = dict(
         vq=_vq_provenance(vq_state),
-        t2m=TrainingRun(step=t2m_state["step"], recipe=t2m_state["config"]["recipe"],
-                        data=t2m_state["config"]["data"],
-                        best_val_loss=t2m_state.get("best_val_loss")))
-    return write_bundle(Path(out), vq=vq, t2m=t2m, text_encoder=text_encoder,
-                        tokenizer=tokenizer, skeleton=skeleton, provenance=provenance,
-                        check_prompts=val[:CHECK_PROMPTS], int8=int8,
-                        captions=dict(train=train, val=val))
+        t2m=TrainingRun(
+            step=t2m_state["step"],
+            recipe=t2m_state["config"]["recipe"],
+            data=t2m_state["config"]["data"],
+            best_val_loss=t2m_state.get("best_val_loss"),
+        ),
+    )
+    return write_bundle(
+        Path(out),
+        vq=vq,
+        t2m=t2m,
+        text_encoder=text_encoder,
+        tokenizer=tokenizer,
+        skeleton=skeleton,
+        provenance=provenance,
+        check_prompts=val[:CHECK_PROMPTS],
+        int8=int8,
+        captions=dict(train=train, val=val),
+    )
 
 
 LOW_LATENCY_DECODER = "vq_decoder_low_latency.onnx"
@@ -83,13 +122,16 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     if replace(vq.config, decoder_lookahead=centred.decoder_lookahead) != centred:
         raise ValueError(f"{vq_run} is another VQ model than {bundle_dir}'s (its config differs)")
     if not (np.array_equal(vq.mean.numpy(), old.mean) and np.array_equal(vq.std.numpy(), old.std)):
-        raise ValueError(f"{vq_run} normalises with other statistics than {bundle_dir} (trained "
-                         "on other data?)")
+        raise ValueError(
+            f"{vq_run} normalises with other statistics than {bundle_dir} (trained on other data?)"
+        )
     agreement = token_agreement(vq, old)
     if agreement < MIN_TOKEN_AGREEMENT:
-        raise ValueError(f"{vq_run}'s encoder gives other tokens than {bundle_dir}'s (agreement "
-                         f"{agreement:.1%}): only a decoder fine-tune of the bundle's VQ fits its "
-                         "level graphs")
+        raise ValueError(
+            f"{vq_run}'s encoder gives other tokens than {bundle_dir}'s (agreement "
+            f"{agreement:.1%}): only a decoder fine-tune of the bundle's VQ fits its "
+            "level graphs"
+        )
     out = _new_folder(out)
     manifest = old.manifest
     decoder = LOW_LATENCY_DECODER if low_latency else manifest.vq.decoder.file
@@ -101,21 +143,36 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     before, after = _outputs_before_and_after_fp16(out / decoder, {"ids": codes.numpy()})
     difference = float(np.abs(before - after).max())
     storage = manifest.fp16_storage or Fp16Storage(files=())
-    storage = replace(storage, files=tuple(sorted(set(storage.files) | {decoder})), **{
-        f"{'vq_low_latency' if low_latency else 'vq'}_decoder_feature_max_abs_difference":
-            difference})
-    trained = replace(_vq_provenance(load_checkpoint(vq_checkpoint(vq_run))),
-                      token_agreement_with_bundle=agreement)
+    storage = replace(
+        storage,
+        files=tuple(sorted(set(storage.files) | {decoder})),
+        **{
+            f"{'vq_low_latency' if low_latency else 'vq'}_decoder_feature_max_abs_difference": difference
+        },
+    )
+    trained = replace(
+        _vq_provenance(load_checkpoint(vq_checkpoint(vq_run))),
+        token_agreement_with_bundle=agreement,
+    )
     role = "low_latency_decoder" if low_latency else "decoder"
-    return write_manifest(out, replace(manifest, vq=replace(manifest.vq, **{role: graph}),
-                                       fp16_storage=storage,
-                                       training={**manifest.training,
-                                                 "vq_" + role if low_latency else "vq": trained}))
+    return write_manifest(
+        out,
+        replace(
+            manifest,
+            vq=replace(manifest.vq, **{role: graph}),
+            fp16_storage=storage,
+            training={**manifest.training, "vq_" + role if low_latency else "vq": trained},
+        ),
+    )
 
 
 def _vq_provenance(state: dict) -> TrainingRun:
-    return TrainingRun(step=state["step"], recipe=state.get("recipe"), data=state.get("data"),
-                       best_val_mpjpe_mm=state.get("best_val_mpjpe_mm"))
+    return TrainingRun(
+        step=state["step"],
+        recipe=state.get("recipe"),
+        data=state.get("data"),
+        best_val_mpjpe_mm=state.get("best_val_mpjpe_mm"),
+    )
 
 
 def _new_folder(out: Path) -> Path:
@@ -126,11 +183,20 @@ def _new_folder(out: Path) -> Path:
     return out
 
 
-def write_bundle(out: Path, *, vq, t2m: T2MModel, text_encoder, tokenizer: Tokenizer,
-                 skeleton: Skeleton, provenance: dict[str, TrainingRun],
-                 check_prompts: list[str], int8: bool = False,
-                 defaults: dict | None = None,
-                 captions: dict[str, list[str]] | None = None) -> Manifest:
+def write_bundle(
+    out: Path,
+    *,
+    vq,
+    t2m: T2MModel,
+    text_encoder,
+    tokenizer: Tokenizer,
+    skeleton: Skeleton,
+    provenance: dict[str, TrainingRun],
+    check_prompts: list[str],
+    int8: bool = False,
+    defaults: dict | None = None,
+    captions: dict[str, list[str]] | None = None,
+) -> Manifest:
     """Export every graph into the new folder `out` and write its manifest; returns it.
     With `int8`, the level graphs are quantised and kept only if greedy tokens on
     `check_prompts` agree with fp32 on at least INT8_MIN_AGREEMENT of steps (measured either
@@ -150,24 +216,35 @@ def write_bundle(out: Path, *, vq, t2m: T2MModel, text_encoder, tokenizer: Token
     else:
         tokenizer.save(str(out / "tokenizer.json"))
         max_length = tokenizer.truncation["max_length"]
-        text = Text(tokenizer="tokenizer.json", max_length=max_length,
-                    kind=type(text_encoder).__name__,
-                    encoder=export_text_encoder(text_encoder, out / "text_encoder.onnx",
-                                                max_length))
-    levels = tuple(export_level(t2m, level, out / f"level_{level}.onnx")
-                   for level in range(t2m.config.num_levels))
-    vq_graphs = VQ(config=asdict(vq.config),
-                   encoder=export_vq_encoder(vq, out / "vq_encoder.onnx"),
-                   decoder=export_vq_decoder(vq, out / "vq_decoder.onnx"))
+        text = Text(
+            tokenizer="tokenizer.json",
+            max_length=max_length,
+            kind=type(text_encoder).__name__,
+            encoder=export_text_encoder(text_encoder, out / "text_encoder.onnx", max_length),
+        )
+    levels = tuple(
+        export_level(t2m, level, out / f"level_{level}.onnx")
+        for level in range(t2m.config.num_levels)
+    )
+    vq_graphs = VQ(
+        config=asdict(vq.config),
+        encoder=export_vq_encoder(vq, out / "vq_encoder.onnx"),
+        decoder=export_vq_decoder(vq, out / "vq_decoder.onnx"),
+    )
     np.save(out / "mean.npy", vq.mean.detach().cpu().numpy().astype(np.float32))
     np.save(out / "std.npy", vq.std.detach().cpu().numpy().astype(np.float32))
     manifest = Manifest(
         motion=MotionFormat.of(skeleton, Normalization(mean="mean.npy", std="std.npy")),
-        text=text, t2m=T2M(config=asdict(t2m.config), levels=levels), vq=vq_graphs,
-        defaults=Defaults(**dict(DEFAULTS, **(defaults or {}))), training=provenance)
+        text=text,
+        t2m=T2M(config=asdict(t2m.config), levels=levels),
+        vq=vq_graphs,
+        defaults=Defaults(**dict(DEFAULTS, **(defaults or {}))),
+        training=provenance,
+    )
     if int8:
-        check = _quantize_levels(out, levels, manifest.end_token, text_encoder, tokenizer,
-                                 check_prompts)
+        check = _quantize_levels(
+            out, levels, manifest.end_token, text_encoder, tokenizer, check_prompts
+        )
         manifest = replace(manifest, int8=check)
     storage = _store_graphs_fp16(out, vq, tokenizer, check_prompts, text=not tower)
     return write_manifest(out, replace(manifest, fp16_storage=storage))
@@ -186,8 +263,9 @@ def store_weights_fp16(path: Path) -> None:
         if weight.data_type != onnx.TensorProto.FLOAT or np.prod(weight.dims) < FP16_MIN_ELEMENTS:
             continue
         name = weight.name
-        half = numpy_helper.from_array(numpy_helper.to_array(weight).astype(np.float16),
-                                       f"{name}_fp16")
+        half = numpy_helper.from_array(
+            numpy_helper.to_array(weight).astype(np.float16), f"{name}_fp16"
+        )
         weight.CopyFrom(half)
         casts.append(onnx.helper.make_node("Cast", [half.name], [name], to=onnx.TensorProto.FLOAT))
     for cast in reversed(casts):
@@ -196,8 +274,9 @@ def store_weights_fp16(path: Path) -> None:
 
 
 @torch.no_grad()
-def _store_graphs_fp16(out: Path, vq, tokenizer: Tokenizer, prompts: list[str],
-                       text: bool = True) -> Fp16Storage:
+def _store_graphs_fp16(
+    out: Path, vq, tokenizer: Tokenizer, prompts: list[str], text: bool = True
+) -> Fp16Storage:
     """fp16 storage (`store_weights_fp16`) for the text encoder (unless not `text`: a
     pretrained encoder's graph ships as published) and the VQ encoder and decoder,
     measured against fp32: the largest prompt-embedding difference on the check prompts, VQ
@@ -210,9 +289,11 @@ def _store_graphs_fp16(out: Path, vq, tokenizer: Tokenizer, prompts: list[str],
     mask = np.array([e.attention_mask for e in encoded], np.int64)
     codes = _check_codes(vq)
     features = vq.eval().decode(codes).numpy()
-    feeds = {"text_encoder.onnx": {"token_ids": ids, "attention_mask": mask},
-             "vq_encoder.onnx": {"features": features},
-             "vq_decoder.onnx": {"ids": codes.numpy()}}
+    feeds = {
+        "text_encoder.onnx": {"token_ids": ids, "attention_mask": mask},
+        "vq_encoder.onnx": {"features": features},
+        "vq_decoder.onnx": {"ids": codes.numpy()},
+    }
     if not text:
         del feeds["text_encoder.onnx"]
     before, after = {}, {}
@@ -226,9 +307,11 @@ def _store_graphs_fp16(out: Path, vq, tokenizer: Tokenizer, prompts: list[str],
     return Fp16Storage(
         files=tuple(sorted(feeds)),
         prompt_embedding_max_abs_difference=largest_difference("text_encoder.onnx")
-        if text else None,
+        if text
+        else None,
         vq_encoder_token_agreement=round(float(agreement), 4),
-        vq_decoder_feature_max_abs_difference=largest_difference("vq_decoder.onnx"))
+        vq_decoder_feature_max_abs_difference=largest_difference("vq_decoder.onnx"),
+    )
 
 
 def _check_codes(vq) -> torch.Tensor:
@@ -253,14 +336,21 @@ def quantize_level_graph(source: Path, target: Path) -> None:
 
     prepared = target.with_name(f"pre_{target.name}")
     quant_pre_process(str(source), str(prepared), skip_symbolic_shape=True)
-    quantize_dynamic(prepared, target, op_types_to_quantize=["MatMul", "Gather"],
-                     weight_type=QuantType.QUInt8)
+    quantize_dynamic(
+        prepared, target, op_types_to_quantize=["MatMul", "Gather"], weight_type=QuantType.QUInt8
+    )
     prepared.unlink()
 
 
 @torch.no_grad()
-def _quantize_levels(out: Path, levels: Sequence[Graph], end_token: int, text_encoder,
-                     tokenizer: Tokenizer, prompts: list[str]) -> Int8Check:
+def _quantize_levels(
+    out: Path,
+    levels: Sequence[Graph],
+    end_token: int,
+    text_encoder,
+    tokenizer: Tokenizer,
+    prompts: list[str],
+) -> Int8Check:
     """Dynamic int8 (QUInt8 weights of the MatMuls, the setting that kept accuracy on a CPU
     without VNNI, where QInt8 did not, and of the token-embedding Gathers, which each level
     graph holds its own copy of) of every level graph, checked by token agreement:
@@ -295,7 +385,11 @@ def _quantize_levels(out: Path, levels: Sequence[Graph], end_token: int, text_en
         for level in levels:
             shutil.move(staging / level.file, out / level.file)
     shutil.rmtree(staging)
-    return Int8Check(used=used, greedy_token_agreement=round(agreement, 4),
-                     threshold=INT8_MIN_AGREEMENT, prompts=len(prompts),
-                     steps_per_prompt=CHECK_STEPS,
-                     scheme="dynamic QUInt8 weights of MatMul and Gather (token embeddings)")
+    return Int8Check(
+        used=used,
+        greedy_token_agreement=round(agreement, 4),
+        threshold=INT8_MIN_AGREEMENT,
+        prompts=len(prompts),
+        steps_per_prompt=CHECK_STEPS,
+        scheme="dynamic QUInt8 weights of MatMul and Gather (token embeddings)",
+    )

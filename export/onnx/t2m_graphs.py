@@ -15,6 +15,7 @@ empty cache (past 0). The exporter is torch.export (dynamo) at opset 20; it fixe
 example size is 0 or 1, so the examples (zeros: a trace keeps shapes, not values) are 2 or
 more long on every axis.
 """
+
 from __future__ import annotations
 
 import os
@@ -45,11 +46,24 @@ class LevelStep(nn.Module):
         super().__init__()
         self.model, self.level = model, level
 
-    def forward(self, prompt: Tensor, uncond: Tensor, token_ids: Tensor, positions: Tensor,
-                past_positions: Tensor, *past: Tensor) -> tuple[Tensor, ...]:
-        logits, presents = self.model.level_forward(self.level, prompt, uncond, token_ids,
-                                                    positions, past_positions,
-                                                    list(zip(past[0::2], past[1::2])))
+    def forward(
+        self,
+        prompt: Tensor,
+        uncond: Tensor,
+        token_ids: Tensor,
+        positions: Tensor,
+        past_positions: Tensor,
+        *past: Tensor,
+    ) -> tuple[Tensor, ...]:
+        logits, presents = self.model.level_forward(
+            self.level,
+            prompt,
+            uncond,
+            token_ids,
+            positions,
+            past_positions,
+            list(zip(past[0::2], past[1::2], strict=True)),
+        )
         return logits, *[t for pair in presents for t in pair]
 
 
@@ -70,13 +84,23 @@ def export_level(model: T2M, level: int, path: str | os.PathLike) -> Graph:
     config = model.config
     layers, heads, head_dim = config.layers[level], config.heads[level], config.head_dim
     batch, seq, past = 2, 3, 4  # >= 2 and distinct, so that no axis is fixed or merged
-    examples = (torch.zeros(batch, config.text_dim), torch.tensor([False, True]),
-                torch.zeros(batch, seq, config.num_levels, dtype=torch.long),
-                torch.arange(past, past + seq), torch.arange(past),
-                *[torch.zeros(batch, heads, past, head_dim) for _ in range(2 * layers)])
+    examples = (
+        torch.zeros(batch, config.text_dim),
+        torch.tensor([False, True]),
+        torch.zeros(batch, seq, config.num_levels, dtype=torch.long),
+        torch.arange(past, past + seq),
+        torch.arange(past),
+        *[torch.zeros(batch, heads, past, head_dim) for _ in range(2 * layers)],
+    )
     b, s, p = Dim("batch"), Dim("seq"), Dim("past")
-    dynamic_shapes = ({0: b}, {0: b}, {0: b, 1: s}, {0: s}, {0: p},
-                      tuple({0: b, 2: p} for _ in range(2 * layers)))
+    dynamic_shapes = (
+        {0: b},
+        {0: b},
+        {0: b, 1: s},
+        {0: s},
+        {0: p},
+        tuple({0: b, 2: p} for _ in range(2 * layers)),
+    )
     past_names, present_names = cache_names(layers)
     names = dict(inputs=LEVEL_INPUTS + past_names, outputs=["logits"] + present_names)
     export_module(LevelStep(model, level), examples, path, names, dynamic_shapes)
@@ -92,8 +116,9 @@ def export_text_encoder(encoder: TextEncoder, path: str | os.PathLike, max_lengt
     attention_mask = torch.ones(2, max_length, dtype=torch.long)
     b, s = Dim("batch"), Dim("seq", max=max_length)
     names = dict(inputs=["token_ids", "attention_mask"], outputs=["prompt_embedding"])
-    export_module(EncodeText(encoder), (token_ids, attention_mask), path, names,
-            ({0: b, 1: s}, {0: b, 1: s}))
+    export_module(
+        EncodeText(encoder), (token_ids, attention_mask), path, names, ({0: b, 1: s}, {0: b, 1: s})
+    )
     return _graph(path, names)
 
 
@@ -101,17 +126,26 @@ def _graph(path: str | os.PathLike, names: dict) -> Graph:
     return Graph(Path(path).name, tuple(names["inputs"]), tuple(names["outputs"]))
 
 
-def export_module(module: nn.Module, examples: tuple, path: str | os.PathLike, names: dict,
-                  dynamic_shapes: tuple) -> None:
+def export_module(
+    module: nn.Module, examples: tuple, path: str | os.PathLike, names: dict, dynamic_shapes: tuple
+) -> None:
     """Export `module` to one self-contained file at OPSET with the given input and output
     names, in eval mode (no dropout, no prompt dropout), leaving the caller's modules in the
     mode they were in."""
     modes = [(m, m.training) for m in module.modules()]
     try:
-        torch.onnx.export(module.eval(), examples, os.fspath(path), dynamo=True,
-                          opset_version=OPSET, input_names=names["inputs"],
-                          output_names=names["outputs"], dynamic_shapes=dynamic_shapes,
-                          external_data=False, verbose=False)
+        torch.onnx.export(
+            module.eval(),
+            examples,
+            os.fspath(path),
+            dynamo=True,
+            opset_version=OPSET,
+            input_names=names["inputs"],
+            output_names=names["outputs"],
+            dynamic_shapes=dynamic_shapes,
+            external_data=False,
+            verbose=False,
+        )
     finally:
         for m, training in modes:
             m.training = training

@@ -5,6 +5,7 @@ stay, renamed (`text.trained`): the runtime reads with them the prompts whose ev
 know, exactly as the level graphs were trained. Every file is copied byte for byte; nothing
 is retrained, so OLD's training runs are not needed.
 """
+
 from __future__ import annotations
 
 import json
@@ -20,13 +21,28 @@ from mogo.align import plain_words, primitive_of
 from mogo.bundle import Bundle, write_manifest
 from mogo.export.data.outside_repertoire import CALIBRATION, INSIDE
 from mogo.export.models.runs import load_checkpoint
-from mogo.export.models.sentence_encoder import (CAPTIONS, ENCODER, MAX_LENGTH, Adapter, MiniLM,
-                                                 SentenceEmbedder, SentenceTower,
-                                                 sentence_tokenizer, variant_rows)
+from mogo.export.models.sentence_encoder import (
+    CAPTIONS,
+    ENCODER,
+    MAX_LENGTH,
+    Adapter,
+    MiniLM,
+    SentenceEmbedder,
+    SentenceTower,
+    sentence_tokenizer,
+    variant_rows,
+)
 from mogo.export.onnx.bundle import _new_folder
 from mogo.export.onnx.text_graph import export_sentence_text_graph
-from mogo.manifest import (SENTENCE_ENCODER, Manifest, Pretrained, Repertoire, Text, TrainedEncoder,
-                           TrainingRun)
+from mogo.manifest import (
+    SENTENCE_ENCODER,
+    Manifest,
+    Pretrained,
+    Repertoire,
+    Text,
+    TrainedEncoder,
+    TrainingRun,
+)
 from mogo.repertoire import what_it_says
 
 TRAINED, TRAINED_TOKENIZER = "trained_text_encoder.onnx", "trained_tokenizer.json"
@@ -51,27 +67,56 @@ def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     config = best["config"]
     adapter = Adapter(config["in_dim"], config["out_dim"], config["recipe"]["hidden"])
     adapter.load_state_dict(best["model"])
-    graph = export_sentence_text_graph(run / ENCODER / "model.onnx", adapter.eval(),
-                                       out / "text_encoder.onnx")
+    graph = export_sentence_text_graph(
+        run / ENCODER / "model.onnx", adapter.eval(), out / "text_encoder.onnx"
+    )
     provenance = json.loads((run / ENCODER / "provenance.json").read_text())
-    pretrained = Pretrained(**provenance, reference_min_cosine=_reference_cosine(
-        run / ENCODER, out, [str(t) for t in captions["val_text"][:CHECK_CAPTIONS]]))
+    pretrained = Pretrained(
+        **provenance,
+        reference_min_cosine=_reference_cosine(
+            run / ENCODER, out, [str(t) for t in captions["val_text"][:CHECK_CAPTIONS]]
+        ),
+    )
     texts, sentences = own_captions(captions, "train")
     targets = captions["train_target"][~variant_rows(captions, "train")]
-    repertoire = write_repertoire(out, run / ENCODER, [str(t) for t in texts], sentences,
-                                  own_captions(captions, "val")[1], targets)
-    trained_encoder = TrainedEncoder(TRAINED_TOKENIZER,
-                                     replace(manifest.text.encoder, file=TRAINED))
-    text = Text(tokenizer="tokenizer.json", max_length=MAX_LENGTH, kind=SENTENCE_ENCODER,
-                encoder=graph, pretrained=pretrained, repertoire=repertoire,
-                trained=trained_encoder)
+    repertoire = write_repertoire(
+        out,
+        run / ENCODER,
+        [str(t) for t in texts],
+        sentences,
+        own_captions(captions, "val")[1],
+        targets,
+    )
+    trained_encoder = TrainedEncoder(
+        TRAINED_TOKENIZER, replace(manifest.text.encoder, file=TRAINED)
+    )
+    text = Text(
+        tokenizer="tokenizer.json",
+        max_length=MAX_LENGTH,
+        kind=SENTENCE_ENCODER,
+        encoder=graph,
+        pretrained=pretrained,
+        repertoire=repertoire,
+        trained=trained_encoder,
+    )
     storage = manifest.fp16_storage
     if storage is not None:  # the new text graph is int8 as published; the old one is fp16
         storage = replace(storage, files=tuple(sorted(kept.get(f, f) for f in storage.files)))
-    trained = TrainingRun(step=best["step"], recipe=config["recipe"], data=config["data"],
-                          best_val_loss=best["best_val_error"])
-    return write_manifest(out, replace(manifest, text=text, fp16_storage=storage,
-                                       training={**manifest.training, "text": trained}))
+    trained = TrainingRun(
+        step=best["step"],
+        recipe=config["recipe"],
+        data=config["data"],
+        best_val_loss=best["best_val_error"],
+    )
+    return write_manifest(
+        out,
+        replace(
+            manifest,
+            text=text,
+            fp16_storage=storage,
+            training={**manifest.training, "text": trained},
+        ),
+    )
 
 
 def _check_targets(old: Bundle, captions) -> None:
@@ -79,8 +124,7 @@ def _check_targets(old: Bundle, captions) -> None:
     from mogo.generator import MotionGenerator
 
     texts = [str(t) for t in captions["val_text"][:32]]
-    if not np.allclose(MotionGenerator(old).embed(texts), captions["val_target"][:32],
-                       atol=1e-4):
+    if not np.allclose(MotionGenerator(old).embed(texts), captions["val_target"][:32], atol=1e-4):
         raise ValueError("the text run was trained on another bundle's prompt embeddings")
 
 
@@ -96,13 +140,13 @@ def _reference_cosine(encoder: Path, out: Path, texts: list[str]) -> float:
     ids = np.array([e.ids for e in encoded], np.int64)
     mask = np.array([e.attention_mask for e in encoded], np.int64)
     shipped = cpu_session(out / "text_encoder.onnx", 2).run(
-        ["sentence_embedding"], dict(token_ids=ids, attention_mask=mask))[0]
+        ["sentence_embedding"], dict(token_ids=ids, attention_mask=mask)
+    )[0]
     reference = MiniLM.load(encoder)(torch.from_numpy(ids), torch.from_numpy(mask)).numpy()
     return round(float(np.min(np.sum(shipped * reference, axis=1))), 5)
 
 
-def sentence_text_side(out: Path, tower: SentenceTower, train: list[str],
-                       val: list[str]) -> Text:
+def sentence_text_side(out: Path, tower: SentenceTower, train: list[str], val: list[str]) -> Text:
     """The text side of a model conditioned on a sentence encoder (`mogo train t2m
     --text-encoder sentence`): the encoder's graph and the trained projection as one graph, its
     tokenizer, its provenance and the repertoire of the training captions (`train`; `val`
@@ -110,24 +154,41 @@ def sentence_text_side(out: Path, tower: SentenceTower, train: list[str],
     adapter, no second encoder, nothing to route between."""
     folder = tower.folder
     if not (folder / "model.safetensors").is_file():
-        raise ValueError(f"{folder}: no model.safetensors (and config.json), the fp32 reference "
-                         "the shipped graph is checked against")
+        raise ValueError(
+            f"{folder}: no model.safetensors (and config.json), the fp32 reference "
+            "the shipped graph is checked against"
+        )
     sentence_tokenizer(folder).save(str(out / "tokenizer.json"))
-    graph = export_sentence_text_graph(folder / "model.onnx", tower.projection.eval(),
-                                       out / "text_encoder.onnx")
+    graph = export_sentence_text_graph(
+        folder / "model.onnx", tower.projection.eval(), out / "text_encoder.onnx"
+    )
     provenance = json.loads((folder / "provenance.json").read_text())
-    pretrained = Pretrained(**provenance, reference_min_cosine=_reference_cosine(
-        folder, out, val[:CHECK_CAPTIONS]))
+    pretrained = Pretrained(
+        **provenance, reference_min_cosine=_reference_cosine(folder, out, val[:CHECK_CAPTIONS])
+    )
     embedder = SentenceEmbedder(folder)
     train = sorted(set(train))
-    repertoire = write_repertoire(out, folder, train, embedder.embed(train),
-                                  embedder.embed(sorted(set(val))))
-    return Text(tokenizer="tokenizer.json", max_length=MAX_LENGTH, kind=SENTENCE_ENCODER,
-                encoder=graph, pretrained=pretrained, repertoire=repertoire)
+    repertoire = write_repertoire(
+        out, folder, train, embedder.embed(train), embedder.embed(sorted(set(val)))
+    )
+    return Text(
+        tokenizer="tokenizer.json",
+        max_length=MAX_LENGTH,
+        kind=SENTENCE_ENCODER,
+        encoder=graph,
+        pretrained=pretrained,
+        repertoire=repertoire,
+    )
 
 
-def write_repertoire(out: Path, encoder: Path, texts: list[str], sentences: np.ndarray,
-                     val_sentences: np.ndarray, prompts: np.ndarray | None = None) -> Repertoire:
+def write_repertoire(
+    out: Path,
+    encoder: Path,
+    texts: list[str],
+    sentences: np.ndarray,
+    val_sentences: np.ndarray,
+    prompts: np.ndarray | None = None,
+) -> Repertoire:
     """The training captions kept (`kept_captions` of `texts` and their unit `sentences`), with
     `prompts` (their prompt embeddings by the encoder the level graphs were trained with, where
     that is not the sentence encoder), and the threshold that best separates the val captions
@@ -143,9 +204,14 @@ def write_repertoire(out: Path, encoder: Path, texts: list[str], sentences: np.n
     inside = nearest_cosine(embedder.embed(list(INSIDE)), known)
     outside = nearest_cosine(embedder.embed(list(CALIBRATION)), known)
     threshold, accepted, refused = calibrate([val, inside], outside)
-    return Repertoire(embeddings="repertoire.npy", captions="repertoire.json",
-                      prompts=None if prompts is None else "repertoire_prompts.npy",
-                      threshold=threshold, held_out_accepted=accepted, outside_refused=refused)
+    return Repertoire(
+        embeddings="repertoire.npy",
+        captions="repertoire.json",
+        prompts=None if prompts is None else "repertoire_prompts.npy",
+        threshold=threshold,
+        held_out_accepted=accepted,
+        outside_refused=refused,
+    )
 
 
 def own_captions(captions, split: str) -> tuple[np.ndarray, np.ndarray]:
@@ -166,12 +232,14 @@ def calibrate(inside: list[np.ndarray], outside: np.ndarray) -> tuple[float, flo
     neighbouring scores."""
     scores = np.unique(np.concatenate([*inside, outside]))
     candidates = (scores[1:] + scores[:-1]) / 2
-    rates = [[np.mean(group >= t) for group in inside] + [np.mean(outside < t)]
-             for t in candidates]
+    rates = [[np.mean(group >= t) for group in inside] + [np.mean(outside < t)] for t in candidates]
     best = int(np.argmax([sum(r) for r in rates]))
     accepted = np.mean(np.concatenate(inside) >= candidates[best])
-    return (round(float(candidates[best]), 4), round(float(accepted), 4),
-            round(float(rates[best][-1]), 4))
+    return (
+        round(float(candidates[best]), 4),
+        round(float(accepted), 4),
+        round(float(rates[best][-1]), 4),
+    )
 
 
 def kept_captions(texts: list[str], sentences: np.ndarray) -> np.ndarray:
@@ -191,9 +259,17 @@ def kept_captions(texts: list[str], sentences: np.ndarray) -> np.ndarray:
         groups.setdefault((action, frozenset(says[index].items())), []).append(index)
     half = REPERTOIRE_SIZE // 2
     shares = [(np.flatnonzero(~single), half)] + [
-        (np.array(rows), max(1, round(half * len(rows) / single.sum()))) for rows in groups.values()]
-    return np.sort(np.concatenate([rows[medoids(sentences[rows], min(share, len(rows)))]
-                                   for rows, share in shares if len(rows)]))
+        (np.array(rows), max(1, round(half * len(rows) / single.sum()))) for rows in groups.values()
+    ]
+    return np.sort(
+        np.concatenate(
+            [
+                rows[medoids(sentences[rows], min(share, len(rows)))]
+                for rows, share in shares
+                if len(rows)
+            ]
+        )
+    )
 
 
 def medoids(points: np.ndarray, k: int, iterations: int = 8, seed: int = 0) -> np.ndarray:

@@ -8,6 +8,7 @@ with the runtime's names:
 
 MiniLM's third input (token_type_ids, all zeros for one sentence) is made inside the graph.
 """
+
 from __future__ import annotations
 
 import os
@@ -24,8 +25,9 @@ from mogo.manifest import Graph
 
 INPUTS = ("token_ids", "attention_mask")
 OUTPUTS = ("prompt_embedding", "sentence_embedding")
-_MINILM = dict(ids="input_ids", mask="attention_mask", types="token_type_ids",
-               hidden="last_hidden_state")
+_MINILM = dict(
+    ids="input_ids", mask="attention_mask", types="token_type_ids", hidden="last_hidden_state"
+)
 _PREFIX = "head/"
 
 
@@ -47,22 +49,32 @@ def export_sentence_text_graph(minilm: Path, adapter: Adapter, path: str | os.Pa
     hidden = torch.randn(2, 7, adapter.linear.in_features)
     mask = torch.ones(2, 7, dtype=torch.long)
     b, s = Dim("batch"), Dim("seq")
-    export_module(Head(adapter), (hidden, mask), head_path,
-                  dict(inputs=["hidden", "attention_mask"], outputs=list(OUTPUTS)),
-                  ({0: b, 1: s}, {0: b, 1: s}))
+    export_module(
+        Head(adapter),
+        (hidden, mask),
+        head_path,
+        dict(inputs=["hidden", "attention_mask"], outputs=list(OUTPUTS)),
+        ({0: b, 1: s}, {0: b, 1: s}),
+    )
     head = onnx.compose.add_prefix(onnx.load(head_path), _PREFIX)
     head_path.unlink()
     model = onnx.load(minilm)
     graph = model.graph
-    rename = {_MINILM["ids"]: INPUTS[0], _PREFIX + "hidden": _MINILM["hidden"],
-              _PREFIX + "attention_mask": _MINILM["mask"],
-              **{_PREFIX + name: name for name in OUTPUTS}}
+    rename = {
+        _MINILM["ids"]: INPUTS[0],
+        _PREFIX + "hidden": _MINILM["hidden"],
+        _PREFIX + "attention_mask": _MINILM["mask"],
+        **{_PREFIX + name: name for name in OUTPUTS},
+    }
     for node in [*graph.node, *head.graph.node]:
         node.input[:] = [rename.get(name, name) for name in node.input]
         node.output[:] = [rename.get(name, name) for name in node.output]
     zeros = onnx.helper.make_node(
-        "ConstantOfShape", ["token_type_shape"], [_MINILM["types"]],
-        value=onnx.helper.make_tensor("zero", onnx.TensorProto.INT64, [1], [0]))
+        "ConstantOfShape",
+        ["token_type_shape"],
+        [_MINILM["types"]],
+        value=onnx.helper.make_tensor("zero", onnx.TensorProto.INT64, [1], [0]),
+    )
     shape = onnx.helper.make_node("Shape", [INPUTS[0]], ["token_type_shape"])
     nodes = [shape, zeros, *graph.node, *head.graph.node]
     del graph.node[:]

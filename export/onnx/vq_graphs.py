@@ -26,6 +26,7 @@ codebooks and the per-level scale and bias are folded into constants, found by t
 of the decoder's dequantisation. The model is checked against the graphs before it is
 returned.
 """
+
 from __future__ import annotations
 
 import os
@@ -81,8 +82,9 @@ def export_vq_encoder(model: MoSAVQ, path: str | os.PathLike) -> Graph:
     c = model.config
     features = torch.zeros(2, 3 * c.down_factor + 1, c.feature_dim)  # not whole tokens
     names = dict(inputs=["features"], outputs=["ids"])
-    export_module(EncodeIds(model), (features,), path, names,
-                  ({0: Dim("batch"), 1: Dim("frames")},))
+    export_module(
+        EncodeIds(model), (features,), path, names, ({0: Dim("batch"), 1: Dim("frames")},)
+    )
     return Graph(Path(path).name, ("features",), ("ids",))
 
 
@@ -106,19 +108,24 @@ def vq_from_bundle(root: str | os.PathLike) -> MoSAVQ:
     vq = bundle.manifest.vq
     model = MoSAVQ(VQConfig(**vq.config), bundle.mean, bundle.std)
     state = model.state_dict()
-    graphs = {part: onnx.load(bundle.path(graph.file)).graph
-              for part, graph in (("encoder", vq.encoder), ("decoder", vq.decoder))}
+    graphs = {
+        part: onnx.load(bundle.path(graph.file)).graph
+        for part, graph in (("encoder", vq.encoder), ("decoder", vq.decoder))
+    }
     weights = {}
     for graph in graphs.values():
         for tensor in graph.initializer:
             name = tensor.name.removesuffix("_fp16").removeprefix("model.")
             if name in state:
                 weights[name] = torch.from_numpy(numpy_helper.to_array(tensor).astype(np.float32))
-    missing = [name for name in state if name.startswith(("encoder.", "decoder."))
-               and name not in weights]
+    missing = [
+        name for name in state if name.startswith(("encoder.", "decoder.")) and name not in weights
+    ]
     if missing:
-        raise ValueError(f"{bundle.root}: its VQ graphs lack {', '.join(missing[:3])}"
-                         f"{' ...' if len(missing) > 3 else ''} (not a mogo export?)")
+        raise ValueError(
+            f"{bundle.root}: its VQ graphs lack {', '.join(missing[:3])}"
+            f"{' ...' if len(missing) > 3 else ''} (not a mogo export?)"
+        )
     quantizer = _dequantisation(graphs["decoder"])
     codebook = quantizer["codebook"].reshape(state["quantizer.codebook"].shape)
     weights["quantizer.codebook"] = codebook
@@ -154,13 +161,21 @@ def _dequantisation(graph: onnx.GraphProto) -> dict[str, Tensor]:
         sub = [n for n in consumers.get(gather.output[0], []) if n.op_type == "Sub"]
         div = [n for n in consumers.get(sub[0].output[0], []) if n.op_type == "Div"] if sub else []
         try:
-            found = dict(codebook=value(gather.input[0]), bias=value(sub[0].input[1]),
-                         scale=value(div[0].input[1])) if div else None
+            found = (
+                dict(
+                    codebook=value(gather.input[0]),
+                    bias=value(sub[0].input[1]),
+                    scale=value(div[0].input[1]),
+                )
+                if div
+                else None
+            )
         except KeyError:
             found = None
         if found is not None:
-            return {name: torch.from_numpy(array.astype(np.float32))
-                    for name, array in found.items()}
+            return {
+                name: torch.from_numpy(array.astype(np.float32)) for name, array in found.items()
+            }
     raise ValueError("the VQ decoder graph has no dequantisation (codebook[ids] - b) / W")
 
 
@@ -177,8 +192,9 @@ def token_agreement(model: MoSAVQ, bundle: Bundle) -> float:
     on its tokens, fit the model's decoder."""
     features = model.eval().decode(random_ids(model.config, 2, 48, seed=0))
     graph = bundle.manifest.vq.encoder
-    graph_ids = cpu_session(bundle.path(graph.file)).run(
-        None, {graph.inputs[0]: features.numpy()})[0]
+    graph_ids = cpu_session(bundle.path(graph.file)).run(None, {graph.inputs[0]: features.numpy()})[
+        0
+    ]
     return float(np.mean(model.encode(features).numpy() == graph_ids))
 
 
@@ -188,11 +204,14 @@ def _check_against_graphs(model: MoSAVQ, bundle: Bundle) -> None:
     graphs."""
     graph = bundle.manifest.vq.decoder
     ids = random_ids(model.config, 2, 48, seed=1)
-    graph_features = cpu_session(bundle.path(graph.file)).run(
-        None, {graph.inputs[0]: ids.numpy()})[0]
+    graph_features = cpu_session(bundle.path(graph.file)).run(None, {graph.inputs[0]: ids.numpy()})[
+        0
+    ]
     difference = float(np.abs(model.decode(ids).numpy() - graph_features).max())
     agreement = token_agreement(model, bundle)
     if difference > IMPORT_MAX_DIFFERENCE or agreement < MIN_TOKEN_AGREEMENT:
-        raise ValueError(f"{bundle.root}: its VQ graphs do not read back into the model "
-                         f"(decoded features differ by {difference:.2g}, token agreement "
-                         f"{agreement:.1%})")
+        raise ValueError(
+            f"{bundle.root}: its VQ graphs do not read back into the model "
+            f"(decoded features differ by {difference:.2g}, token agreement "
+            f"{agreement:.1%})"
+        )

@@ -3,6 +3,7 @@ mogo.export.data.humanml3d.HumanML3DFolder): they feed the VQ (random fixed-leng
 whole clips batched by length) and the transformer (one item per caption, cut to its span).
 Whole splits are held in memory, normalised, as the standard HumanML3D loaders do.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -56,11 +57,15 @@ class MotionCropDataset(_EpochSeeded):
         self.clips = [c for c in clips if len(c) >= crop_frames]
         self.num_skipped = len(clips) - len(self.clips)
         if not self.clips:
-            raise DatasetError(f"{folder.root / f'{split}.txt'}: no clip has {crop_frames} "
-                               f"frames (the longest has {max(len(c) for c in clips)})")
+            raise DatasetError(
+                f"{folder.root / f'{split}.txt'}: no clip has {crop_frames} "
+                f"frames (the longest has {max(len(c) for c in clips)})"
+            )
         if self.num_skipped:
-            print(f"{split}: skipped {self.num_skipped} of {len(clips)} clips shorter than "
-                  f"{crop_frames} frames")
+            print(
+                f"{split}: skipped {self.num_skipped} of {len(clips)} clips shorter than "
+                f"{crop_frames} frames"
+            )
         self._set_room(np.array([len(c) - crop_frames + 1 for c in self.clips]))
 
     def __len__(self) -> int:
@@ -69,11 +74,12 @@ class MotionCropDataset(_EpochSeeded):
     def __getitem__(self, index: int) -> torch.Tensor:
         clip = self.clips[index]
         start = self._start(index)
-        return torch.from_numpy(clip[start:start + self.crop_frames].copy())
+        return torch.from_numpy(clip[start : start + self.crop_frames].copy())
 
 
-def whole_clip_features(folder: HumanML3DFolder, split: str, down_factor: int = 1,
-                        limit: int | None = None) -> list[np.ndarray]:
+def whole_clip_features(
+    folder: HumanML3DFolder, split: str, down_factor: int = 1, limit: int | None = None
+) -> list[np.ndarray]:
     """The first `limit` clips of a split, normalised, each (T, D) cut to whole tokens of
     `down_factor` frames (clips shorter than one token are left out)."""
     clips = []
@@ -83,8 +89,9 @@ def whole_clip_features(folder: HumanML3DFolder, split: str, down_factor: int = 
         if usable:
             clips.append(features[:usable])
     if not clips:
-        raise DatasetError(f"{folder.root / f'{split}.txt'}: no clip of at least {down_factor} "
-                           "frames")
+        raise DatasetError(
+            f"{folder.root / f'{split}.txt'}: no clip of at least {down_factor} frames"
+        )
     return clips
 
 
@@ -95,8 +102,14 @@ class WholeClipBatches(Dataset):
     split into equal shares. Which clips share a batch depends only on (seed, epoch): call
     `set_epoch` before each epoch. Clips are cut to whole tokens of `down_factor` frames."""
 
-    def __init__(self, folder: HumanML3DFolder, split: str, batch_size: int, seed: int = 0,
-                 down_factor: int = 1):
+    def __init__(
+        self,
+        folder: HumanML3DFolder,
+        split: str,
+        batch_size: int,
+        seed: int = 0,
+        down_factor: int = 1,
+    ):
         if batch_size < 1:
             raise ValueError(f"batch_size must be at least 1, got {batch_size}")
         self.seed = seed
@@ -110,8 +123,11 @@ class WholeClipBatches(Dataset):
 
     def set_epoch(self, epoch: int) -> None:
         rng = np.random.default_rng([self.seed, epoch])
-        self._batches = [batch for same, shares in zip(self._by_length, self._shares)
-                         for batch in np.array_split(rng.permutation(same), shares)]
+        self._batches = [
+            batch
+            for same, shares in zip(self._by_length, self._shares, strict=True)
+            for batch in np.array_split(rng.permutation(same), shares)
+        ]
 
     def __len__(self) -> int:
         return len(self._batches)
@@ -136,8 +152,14 @@ class TextMotionDataset(_EpochSeeded):
     Item: dict(caption=str, motion=(T, D) float32 tensor, length=T, id=clip ID).
     """
 
-    def __init__(self, folder: HumanML3DFolder, split: str, min_frames: int = MIN_FRAMES,
-                 max_frames: int = MAX_FRAMES, seed: int = 0):
+    def __init__(
+        self,
+        folder: HumanML3DFolder,
+        split: str,
+        min_frames: int = MIN_FRAMES,
+        max_frames: int = MAX_FRAMES,
+        seed: int = 0,
+    ):
         super().__init__(seed)
         if not 1 <= min_frames <= max_frames:
             raise ValueError(f"need 1 <= min_frames <= max_frames, got {min_frames}, {max_frames}")
@@ -164,11 +186,14 @@ class TextMotionDataset(_EpochSeeded):
                 self.ids.append(clip_id)
                 self.clips.append(clip)
         if not self.spans:
-            raise DatasetError(f"{folder.root / f'{split}.txt'}: no captioned span of at least "
-                               f"{min_frames} frames")
+            raise DatasetError(
+                f"{folder.root / f'{split}.txt'}: no captioned span of at least {min_frames} frames"
+            )
         if self.num_short or self.num_uncaptioned:
-            print(f"{split}: {len(self.spans)} caption spans; skipped {self.num_short} shorter "
-                  f"than {min_frames} frames and {self.num_uncaptioned} clips without texts/ID.txt")
+            print(
+                f"{split}: {len(self.spans)} caption spans; skipped {self.num_short} shorter "
+                f"than {min_frames} frames and {self.num_uncaptioned} clips without texts/ID.txt"
+            )
         self._set_room(np.array([max(1, s.end - s.start - max_frames + 1) for s in self.spans]))
 
     def __len__(self) -> int:
@@ -181,8 +206,7 @@ class TextMotionDataset(_EpochSeeded):
             start += self._start(index)
             end = start + self.max_frames
         motion = torch.from_numpy(self.clips[span.clip][start:end].copy())
-        return dict(caption=span.caption, motion=motion, length=end - start,
-                    id=self.ids[span.clip])
+        return dict(caption=span.caption, motion=motion, length=end - start, id=self.ids[span.clip])
 
 
 def collate_text_motion(batch: list[dict]) -> dict:
@@ -193,7 +217,12 @@ def collate_text_motion(batch: list[dict]) -> dict:
     lengths = torch.tensor([item["length"] for item in batch], dtype=torch.long)
     motion = torch.zeros(len(batch), int(lengths.max()), batch[0]["motion"].shape[-1])
     for row, item in enumerate(batch):
-        motion[row, :item["length"]] = item["motion"]
+        motion[row, : item["length"]] = item["motion"]
     mask = torch.arange(motion.shape[1])[None, :] < lengths[:, None]
-    return dict(motion=motion, lengths=lengths, mask=mask,
-                captions=[item["caption"] for item in batch], ids=[item["id"] for item in batch])
+    return dict(
+        motion=motion,
+        lengths=lengths,
+        mask=mask,
+        captions=[item["caption"] for item in batch],
+        ids=[item["id"] for item in batch],
+    )

@@ -10,6 +10,7 @@ Resuming is exact (same world size): batches depend only on (seed, epoch) (`batc
 every step reseeds torch from (seed, rank, step) (`begin_step`), so dropout and other training
 noise do not depend on what ran before.
 """
+
 from __future__ import annotations
 
 import math
@@ -23,9 +24,19 @@ from torch import Tensor, nn
 from torch.utils.data import Dataset
 
 from mogo.export.train.options import RunOptions
-from mogo.export.train.training import (MetricsLog, Process, all_reduce_mean, batches, begin_step,
-                                        format_duration, resumed_metrics_log, save_checkpoint,
-                                        seed_everything, steps_per_epoch, wrap_model)
+from mogo.export.train.training import (
+    MetricsLog,
+    Process,
+    all_reduce_mean,
+    batches,
+    begin_step,
+    format_duration,
+    resumed_metrics_log,
+    save_checkpoint,
+    seed_everything,
+    steps_per_epoch,
+    wrap_model,
+)
 
 GRAD_CLIP = 1.0  # the largest gradient norm of a step
 
@@ -34,6 +45,7 @@ class Trainer:
     """What one kind of model brings to the loop. `best_name` is the checkpoint key of the best
     validation score so far, `metric` the validation value it is, `worst` its value before any
     validation. The methods without a body here are the trainer's to write."""
+
     best_name: str
     metric: str
     higher_is_better = False
@@ -91,6 +103,7 @@ class Trainer:
 @dataclass
 class Run:
     """One run as the loop sees it."""
+
     out: Path
     options: RunOptions  # steps and intervals
     recipe: dict  # seed, lr, warmup
@@ -117,16 +130,18 @@ def train_loop(trainer: Trainer, run: Run) -> nn.Module:
     items, batch_size, collate = trainer.data()
     per_epoch = steps_per_epoch(items, batch_size, run.process)
     epoch, done = divmod(step, max(per_epoch, 1))  # batches() refuses a split under one batch
-    stream = batches(items, batch_size, run.process, run.recipe["seed"], collate,
-                     start_epoch=epoch)
+    stream = batches(items, batch_size, run.process, run.recipe["seed"], collate, start_epoch=epoch)
     for _ in range(done):
         next(stream)
     log = resumed_metrics_log(run.out, step, run.process)
     steps = run.options.steps
     if run.process.is_main:
-        print(f"{trainer.banner(model, per_epoch)}; {run.process.world_size} process(es) on "
-              f"{run.process.device}; {'resuming at' if step else 'starting at'} step {step} "
-              f"of {steps}", flush=True)
+        print(
+            f"{trainer.banner(model, per_epoch)}; {run.process.world_size} process(es) on "
+            f"{run.process.device}; {'resuming at' if step else 'starting at'} step {step} "
+            f"of {steps}",
+            flush=True,
+        )
     window = _Window()
     while step < steps:
         batch = next(stream)
@@ -146,14 +161,23 @@ def train_loop(trainer: Trainer, run: Run) -> nn.Module:
             out_of_time = _past_budget(started, run)
         if _due(step, run.options.val_every, steps) or out_of_time:
             best = _validate(trainer, model, run, log, step, best)
-        if run.process.is_main and (_due(step, run.options.checkpoint_every, steps)
-                                    or out_of_time):
-            save_checkpoint(run.out / "checkpoint.pt", model, optimizer, step, run.config,
-                            **{trainer.best_name: best}, **trainer.checkpoint_extras(None))
+        if run.process.is_main and (_due(step, run.options.checkpoint_every, steps) or out_of_time):
+            save_checkpoint(
+                run.out / "checkpoint.pt",
+                model,
+                optimizer,
+                step,
+                run.config,
+                **{trainer.best_name: best},
+                **trainer.checkpoint_extras(None),
+            )
         if out_of_time:
             if run.process.is_main:
-                print(f"stopped at step {step} of {steps}: past --max-minutes "
-                      f"{run.options.max_minutes:g} (--resume goes on)", flush=True)
+                print(
+                    f"stopped at step {step} of {steps}: past --max-minutes "
+                    f"{run.options.max_minutes:g} (--resume goes on)",
+                    flush=True,
+                )
             break
     return model
 
@@ -188,26 +212,38 @@ class _Window:
         self.count += 1
 
     def means(self) -> dict[str, float]:
-        return dict(zip(self.names, (self.sums / self.count).tolist()))
+        return dict(zip(self.names, (self.sums / self.count).tolist(), strict=True))
 
     def rate(self) -> float:
         """Steps a second."""
         return self.count / (time.perf_counter() - self.start)
 
 
-def _log_training(trainer: Trainer, model: nn.Module, run: Run, log: MetricsLog, step: int,
-                  lr: float, window: _Window) -> None:
+def _log_training(
+    trainer: Trainer,
+    model: nn.Module,
+    run: Run,
+    log: MetricsLog,
+    step: int,
+    lr: float,
+    window: _Window,
+) -> None:
     steps, rate = run.options.steps, window.rate()
     values = all_reduce_mean(window.means(), run.process)
-    log.write("train", step, lr=lr, **values, **trainer.train_extras(model),
-              steps_per_s=round(rate, 3))
+    log.write(
+        "train", step, lr=lr, **values, **trainer.train_extras(model), steps_per_s=round(rate, 3)
+    )
     if run.process.is_main:
-        print(f"step {step}/{steps}  {trainer.train_line(values)}  lr {lr:.2e}  {rate:.2f} "
-              f"steps/s  eta {format_duration((steps - step) / rate)}", flush=True)
+        print(
+            f"step {step}/{steps}  {trainer.train_line(values)}  lr {lr:.2e}  {rate:.2f} "
+            f"steps/s  eta {format_duration((steps - step) / rate)}",
+            flush=True,
+        )
 
 
-def _validate(trainer: Trainer, model: nn.Module, run: Run, log: MetricsLog, step: int,
-              best: float) -> float:
+def _validate(
+    trainer: Trainer, model: nn.Module, run: Run, log: MetricsLog, step: int, best: float
+) -> float:
     """Validate, log and keep the model in best.pt if it is the best so far; -> the best score."""
     values = trainer.validate(model)
     if values is None:
@@ -217,9 +253,15 @@ def _validate(trainer: Trainer, model: nn.Module, run: Run, log: MetricsLog, ste
     best = max(best, score) if trainer.higher_is_better else min(best, score)
     log.write("val", step, **values)
     if run.process.is_main:
-        print(f"val {step}  {trainer.val_line(values)}{'  (best)' if improved else ''}",
-              flush=True)
+        print(f"val {step}  {trainer.val_line(values)}{'  (best)' if improved else ''}", flush=True)
         if improved:
-            save_checkpoint(run.out / "best.pt", trainer.kept(model), None, step, run.config,
-                            **{trainer.best_name: best}, **trainer.checkpoint_extras(values))
+            save_checkpoint(
+                run.out / "best.pt",
+                trainer.kept(model),
+                None,
+                step,
+                run.config,
+                **{trainer.best_name: best},
+                **trainer.checkpoint_extras(values),
+            )
     return best

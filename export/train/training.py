@@ -5,6 +5,7 @@ One code path serves a single process and `torchrun --nproc_per_node N`: torchru
 RANK / WORLD_SIZE / LOCAL_RANK, and then each process joins the group (gloo on CPU, nccl on
 CUDA), sees its own shard of every epoch, and only rank 0 writes files.
 """
+
 from __future__ import annotations
 
 import copy
@@ -98,20 +99,39 @@ def unwrap_model(model: nn.Module) -> nn.Module:
     return model.module if isinstance(model, nn.parallel.DistributedDataParallel) else model
 
 
-def batches(dataset: Dataset, batch_size: int, process: Process, seed: int,
-            collate_fn: Callable | None = None, start_epoch: int = 0) -> Iterator:
+def batches(
+    dataset: Dataset,
+    batch_size: int,
+    process: Process,
+    seed: int,
+    collate_fn: Callable | None = None,
+    start_epoch: int = 0,
+) -> Iterator:
     """Endless shuffled batches, this rank's shard of each epoch. The order depends only on
     (seed, epoch), so a resumed run sees the batches it would have seen."""
     if len(dataset) < batch_size * process.world_size:
-        raise ValueError(f"the training split has {len(dataset)} items, fewer than one batch "
-                         f"of {batch_size} per process ({process.world_size} processes)")
-    sampler = DistributedSampler(dataset, num_replicas=process.world_size, rank=process.rank,
-                                 shuffle=True, seed=seed, drop_last=True)
+        raise ValueError(
+            f"the training split has {len(dataset)} items, fewer than one batch "
+            f"of {batch_size} per process ({process.world_size} processes)"
+        )
+    sampler = DistributedSampler(
+        dataset,
+        num_replicas=process.world_size,
+        rank=process.rank,
+        shuffle=True,
+        seed=seed,
+        drop_last=True,
+    )
     on_gpu = process.device.type == "cuda"  # there, workers assemble batches while it computes
-    loader = DataLoader(dataset, batch_size=batch_size, sampler=sampler, drop_last=True,
-                        collate_fn=collate_fn,
-                        num_workers=min(GPU_LOADER_WORKERS, os.cpu_count() or 1) if on_gpu else 0,
-                        pin_memory=on_gpu)
+    loader = DataLoader(
+        dataset,
+        batch_size=batch_size,
+        sampler=sampler,
+        drop_last=True,
+        collate_fn=collate_fn,
+        num_workers=min(GPU_LOADER_WORKERS, os.cpu_count() or 1) if on_gpu else 0,
+        pin_memory=on_gpu,
+    )
     epoch = start_epoch
     while True:
         sampler.set_epoch(epoch)
@@ -129,7 +149,7 @@ def equal_length_groups(lengths: list[int], batch_size: int) -> Iterator[list[in
         by_length.setdefault(length, []).append(index)
     for same in by_length.values():
         for first in range(0, len(same), batch_size):
-            yield same[first:first + batch_size]
+            yield same[first : first + batch_size]
 
 
 class WeightAverage:
@@ -142,8 +162,11 @@ class WeightAverage:
         if not 0 < decay < 1:
             raise ValueError(f"the weight average's decay must be in (0, 1), got {decay}")
         self.decay = decay
-        self.parameters = {name: p.detach().clone() for name, p in
-                           unwrap_model(model).named_parameters() if p.requires_grad}
+        self.parameters = {
+            name: p.detach().clone()
+            for name, p in unwrap_model(model).named_parameters()
+            if p.requires_grad
+        }
 
     @torch.no_grad()
     def update(self, model: nn.Module) -> None:
@@ -171,8 +194,9 @@ def warmup_cosine(step: int, warmup: int, total: int, peak: float, final: float)
     return final + 0.5 * (peak - final) * (1 + math.cos(math.pi * progress))
 
 
-def begin_step(optimizer: torch.optim.Optimizer, recipe: dict, step: int, steps: int,
-               rank: int) -> float:
+def begin_step(
+    optimizer: torch.optim.Optimizer, recipe: dict, step: int, steps: int, rank: int
+) -> float:
     """Before a training step: reseed torch (`step_seed`) and set the warm-up-cosine learning
     rate of the recipe (peak recipe["lr"], down to a tenth); -> the rate."""
     torch.manual_seed(step_seed(recipe["seed"], rank, step))
@@ -191,20 +215,33 @@ def make_optimizer(model: nn.Module, lr: float) -> torch.optim.AdamW:
     embeddings, relative-position tables or learned prompt/level vectors)."""
     decayed = {id(m.weight) for m in model.modules() if isinstance(m, nn.Linear)}
     params = [p for p in model.parameters() if p.requires_grad]
-    groups = [dict(params=[p for p in params if id(p) in decayed], weight_decay=WEIGHT_DECAY),
-              dict(params=[p for p in params if id(p) not in decayed], weight_decay=0.0)]
+    groups = [
+        dict(params=[p for p in params if id(p) in decayed], weight_decay=WEIGHT_DECAY),
+        dict(params=[p for p in params if id(p) not in decayed], weight_decay=0.0),
+    ]
     return torch.optim.AdamW(groups, lr=lr, betas=(0.9, 0.99))
 
 
-def save_checkpoint(path: Path, model: nn.Module, optimizer: torch.optim.Optimizer | None,
-                    step: int, config: dict, **extra) -> None:
+def save_checkpoint(
+    path: Path,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer | None,
+    step: int,
+    config: dict,
+    **extra,
+) -> None:
     """Tensors, numbers, strings and containers only, so `load_checkpoint` can refuse anything
     else (weights_only=True). Written to a temporary file and renamed: a run killed mid-save
     keeps its previous checkpoint."""
-    state = dict(format=CHECKPOINT_FORMAT, step=step, config=config,
-                 model=unwrap_model(model).state_dict(),
-                 optimizer=optimizer.state_dict() if optimizer is not None else None,
-                 torch_rng=torch.get_rng_state(), **extra)
+    state = dict(
+        format=CHECKPOINT_FORMAT,
+        step=step,
+        config=config,
+        model=unwrap_model(model).state_dict(),
+        optimizer=optimizer.state_dict() if optimizer is not None else None,
+        torch_rng=torch.get_rng_state(),
+        **extra,
+    )
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(path.name + ".partial")
     torch.save(state, partial)
@@ -225,8 +262,12 @@ class MetricsLog:
     def write(self, kind: str, step: int, **values: float) -> None:
         if not self.enabled:
             return
-        record = dict(kind=kind, step=step, seconds=round(time.perf_counter() - self.start, 3),
-                      **{k: _plain(v) for k, v in values.items()})
+        record = dict(
+            kind=kind,
+            step=step,
+            seconds=round(time.perf_counter() - self.start, 3),
+            **{k: _plain(v) for k, v in values.items()},
+        )
         with self.path.open("a") as log:
             log.write(json.dumps(record) + "\n")
 
@@ -255,8 +296,10 @@ def merge_recipe(defaults: dict, given: dict, state: dict | None) -> dict:
         if value is None:
             continue
         if state is not None and value != base[name]:
-            raise ValueError(f"--{name.replace('_', '-')} {value} differs from the run's "
-                             f"{base[name]}; a resumed run keeps its settings")
+            raise ValueError(
+                f"--{name.replace('_', '-')} {value} differs from the run's "
+                f"{base[name]}; a resumed run keeps its settings"
+            )
         recipe[name] = value
     return recipe
 
@@ -272,8 +315,11 @@ def resumed_metrics_log(out: Path, step: int, process: Process) -> MetricsLog:
     and its next checkpoint), so a resumed log reads as one uninterrupted run."""
     path = Path(out) / "metrics.jsonl"
     if process.is_main and path.is_file():
-        kept = [line for line in path.read_text().splitlines()
-                if line.strip() and json.loads(line)["step"] <= step]
+        kept = [
+            line
+            for line in path.read_text().splitlines()
+            if line.strip() and json.loads(line)["step"] <= step
+        ]
         path.write_text("".join(line + "\n" for line in kept))
     return MetricsLog(path, enabled=process.is_main)
 
@@ -290,10 +336,11 @@ def all_reduce_mean(values: dict[str, float], process: Process) -> dict[str, flo
     if not process.distributed:
         return values
     names = sorted(values)
-    tensor = torch.tensor([float(values[n]) for n in names], dtype=torch.float64,
-                          device=process.device)
+    tensor = torch.tensor(
+        [float(values[n]) for n in names], dtype=torch.float64, device=process.device
+    )
     dist.all_reduce(tensor)
-    return {n: float(v) / process.world_size for n, v in zip(names, tensor.tolist())}
+    return {n: float(v) / process.world_size for n, v in zip(names, tensor.tolist(), strict=True)}
 
 
 def _plain(value):

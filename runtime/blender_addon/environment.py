@@ -47,12 +47,15 @@ def runtime(context=None):
         raise UserError(
             f"MOGO runtime not found ({', '.join(missing)} missing in {folder}): press Install "
             f"in Preferences > Add-ons > MOGO, or set 'Packages folder' to the site-packages of "
-            f"a Python {version} environment with mogo-edge installed")
+            f"a Python {version} environment with mogo-edge installed"
+        )
     import mogo
+
     if not hasattr(mogo, "MotionGenerator"):  # PyPI's `mogo`, a PyMongo wrapper
         raise UserError(
             f"the 'mogo' in {os.path.dirname(os.path.dirname(mogo.__file__))} is PyPI's "
-            f"unrelated package, not MOGO: press Install in Preferences > Add-ons > MOGO")
+            f"unrelated package, not MOGO: press Install in Preferences > Add-ons > MOGO"
+        )
     return mogo
 
 
@@ -74,13 +77,16 @@ def pip_commands(source: str, folder: str) -> list[list[str]]:
     """Blender's own Python: pip (bootstrapped by ensurepip where it lacks one), then the
     runtime with its dependencies into the packages folder."""
     python = sys.executable
-    return [[python, "-m", "ensurepip", "--upgrade"],
-            [python, "-m", "pip", "install", "--upgrade", "--target", folder, source]]
+    return [
+        [python, "-m", "ensurepip", "--upgrade"],
+        [python, "-m", "pip", "install", "--upgrade", "--target", folder, source],
+    ]
 
 
 class MOGO_OT_install_runtime(Background, bpy.types.Operator):
     """Install the MOGO runtime (mogo-edge with numpy, onnxruntime, tokenizers, pillow) into
     the packages folder with Blender's own Python and pip"""
+
     bl_idname = "mogo.install_runtime"
     bl_label = "Install MOGO runtime"
     label = "installing the runtime with pip"
@@ -89,9 +95,12 @@ class MOGO_OT_install_runtime(Background, bpy.types.Operator):
         given = addon_preferences(context).source.strip()
         source = bpy.path.abspath(given) if given else shipped_wheel()
         if not os.path.exists(source):
-            raise UserError(f"Install from: no such wheel file or project folder: {given}"
-                            if given else "this add-on ships no runtime wheel: set Install "
-                            "from to a mogo-edge wheel file or the project's folder")
+            raise UserError(
+                f"Install from: no such wheel file or project folder: {given}"
+                if given
+                else "this add-on ships no runtime wheel: set Install "
+                "from to a mogo-edge wheel file or the project's folder"
+            )
         self.commands = pip_commands(source, packages_folder(context))
 
     def work(self):
@@ -109,22 +118,28 @@ class MOGO_OT_install_runtime(Background, bpy.types.Operator):
 
 
 def _has_pip() -> bool:
-    return subprocess.run([sys.executable, "-m", "pip", "--version"],
-                          capture_output=True).returncode == 0
+    return (
+        subprocess.run([sys.executable, "-m", "pip", "--version"], capture_output=True).returncode
+        == 0
+    )
 
 
 class MOGO_AP_preferences(bpy.types.AddonPreferences):
     bl_idname = __package__
 
     site_packages: bpy.props.StringProperty(
-        name="Packages folder", subtype="DIR_PATH",
+        name="Packages folder",
+        subtype="DIR_PATH",
         description="Where the runtime is: empty = the add-on's own folder (Install fills it); "
-                    "or the site-packages of a Python environment of Blender's Python version "
-                    "that has mogo-edge installed")
+        "or the site-packages of a Python environment of Blender's Python version "
+        "that has mogo-edge installed",
+    )
     source: bpy.props.StringProperty(
-        name="Install from", subtype="FILE_PATH",
+        name="Install from",
+        subtype="FILE_PATH",
         description="What pip installs: empty = the runtime shipped with this add-on; or a "
-                    "mogo-edge wheel file or the project's folder")
+        "mogo-edge wheel file or the project's folder",
+    )
 
     def draw(self, context):
         layout = self.layout

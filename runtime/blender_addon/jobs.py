@@ -1,5 +1,6 @@
 """Long work off Blender's UI thread, with its progress in the status bar, and every error as
 one line in Blender's report area (never a traceback in the user's face)."""
+
 from __future__ import annotations
 
 import functools
@@ -22,6 +23,7 @@ def one_line(error: BaseException) -> str:
 
 def reported(method):
     """An operator's execute/invoke whose errors become one ERROR report and CANCELLED."""
+
     @functools.wraps(method)
     def run(self, context, *args):
         try:
@@ -29,6 +31,7 @@ def reported(method):
         except Exception as error:  # noqa: BLE001 - the report is the user's error message
             self.report({"ERROR"}, f"MOGO: {one_line(error)}")
             return {"CANCELLED"}
+
     return run
 
 
@@ -36,6 +39,7 @@ class Background:
     """An operator mix-in: prepare(context) on the UI thread, work() on a thread (no bpy
     there), finish(context, result) back on the UI thread. Blender run headless (-b) has no
     event loop for a modal operator, so there the work runs in place."""
+
     label = "working"
     _thread = _timer = None
 

@@ -1,6 +1,7 @@
 """Live mode: a MotionStream runs on a thread (the runtime's own streaming, rotations solved by
 its rig), a Blender timer writes what it made as keys while the timeline plays, a new prompt
 switches the stream mid-motion, and stopping keeps the keys as an Action."""
+
 from __future__ import annotations
 
 import queue
@@ -67,8 +68,15 @@ class LiveSession:
         while not self.chunks.empty():
             joints, world = self.chunks.get()
             frames = self.start + (self.written + np.arange(len(joints))) * self.step
-            self.last_keys = our_scene.write_pose(self.action, self.armature, self.ours, world,
-                                                  joints[:, 0] @ C.T, frames, self.last_keys)
+            self.last_keys = our_scene.write_pose(
+                self.action,
+                self.armature,
+                self.ours,
+                world,
+                joints[:, 0] @ C.T,
+                frames,
+                self.last_keys,
+            )
             self.written += len(joints)
             bpy.context.scene.frame_end = max(bpy.context.scene.frame_end, int(np.ceil(frames[-1])))
         return self.written

@@ -1,6 +1,7 @@
 """The add-on's side of the scene: our armature (created once, reused), motion written as
 Actions with one key per motion frame, actions read back, and a user's armature read at rest.
 numpy arrives with the runtime, so this module is imported only once the runtime is found."""
+
 from __future__ import annotations
 
 import bpy
@@ -35,8 +36,14 @@ def our_armature(context, ours: OurRig):
 def find_ours(ours: OurRig):
     """The armature built for this rest skeleton (another bundle's has other bones), if any."""
     signature = _signature(ours)
-    return next((thing for thing in bpy.data.objects
-                 if thing.type == "ARMATURE" and thing.get(RIG_KEY) == signature), None)
+    return next(
+        (
+            thing
+            for thing in bpy.data.objects
+            if thing.type == "ARMATURE" and thing.get(RIG_KEY) == signature
+        ),
+        None,
+    )
 
 
 def _signature(ours: OurRig) -> str:
@@ -69,8 +76,10 @@ def rest_frames(armature, names) -> np.ndarray:
 
 def parents_of(armature, names) -> list[int | None]:
     index = {name: k for k, name in enumerate(names)}
-    return [index.get(armature.data.bones[n].parent.name) if armature.data.bones[n].parent
-            else None for n in names]
+    return [
+        index.get(armature.data.bones[n].parent.name) if armature.data.bones[n].parent else None
+        for n in names
+    ]
 
 
 def new_action(armature, text: str, suffix: str = ""):
@@ -83,8 +92,7 @@ def new_action(armature, text: str, suffix: str = ""):
         armature.animation_data_create()
     armature.animation_data.action = action
     if SLOTTED:  # the action animates the armature through a slot bound to it
-        armature.animation_data.action_slot = action.slots.new(id_type="OBJECT",
-                                                               name=armature.name)
+        armature.animation_data.action_slot = action.slots.new(id_type="OBJECT", name=armature.name)
     for bone in armature.pose.bones:
         bone.rotation_mode = "QUATERNION"
     return action
@@ -98,15 +106,23 @@ def channels(action, slot=None):
     if not SLOTTED:
         return action
     if slot is None:
-        slot = action.slots[0] if len(action.slots) else action.slots.new(id_type="OBJECT",
-                                                                          name=ARMATURE)
+        slot = (
+            action.slots[0]
+            if len(action.slots)
+            else action.slots.new(id_type="OBJECT", name=ARMATURE)
+        )
     if not len(action.layers):
         action.layers.new("Layer").strips.new(type="KEYFRAME")
     return action.layers[0].strips[0].channelbag(slot, ensure=True)
 
 
-def add_keys(action, bone: str, frames: np.ndarray, quaternions: np.ndarray,
-             locations: np.ndarray | None = None) -> None:
+def add_keys(
+    action,
+    bone: str,
+    frames: np.ndarray,
+    quaternions: np.ndarray,
+    locations: np.ndarray | None = None,
+) -> None:
     """Keys at `frames` for one pose bone: rotation (T, 4), location (T, 3) if given; appended
     to the bone's curves when they exist (a stream's chunks)."""
     values_of = [("rotation_quaternion", quaternions)]
@@ -130,8 +146,15 @@ def add_keys(action, bone: str, frames: np.ndarray, quaternions: np.ndarray,
             curve.update()
 
 
-def write_pose(action, armature, ours: OurRig, world: np.ndarray, pelvis: np.ndarray,
-               frames: np.ndarray, previous: np.ndarray | None = None) -> np.ndarray:
+def write_pose(
+    action,
+    armature,
+    ours: OurRig,
+    world: np.ndarray,
+    pelvis: np.ndarray,
+    frames: np.ndarray,
+    previous: np.ndarray | None = None,
+) -> np.ndarray:
     """Our motion (world rotations from rest, pelvis, Blender axes) as keys at `frames` on our
     armature; returns the last quaternions (continuity for the next chunk of a stream)."""
     rest = rest_frames(armature, BONE_NAMES)
@@ -158,8 +181,9 @@ def read_pose(action, armature, ours: OurRig) -> tuple[np.ndarray, np.ndarray, n
         if frames is None:
             frames = np.array([point.co[0] for point in curves[0].keyframe_points])
         quaternions.append([[c.evaluate(f) for c in curves] for f in frames])
-    location = [fcurves.find(f'pose.bones["{BONE_NAMES[0]}"].location', index=axis)
-                for axis in range(3)]
+    location = [
+        fcurves.find(f'pose.bones["{BONE_NAMES[0]}"].location', index=axis) for axis in range(3)
+    ]
     offset = np.array([[c.evaluate(f) if c else 0.0 for c in location] for f in frames])
     pelvis = ours.heads[0] + offset @ rest[0].T
     quaternions = np.array(quaternions).transpose(1, 0, 2)
@@ -176,8 +200,15 @@ def read_target(armature) -> motion_keys.Target:
     u, _, vt = np.linalg.svd(linear)
     heads = np.array([np.array(b.head_local) for b in bones]) @ linear.T + matrix[:3, 3]
     tails = np.array([np.array(b.tail_local) for b in bones]) @ linear.T + matrix[:3, 3]
-    return motion_keys.Target(names, parents_of(armature, names), rest_frames(armature, names),
-                              u @ vt, np.linalg.inv(linear), heads, tails)
+    return motion_keys.Target(
+        names,
+        parents_of(armature, names),
+        rest_frames(armature, names),
+        u @ vt,
+        np.linalg.inv(linear),
+        heads,
+        tails,
+    )
 
 
 def match_scene(scene, fps: float, frames: int, match: bool) -> np.ndarray:

@@ -18,6 +18,7 @@ def generator(mogo):
     worker thread may call this) and our rig."""
     if "generator" not in _CACHE:
         from .motion_keys import OurRig
+
         loaded = mogo.MotionGenerator.load(threads=2)
         _CACHE.update(generator=loaded, ours=OurRig.of(loaded.skeleton))
     return _CACHE["generator"], _CACHE["ours"]
@@ -28,10 +29,14 @@ SAMPLING = ("temperature", "top_k", "top_p", "guidance")
 
 def request(settings) -> dict:
     """The panel's generation settings, read on the UI thread for a worker."""
-    return dict(text=settings.prompt, seed=None if settings.seed < 0 else settings.seed,
-                seconds=settings.seconds or None,
-                sampling={name: getattr(settings, name) for name in SAMPLING}
-                if settings.custom_sampling else {})  # {}: the bundle's defaults
+    return dict(
+        text=settings.prompt,
+        seed=None if settings.seed < 0 else settings.seed,
+        seconds=settings.seconds or None,
+        sampling={name: getattr(settings, name) for name in SAMPLING}
+        if settings.custom_sampling
+        else {},
+    )  # {}: the bundle's defaults
 
 
 class MOGO_PG_bone(bpy.types.PropertyGroup):
@@ -41,22 +46,32 @@ class MOGO_PG_bone(bpy.types.PropertyGroup):
 
 class MOGO_PG_settings(bpy.types.PropertyGroup):
     prompt: bpy.props.StringProperty(name="Prompt", default="a person walks forward")
-    seconds: bpy.props.FloatProperty(name="Seconds", default=4.0, min=0.0, max=60.0,
-                                     description="Length; 0 lets the model end the motion")
-    seed: bpy.props.IntProperty(name="Seed", default=0, min=-1,
-                                description="Same seed, same motion; -1 draws a fresh one")
+    seconds: bpy.props.FloatProperty(
+        name="Seconds",
+        default=4.0,
+        min=0.0,
+        max=60.0,
+        description="Length; 0 lets the model end the motion",
+    )
+    seed: bpy.props.IntProperty(
+        name="Seed", default=0, min=-1, description="Same seed, same motion; -1 draws a fresh one"
+    )
     custom_sampling: bpy.props.BoolProperty(name="Custom sampling", default=False)
     temperature: bpy.props.FloatProperty(name="Temperature", default=1.0, min=0.01, max=5.0)
     top_k: bpy.props.IntProperty(name="Top k", default=0, min=0)
     top_p: bpy.props.FloatProperty(name="Top p", default=1.0, min=0.01, max=1.0)
     guidance: bpy.props.FloatProperty(name="Guidance", default=1.0, min=0.0, max=10.0)
     match_scene: bpy.props.BoolProperty(
-        name="Set scene rate and range", default=True,
+        name="Set scene rate and range",
+        default=True,
         description="Set the scene to the motion's frame rate and range (one key per scene "
-                    "frame); off: keys spread over the scene's own rate")
+        "frame); off: keys spread over the scene's own rate",
+    )
     target: bpy.props.PointerProperty(
-        name="Target", type=bpy.types.Object,
-        poll=lambda self, thing: thing.type == "ARMATURE" and RIG_KEY not in thing)
+        name="Target",
+        type=bpy.types.Object,
+        poll=lambda self, thing: thing.type == "ARMATURE" and RIG_KEY not in thing,
+    )
     mapping: bpy.props.CollectionProperty(type=MOGO_PG_bone)
     mapping_index: bpy.props.IntProperty()
     live_prompt: bpy.props.StringProperty(name="Switch to", default="a person jogs forward")
@@ -64,6 +79,7 @@ class MOGO_PG_settings(bpy.types.PropertyGroup):
 
 class MOGO_OT_generate(Background, bpy.types.Operator):
     """Generate motion from the prompt onto the MOGO armature, as a new Action"""
+
     bl_idname = "mogo.generate"
     bl_label = "Generate"
     label = "generating motion"
@@ -84,25 +100,29 @@ class MOGO_OT_generate(Background, bpy.types.Operator):
     def finish(self, context, result):
         from . import scene as our_scene
         from .motion_keys import C
+
         motion, ours, world, notes = result
         armature = our_scene.our_armature(context, ours)
         action = our_scene.new_action(armature, motion.caption)
-        frames = our_scene.match_scene(context.scene, motion.fps, len(motion.joints),
-                                       context.scene.mogo.match_scene)
+        frames = our_scene.match_scene(
+            context.scene, motion.fps, len(motion.joints), context.scene.mogo.match_scene
+        )
         our_scene.write_pose(action, armature, ours, world, motion.joints[:, 0] @ C.T, frames)
         action["mogo_seed"], action["mogo_fps"] = motion.seed, motion.fps
         for note in notes:
             self.report({"WARNING"}, f"MOGO: {note}")
-        self.report({"INFO"}, f"MOGO: {action.name}: {len(frames)} frames at "
-                              f"{motion.fps:g} fps, seed {motion.seed}")
+        self.report(
+            {"INFO"},
+            f"MOGO: {action.name}: {len(frames)} frames at {motion.fps:g} fps, seed {motion.seed}",
+        )
 
 
 class MOGO_OT_map_preset(bpy.types.Operator):
     """Fill the bone mapping from a naming preset and the target's bone names"""
+
     bl_idname = "mogo.map_preset"
     bl_label = "Map bones"
-    preset: bpy.props.EnumProperty(items=[("MIXAMO", "Mixamo / Unity", ""),
-                                          ("SMPL", "SMPL", "")])
+    preset: bpy.props.EnumProperty(items=[("MIXAMO", "Mixamo / Unity", ""), ("SMPL", "SMPL", "")])
 
     @reported
     def execute(self, context):
@@ -115,17 +135,19 @@ class MOGO_OT_map_preset(bpy.types.Operator):
 
 def fill_mapping(settings, preset: str) -> None:
     from .motion_keys import BONE_NAMES, auto_map
+
     if settings.target is None:
         raise UserError("pick a target armature first")
     found = auto_map(preset, [bone.name for bone in settings.target.data.bones])
     settings.mapping.clear()
-    for joint, bone in zip(BONE_NAMES, found):
+    for joint, bone in zip(BONE_NAMES, found, strict=True):
         item = settings.mapping.add()
         item.joint, item.bone = joint, bone
 
 
 class MOGO_OT_retarget(bpy.types.Operator):
     """Bake the MOGO armature's current Action onto the target armature (a new Action)"""
+
     bl_idname = "mogo.retarget"
     bl_label = "Retarget"
 
@@ -133,6 +155,7 @@ class MOGO_OT_retarget(bpy.types.Operator):
     def execute(self, context):
         from . import scene as our_scene
         from .motion_keys import retarget
+
         settings = context.scene.mogo
         _, ours = generator(environment.runtime(context))
         source = our_scene.find_ours(ours)
@@ -145,24 +168,29 @@ class MOGO_OT_retarget(bpy.types.Operator):
             fill_mapping(settings, "MIXAMO")
         mapping = [item.bone for item in settings.mapping]
         frames, world, pelvis = our_scene.read_pose(action, source, ours)
-        keys, location, scale = retarget(world, pelvis, ours, our_scene.read_target(
-            settings.target), mapping)
+        keys, location, scale = retarget(
+            world, pelvis, ours, our_scene.read_target(settings.target), mapping
+        )
         baked = our_scene.new_action(settings.target, action.name, f" on {settings.target.name}")
         hips = mapping[0]
         for bone, quaternions in keys.items():
-            our_scene.add_keys(baked, bone, frames, quaternions,
-                               location if bone == hips else None)
-        self.report({"INFO"}, f"MOGO: {baked.name}: {len(keys)} bones, {len(frames)} frames, "
-                              f"root motion x{scale:.2f}")
+            our_scene.add_keys(baked, bone, frames, quaternions, location if bone == hips else None)
+        self.report(
+            {"INFO"},
+            f"MOGO: {baked.name}: {len(keys)} bones, {len(frames)} frames, "
+            f"root motion x{scale:.2f}",
+        )
         return {"FINISHED"}
 
 
 class MOGO_OT_live(bpy.types.Operator):
     """Start live mode: stream motion onto the MOGO armature while the timeline plays"""
+
     bl_idname = "mogo.live"
     bl_label = "Live"
-    mode: bpy.props.EnumProperty(items=[("START", "Start", ""), ("SWITCH", "Switch", ""),
-                                          ("STOP", "Stop", "")])
+    mode: bpy.props.EnumProperty(
+        items=[("START", "Start", ""), ("SWITCH", "Switch", ""), ("STOP", "Stop", "")]
+    )
 
     @reported
     def execute(self, context):
@@ -179,25 +207,27 @@ class MOGO_OT_live(bpy.types.Operator):
             session.switch(context.scene.mogo.live_prompt)
         else:
             frames = _CACHE.pop("live").stop()
-            self.report({"INFO"}, f"MOGO: live take kept as {session.action.name}: "
-                                  f"{frames} frames")
+            self.report({"INFO"}, f"MOGO: live take kept as {session.action.name}: {frames} frames")
         return {"FINISHED"}
 
 
 def start_live(context):
     from . import scene as our_scene
     from .live import LiveSession
+
     settings = context.scene.mogo
     loaded, ours = generator(environment.runtime(context))
     options = request(settings)
-    stream = loaded.stream(options["text"], seed=options["seed"],
-                           sampling=loaded.sampling(**options["sampling"]))
+    stream = loaded.stream(
+        options["text"], seed=options["seed"], sampling=loaded.sampling(**options["sampling"])
+    )
     armature = our_scene.our_armature(context, ours)
     action = our_scene.new_action(armature, settings.prompt, " (live)")
     frames = our_scene.match_scene(context.scene, loaded.fps, 2, settings.match_scene)
     context.scene.frame_current = int(frames[0])
-    return LiveSession(loaded, ours, armature, action, stream, float(frames[0]),
-                       float(frames[1] - frames[0]))
+    return LiveSession(
+        loaded, ours, armature, action, stream, float(frames[0]), float(frames[1] - frames[0])
+    )
 
 
 class MOGO_UL_mapping(bpy.types.UIList):
@@ -229,8 +259,11 @@ class MOGO_PT_panel(bpy.types.Panel):
         box.label(text="Live")
         row = box.row()
         running = "live" in _CACHE
-        row.operator(MOGO_OT_live.bl_idname, text="Stop" if running else "Start",
-                     icon="PAUSE" if running else "PLAY").mode = "STOP" if running else "START"
+        row.operator(
+            MOGO_OT_live.bl_idname,
+            text="Stop" if running else "Start",
+            icon="PAUSE" if running else "PLAY",
+        ).mode = "STOP" if running else "START"
         box.prop(settings, "live_prompt", text="")
         box.operator(MOGO_OT_live.bl_idname, text="Switch prompt").mode = "SWITCH"
         box = layout.box()
@@ -239,10 +272,19 @@ class MOGO_PT_panel(bpy.types.Panel):
         row = box.row(align=True)
         for preset, text in (("MIXAMO", "Mixamo names"), ("SMPL", "SMPL names")):
             row.operator(MOGO_OT_map_preset.bl_idname, text=text).preset = preset
-        box.template_list("MOGO_UL_mapping", "", settings, "mapping", settings, "mapping_index",
-                          rows=4)
+        box.template_list(
+            "MOGO_UL_mapping", "", settings, "mapping", settings, "mapping_index", rows=4
+        )
         box.operator(MOGO_OT_retarget.bl_idname, icon="MOD_ARMATURE")
 
 
-CLASSES = (MOGO_PG_bone, MOGO_PG_settings, MOGO_OT_generate, MOGO_OT_map_preset,
-           MOGO_OT_retarget, MOGO_OT_live, MOGO_UL_mapping, MOGO_PT_panel)
+CLASSES = (
+    MOGO_PG_bone,
+    MOGO_PG_settings,
+    MOGO_OT_generate,
+    MOGO_OT_map_preset,
+    MOGO_OT_retarget,
+    MOGO_OT_live,
+    MOGO_UL_mapping,
+    MOGO_PT_panel,
+)

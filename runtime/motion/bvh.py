@@ -13,6 +13,7 @@ tools that read position channels on every joint (Blender does; retargeting keep
 rotations). Euler angles stay continuous from frame to frame (whole turns, and the equivalent
 triple past X = 90 degrees), so a spin or a somersault interpolates cleanly.
 """
+
 from __future__ import annotations
 
 import math
@@ -38,9 +39,15 @@ NAMINGS = {
 }
 
 
-def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fps: float,
-             scale: float = 1.0, bone_translations: bool = False,
-             naming: str = "mixamo") -> None:
+def save_bvh(
+    path: str | os.PathLike,
+    joints: np.ndarray,
+    skeleton: Skeleton,
+    fps: float,
+    scale: float = 1.0,
+    bone_translations: bool = False,
+    naming: str = "mixamo",
+) -> None:
     """Write joints (T, J, 3) in metres (Y up) as a BVH of the rig; `scale` multiplies every
     length (1 = metres, which Blender imports at its default scale; 100 = centimetres; see
     UNITS); `bone_translations`: position channels on every joint too (see the module doc);
@@ -55,18 +62,29 @@ def save_bvh(path: str | os.PathLike, joints: np.ndarray, skeleton: Skeleton, fp
     bones = np.zeros_like(joints)  # (T, J, 3) each bone in its parent's frame, per frame
     for child in range(1, skeleton.num_joints):
         parent = parents[child]
-        bones[:, child] = np.einsum("tji,tj->ti", world[:, parent],
-                                    joints[:, child] - joints[:, parent])
+        bones[:, child] = np.einsum(
+            "tji,tj->ti", world[:, parent], joints[:, child] - joints[:, parent]
+        )
     bones[:, 0] = joints[:, 0]  # the root's position channels: where it is
 
     lines = ["HIERARCHY"]
-    _write_joint(lines, skeleton, names, 0, offsets * scale,
-                 rig.end_sites(skeleton, offsets * scale), depth=0,
-                 translations=bone_translations)
+    _write_joint(
+        lines,
+        skeleton,
+        names,
+        0,
+        offsets * scale,
+        rig.end_sites(skeleton, offsets * scale),
+        depth=0,
+        translations=bone_translations,
+    )
     lines += ["MOTION", f"Frames: {len(joints)}", f"Frame Time: {1.0 / fps:.8f}"]
-    columns = [np.concatenate([bones[:, j] * scale, angles[:, j]], axis=1)
-               if j == 0 or bone_translations else angles[:, j]
-               for j in rig.depth_first(skeleton)]
+    columns = [
+        np.concatenate([bones[:, j] * scale, angles[:, j]], axis=1)
+        if j == 0 or bone_translations
+        else angles[:, j]
+        for j in rig.depth_first(skeleton)
+    ]
     lines += [" ".join(f"{v:.6f}" for v in row) for row in np.concatenate(columns, axis=1)]
     Path(path).write_text("\n".join(lines) + "\n")
 
@@ -79,27 +97,36 @@ def check_options(scale: object, bone_translations: object, naming: object) -> N
     if not (math.isfinite(scale) and 0 < scale <= MAX_SCALE):
         raise ValueError(f"scale must be a positive number up to {MAX_SCALE:g}, got {scale!r}")
     if not isinstance(bone_translations, (bool, np.bool_)):
-        raise TypeError(f"bone_translations must be True or False, got "
-                        f"{type(bone_translations).__name__}")
+        raise TypeError(
+            f"bone_translations must be True or False, got {type(bone_translations).__name__}"
+        )
     joint_names(naming)
 
 
 def joint_names(naming: object) -> tuple[str, ...]:
     """The joint names of a naming (a key of NAMINGS), or a ValueError naming the choices."""
     if not isinstance(naming, str) or naming not in NAMINGS:
-        raise ValueError(f"naming must be one of {', '.join(NAMINGS)}, got "
-                         f"{reprlib.repr(naming)}")
+        raise ValueError(f"naming must be one of {', '.join(NAMINGS)}, got {reprlib.repr(naming)}")
     return NAMINGS[naming]
 
 
-def _write_joint(lines: list[str], skeleton: Skeleton, names: tuple[str, ...], joint: int,
-                 offsets: np.ndarray, tips: dict[int, np.ndarray], depth: int,
-                 translations: bool) -> None:
+def _write_joint(
+    lines: list[str],
+    skeleton: Skeleton,
+    names: tuple[str, ...],
+    joint: int,
+    offsets: np.ndarray,
+    tips: dict[int, np.ndarray],
+    depth: int,
+    translations: bool,
+) -> None:
     pad = "  " * depth
     kind = "ROOT" if depth == 0 else "JOINT"
-    lines += [f"{pad}{kind} {names[joint]}", f"{pad}{{",
-              f"{pad}  OFFSET {offsets[joint, 0]:.6f} {offsets[joint, 1]:.6f} "
-              f"{offsets[joint, 2]:.6f}"]
+    lines += [
+        f"{pad}{kind} {names[joint]}",
+        f"{pad}{{",
+        f"{pad}  OFFSET {offsets[joint, 0]:.6f} {offsets[joint, 1]:.6f} {offsets[joint, 2]:.6f}",
+    ]
     rotation_channels = " ".join(f"{axis}rotation" for axis in EULER_ORDER)
     if depth == 0 or translations:
         lines.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition {rotation_channels}")
@@ -110,8 +137,12 @@ def _write_joint(lines: list[str], skeleton: Skeleton, names: tuple[str, ...], j
         _write_joint(lines, skeleton, names, child, offsets, tips, depth + 1, translations)
     if not kids:
         tip = tips[joint]
-        lines += [f"{pad}  End Site", f"{pad}  {{",
-                  f"{pad}    OFFSET {tip[0]:.6f} {tip[1]:.6f} {tip[2]:.6f}", f"{pad}  }}"]
+        lines += [
+            f"{pad}  End Site",
+            f"{pad}  {{",
+            f"{pad}    OFFSET {tip[0]:.6f} {tip[1]:.6f} {tip[2]:.6f}",
+            f"{pad}  }}",
+        ]
     lines.append(f"{pad}}}")
 
 
@@ -123,8 +154,10 @@ def _continuous(angles: np.ndarray) -> np.ndarray:
     alternate = np.stack([z + np.pi, np.pi - x, y + np.pi], axis=-1)
     chosen = angles.copy()
     for t in range(1, len(angles)):
-        steps = [np.abs((c[t] - chosen[t - 1] + np.pi) % (2 * np.pi) - np.pi).sum(-1)
-                 for c in (angles, alternate)]
+        steps = [
+            np.abs((c[t] - chosen[t - 1] + np.pi) % (2 * np.pi) - np.pi).sum(-1)
+            for c in (angles, alternate)
+        ]
         chosen[t] = np.where((steps[1] < steps[0])[:, None], alternate[t], angles[t])
     return np.unwrap(chosen, axis=0)
 
@@ -133,7 +166,8 @@ def _matrix_to_zxy(m: np.ndarray) -> np.ndarray:
     """Euler angles (..., 3) radians, ordered (z, x, y), with m = Rz @ Rx @ Ry."""
     x = np.arcsin(np.clip(m[..., 2, 1], -1.0, 1.0))
     locked = np.abs(np.cos(x)) < _GIMBAL
-    z = np.where(locked, np.arctan2(m[..., 1, 0], m[..., 0, 0]),
-                 np.arctan2(-m[..., 0, 1], m[..., 1, 1]))
+    z = np.where(
+        locked, np.arctan2(m[..., 1, 0], m[..., 0, 0]), np.arctan2(-m[..., 0, 1], m[..., 1, 1])
+    )
     y = np.where(locked, 0.0, np.arctan2(-m[..., 2, 0], m[..., 2, 2]))
     return np.stack([z, x, y], axis=-1)

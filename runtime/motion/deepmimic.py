@@ -20,6 +20,7 @@ end of the forearm). What that humanoid lacks is a fixed point of the body part 
   down (ankle frame), near the front of DeepMimic's foot box.
 No wrist, head or toe rotation exists in the file: those points move rigidly with their part.
 """
+
 from __future__ import annotations
 
 import math
@@ -49,14 +50,28 @@ _BONES = {
     "left_elbow": ("left_shoulder", (0.0, -0.274788, 0.0)),
 }
 # the file's rotations after the root's, in order: (joint, 4 for a quaternion, 1 for an angle)
-_LAYOUT = (("chest", 4), ("neck", 4), ("right_hip", 4), ("right_knee", 1), ("right_ankle", 4),
-           ("right_shoulder", 4), ("right_elbow", 1), ("left_hip", 4), ("left_knee", 1),
-           ("left_ankle", 4), ("left_shoulder", 4), ("left_elbow", 1))
+_LAYOUT = (
+    ("chest", 4),
+    ("neck", 4),
+    ("right_hip", 4),
+    ("right_knee", 1),
+    ("right_ankle", 4),
+    ("right_shoulder", 4),
+    ("right_elbow", 1),
+    ("left_hip", 4),
+    ("left_knee", 1),
+    ("left_ankle", 4),
+    ("left_shoulder", 4),
+    ("left_elbow", 1),
+)
 # each of our joints: the humanoid's part it moves with and its place in that part's frame
 _POINTS = {
-    "pelvis": ("root", (0, 0.07, 0)), "spine1": ("root", (0, (0.07 + 0.236151) / 2, 0)),
-    "spine2": ("chest", (0, 0, 0)), "spine3": ("chest", (0, 0.25 * 0.223894, 0)),
-    "neck": ("neck", (0, 0, 0)), "head": ("neck", (0.02, 0.10, 0)),
+    "pelvis": ("root", (0, 0.07, 0)),
+    "spine1": ("root", (0, (0.07 + 0.236151) / 2, 0)),
+    "spine2": ("chest", (0, 0, 0)),
+    "spine3": ("chest", (0, 0.25 * 0.223894, 0)),
+    "neck": ("neck", (0, 0, 0)),
+    "head": ("neck", (0.02, 0.10, 0)),
     "left_collar": ("chest", (-0.01, 0.215, -0.075)),
     "right_collar": ("chest", (-0.01, 0.215, 0.075)),
     "left_wrist": ("left_elbow", (0, -0.258947, 0)),
@@ -77,12 +92,20 @@ def read_deepmimic(text: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
     ValueError, one line naming the file, for what is not such a file."""
     document = parse_json(text, str(path))
     rows = document.get("Frames") if isinstance(document, dict) else None
-    if not isinstance(rows, list) or len(rows) < 2 or not all(
-            isinstance(row, list) and len(row) == VALUES_PER_FRAME and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
-            for row in rows):
-        raise ValueError(f"{path}: not a DeepMimic motion file: \"Frames\" must be a list of at "
-                         f"least 2 rows of {VALUES_PER_FRAME} numbers (humanoid3d)")
+    if (
+        not isinstance(rows, list)
+        or len(rows) < 2
+        or not all(
+            isinstance(row, list)
+            and len(row) == VALUES_PER_FRAME
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+            for row in rows
+        )
+    ):
+        raise ValueError(
+            f'{path}: not a DeepMimic motion file: "Frames" must be a list of at '
+            f"least 2 rows of {VALUES_PER_FRAME} numbers (humanoid3d)"
+        )
     frames = np.array([[_finite_or_inf(v) for v in row] for row in rows], dtype=np.float64)
     if not np.all(np.isfinite(frames)):
         raise ValueError(f"{path}: holds NaN or infinite values")
@@ -110,7 +133,7 @@ def _forward_kinematics(frames: np.ndarray) -> tuple[dict[str, np.ndarray], dict
     local = {"root": qto_matrix(qnormalize(frames[:, 4:8]))}
     column = 8
     for joint, width in _LAYOUT:
-        values = frames[:, column:column + width]
+        values = frames[:, column : column + width]
         column += width
         if width == 1:  # a hinge about Z
             half = 0.5 * values[:, 0]

@@ -13,6 +13,7 @@ Feature row t of a clip with T frames (T-1 rows), J joints:
 direction follows the same pipeline (canonicalise, facing, IK) so that recovering the features
 reproduces the canonical joints.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,11 +29,20 @@ def feature_layout(skeleton: Skeleton) -> list[tuple[str, int, int]]:
     """The blocks of a feature row as (name, start, stop), in the order of the docstring above:
     what a bundle's manifest states for programs that read the features without this code."""
     j = skeleton.num_joints
-    widths = [("root_yaw_velocity", 1), ("root_xz_velocity", 2), ("root_height", 1),
-              ("joint_positions", 3 * (j - 1)), ("joint_rotations_6d", 6 * (j - 1)),
-              ("joint_velocities", 3 * j), ("foot_contacts", 4)]
+    widths = [
+        ("root_yaw_velocity", 1),
+        ("root_xz_velocity", 2),
+        ("root_height", 1),
+        ("joint_positions", 3 * (j - 1)),
+        ("joint_rotations_6d", 6 * (j - 1)),
+        ("joint_velocities", 3 * j),
+        ("foot_contacts", 4),
+    ]
     stops = np.cumsum([width for _, width in widths])
-    return [(name, int(stop - width), int(stop)) for (name, width), stop in zip(widths, stops)]
+    return [
+        (name, int(stop - width), int(stop))
+        for (name, width), stop in zip(widths, stops, strict=True)
+    ]
 
 
 def features_to_joints(features: np.ndarray, skeleton: Skeleton | None = None) -> np.ndarray:
@@ -73,26 +83,30 @@ def _checked_skeleton(features: np.ndarray, skeleton: Skeleton | None) -> Skelet
         raise ValueError(f"features must be (..., T, D), got shape {features.shape}")
     skeleton = skeleton or skeleton_for_feature_dim(features.shape[-1])
     if features.shape[-1] != skeleton.feature_dim:
-        raise ValueError(f"features have {features.shape[-1]} dims, the {skeleton.name} "
-                         f"skeleton needs {skeleton.feature_dim}")
+        raise ValueError(
+            f"features have {features.shape[-1]} dims, the {skeleton.name} "
+            f"skeleton needs {skeleton.feature_dim}"
+        )
     return skeleton
 
 
-def _joints(f: np.ndarray, skeleton: Skeleton, start_half_angle: np.ndarray,
-            start_xz: np.ndarray) -> np.ndarray:
+def _joints(
+    f: np.ndarray, skeleton: Skeleton, start_half_angle: np.ndarray, start_xz: np.ndarray
+) -> np.ndarray:
     """Joints (..., T, J, 3) float64 of features f (..., T, D), the root starting at the given
     yaw half-angle (...,) and XZ position (..., 2)."""
     root_quat, root_pos = _recover_root(f, start_half_angle, start_xz)
     num_rel = skeleton.num_joints - 1
-    relative = f[..., 4:4 + 3 * num_rel].reshape(f.shape[:-1] + (num_rel, 3))
+    relative = f[..., 4 : 4 + 3 * num_rel].reshape(f.shape[:-1] + (num_rel, 3))
     relative = qrot(qinv(root_quat)[..., None, :], relative)
     relative[..., 0] += root_pos[..., None, 0]
     relative[..., 2] += root_pos[..., None, 2]
     return np.concatenate([root_pos[..., None, :], relative], axis=-2)
 
 
-def _recover_root(f: np.ndarray, start_half_angle: np.ndarray,
-                  start_xz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _recover_root(
+    f: np.ndarray, start_half_angle: np.ndarray, start_xz: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Root rotation quaternions (..., T, 4) and positions (..., T, 3) from features."""
     half_angle = np.zeros_like(f[..., 0])
     half_angle[..., 1:] = np.cumsum(f[..., :-1, 0], axis=-1)
@@ -109,8 +123,9 @@ def _recover_root(f: np.ndarray, start_half_angle: np.ndarray,
     return root_quat, root_pos
 
 
-def canonicalize(joints: np.ndarray, skeleton: Skeleton = SMPL_22,
-                 facing_sigma: float = FACING_SMOOTHING_FRAMES) -> np.ndarray:
+def canonicalize(
+    joints: np.ndarray, skeleton: Skeleton = SMPL_22, facing_sigma: float = FACING_SMOOTHING_FRAMES
+) -> np.ndarray:
     """Put a clip on the floor (lowest joint at y=0), its first root XZ at the origin, and its
     first (smoothed) facing direction along +Z."""
     positions = np.array(joints, dtype=np.float64)
@@ -121,26 +136,35 @@ def canonicalize(joints: np.ndarray, skeleton: Skeleton = SMPL_22,
     return qrot(to_z, positions)
 
 
-def facing_directions(positions: np.ndarray, skeleton: Skeleton,
-                      facing_sigma: float = FACING_SMOOTHING_FRAMES) -> np.ndarray:
+def facing_directions(
+    positions: np.ndarray, skeleton: Skeleton, facing_sigma: float = FACING_SMOOTHING_FRAMES
+) -> np.ndarray:
     """Unit horizontal facing direction of each frame (T, 3): up x (right - left) of hips and
     shoulders, Gaussian-smoothed over time. As in HumanML3D, right - left is made unit length
     with its height in it, so a frame where the body rolls weighs less in the smoothing."""
     r_hip, l_hip, r_shoulder, l_shoulder = skeleton.face_joints
-    across = (positions[:, r_hip] - positions[:, l_hip]
-              + positions[:, r_shoulder] - positions[:, l_shoulder])
+    across = (
+        positions[:, r_hip]
+        - positions[:, l_hip]
+        + positions[:, r_shoulder]
+        - positions[:, l_shoulder]
+    )
     across /= _safe_norm(across, "the hips and shoulders give no left-right direction")
     forward = np.cross(np.array([0.0, 1.0, 0.0]), across)
     if facing_sigma > 0:
         forward = _gaussian_smooth(forward, facing_sigma)
-    return forward / _safe_norm(forward, "the facing direction reverses within the smoothing window")
+    return forward / _safe_norm(
+        forward, "the facing direction reverses within the smoothing window"
+    )
 
 
-def joints_to_features(joints: np.ndarray, skeleton: Skeleton = SMPL_22,
-                       local_rotations: np.ndarray | None = None,
-                       facing_sigma: float = FACING_SMOOTHING_FRAMES,
-                       contact_threshold: float = FOOT_CONTACT_THRESHOLD,
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def joints_to_features(
+    joints: np.ndarray,
+    skeleton: Skeleton = SMPL_22,
+    local_rotations: np.ndarray | None = None,
+    facing_sigma: float = FACING_SMOOTHING_FRAMES,
+    contact_threshold: float = FOOT_CONTACT_THRESHOLD,
+) -> tuple[np.ndarray, np.ndarray]:
     """Features (T-1, D) float32 and canonical joints (T, J, 3) float32 of a clip.
 
     `local_rotations` (T, J, 4) are used for the 6D block when known, in the convention of
@@ -165,28 +189,33 @@ def joints_to_features(joints: np.ndarray, skeleton: Skeleton = SMPL_22,
     if local_rotations is None:
         local_rotations = local_rotations_from_joints(positions, skeleton, root_quat)
     elif local_rotations.shape != joints.shape[:2] + (4,):
-        raise ValueError(f"local_rotations must be {joints.shape[:2] + (4,)}, "
-                         f"got {local_rotations.shape}")
+        raise ValueError(
+            f"local_rotations must be {joints.shape[:2] + (4,)}, got {local_rotations.shape}"
+        )
     rotations_6d = qto_cont6d(local_rotations[:, 1:])
 
     joint_velocity = qrot(root_quat[:-1, None], positions[1:] - positions[:-1])
     contacts = foot_contacts(positions, skeleton, contact_threshold)
 
     frames = positions.shape[0] - 1
-    features = np.concatenate([
-        yaw_velocity[:, None],
-        root_velocity[:, [0, 2]],
-        positions[:-1, 0, 1:2],
-        relative[:-1, 1:].reshape(frames, -1),
-        rotations_6d[:-1].reshape(frames, -1),
-        joint_velocity.reshape(frames, -1),
-        contacts,
-    ], axis=-1)
+    features = np.concatenate(
+        [
+            yaw_velocity[:, None],
+            root_velocity[:, [0, 2]],
+            positions[:-1, 0, 1:2],
+            relative[:-1, 1:].reshape(frames, -1),
+            rotations_6d[:-1].reshape(frames, -1),
+            joint_velocity.reshape(frames, -1),
+            contacts,
+        ],
+        axis=-1,
+    )
     return features.astype(np.float32), positions.astype(np.float32)
 
 
-def local_rotations_from_joints(positions: np.ndarray, skeleton: Skeleton,
-                                root_quat: np.ndarray) -> np.ndarray:
+def local_rotations_from_joints(
+    positions: np.ndarray, skeleton: Skeleton, root_quat: np.ndarray
+) -> np.ndarray:
     """Per-joint local rotations (T, J, 4) by the HumanML3D inverse kinematics.
 
     Joint j's rotation turns its raw offset direction onto the observed parent->j bone,
@@ -199,7 +228,7 @@ def local_rotations_from_joints(positions: np.ndarray, skeleton: Skeleton,
     rotations[:, 0] = root_quat
     for chain in skeleton.chains:
         accumulated = root_quat
-        for parent, child in zip(chain[:-1], chain[1:]):
+        for parent, child in zip(chain[:-1], chain[1:], strict=True):
             bone = positions[:, child] - positions[:, parent]
             rest = np.broadcast_to(skeleton.raw_offsets[child], bone.shape)
             local = qmul(qinv(accumulated), qbetween(rest, bone))
@@ -208,12 +237,13 @@ def local_rotations_from_joints(positions: np.ndarray, skeleton: Skeleton,
     return rotations
 
 
-def foot_contacts(positions: np.ndarray, skeleton: Skeleton,
-                  threshold: float = FOOT_CONTACT_THRESHOLD) -> np.ndarray:
+def foot_contacts(
+    positions: np.ndarray, skeleton: Skeleton, threshold: float = FOOT_CONTACT_THRESHOLD
+) -> np.ndarray:
     """(T-1, 4) float32 flags: 1 where a foot joint moved less than the threshold."""
     feet = list(skeleton.left_foot) + list(skeleton.right_foot)
     step = positions[1:, feet] - positions[:-1, feet]
-    return (np.sum(step ** 2, axis=-1) < threshold).astype(np.float32)
+    return (np.sum(step**2, axis=-1) < threshold).astype(np.float32)
 
 
 def _gaussian_smooth(x: np.ndarray, sigma: float) -> np.ndarray:

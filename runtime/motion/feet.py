@@ -30,6 +30,7 @@ asked, moves the body):
 It reads LOOKAHEAD frames ahead, so a stream emits a frame LOOKAHEAD frames after it is decoded.
 Any chunking of `push` (then `flush`) gives the output of one push of the whole clip.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -41,7 +42,7 @@ from .skeleton import Skeleton
 CONTACT = 0.5  # a contact channel above this holds its joint
 # m a frame (0.9 m/s, HumanML3D's contact threshold): a flagged joint stepping further is not
 # held (0.12, 2.4 m/s, would meet issue 25's 3 cm/s at a cost in pops: docs/feet.md)
-HOLD_STEP = FOOT_CONTACT_THRESHOLD ** 0.5
+HOLD_STEP = FOOT_CONTACT_THRESHOLD**0.5
 BODY_STEP = 0.067  # m a frame (1.34 m/s): the body step measured best, when one is asked for
 BODY_FRAMES = 3  # frames each such step back is spread over (the body slows, it does not jerk)
 BLEND_IN = 3  # frames to ease onto a pin before its contact starts
@@ -61,14 +62,17 @@ def leg_joints(skeleton: Skeleton) -> np.ndarray:
         knee = parents[ankle]
         hip = parents[knee] if knee >= 0 else -1
         if parents[toe] != ankle or hip <= 0 or parents[hip] != 0:
-            raise ValueError(f"foot planting needs legs hip -> knee -> ankle -> toe with contacts "
-                             f"on ankle and toe; the {skeleton.name} skeleton has other feet")
+            raise ValueError(
+                f"foot planting needs legs hip -> knee -> ankle -> toe with contacts "
+                f"on ankle and toe; the {skeleton.name} skeleton has other feet"
+            )
         legs.append((hip, knee, ankle, toe))
     return np.array(legs)
 
 
-def two_bone_ik(hip: np.ndarray, target: np.ndarray, pole: np.ndarray, upper: np.ndarray,
-                lower: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def two_bone_ik(
+    hip: np.ndarray, target: np.ndarray, pole: np.ndarray, upper: np.ndarray, lower: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Knee and ankle (..., 3) of a leg from the hip to `target`, bones of lengths upper and
     lower (...), the knee on the side of `pole` (a point, e.g. the decoded knee). A target out
     of reach is moved along the hip->target line to the nearest reachable distance."""
@@ -82,10 +86,13 @@ def two_bone_ik(hip: np.ndarray, target: np.ndarray, pole: np.ndarray, upper: np
     side_norm = _norm(side)
     # a straight decoded leg along the pole: bend in any plane, here the one across x
     fallback = np.stack([np.zeros_like(axis[..., 0]), axis[..., 2], -axis[..., 1]], -1)
-    side = np.where(side_norm > 1e-6, side / np.maximum(side_norm, 1e-9),
-                    fallback / np.maximum(_norm(fallback), 1e-9))
-    cos = (upper ** 2 + distance ** 2 - lower ** 2) / (2 * upper * distance)
-    sin = np.sqrt(np.clip(1 - cos ** 2, 0.0, 1.0))
+    side = np.where(
+        side_norm > 1e-6,
+        side / np.maximum(side_norm, 1e-9),
+        fallback / np.maximum(_norm(fallback), 1e-9),
+    )
+    cos = (upper**2 + distance**2 - lower**2) / (2 * upper * distance)
+    sin = np.sqrt(np.clip(1 - cos**2, 0.0, 1.0))
     knee = hip + upper * (cos * axis + sin * side)
     return knee, hip + distance * axis
 
@@ -99,8 +106,7 @@ class FootPlanter:
     """Cleans feet frame by frame: `push` decoded rows (features (n, D), joints (n, J, 3)),
     get back the rows whose frames are final, with planted feet; `flush` at the end."""
 
-    def __init__(self, skeleton: Skeleton, hold_step: float = HOLD_STEP,
-                 body_step: float = np.inf):
+    def __init__(self, skeleton: Skeleton, hold_step: float = HOLD_STEP, body_step: float = np.inf):
         self.hold_step, self.body_step = hold_step, body_step  # the bench compares others
         self.legs = leg_joints(skeleton)  # (2, 4)
         self.contacts = self.legs[:, 2:].reshape(-1)  # left ankle, left toe, right ...
@@ -147,8 +153,9 @@ class FootPlanter:
         if self.body_step != np.inf:
             joints = joints + self._shifts(ready)[:, None]
         targets, weights = self._targets(self._flags(), joints[:, self.contacts], ready)
-        out = self._solve(joints[:ready], targets, weights,
-                          np.broadcast_to(self._lengths, (ready, 3)))
+        out = self._solve(
+            joints[:ready], targets, weights, np.broadcast_to(self._lengths, (ready, 3))
+        )
         features = self._features[:ready]
         self._features, self._joints = self._features[ready:], self._joints[ready:]
         return features, out.astype(np.float32)
@@ -167,9 +174,9 @@ class FootPlanter:
         excess = np.where(fast, 1.0 - self.body_step / np.maximum(length, 1e-9), 0.0)
         back = -np.sum(excess[..., None] * steps, 1) / np.maximum(fast.sum(1), 1)[:, None]
         backs = np.concatenate([self._backs, back, np.zeros((1, 3))])  # (n + BODY_FRAMES - 1, 3)
-        spread = sum(backs[k:k + n] for k in range(BODY_FRAMES)) / BODY_FRAMES  # (n, 3)
+        spread = sum(backs[k : k + n] for k in range(BODY_FRAMES)) / BODY_FRAMES  # (n, 3)
         shifts = self._shift + np.concatenate([np.zeros((1, 3)), np.cumsum(spread, 0)])
-        self._shift, self._backs = shifts[ready], backs[ready:ready + BODY_FRAMES - 1]
+        self._shift, self._backs = shifts[ready], backs[ready : ready + BODY_FRAMES - 1]
         return shifts[:n]
 
     def _flags(self) -> np.ndarray:
@@ -177,10 +184,11 @@ class FootPlanter:
         steps less than HOLD_STEP (a swinging foot the channel calls planted is not held:
         holding it squeezes its stride into the frames before the next contact, docs/feet.md)."""
         speed = np.sum(self._features[:, self._velocity].astype(np.float64) ** 2, -1)
-        return (self._features[:, -4:] > CONTACT) & (speed < self.hold_step ** 2)
+        return (self._features[:, -4:] > CONTACT) & (speed < self.hold_step**2)
 
-    def _targets(self, flags: np.ndarray, paths: np.ndarray, ready: int
-                 ) -> tuple[np.ndarray, np.ndarray]:
+    def _targets(
+        self, flags: np.ndarray, paths: np.ndarray, ready: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Targets (ready, 4, 3) and planted weights (ready, 4) of the contact joints in the
         first `ready` buffered frames, from their flags (n, 4) and paths (n, 4, 3)."""
         if not ready:
@@ -189,17 +197,20 @@ class FootPlanter:
         held = flags | np.concatenate([self._flag[None], flags[:-1]])
         starts = held & ~np.concatenate([self._held[None], held[:-1]])
         pins = np.repeat(self._pin[None], n, 0)  # a contact going on from earlier frames
-        for i, k in zip(*np.nonzero(starts[:ready + BLEND_IN])):  # each contact: its pin
-            length = np.cumprod(held[i:i + PIN_FRAMES, k]).sum()
-            pins[i, k] = paths[i:i + length, k].mean(0)
+        for i, k in zip(
+            *np.nonzero(starts[: ready + BLEND_IN]), strict=True
+        ):  # each contact: its pin
+            length = np.cumprod(held[i : i + PIN_FRAMES, k]).sum()
+            pins[i, k] = paths[i : i + length, k].mean(0)
         run = np.maximum.accumulate(np.where(starts, frames, -1), axis=0)  # its start
         pins = np.where((run >= 0)[..., None], pins[np.maximum(run, 0), np.arange(4)], pins)
         held_offset = _offset(pins, paths)  # meaningful where held
         last = np.maximum.accumulate(np.where(held, frames, -1), axis=0)  # last held frame
         last = np.concatenate([np.full((1, 4), -1), last[:-1]])  # ... before this one
         since = np.where(last >= 0, frames - last, self._since + frames + 1)
-        released = np.where((last >= 0)[..., None], held_offset[np.maximum(last, 0),
-                                                                np.arange(4)], self._released)
+        released = np.where(
+            (last >= 0)[..., None], held_offset[np.maximum(last, 0), np.arange(4)], self._released
+        )
         out = _ease(1.0 - since / (BLEND_OUT + 1))
         upcoming = np.minimum.accumulate(np.where(flags, frames, n)[::-1], axis=0)[::-1]
         following = np.concatenate([upcoming[1:], np.full((1, 4), n)])  # first flag after
@@ -216,8 +227,9 @@ class FootPlanter:
         self._since = np.where(held[end], 0, since[end])
         return (paths + offset)[:ready], weight[:ready]
 
-    def _solve(self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray,
-               lengths: np.ndarray) -> np.ndarray:
+    def _solve(
+        self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray, lengths: np.ndarray
+    ) -> np.ndarray:
         """Rigid feet on or above the floor, then two-bone IK, both legs at once."""
         out = joints.copy()
         hip, knee, ankle, toe = self.legs.T  # each (2,): left, right
@@ -235,9 +247,10 @@ class FootPlanter:
         toe_share = np.where(total > 0, weights[..., 1] / np.maximum(total, 1e-9), 0.5)
         a = a + toe_share[..., None] * (span - foot) * along  # the more planted end stays
         a[..., 1] += np.maximum(0.0, -np.minimum(a[..., 1], (a + foot * along)[..., 1]))
-        thigh, shin = (np.repeat(lengths[:, k:k + 1], 2, 1) for k in (0, 1))
-        out[:, knee], out[:, ankle] = two_bone_ik(joints[:, hip], a,
-                                                  joints[:, knee] + forward[:, None], thigh, shin)
+        thigh, shin = (np.repeat(lengths[:, k : k + 1], 2, 1) for k in (0, 1))
+        out[:, knee], out[:, ankle] = two_bone_ik(
+            joints[:, hip], a, joints[:, knee] + forward[:, None], thigh, shin
+        )
         out[:, toe] = out[:, ankle] + foot * along
         return out
 
@@ -255,8 +268,9 @@ def _offset(pin: np.ndarray, position: np.ndarray) -> np.ndarray:
     return offset
 
 
-def planted(features: np.ndarray, joints: np.ndarray, skeleton: Skeleton, **steps: float
-            ) -> np.ndarray:
+def planted(
+    features: np.ndarray, joints: np.ndarray, skeleton: Skeleton, **steps: float
+) -> np.ndarray:
     """The joints (T, J, 3) float32 of a whole clip with planted feet (one push and a flush);
     `steps`: FootPlanter's hold_step and body_step."""
     planter = FootPlanter(skeleton, **steps)

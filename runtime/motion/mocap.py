@@ -11,6 +11,7 @@ Files may be hostile (docs/security.md): every size is bounded before anything i
 (MAX_SECONDS of motion, MAX_FRAMES frames, mogo.motion.untrusted's limit on a file's bytes),
 and each problem is one ValueError line naming the file.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,17 +21,21 @@ from pathlib import Path
 
 import numpy as np
 
-from mogo.motion import untrusted
-from mogo.motion import rigs
+from mogo.motion import rigs, untrusted
 from mogo.motion.deepmimic import is_deepmimic, read_deepmimic
 from mogo.motion.skeleton import SMPL_22, Skeleton
 
 # a person's ankle-to-head length along the bones, metres (about 1.5 for 1.7 m tall)
 BODY_LENGTH_RANGE = (0.5, 2.5)
 ADULT_BODY_LENGTH = 1.5
-UNITS = (("metres", 1.0), ("centimetres", 100.0), ("millimetres", 1000.0),
-         ("inches", 1 / 0.0254), ("feet", 1 / 0.3048),
-         ("CMU units (1/0.45 inch)", 0.45 / 0.0254))  # the CMU database's BVH conversions
+UNITS = (
+    ("metres", 1.0),
+    ("centimetres", 100.0),
+    ("millimetres", 1000.0),
+    ("inches", 1 / 0.0254),
+    ("feet", 1 / 0.3048),
+    ("CMU units (1/0.45 inch)", 0.45 / 0.0254),
+)  # the CMU database's BVH conversions
 _AXES = ("X", "Y", "Z")
 MAX_SECONDS = 3600.0  # of motion in a clip read in
 MAX_FRAMES = 500_000  # in a clip file, and after resampling (about an hour at 120 fps)
@@ -43,6 +48,7 @@ _CHANNEL_NAMES = {f"{axis}{kind}" for axis in _AXES for kind in ("position", "ro
 class BvhClip:
     """A BVH read back: joint names in file order, their parents (-1 for the root), rest
     offsets (J, 3), positions (T, J, 3) by forward kinematics, all in file units; fps."""
+
     names: tuple[str, ...]
     parents: tuple[int, ...]
     offsets: np.ndarray
@@ -54,13 +60,13 @@ class BvhClip:
 class MocapClip:
     """A motion-capture file as our 22 joints (T, 22, 3) in metres, Y up, at its own frame
     rate; `description` says what was found (format, naming, unit, up axis, rate)."""
+
     joints: np.ndarray
     fps: float
     description: str
 
 
-def read_mocap(path: str | os.PathLike, mapping: dict[str, rigs.Source] | None = None
-               ) -> MocapClip:
+def read_mocap(path: str | os.PathLike, mapping: dict[str, rigs.Source] | None = None) -> MocapClip:
     """A BVH or DeepMimic file (told apart by their text) as our 22 joints; `mapping`: a rig
     map (mogo.motion.rigs.read_mapping) for BVH joint names no built-in map knows.
     ValueError, one line naming the file, for what cannot be read or mapped."""
@@ -83,8 +89,11 @@ def read_mocap(path: str | os.PathLike, mapping: dict[str, rigs.Source] | None =
             rest = _points(_rest_positions(bvh)[None], sources)[0]
             unit, factor = _unit(rest, path)
             up, turn = _up_axis(rest)
-            clip = MocapClip(_points(bvh.positions, sources) @ turn.T / factor, bvh.fps,
-                             f"BVH, {naming} naming, {unit}, {up} up, {bvh.fps:.4g} fps")
+            clip = MocapClip(
+                _points(bvh.positions, sources) @ turn.T / factor,
+                bvh.fps,
+                f"BVH, {naming} naming, {unit}, {up} up, {bvh.fps:.4g} fps",
+            )
     check_coordinates(path, clip.joints)
     return clip
 
@@ -93,11 +102,15 @@ def check_coordinates(path: str | os.PathLike, joints: np.ndarray) -> None:
     """A ValueError naming the file unless joints (metres) are finite and within
     MAX_COORDINATE of the origin."""
     if not np.all(np.isfinite(joints)):
-        raise ValueError(f"{path}: holds NaN or infinite coordinates (numbers too large, or a "
-                         "rotation of all zeros)")
+        raise ValueError(
+            f"{path}: holds NaN or infinite coordinates (numbers too large, or a "
+            "rotation of all zeros)"
+        )
     if np.abs(joints).max() > MAX_COORDINATE:
-        raise ValueError(f"{path}: coordinates up to {np.abs(joints).max():.3g}; joints are "
-                         f"metres, within {MAX_COORDINATE:g} m of the origin")
+        raise ValueError(
+            f"{path}: coordinates up to {np.abs(joints).max():.3g}; joints are "
+            f"metres, within {MAX_COORDINATE:g} m of the origin"
+        )
 
 
 def check_length(path: str | os.PathLike, frames: int, fps: float) -> None:
@@ -105,8 +118,10 @@ def check_length(path: str | os.PathLike, frames: int, fps: float) -> None:
     MAX_SECONDS or MAX_FRAMES, or would be at 20 fps: checked before its arrays are made."""
     seconds = frames / fps
     if frames > MAX_FRAMES or seconds > MAX_SECONDS or seconds * SMPL_22.fps > MAX_FRAMES:
-        raise ValueError(f"{path}: {frames} frames at {fps:.4g} fps ({seconds:.4g} s); clips "
-                         f"read in are at most {MAX_SECONDS:g} s and {MAX_FRAMES} frames")
+        raise ValueError(
+            f"{path}: {frames} frames at {fps:.4g} fps ({seconds:.4g} s); clips "
+            f"read in are at most {MAX_SECONDS:g} s and {MAX_FRAMES} frames"
+        )
 
 
 def read_bvh(path: str | os.PathLike) -> BvhClip:
@@ -134,8 +149,11 @@ def resample(joints: np.ndarray, source_fps: float, target_fps: float) -> np.nda
     if source_fps == target_fps:
         return joints
     duration = (joints.shape[0] - 1) / source_fps
-    return _interpolate(joints, np.arange(joints.shape[0]) / source_fps,
-                        np.arange(0.0, duration + 1e-9, 1.0 / target_fps))
+    return _interpolate(
+        joints,
+        np.arange(joints.shape[0]) / source_fps,
+        np.arange(0.0, duration + 1e-9, 1.0 / target_fps),
+    )
 
 
 def _interpolate(joints: np.ndarray, source_times: np.ndarray, times: np.ndarray) -> np.ndarray:
@@ -147,7 +165,7 @@ def _interpolate(joints: np.ndarray, source_times: np.ndarray, times: np.ndarray
 
 def _points(positions: np.ndarray, sources: list[tuple[int, int, float]]) -> np.ndarray:
     """Our 22 joints (T, 22, 3) from a rig's joints (T, J, 3): each a + f (b - a)."""
-    a, b, f = (np.array(column) for column in zip(*sources))
+    a, b, f = (np.array(column) for column in zip(*sources, strict=True))
     return positions[:, a] + f[:, None] * (positions[:, b] - positions[:, a])
 
 
@@ -156,8 +174,11 @@ def _unit(rest: np.ndarray, path: Path) -> tuple[str, float]:
     to an adult's when several do; unknown units are scaled to an adult, and said so."""
     body = body_length(rest[None])
     low, high = BODY_LENGTH_RANGE
-    fits = [(abs(math.log(body / factor / ADULT_BODY_LENGTH)), name, factor)
-            for name, factor in UNITS if body > 0 and low <= body / factor <= high]
+    fits = [
+        (abs(math.log(body / factor / ADULT_BODY_LENGTH)), name, factor)
+        for name, factor in UNITS
+        if body > 0 and low <= body / factor <= high
+    ]
     if fits:
         return min(fits)[1:]
     if body <= 0:
@@ -170,8 +191,9 @@ def _up_axis(rest: np.ndarray) -> tuple[str, np.ndarray]:
     """The axis the head is farthest along from the ankles in the rest pose (e.g. "Z"), and
     the rotation (3, 3) that turns it to +Y."""
     names = SMPL_22.joint_names
-    rise = rest[names.index("head")] - 0.5 * (rest[names.index("left_ankle")] +
-                                              rest[names.index("right_ankle")])
+    rise = rest[names.index("head")] - 0.5 * (
+        rest[names.index("left_ankle")] + rest[names.index("right_ankle")]
+    )
     axis = int(np.argmax(np.abs(rise)))
     sign = 1.0 if rise[axis] >= 0 else -1.0
     up = np.zeros(3)
@@ -198,31 +220,38 @@ def _parse_bvh(text: str, path: Path) -> BvhClip:
         raise ValueError(f"{path}: not a BVH file (no HIERARCHY) nor a DeepMimic motion")
     try:
         names, parents, offsets, channels, i = _hierarchy(tokens)
-        if tokens[i:i + 2] != ["MOTION", "Frames:"] or tokens[i + 3:i + 5] != ["Frame", "Time:"]:
+        if tokens[i : i + 2] != ["MOTION", "Frames:"] or tokens[i + 3 : i + 5] != [
+            "Frame",
+            "Time:",
+        ]:
             raise _Unreadable("no MOTION section with Frames: and Frame Time:")
         frames, frame_time = _count(tokens[i + 2], "Frames:"), _number(tokens[i + 5])
         width = sum(len(c) for c in channels)
         if width == 0:
             raise _Unreadable("no joint has CHANNELS")
         if not frame_time >= MIN_FRAME_TIME:
-            raise _Unreadable(f"Frame Time: must be at least {MIN_FRAME_TIME:g} s, got "
-                              f"{tokens[i + 5][:20]}")
+            raise _Unreadable(
+                f"Frame Time: must be at least {MIN_FRAME_TIME:g} s, got {tokens[i + 5][:20]}"
+            )
         check_length(path, frames, 1.0 / frame_time)
         if frames < 1 or len(tokens) - (i + 6) != frames * width:
-            raise ValueError(f"{path}: {len(tokens) - (i + 6)} motion values, expected "
-                             f"{frames} frames x {width} channels")
+            raise ValueError(
+                f"{path}: {len(tokens) - (i + 6)} motion values, expected "
+                f"{frames} frames x {width} channels"
+            )
         try:
-            values = np.array(tokens[i + 6:], dtype=np.float64)
+            values = np.array(tokens[i + 6 :], dtype=np.float64)
         except ValueError:
-            values = np.array([_number(value) for value in tokens[i + 6:]])  # names the word
+            values = np.array([_number(value) for value in tokens[i + 6 :]])  # names the word
         if not np.all(np.isfinite(values)):
             raise _Unreadable("the motion values must be finite numbers")
     except IndexError:
         raise ValueError(f"{path}: not a readable BVH (the file ends too early)") from None
     except _Unreadable as error:
         raise ValueError(f"{path}: not a readable BVH ({error})") from None
-    positions = _forward_kinematics(values.reshape(frames, width), parents,
-                                    np.array(offsets), channels)
+    positions = _forward_kinematics(
+        values.reshape(frames, width), parents, np.array(offsets), channels
+    )
     return BvhClip(tuple(names), tuple(parents), np.array(offsets), positions, 1.0 / frame_time)
 
 
@@ -240,23 +269,29 @@ def _hierarchy(tokens: list[str]):
         inside = stack[-1] if stack else None
         if word in ("ROOT", "JOINT"):  # a name may hold spaces ("Bip01 L Thigh"): up to {
             if inside == _END_SITE or (word == "JOINT") != (inside is not None):
-                raise _Unreadable(f"{word} {tokens[i + 1]} "
-                                  + ("inside an End Site" if inside == _END_SITE else
-                                     "outside any joint" if word == "JOINT" else
-                                     "inside a joint"))
+                raise _Unreadable(
+                    f"{word} {tokens[i + 1]} "
+                    + (
+                        "inside an End Site"
+                        if inside == _END_SITE
+                        else "outside any joint"
+                        if word == "JOINT"
+                        else "inside a joint"
+                    )
+                )
             brace = i + 1
             while tokens[brace] not in ("{", "}", "MOTION"):
                 brace += 1
             if tokens[brace] != "{" or brace == i + 1:
                 raise _Unreadable(f"{word} without a name and a '{{'")
-            names.append(" ".join(tokens[i + 1:brace]))
+            names.append(" ".join(tokens[i + 1 : brace]))
             parents.append(-1 if inside is None else inside)
             offsets.append([0.0, 0.0, 0.0])
             channels.append([])
             stack.append(len(names) - 1)
             i = brace + 1
         elif word == "End":
-            if inside in (None, _END_SITE) or tokens[i + 1:i + 3] != ["Site", "{"]:
+            if inside in (None, _END_SITE) or tokens[i + 1 : i + 3] != ["Site", "{"]:
                 raise _Unreadable("an End Site outside a joint or without its '{'")
             stack.append(_END_SITE)
             i += 3
@@ -268,7 +303,7 @@ def _hierarchy(tokens: list[str]):
         elif word == "OFFSET":
             if inside is None:
                 raise _Unreadable("an OFFSET outside any joint")
-            offset = [_number(v) for v in tokens[i + 1:i + 4]]
+            offset = [_number(v) for v in tokens[i + 1 : i + 4]]
             if len(offset) != 3:
                 raise IndexError
             if inside != _END_SITE:
@@ -276,15 +311,20 @@ def _hierarchy(tokens: list[str]):
             i += 4
         elif word == "CHANNELS":
             if inside in (None, _END_SITE):
-                raise _Unreadable("CHANNELS in an End Site" if inside == _END_SITE else
-                                  "CHANNELS outside any joint")
+                raise _Unreadable(
+                    "CHANNELS in an End Site"
+                    if inside == _END_SITE
+                    else "CHANNELS outside any joint"
+                )
             if channels[inside]:
                 raise _Unreadable(f"two CHANNELS lines in joint {names[inside]}")
             count = _count(tokens[i + 1], "CHANNELS")
-            joint_channels = tokens[i + 2:i + 2 + count]
+            joint_channels = tokens[i + 2 : i + 2 + count]
             if not 1 <= count <= len(_CHANNEL_NAMES) or len(set(joint_channels)) != count:
-                raise _Unreadable(f"CHANNELS {count} in joint {names[inside]}: from 1 to "
-                                  f"{len(_CHANNEL_NAMES)} different channels")
+                raise _Unreadable(
+                    f"CHANNELS {count} in joint {names[inside]}: from 1 to "
+                    f"{len(_CHANNEL_NAMES)} different channels"
+                )
             if not set(joint_channels) <= _CHANNEL_NAMES:
                 raise _Unreadable(f"unknown channel in {' '.join(joint_channels)}")
             channels[inside] = joint_channels
@@ -319,15 +359,16 @@ def _number(token: str) -> float:
     return value
 
 
-def _forward_kinematics(values: np.ndarray, parents: list[int], offsets: np.ndarray,
-                        channels: list[list[str]]) -> np.ndarray:
+def _forward_kinematics(
+    values: np.ndarray, parents: list[int], offsets: np.ndarray, channels: list[list[str]]
+) -> np.ndarray:
     """Joint positions (T, J, 3): channels are applied in the order listed (R = R1 R2 R3); a
     joint's position channels replace its offset (the root's: where it is)."""
     frames = len(values)
     positions = np.zeros((frames, len(parents), 3))
     rotations = np.zeros((frames, len(parents), 3, 3))
     column = 0
-    for joint, (parent, joint_channels) in enumerate(zip(parents, channels)):
+    for joint, (parent, joint_channels) in enumerate(zip(parents, channels, strict=True)):
         translation = np.tile(offsets[joint], (frames, 1))
         local = np.tile(np.eye(3), (frames, 1, 1))
         for channel in joint_channels:
@@ -342,7 +383,8 @@ def _forward_kinematics(values: np.ndarray, parents: list[int], offsets: np.ndar
             positions[:, joint], rotations[:, joint] = translation, local
         else:
             positions[:, joint] = positions[:, parent] + np.einsum(
-                "tij,tj->ti", rotations[:, parent], translation)
+                "tij,tj->ti", rotations[:, parent], translation
+            )
             rotations[:, joint] = rotations[:, parent] @ local
     return positions
 

@@ -6,14 +6,16 @@ floor grid scrolls under a walking figure. Frames are drawn straight into a fixe
 writing the GIF needs no colour quantisation (a 196-frame clip renders in a fraction of a
 second).
 """
+
 from __future__ import annotations
 
 import itertools
 import math
 import textwrap
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO, Iterator
+from typing import BinaryIO
 
 import numpy as np
 from PIL import GifImagePlugin, Image, ImageChops, ImageDraw, ImageFont
@@ -26,10 +28,10 @@ PALETTE = [
     (250, 250, 247),  # background
     (212, 212, 206),  # floor grid
     (196, 196, 190),  # shadow on the floor
-    (70, 70, 70),     # spine, neck, head
-    (38, 110, 200),   # left limbs (blue)
-    (214, 68, 48),    # right limbs (red)
-    (25, 25, 25),     # text, joints
+    (70, 70, 70),  # spine, neck, head
+    (38, 110, 200),  # left limbs (blue)
+    (214, 68, 48),  # right limbs (red)
+    (25, 25, 25),  # text, joints
 ]
 
 
@@ -37,20 +39,25 @@ PALETTE = [
 class Camera:
     """View settings; the defaults frame a standing adult below a three-line caption."""
 
-    size: int = 320             # square image, pixels
-    azimuth_deg: float = 35.0   # about +Y, from +Z toward +X (the figure's front-left)
+    size: int = 320  # square image, pixels
+    azimuth_deg: float = 35.0  # about +Y, from +Z toward +X (the figure's front-left)
     elevation_deg: float = 14.0
-    distance: float = 5.0       # metres from the look-at point
-    look_height: float = 0.9    # metres: about the pelvis of a standing adult
-    focal: float = 600.0        # pixels
-    centre_y: float = 188.0     # pixel row of the look-at point, below the caption band
+    distance: float = 5.0  # metres from the look-at point
+    look_height: float = 0.9  # metres: about the pelvis of a standing adult
+    focal: float = 600.0  # pixels
+    centre_y: float = 188.0  # pixel row of the look-at point, below the caption band
     follow_seconds: float = 0.5  # time constant of the pan that follows the root
-    grid_step: float = 0.5      # metres between floor lines
-    grid_radius: float = 2.5    # half-width of the floor square around the look-at point
+    grid_step: float = 0.5  # metres between floor lines
+    grid_radius: float = 2.5  # half-width of the floor square around the look-at point
 
 
-def render_frames(joints: np.ndarray, caption: str = "", fps: float | None = None,
-                  skeleton: Skeleton | None = None, camera: Camera = Camera()) -> list[Image.Image]:
+def render_frames(
+    joints: np.ndarray,
+    caption: str = "",
+    fps: float | None = None,
+    skeleton: Skeleton | None = None,
+    camera: Camera = Camera(),
+) -> list[Image.Image]:
     """One palette image per frame of `joints` (T, J, 3), metres, Y up, floor at y = 0.
 
     The skeleton is inferred from J (22: HumanML3D, 21: KIT-ML) when not given; `fps`
@@ -59,9 +66,13 @@ def render_frames(joints: np.ndarray, caption: str = "", fps: float | None = Non
     return list(iter_frames(joints, caption, fps, skeleton, camera))
 
 
-def iter_frames(joints: np.ndarray, caption: str = "", fps: float | None = None,
-                skeleton: Skeleton | None = None, camera: Camera = Camera()
-                ) -> Iterator[Image.Image]:
+def iter_frames(
+    joints: np.ndarray,
+    caption: str = "",
+    fps: float | None = None,
+    skeleton: Skeleton | None = None,
+    camera: Camera = Camera(),
+) -> Iterator[Image.Image]:
     """render_frames one image at a time, so a clip of any length needs the memory of one
     image; the joints are checked now, before the first image is asked for."""
     joints = np.asarray(joints, dtype=np.float64)
@@ -81,15 +92,24 @@ def iter_frames(joints: np.ndarray, caption: str = "", fps: float | None = None,
     return _images(joints, look_at, skeleton, camera, base, fps, font)
 
 
-def _images(joints: np.ndarray, look_at: np.ndarray, skeleton: Skeleton, camera: Camera,
-            base: Image.Image, fps: float, font: ImageFont.FreeTypeFont) -> Iterator[Image.Image]:
+def _images(
+    joints: np.ndarray,
+    look_at: np.ndarray,
+    skeleton: Skeleton,
+    camera: Camera,
+    base: Image.Image,
+    fps: float,
+    font: ImageFont.FreeTypeFont,
+) -> Iterator[Image.Image]:
     frames = len(joints)
     for start in range(0, frames, _CHUNK):
-        scene = _Scene.project(joints[start:start + _CHUNK], look_at[start:start + _CHUNK],
-                               skeleton, camera)
+        scene = _Scene.project(
+            joints[start : start + _CHUNK], look_at[start : start + _CHUNK], skeleton, camera
+        )
         for t in range(start, start + len(scene.pixels)):
-            yield _draw(base.copy(), scene, t - start, f"frame {t + 1}/{frames}   {t / fps:.2f} s",
-                        font)
+            yield _draw(
+                base.copy(), scene, t - start, f"frame {t + 1}/{frames}   {t / fps:.2f} s", font
+            )
 
 
 _CHUNK = 256  # frames projected at a time: vectorised, yet memory does not grow with the clip
@@ -107,8 +127,9 @@ class _Scene:
     grid_pixels: np.ndarray  # (T, lines, ends, xy)
 
     @classmethod
-    def project(cls, joints: np.ndarray, look_at: np.ndarray, skeleton: Skeleton,
-                camera: Camera) -> _Scene:
+    def project(
+        cls, joints: np.ndarray, look_at: np.ndarray, skeleton: Skeleton, camera: Camera
+    ) -> _Scene:
         project = _projector(camera, look_at)  # (T, ..., 3) world -> (T, ..., 2) pixels, depth
         bones = [(int(p), j) for j, p in enumerate(skeleton.parents) if p >= 0]
         parents, children = np.array(bones).T
@@ -116,13 +137,19 @@ class _Scene:
         shadow = joints.copy()
         shadow[..., 1] = 0.0
         grid_pixels, _ = project(_grid_lines(look_at, camera).reshape(len(joints), -1, 3))
-        return cls(bones, _bone_colours(skeleton, bones), pixels, project(shadow)[0],
-                   depth[:, parents] + depth[:, children],
-                   grid_pixels.reshape(len(joints), -1, 2, 2))
+        return cls(
+            bones,
+            _bone_colours(skeleton, bones),
+            pixels,
+            project(shadow)[0],
+            depth[:, parents] + depth[:, children],
+            grid_pixels.reshape(len(joints), -1, 2, 2),
+        )
 
 
-def _draw(image: Image.Image, scene: _Scene, t: int, label: str,
-          font: ImageFont.FreeTypeFont) -> Image.Image:
+def _draw(
+    image: Image.Image, scene: _Scene, t: int, label: str, font: ImageFont.FreeTypeFont
+) -> Image.Image:
     """Frame t drawn over the background image (caption included)."""
     draw = ImageDraw.Draw(image)
     for a, b in scene.grid_pixels[t]:
@@ -139,8 +166,14 @@ def _draw(image: Image.Image, scene: _Scene, t: int, label: str,
     return image
 
 
-def save_gif(joints: np.ndarray, path: str | Path, caption: str = "", fps: float | None = None,
-             skeleton: Skeleton | None = None, camera: Camera = Camera()) -> Path:
+def save_gif(
+    joints: np.ndarray,
+    path: str | Path,
+    caption: str = "",
+    fps: float | None = None,
+    skeleton: Skeleton | None = None,
+    camera: Camera = Camera(),
+) -> Path:
     """Write a looping stick-figure GIF of `joints` (T, J, 3) with one GIF frame per frame,
     frame by frame: the memory of a few images, whatever the clip's length."""
     joints = np.asarray(joints, dtype=np.float64)
@@ -163,10 +196,14 @@ def write_gif(file: BinaryIO, images: Iterator[Image.Image], duration_ms: float)
     file.writelines(header)
     previous = None
     for image in itertools.chain([first], images):
-        box = ((0, 0, *image.size) if previous is None else
-               ImageChops.subtract_modulo(image, previous).getbbox() or (0, 0, 1, 1))
-        file.writelines(GifImagePlugin.getdata(image.crop(box), offset=box[:2],
-                                               duration=duration_ms))
+        box = (
+            (0, 0, *image.size)
+            if previous is None
+            else ImageChops.subtract_modulo(image, previous).getbbox() or (0, 0, 1, 1)
+        )
+        file.writelines(
+            GifImagePlugin.getdata(image.crop(box), offset=box[:2], duration=duration_ms)
+        )
         previous = image
     file.write(b";")
 
@@ -183,8 +220,10 @@ def _skeleton_for_joints(num_joints: int) -> Skeleton:
     for skeleton in (SMPL_22, KIT_21):
         if skeleton.num_joints == num_joints:
             return skeleton
-    raise ValueError(f"cannot infer a skeleton for {num_joints} joints; known: "
-                     f"{SMPL_22.num_joints} ({SMPL_22.name}), {KIT_21.num_joints} ({KIT_21.name})")
+    raise ValueError(
+        f"cannot infer a skeleton for {num_joints} joints; known: "
+        f"{SMPL_22.num_joints} ({SMPL_22.name}), {KIT_21.num_joints} ({KIT_21.name})"
+    )
 
 
 def _follow(xz: np.ndarray, frames_lag: float) -> np.ndarray:
@@ -241,8 +280,9 @@ def _bone_colours(skeleton: Skeleton, bones: list[tuple[int, int]]) -> list[int]
     colours = []
     for _, child in bones:
         name = skeleton.joint_names[child]
-        colours.append(LEFT if name.startswith("left_") else RIGHT if name.startswith("right_")
-                       else SPINE)
+        colours.append(
+            LEFT if name.startswith("left_") else RIGHT if name.startswith("right_") else SPINE
+        )
     return colours
 
 
@@ -253,7 +293,7 @@ def _wrap(text: str, font: ImageFont.FreeTypeFont, width_px: int, max_lines: int
     text = " ".join(text.split())
     if not text:
         return []
-    shown = text[:(max_lines + 1) * max(int(width_px), 1)]
+    shown = text[: (max_lines + 1) * max(int(width_px), 1)]
     average = max(font.getlength(shown), 1.0) / len(shown)
     chars = min(len(shown), max(8, int(width_px / average)))
     while chars > 8 and max(map(font.getlength, textwrap.wrap(shown, chars))) > width_px:

@@ -22,6 +22,7 @@ rotations with a sensible twist. This module gives both, from joint positions al
 Rigid bones cannot follow generated bones that stretch by centimetres, so the rig's joints are
 off the clip's by the length differences (docs/bvh.md states the figures).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,8 +36,19 @@ X, Y, Z = np.eye(3)
 # spine), fixed in that joint's frame: the corpus's hips, spine base, collars and neck base, so
 # motion of the corpus's proportions comes back exactly; a DCC bone spans none of them.
 _REST_DIRECTION = {
-    "hip": None, "knee": -Y, "ankle": -Y, "foot": Z, "spine1": None, "spine2": Y, "spine3": Y,
-    "neck": None, "head": Y, "collar": None, "shoulder": X, "elbow": X, "wrist": X,
+    "hip": None,
+    "knee": -Y,
+    "ankle": -Y,
+    "foot": Z,
+    "spine1": None,
+    "spine2": Y,
+    "spine3": Y,
+    "neck": None,
+    "head": Y,
+    "collar": None,
+    "shoulder": X,
+    "elbow": X,
+    "wrist": X,
 }
 _SPINE_SHARE = {"spine1": 1 / 3, "spine2": 2 / 3, "neck": 1.0}  # chest's lateral axis vs pelvis'
 BEND_FULL = np.sin(np.radians(20.0))  # a reference this far off the bone decides the twist alone
@@ -49,8 +61,9 @@ END_SITE = {"head": 1.0, "wrist": 0.3, "foot": 0.4}
 def check(skeleton: Skeleton) -> None:
     """The rig is the SMPL 22-joint one: its rules name joints."""
     if skeleton.joint_names != SMPL_22.joint_names or skeleton.rest_offsets is None:
-        raise ValueError(f"the rig needs the {SMPL_22.name} skeleton with rest offsets, got "
-                         f"{skeleton.name}")
+        raise ValueError(
+            f"the rig needs the {SMPL_22.name} skeleton with rest offsets, got {skeleton.name}"
+        )
 
 
 def checked_joints(joints: np.ndarray, skeleton: Skeleton, fps: float) -> np.ndarray:
@@ -136,8 +149,9 @@ def local_rotations(world: np.ndarray, skeleton: Skeleton) -> np.ndarray:
     return local
 
 
-def forward(offsets: np.ndarray, skeleton: Skeleton, root: np.ndarray, local: np.ndarray
-            ) -> np.ndarray:
+def forward(
+    offsets: np.ndarray, skeleton: Skeleton, root: np.ndarray, local: np.ndarray
+) -> np.ndarray:
     """Joint positions (T, J, 3) of the rig posed by local rotations, the pelvis at `root`."""
     world = np.zeros_like(local)
     joints = np.zeros(local.shape[:2] + (3,))
@@ -171,12 +185,15 @@ def depth_first(skeleton: Skeleton) -> list[int]:
 
 def _children(skeleton: Skeleton) -> list[list[int]]:
     parents = skeleton.parents
-    return [[c for c in range(skeleton.num_joints) if parents[c] == j]
-            for j in range(skeleton.num_joints)]
+    return [
+        [c for c in range(skeleton.num_joints) if parents[c] == j]
+        for j in range(skeleton.num_joints)
+    ]
 
 
-def _references(part: str, joints: np.ndarray, child: int, lateral: dict, chest: np.ndarray,
-                skeleton: Skeleton) -> tuple[np.ndarray, list[np.ndarray]]:
+def _references(
+    part: str, joints: np.ndarray, child: int, lateral: dict, chest: np.ndarray, skeleton: Skeleton
+) -> tuple[np.ndarray, list[np.ndarray]]:
     """A bone's rest twist reference and the observed ones that set its twist, best first."""
     if part in _SPINE_SHARE:
         share = _SPINE_SHARE[part]
@@ -195,8 +212,13 @@ def _references(part: str, joints: np.ndarray, child: int, lateral: dict, chest:
     return Z, []  # hinges and the ankle: the parent's twist
 
 
-def _aim(rest_bone: np.ndarray, rest_ref: np.ndarray, bone: np.ndarray,
-         candidates: list[np.ndarray], parent: np.ndarray) -> np.ndarray:
+def _aim(
+    rest_bone: np.ndarray,
+    rest_ref: np.ndarray,
+    bone: np.ndarray,
+    candidates: list[np.ndarray],
+    parent: np.ndarray,
+) -> np.ndarray:
     """The rotation taking the rest bone onto the observed bone, twisted so the rest reference
     goes to the observed references' blend (each weighted by how far it is off the bone, the
     parent's twist taking what is left)."""
@@ -218,8 +240,15 @@ def _aim(rest_bone: np.ndarray, rest_ref: np.ndarray, bone: np.ndarray,
     return _frame(direction, reference) @ _frame(_unit(rest_bone), rest_ref).T
 
 
-def _leaf(part: str, joints: np.ndarray, joint: int, parent: np.ndarray, offset: np.ndarray,
-          chest: np.ndarray, floor: float) -> np.ndarray:
+def _leaf(
+    part: str,
+    joints: np.ndarray,
+    joint: int,
+    parent: np.ndarray,
+    offset: np.ndarray,
+    chest: np.ndarray,
+    floor: float,
+) -> np.ndarray:
     """A leaf's world rotation: its parent's, turned as the module doc says."""
     bone = parent @ _unit(offset)  # the parent's bone as the rig has it
     if part == "head":  # on from the neck by half the neck's bend from the chest's up

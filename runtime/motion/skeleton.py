@@ -4,6 +4,7 @@ The raw offsets are the unit bone directions that the feature pipeline's inverse
 aligns bones with (they define what a "zero" local rotation means in the 6D features); the
 rest offsets are bone vectors in metres, used by the procedural animator and by exporters.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -37,7 +38,7 @@ class Skeleton:
     def parents(self) -> np.ndarray:
         parents = np.full(self.num_joints, -1, dtype=np.int64)
         for chain in self.chains:
-            for parent, child in zip(chain[:-1], chain[1:]):
+            for parent, child in zip(chain[:-1], chain[1:], strict=True):
                 parents[child] = parent
         return parents
 
@@ -50,11 +51,15 @@ class Skeleton:
         everything that reads or writes joints)."""
         joints = np.asarray(joints)
         if joints.ndim != 3 or joints.shape[1:] != (self.num_joints, 3):
-            raise ValueError(f"joints must be (T, {self.num_joints}, 3) for the {self.name} "
-                             f"skeleton, got shape {joints.shape}")
+            raise ValueError(
+                f"joints must be (T, {self.num_joints}, 3) for the {self.name} "
+                f"skeleton, got shape {joints.shape}"
+            )
         if len(joints) < min_frames:
-            raise ValueError(f"a clip needs at least {min_frames} frame"
-                             f"{'s' if min_frames > 1 else ''}, got {len(joints)}")
+            raise ValueError(
+                f"a clip needs at least {min_frames} frame"
+                f"{'s' if min_frames > 1 else ''}, got {len(joints)}"
+            )
         if not np.all(np.isfinite(joints)):
             raise ValueError("joints contain NaN or infinite values")
         return joints
@@ -69,7 +74,7 @@ class Skeleton:
 def _swap_side(name: str) -> str:
     for a, b in (("left_", "right_"), ("right_", "left_")):
         if name.startswith(a):
-            return b + name[len(a):]
+            return b + name[len(a) :]
     return name
 
 
@@ -80,10 +85,28 @@ def _directions(rows: list[tuple[int, int, int]]) -> np.ndarray:
 SMPL_22 = Skeleton(
     name="humanml3d",
     joint_names=(
-        "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-        "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck",
-        "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
-        "left_elbow", "right_elbow", "left_wrist", "right_wrist",
+        "pelvis",
+        "left_hip",
+        "right_hip",
+        "spine1",
+        "left_knee",
+        "right_knee",
+        "spine2",
+        "left_ankle",
+        "right_ankle",
+        "spine3",
+        "left_foot",
+        "right_foot",
+        "neck",
+        "left_collar",
+        "right_collar",
+        "head",
+        "left_shoulder",
+        "right_shoulder",
+        "left_elbow",
+        "right_elbow",
+        "left_wrist",
+        "right_wrist",
     ),
     chains=(
         (0, 2, 5, 8, 11),
@@ -92,38 +115,61 @@ SMPL_22 = Skeleton(
         (9, 14, 17, 19, 21),
         (9, 13, 16, 18, 20),
     ),
-    raw_offsets=_directions([
-        (0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, -1, 0), (0, 1, 0),
-        (0, -1, 0), (0, -1, 0), (0, 1, 0), (0, 0, 1), (0, 0, 1), (0, 1, 0), (1, 0, 0),
-        (-1, 0, 0), (0, 0, 1), (0, -1, 0), (0, -1, 0), (0, -1, 0), (0, -1, 0), (0, -1, 0),
-        (0, -1, 0),
-    ]),
+    raw_offsets=_directions(
+        [
+            (0, 0, 0),
+            (1, 0, 0),
+            (-1, 0, 0),
+            (0, 1, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (0, 1, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (0, 1, 0),
+            (0, 0, 1),
+            (0, 0, 1),
+            (0, 1, 0),
+            (1, 0, 0),
+            (-1, 0, 0),
+            (0, 0, 1),
+            (0, -1, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+        ]
+    ),
     # An adult of about 1.72 m standing with arms hanging (pelvis 0.96 m above the floor).
     # +X is the character's left.
-    rest_offsets=np.array([
-        (0.0, 0.0, 0.0),      # pelvis
-        (0.09, -0.07, 0.0),   # left_hip
-        (-0.09, -0.07, 0.0),  # right_hip
-        (0.0, 0.11, -0.01),   # spine1
-        (0.0, -0.40, 0.0),    # left_knee (thigh)
-        (0.0, -0.40, 0.0),    # right_knee
-        (0.0, 0.13, 0.0),     # spine2
-        (0.0, -0.41, -0.01),  # left_ankle (shin)
-        (0.0, -0.41, -0.01),  # right_ankle
-        (0.0, 0.05, 0.02),    # spine3
-        (0.0, -0.06, 0.13),   # left_foot (ball of the foot)
-        (0.0, -0.06, 0.13),   # right_foot
-        (0.0, 0.21, -0.01),   # neck
-        (0.07, 0.12, -0.01),  # left_collar
-        (-0.07, 0.12, -0.01), # right_collar
-        (0.0, 0.10, 0.04),    # head
-        (0.11, 0.03, 0.0),    # left_shoulder
-        (-0.11, 0.03, 0.0),   # right_shoulder
-        (0.0, -0.27, 0.0),    # left_elbow (upper arm)
-        (0.0, -0.27, 0.0),    # right_elbow
-        (0.0, -0.25, 0.0),    # left_wrist (forearm)
-        (0.0, -0.25, 0.0),    # right_wrist
-    ], dtype=np.float64),
+    rest_offsets=np.array(
+        [
+            (0.0, 0.0, 0.0),  # pelvis
+            (0.09, -0.07, 0.0),  # left_hip
+            (-0.09, -0.07, 0.0),  # right_hip
+            (0.0, 0.11, -0.01),  # spine1
+            (0.0, -0.40, 0.0),  # left_knee (thigh)
+            (0.0, -0.40, 0.0),  # right_knee
+            (0.0, 0.13, 0.0),  # spine2
+            (0.0, -0.41, -0.01),  # left_ankle (shin)
+            (0.0, -0.41, -0.01),  # right_ankle
+            (0.0, 0.05, 0.02),  # spine3
+            (0.0, -0.06, 0.13),  # left_foot (ball of the foot)
+            (0.0, -0.06, 0.13),  # right_foot
+            (0.0, 0.21, -0.01),  # neck
+            (0.07, 0.12, -0.01),  # left_collar
+            (-0.07, 0.12, -0.01),  # right_collar
+            (0.0, 0.10, 0.04),  # head
+            (0.11, 0.03, 0.0),  # left_shoulder
+            (-0.11, 0.03, 0.0),  # right_shoulder
+            (0.0, -0.27, 0.0),  # left_elbow (upper arm)
+            (0.0, -0.27, 0.0),  # right_elbow
+            (0.0, -0.25, 0.0),  # left_wrist (forearm)
+            (0.0, -0.25, 0.0),  # right_wrist
+        ],
+        dtype=np.float64,
+    ),
     face_joints=(2, 1, 17, 16),
     left_foot=(7, 10),
     right_foot=(8, 11),
@@ -133,11 +179,27 @@ SMPL_22 = Skeleton(
 KIT_21 = Skeleton(
     name="kit",
     joint_names=(
-        "root", "torso", "chest", "neck", "head",
-        "right_shoulder", "right_elbow", "right_wrist",
-        "left_shoulder", "left_elbow", "left_wrist",
-        "right_hip", "right_knee", "right_ankle", "right_heel", "right_toe",
-        "left_hip", "left_knee", "left_ankle", "left_heel", "left_toe",
+        "root",
+        "torso",
+        "chest",
+        "neck",
+        "head",
+        "right_shoulder",
+        "right_elbow",
+        "right_wrist",
+        "left_shoulder",
+        "left_elbow",
+        "left_wrist",
+        "right_hip",
+        "right_knee",
+        "right_ankle",
+        "right_heel",
+        "right_toe",
+        "left_hip",
+        "left_knee",
+        "left_ankle",
+        "left_heel",
+        "left_toe",
     ),
     chains=(
         (0, 11, 12, 13, 14, 15),
@@ -146,11 +208,31 @@ KIT_21 = Skeleton(
         (3, 5, 6, 7),
         (3, 8, 9, 10),
     ),
-    raw_offsets=_directions([
-        (0, 0, 0), (0, 1, 0), (0, 1, 0), (0, 1, 0), (0, 1, 0), (1, 0, 0), (0, -1, 0),
-        (0, -1, 0), (-1, 0, 0), (0, -1, 0), (0, -1, 0), (1, 0, 0), (0, -1, 0), (0, -1, 0),
-        (0, 0, 1), (0, 0, 1), (-1, 0, 0), (0, -1, 0), (0, -1, 0), (0, 0, 1), (0, 0, 1),
-    ]),
+    raw_offsets=_directions(
+        [
+            (0, 0, 0),
+            (0, 1, 0),
+            (0, 1, 0),
+            (0, 1, 0),
+            (0, 1, 0),
+            (1, 0, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (-1, 0, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (1, 0, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (0, 0, 1),
+            (0, 0, 1),
+            (-1, 0, 0),
+            (0, -1, 0),
+            (0, -1, 0),
+            (0, 0, 1),
+            (0, 0, 1),
+        ]
+    ),
     rest_offsets=None,  # KIT-ML bone lengths vary per subject; the format needs directions only
     face_joints=(11, 16, 5, 8),
     left_foot=(19, 20),

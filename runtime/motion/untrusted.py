@@ -1,6 +1,7 @@
 """Reading files that may be hostile (bundles, clips, mapping and motion files): JSON and .npy
 with every size checked before anything is allocated, and each problem one ValueError line
 naming the file, never numpy's or json's own words (docs/security.md)."""
+
 from __future__ import annotations
 
 import json
@@ -14,8 +15,7 @@ import numpy as np
 MAX_TEXT_BYTES = 256 * 2**20  # a JSON, BVH or prompts file read whole: larger is refused
 
 
-def read_text(path: str | os.PathLike, what: str = "file",
-              max_bytes: int = MAX_TEXT_BYTES) -> str:
+def read_text(path: str | os.PathLike, what: str = "file", max_bytes: int = MAX_TEXT_BYTES) -> str:
     """A text file read whole (undecodable bytes replaced), refused past `max_bytes` before it
     is all read (a device such as /dev/zero or a FIFO, that may never end, is refused)."""
     path = Path(path)
@@ -35,8 +35,9 @@ def parse_json(text: str, source: str) -> object:
     try:
         return json.loads(text)
     except json.JSONDecodeError as error:
-        raise ValueError(f"{source}: not valid JSON (line {error.lineno}, column {error.colno}: "
-                         f"{error.msg})") from None
+        raise ValueError(
+            f"{source}: not valid JSON (line {error.lineno}, column {error.colno}: {error.msg})"
+        ) from None
     except RecursionError:
         raise ValueError(f"{source}: JSON nested too deeply") from None
     except ValueError:  # Python's limit on the digits of an integer
@@ -58,20 +59,26 @@ def read_npy(path: str | os.PathLike) -> np.ndarray:
                 raise ValueError(f"{path}: not a .npy array file")
             handle.seek(0)
             version = fmt.read_magic(handle)
-            header = {(1, 0): fmt.read_array_header_1_0,
-                      (2, 0): fmt.read_array_header_2_0}.get(version)
+            header = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(
+                version
+            )
             if header is None:
-                raise ValueError(f"{path}: .npy format version {version[0]}.{version[1]}, "
-                                 "expected 1.0 or 2.0")
+                raise ValueError(
+                    f"{path}: .npy format version {version[0]}.{version[1]}, expected 1.0 or 2.0"
+                )
             shape, fortran, dtype = header(handle)
             if dtype.hasobject:
-                raise ValueError(f"{path}: holds Python objects, not numbers (never read: "
-                                 "that would run code from the file)")
+                raise ValueError(
+                    f"{path}: holds Python objects, not numbers (never read: "
+                    "that would run code from the file)"
+                )
             claimed = math.prod(shape) * dtype.itemsize
             present = os.fstat(handle.fileno()).st_size - handle.tell()
             if claimed != present:
-                raise ValueError(f"{path}: its header claims an array of shape {shape} "
-                                 f"({claimed} bytes), the file holds {present} bytes")
+                raise ValueError(
+                    f"{path}: its header claims an array of shape {shape} "
+                    f"({claimed} bytes), the file holds {present} bytes"
+                )
             handle.seek(0)
             return fmt.read_array(handle, allow_pickle=False)
     except OSError as error:

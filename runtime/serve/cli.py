@@ -1,5 +1,6 @@
 """The `serve` verb (an entry point of "mogo.commands"): importable without the serve extra,
 so that `mogo --help` lists it and `mogo serve` says how to install what it needs."""
+
 from __future__ import annotations
 
 import argparse
@@ -20,21 +21,41 @@ RESERVED_DESCRIPTORS = 64  # file descriptors kept for the process itself (graph
 
 def add_commands(commands) -> None:
     serve = commands.add_parser(
-        "serve", help="a local server: many characters streaming at once over WebSocket, a "
-                      "viewer page, clips over HTTP (needs the serve extra)")
-    serve.add_argument("--host", default="127.0.0.1",
-                       help="address to listen on (default 127.0.0.1: this machine only)")
+        "serve",
+        help="a local server: many characters streaming at once over WebSocket, a "
+        "viewer page, clips over HTTP (needs the serve extra)",
+    )
+    serve.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1: this machine only)",
+    )
     serve.add_argument("--port", type=int, default=8765, help="port (default 8765)")
     serve.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    serve.add_argument("--threads", type=int,
-                       help="cores for the level graphs (default 2 where there are 2 or more)")
-    serve.add_argument("--max-streams", type=int, default=200,
-                       help="streams at once; more are refused (default 200)")
-    serve.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
-                       help="a web page (scheme://host[:port]) that may use the server beside "
-                            "its own pages; repeatable; '*' allows every page")
-    serve.add_argument("--token", help="a secret every request must carry ('Authorization: "
-                                       f"Bearer TOKEN' or ?token=TOKEN); env {TOKEN_VARIABLE}")
+    serve.add_argument(
+        "--threads",
+        type=int,
+        help="cores for the level graphs (default 2 where there are 2 or more)",
+    )
+    serve.add_argument(
+        "--max-streams",
+        type=int,
+        default=200,
+        help="streams at once; more are refused (default 200)",
+    )
+    serve.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="ORIGIN",
+        help="a web page (scheme://host[:port]) that may use the server beside "
+        "its own pages; repeatable; '*' allows every page",
+    )
+    serve.add_argument(
+        "--token",
+        help="a secret every request must carry ('Authorization: "
+        f"Bearer TOKEN' or ?token=TOKEN); env {TOKEN_VARIABLE}",
+    )
     serve.set_defaults(run=_cmd_serve)
 
 
@@ -57,11 +78,12 @@ def _cmd_serve(args: argparse.Namespace) -> None:
         raise CliError(f"--token ({TOKEN_VARIABLE}) must not be empty")
     access = server.Access(args.host, tuple(map(_origin, args.allow_origin)), token)
     if not _is_local(args.host):
-        print(f"mogo: warning: listening on {args.host}: other machines can reach this server"
-              + ("" if token else "; anyone who reaches it can use it (see --token)"),
-              file=sys.stderr)
-    app = server.make_app(_load_generator(args), args.threads or 2, args.max_streams,
-                          access=access)
+        print(
+            f"mogo: warning: listening on {args.host}: other machines can reach this server"
+            + ("" if token else "; anyone who reaches it can use it (see --token)"),
+            file=sys.stderr,
+        )
+    app = server.make_app(_load_generator(args), args.threads or 2, args.max_streams, access=access)
     asyncio.run(_serve(app, args.host, args.port, _connections(args.max_streams)))
 
 
@@ -81,8 +103,11 @@ async def _serve(app, host: str, port: int, connections: int) -> None:
             asyncio.get_running_loop().add_signal_handler(number, stopping.set)
         except (NotImplementedError, TypeError):  # Windows, or no SIGHUP: Ctrl-C cancels
             pass
-    print(f"mogo serve: http://{address}/ (viewer), ws://{address}/v1/stream; Ctrl-C stops",
-          file=sys.stderr, flush=True)
+    print(
+        f"mogo serve: http://{address}/ (viewer), ws://{address}/v1/stream; Ctrl-C stops",
+        file=sys.stderr,
+        flush=True,
+    )
     try:
         await stopping.wait()
     finally:
@@ -124,10 +149,18 @@ def _origin(text: str) -> str:
         url.port  # noqa: B018 (a bad port raises)
     except ValueError:
         url = None
-    if text != "*" and (url is None or url.scheme not in ("http", "https") or not url.hostname
-                        or url.path not in ("", "/") or url.query or url.fragment):
-        raise CliError(f"--allow-origin takes '*' or scheme://host[:port] (as "
-                       f"http://localhost:3000), got {text!r}")
+    if text != "*" and (
+        url is None
+        or url.scheme not in ("http", "https")
+        or not url.hostname
+        or url.path not in ("", "/")
+        or url.query
+        or url.fragment
+    ):
+        raise CliError(
+            f"--allow-origin takes '*' or scheme://host[:port] (as "
+            f"http://localhost:3000), got {text!r}"
+        )
     return text
 
 

@@ -14,6 +14,7 @@ ALIGN_STEPS): fresh clips and holds start at the model's own times and scatter t
 again and again. The windows due are decoded in one call
 (mogo.stream_decoder.push_many). Not thread-safe: the server calls it from one thread.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -40,14 +41,23 @@ SHARD_FROM = 16  # due streams from which a round runs as two shards: a second c
 class ServedStream(MotionStream):
     """One client's stream: a MotionStream on the engine's graphs, and its clock."""
 
-    def __init__(self, engine: Engine, prompt: str, seed: int, sampling, start_tick: int,
-                 plant_feet: bool):
+    def __init__(
+        self, engine: Engine, prompt: str, seed: int, sampling, start_tick: int, plant_feet: bool
+    ):
         g = engine.generator
         # guided: alone on the bundle's own graphs, which quantise its two rows (conditional
         # and not) together, as MotionStream's do; the row-wise graphs would not
-        super().__init__(g, prompt, seed, sampling, g.defaults.window, plant_feet, Anchoring(),
-                         tokens=None if sampling.guided else engine.tokens,
-                         decoder_session=engine.decoder_session)
+        super().__init__(
+            g,
+            prompt,
+            seed,
+            sampling,
+            g.defaults.window,
+            plant_feet,
+            Anchoring(),
+            tokens=None if sampling.guided else engine.tokens,
+            decoder_session=engine.decoder_session,
+        )
         self.id = next(engine._ids)
         self.start_tick, self.extra = start_tick, 0
 
@@ -60,18 +70,22 @@ class ServedStream(MotionStream):
 class Engine:
     """All live streams of a server over one MotionGenerator."""
 
-    def __init__(self, generator: MotionGenerator, threads: int = 1,
-                 tokens: TokenGenerator | None = None):
+    def __init__(
+        self, generator: MotionGenerator, threads: int = 1, tokens: TokenGenerator | None = None
+    ):
         """`tokens`: the bundle's level graphs made row-wise (mogo.serve.rowwise); None makes
         them."""
         self.generator = generator
         manifest = generator.manifest
         levels = manifest.t2m.levels
         if tokens is None:
-            tokens = TokenGenerator([rowwise_graph(generator.bundle.path(g.file))
-                                     for g in levels], levels, manifest.end_token,
-                                    intra_op_threads=1,  # the shards run in parallel
-                                    rows_apart=True)
+            tokens = TokenGenerator(
+                [rowwise_graph(generator.bundle.path(g.file)) for g in levels],
+                levels,
+                manifest.end_token,
+                intra_op_threads=1,  # the shards run in parallel
+                rows_apart=True,
+            )
         self.tokens = tokens
         self.fps = generator.fps
         decoder = manifest.vq.decoder
@@ -80,8 +94,9 @@ class Engine:
         path = generator.bundle.path(decoder.file)
         self.decoder_session = graph_session(path, decoder, 1)
         # full windows unpadded: ~half the CPU (None: a decoder it cannot cut, whole windows)
-        self.interior = interior_session(path, decoder, self.decoder_session,
-                                         generator.codebook_size)
+        self.interior = interior_session(
+            path, decoder, self.decoder_session, generator.codebook_size
+        )
         first_frame = decoder.lookahead + 1 + math.ceil(FEET_LOOKAHEAD / generator.down_factor)
         self.lead = first_frame + 2 * generator.streaming_decoder().every
         self.streams: dict[int, ServedStream] = {}
@@ -95,8 +110,9 @@ class Engine:
     def tick(self, now: float) -> int:
         return math.floor(now * self.fps)
 
-    def open(self, prompt: str, seed: int, sampling, now: float, plant_feet: bool = True
-             ) -> ServedStream:
+    def open(
+        self, prompt: str, seed: int, sampling, now: float, plant_feet: bool = True
+    ) -> ServedStream:
         """A new stream (prompt and sampling already checked by the caller)."""
         stream = ServedStream(self, prompt, seed, sampling, self.tick(now), plant_feet)
         self.streams[stream.id] = stream
@@ -154,12 +170,15 @@ class Engine:
     def _step(self, due: list[ServedStream]) -> list[tuple]:
         """MotionStream.step for many streams: the token rows of one layout drawn in one call,
         the windows due decoded in one call."""
-        rows = [stream.drawn(row) for stream, row in
-                zip(due, step_together([stream.tokens for stream in due]))]
-        decoded = push_many([s.decoder for s in due], [row[None] for row in rows],
-                            self.interior)
+        rows = [
+            stream.drawn(row)
+            for stream, row in zip(
+                due, step_together([stream.tokens for stream in due]), strict=True
+            )
+        ]
+        decoded = push_many([s.decoder for s in due], [row[None] for row in rows], self.interior)
         made = []
-        for stream, row, features in zip(due, rows, decoded):
+        for stream, row, features in zip(due, rows, decoded, strict=True):
             first = stream.frames_emitted
             joints = stream.emit(row[None], features)
             if len(joints):

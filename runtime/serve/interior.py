@@ -18,6 +18,7 @@ graph it cannot cut is refused, and `interior_session` checks the cut one agains
 exported one on random windows at load (None: the server decodes whole windows). The bundle
 on disk is not changed.
 """
+
 from __future__ import annotations
 
 import os
@@ -31,14 +32,28 @@ from onnx import helper, numpy_helper
 from mogo._session import graph_session
 from mogo.manifest import Graph
 
-
 # ops that keep every time position where it is (what lies between the convolutions)
-POSITIONWISE = {"Add", "Sub", "Mul", "Div", "Relu", "LeakyRelu", "Gelu", "Sigmoid", "Tanh",
-                "Cast", "Identity", "Gather", "ReduceSum", "Transpose"}
+POSITIONWISE = {
+    "Add",
+    "Sub",
+    "Mul",
+    "Div",
+    "Relu",
+    "LeakyRelu",
+    "Gelu",
+    "Sigmoid",
+    "Tanh",
+    "Cast",
+    "Identity",
+    "Gather",
+    "ReduceSum",
+    "Transpose",
+}
 
 
-def interior_session(path: str | os.PathLike, graph: Graph, whole: ort.InferenceSession,
-                     codebook_size: int) -> tuple[ort.InferenceSession, int] | None:
+def interior_session(
+    path: str | os.PathLike, graph: Graph, whole: ort.InferenceSession, codebook_size: int
+) -> tuple[ort.InferenceSession, int] | None:
     """(a one-thread session of the decoder graph at `path` unpadded, the tokens it drops on
     each side), checked against `whole` (its session as exported) on random windows; None
     where the graph cannot be cut or the check fails: the caller decodes whole windows."""
@@ -76,8 +91,9 @@ def interior_graph(data: bytes) -> tuple[bytes, int]:
             raise ValueError(f"{node.name}: {node.op_type} on the time path")
         elif len(set(cropped)) > 1:
             if node.op_type != "Add":
-                raise ValueError(f"{node.name}: branches of different lengths joined by "
-                                 f"{node.op_type}, not Add")
+                raise ValueError(
+                    f"{node.name}: branches of different lengths joined by {node.op_type}, not Add"
+                )
             nodes += _cut_to(node, crop, max(cropped), graph)
             crop[node.output[0]] = max(cropped)
         else:
@@ -99,18 +115,24 @@ def _unpadded(conv: onnx.NodeProto) -> int:
     dilation = attributes.get("dilations", [1])[0]
     if attributes.get("auto_pad", b"NOTSET") != b"NOTSET" or attributes.get("strides", [1]) != [1]:
         raise ValueError(f"{conv.name}: auto_pad or strides")
-    if len(pads) != 2 or pads[0] != pads[1] or kernel[0] is None \
-            or 2 * pads[0] != dilation * (kernel[0] - 1):
-        raise ValueError(f"{conv.name}: padding {pads} is not the same on both sides or does "
-                         "not keep the length")
+    if (
+        len(pads) != 2
+        or pads[0] != pads[1]
+        or kernel[0] is None
+        or 2 * pads[0] != dilation * (kernel[0] - 1)
+    ):
+        raise ValueError(
+            f"{conv.name}: padding {pads} is not the same on both sides or does not keep the length"
+        )
     for attribute in conv.attribute:
         if attribute.name == "pads":
             attribute.ints[:] = [0, 0]
     return pads[0]
 
 
-def _cut_to(add: onnx.NodeProto, crop: dict[str, int], target: int,
-            graph: onnx.GraphProto) -> list[onnx.NodeProto]:
+def _cut_to(
+    add: onnx.NodeProto, crop: dict[str, int], target: int, graph: onnx.GraphProto
+) -> list[onnx.NodeProto]:
     """Slices (last axis: time, in the convolutions' (batch, channels, time)) that cut the
     longer inputs of `add` to the length of the shortest; `add` then reads them."""
     slices = []
@@ -118,10 +140,13 @@ def _cut_to(add: onnx.NodeProto, crop: dict[str, int], target: int,
         cut = target - crop[name]
         if cut:
             bounds = [f"{name}.interior_{which}" for which in ("starts", "ends", "axes")]
-            for bound, value in zip(bounds, (cut, -cut, -1)):
+            for bound, value in zip(bounds, (cut, -cut, -1), strict=True):
                 graph.initializer.append(numpy_helper.from_array(np.array([value]), bound))
             sliced = f"{name}.interior"
-            slices.append(helper.make_node("Slice", [name, *bounds], [sliced],
-                                           name=f"{add.name}.interior_{k}"))
+            slices.append(
+                helper.make_node(
+                    "Slice", [name, *bounds], [sliced], name=f"{add.name}.interior_{k}"
+                )
+            )
             add.input[k] = sliced
     return slices

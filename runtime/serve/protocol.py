@@ -13,6 +13,7 @@ Server -> client:
     binary (if asked): one message per burst, little-endian uint32 index, uint32 n, then
     float32 joints (n, 22, 3).
 """
+
 from __future__ import annotations
 
 import json
@@ -28,8 +29,12 @@ MAX_MESSAGE_CHARS = 4096  # longer messages get an error (a prompt: text.max_len
 START_FIELDS = {"prompt", "seed", "binary", "plant_feet", *Sampling.__dataclass_fields__}
 LATER_FIELDS = {"prompt", "stop"}
 CLIP_FIELDS = {"prompt", "seconds", "seed", "format"}
-CLIP_FORMATS = {"bvh": "text/plain", "npy": "application/octet-stream",
-                "json": "application/json", "glb": "model/gltf-binary"}  # -> content type
+CLIP_FORMATS = {
+    "bvh": "text/plain",
+    "npy": "application/octet-stream",
+    "json": "application/json",
+    "glb": "model/gltf-binary",
+}  # -> content type
 
 
 class ProtocolError(ValueError):
@@ -121,17 +126,29 @@ def later(message: dict) -> str | None:
 
 
 def started(stream_id: int, seed: int, fps: float, joint_names, parents) -> str:
-    return json.dumps({"type": "started", "stream": stream_id, "seed": seed, "fps": fps,
-                       "joints": [str(name) for name in joint_names],
-                       "parents": [int(parent) for parent in parents]})
+    return json.dumps(
+        {
+            "type": "started",
+            "stream": stream_id,
+            "seed": seed,
+            "fps": fps,
+            "joints": [str(name) for name in joint_names],
+            "parents": [int(parent) for parent in parents],
+        }
+    )
 
 
 def frames(index: int, joints: np.ndarray, binary: bool) -> str | bytes:
     """One burst: frames index .. index + n - 1, (n, J, 3) metres."""
     if binary:
         return struct.pack("<II", index, len(joints)) + joints.astype("<f4").tobytes()
-    return json.dumps({"type": "frames", "index": index,
-                       "joints": np.round(joints.astype(np.float64), 4).tolist()})
+    return json.dumps(
+        {
+            "type": "frames",
+            "index": index,
+            "joints": np.round(joints.astype(np.float64), 4).tolist(),
+        }
+    )
 
 
 def error(text: str) -> str:
@@ -149,8 +166,9 @@ def note(text: str) -> str:
 def known(message: dict, fields: set[str]) -> None:
     unknown = sorted(set(message) - fields)
     if unknown:
-        raise ProtocolError(f"unknown field {unknown[0]!r}; the fields are "
-                            f"{', '.join(sorted(fields))}")
+        raise ProtocolError(
+            f"unknown field {unknown[0]!r}; the fields are {', '.join(sorted(fields))}"
+        )
 
 
 def _text(prompt: object) -> str:

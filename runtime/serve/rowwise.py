@@ -14,6 +14,7 @@ this is the exported graph's arithmetic (the same logits, to a float rounding wh
 fuses differently). Graphs without DynamicQuantizeLinear come back unchanged.
 Needs the `onnx` package (the serve extra), which the base runtime does not.
 """
+
 from __future__ import annotations
 
 import os
@@ -55,22 +56,31 @@ def rowwise_graph(path: str | os.PathLike) -> bytes:
 def _ranks(model: onnx.ModelProto) -> dict[str, int]:
     """The rank of every tensor shape inference can tell."""
     inferred = onnx.shape_inference.infer_shapes(model).graph
-    return {value.name: len(value.type.tensor_type.shape.dim)
-            for value in [*inferred.input, *inferred.value_info]
-            if value.type.tensor_type.HasField("shape")}
+    return {
+        value.name: len(value.type.tensor_type.shape.dim)
+        for value in [*inferred.input, *inferred.value_info]
+        if value.type.tensor_type.HasField("shape")
+    }
 
 
 def _rowwise_quantize(x: str, rank: int, p: str) -> list[onnx.NodeProto]:
     """DynamicQuantizeLinear's formula over every axis but the batch: p+q (uint8), p+scale
     (float) and p+zero (int32), one per batch row, shaped to broadcast (B, 1, ...)."""
+
     def constant(name, value, dtype):
-        return helper.make_node("Constant", [], [p + name], value=numpy_helper.from_array(
-            np.array(value, dtype), p + name))
+        return helper.make_node(
+            "Constant",
+            [],
+            [p + name],
+            value=numpy_helper.from_array(np.array(value, dtype), p + name),
+        )
 
     node = helper.make_node
     return [
-        constant("c0", 0.0, np.float32), constant("c255", 255.0, np.float32),
-        constant("tiny", 1e-30, np.float32), constant("axes", list(range(1, rank)), np.int64),
+        constant("c0", 0.0, np.float32),
+        constant("c255", 255.0, np.float32),
+        constant("tiny", 1e-30, np.float32),
+        constant("axes", list(range(1, rank)), np.int64),
         node("ReduceMax", [x, p + "axes"], [p + "max0"], keepdims=1),
         node("ReduceMin", [x, p + "axes"], [p + "min0"], keepdims=1),
         node("Max", [p + "max0", p + "c0"], [p + "max"]),
@@ -91,8 +101,9 @@ def _rowwise_quantize(x: str, rank: int, p: str) -> list[onnx.NodeProto]:
     ]
 
 
-def _zero_point_correction(matmul: onnx.NodeProto, p: str,
-                           weights: dict[str, np.ndarray]) -> list[onnx.NodeProto]:
+def _zero_point_correction(
+    matmul: onnx.NodeProto, p: str, weights: dict[str, np.ndarray]
+) -> list[onnx.NodeProto]:
     """Turn MatMulInteger(q, W, z, w_z) into MatMulInteger(q, W, 0, w_z) - z_r * colsum, under
     its own output name: onnxruntime takes only one zero point for the whole of input A."""
     _, w_name, _, w_zero_name = matmul.input
@@ -101,7 +112,13 @@ def _zero_point_correction(matmul: onnx.NodeProto, p: str,
     out, raw, name = matmul.output[0], matmul.output[0] + "/raw", p + matmul.output[0]
     matmul.input[:] = [p + "q", w_name, "", w_zero_name]
     matmul.output[:] = [raw]
-    return [helper.make_node("Constant", [], [name + "/colsum"],
-                             value=numpy_helper.from_array(colsum, name + "/colsum")),
-            helper.make_node("Mul", [p + "zero", name + "/colsum"], [name + "/shift"]),
-            helper.make_node("Sub", [raw, name + "/shift"], [out])]
+    return [
+        helper.make_node(
+            "Constant",
+            [],
+            [name + "/colsum"],
+            value=numpy_helper.from_array(colsum, name + "/colsum"),
+        ),
+        helper.make_node("Mul", [p + "zero", name + "/colsum"], [name + "/shift"]),
+        helper.make_node("Sub", [raw, name + "/shift"], [out]),
+    ]

@@ -6,6 +6,7 @@ too slowly loses its oldest bursts (the frame indices then jump), the others are
 Whole clips run on a pool of their own, a bounded queue in front of it. What the server
 trusts and refuses (Host, Origin, token, limits): docs/security.md.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -46,6 +47,7 @@ class Access:
     """Who may use the server. `host`: the address it listens on; `origins`: web pages
     allowed beside its own (--allow-origin; "*" for any); `token`: asked of every request
     but the viewer page when given (--token)."""
+
     host: str = "127.0.0.1"
     origins: tuple[str, ...] = ()
     token: str | None = None
@@ -53,15 +55,21 @@ class Access:
     def refusal(self, request: web.Request) -> tuple[int, str] | None:
         """(HTTP status, why) for a request it refuses, None for one it serves."""
         if not (wildcard(self.host) or self._our_host(request.host)):
-            return 403, (f"Host {request.host!r} is not this server (a web page's DNS "
-                         "rebinding?); use http://127.0.0.1 or http://localhost")
+            return 403, (
+                f"Host {request.host!r} is not this server (a web page's DNS "
+                "rebinding?); use http://127.0.0.1 or http://localhost"
+            )
         origin = request.headers.get("Origin")
         if origin is not None and not self._allowed(origin, request):
-            return 403, (f"web pages from {origin!r} may not use this server; start it with "
-                         f"--allow-origin {origin} to allow them")
+            return 403, (
+                f"web pages from {origin!r} may not use this server; start it with "
+                f"--allow-origin {origin} to allow them"
+            )
         if self.token is not None and request.path != "/" and not self._has_token(request):
-            return 401, ("this server needs its token: send the header 'Authorization: "
-                         "Bearer TOKEN' or add ?token=TOKEN to the URL")
+            return 401, (
+                "this server needs its token: send the header 'Authorization: "
+                "Bearer TOKEN' or add ?token=TOKEN to the URL"
+            )
         return None
 
     def _our_host(self, host: str) -> bool:
@@ -84,7 +92,8 @@ class Access:
         bound_port = sockname[1] if sockname else None
         same = url.netloc == request.host.lower()  # the page is one the server gave
         return url.scheme in ("http", "https") and (
-            same or (local(url.hostname or "") and port == bound_port))
+            same or (local(url.hostname or "") and port == bound_port)
+        )
 
     def _has_token(self, request: web.Request) -> bool:
         header = request.headers.get("Authorization", "")
@@ -131,8 +140,14 @@ class Rate:
 class Server:
     """The app's state: the engine, its thread, the clients, the clip pool."""
 
-    def __init__(self, generator: MotionGenerator, threads: int, max_streams: int,
-                 tokens=None, access: Access = Access()):
+    def __init__(
+        self,
+        generator: MotionGenerator,
+        threads: int,
+        max_streams: int,
+        tokens=None,
+        access: Access = Access(),
+    ):
         self.generator, self.max_streams, self.access = generator, max_streams, access
         self.engine = Engine(generator, threads, tokens)
         self.thread = ThreadPoolExecutor(1, "mogo-engine")
@@ -194,8 +209,10 @@ class Server:
 
     def open(self, start: protocol.Start) -> tuple[ServedStream, list[str]]:
         if len(self.engine.streams) >= self.max_streams:
-            raise protocol.ServerFull(f"the server is full: {self.max_streams} streams "
-                                         "(mogo serve --max-streams); try again later")
+            raise protocol.ServerFull(
+                f"the server is full: {self.max_streams} streams "
+                "(mogo serve --max-streams); try again later"
+            )
         text, notes = self.checked_prompt(start.prompt)
         try:
             sampling = self.generator.sampling(None, **start.options)
@@ -225,8 +242,7 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                 left = None if stream else max(deadline - loop.time(), 1e-3)  # 0: no timeout
                 message = await ws.receive(timeout=left)
             except asyncio.TimeoutError:
-                await ws.send_str(protocol.error(f"no stream started within "
-                                                 f"{REQUEST_SECONDS:g} s"))
+                await ws.send_str(protocol.error(f"no stream started within {REQUEST_SECONDS:g} s"))
                 break
             if message.type not in (WSMsgType.TEXT, WSMsgType.BINARY):  # closing, an error
                 break
@@ -237,8 +253,15 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                     stream, notes = await server.call(server.open, start)
                     queue = server.queues[stream.id] = asyncio.Queue(QUEUED_BURSTS)
                     skeleton = server.generator.skeleton
-                    await ws.send_str(protocol.started(stream.id, stream.seed, server.engine.fps,
-                                                       skeleton.joint_names, skeleton.parents))
+                    await ws.send_str(
+                        protocol.started(
+                            stream.id,
+                            stream.seed,
+                            server.engine.fps,
+                            skeleton.joint_names,
+                            skeleton.parents,
+                        )
+                    )
                     sender = asyncio.create_task(_send(ws, queue, start.binary))
                     server.wake.set()
                 else:
@@ -248,7 +271,8 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                     if not switches.take():
                         raise protocol.ProtocolError(
                             f"too many switches: at most {SWITCHES_PER_SECOND} a second "
-                            f"({SWITCH_BURST} at once); this one was not played")
+                            f"({SWITCH_BURST} at once); this one was not played"
+                        )
                     notes = await server.call(server.switch, stream, prompt)
                     await ws.send_str(protocol.switched(prompt))
                 for note in notes:
@@ -280,9 +304,14 @@ async def _send(ws: web.WebSocketResponse, queue: asyncio.Queue, binary: bool) -
 
 async def health(request: web.Request) -> web.Response:
     server: Server = request.app[SERVER]
-    return web.json_response({"status": "ok", "streams": len(server.engine.streams),
-                              "max_streams": server.max_streams,
-                              "bundle": server.generator.bundle.root.name})
+    return web.json_response(
+        {
+            "status": "ok",
+            "streams": len(server.engine.streams),
+            "max_streams": server.max_streams,
+            "bundle": server.generator.bundle.root.name,
+        }
+    )
 
 
 async def viewer(request: web.Request) -> web.Response:
@@ -294,8 +323,10 @@ async def generate(request: web.Request) -> web.Response:
     """POST {prompt, seconds, seed, format} -> the file. A client that leaves stops its clip."""
     server: Server = request.app[SERVER]
     if request.content_type != "application/json":  # a web page's form post cannot send it
-        return _refused(415, "POST /v1/generate takes Content-Type: application/json, got "
-                             f"{request.content_type!r}")
+        return _refused(
+            415,
+            f"POST /v1/generate takes Content-Type: application/json, got {request.content_type!r}",
+        )
     try:  # read before it takes a place in the queue: a body dripped slowly holds none
         body = await asyncio.wait_for(request.read(), REQUEST_SECONDS)
         clip = protocol.clip(protocol.body(body, request.charset))
@@ -306,14 +337,18 @@ async def generate(request: web.Request) -> web.Response:
     except protocol.ProtocolError as error:
         return _refused(400, str(error))
     if server.clip_jobs >= server.clip_workers + QUEUED_CLIPS:
-        return _refused(503, f"busy: {server.clip_jobs} clips are being made or wait; "
-                             "try again later", {"Retry-After": "5"})
+        return _refused(
+            503,
+            f"busy: {server.clip_jobs} clips are being made or wait; try again later",
+            {"Retry-After": "5"},
+        )
     server.clip_jobs += 1
     stop = threading.Event()
     try:
         prompt, _ = await server.call(server.checked_prompt, clip.prompt)
         data = await asyncio.get_running_loop().run_in_executor(
-            server.clips, _clip_file, server.generator, prompt, clip, stop)
+            server.clips, _clip_file, server.generator, prompt, clip, stop
+        )
     except (protocol.ProtocolError, TypeError, ValueError) as error:
         return _refused(400, str(error))
     finally:  # on a disconnect too (aiohttp cancels this handler): the clip stops at its next step
@@ -322,8 +357,9 @@ async def generate(request: web.Request) -> web.Response:
     return web.Response(body=data, content_type=protocol.CLIP_FORMATS[clip.format])
 
 
-def _clip_file(generator: MotionGenerator, prompt: str, clip: protocol.Clip,
-               stop: threading.Event) -> bytes:
+def _clip_file(
+    generator: MotionGenerator, prompt: str, clip: protocol.Clip, stop: threading.Event
+) -> bytes:
     motion = generator.generate(prompt, seconds=clip.seconds, seed=clip.seed, stop=stop)
     with tempfile.TemporaryDirectory() as folder:
         save = getattr(motion, f"save_{clip.format}")
@@ -344,8 +380,13 @@ async def guard(request: web.Request, handler):
 SERVER = web.AppKey("server", Server)
 
 
-def make_app(generator: MotionGenerator, threads: int = 1, max_streams: int = 200,
-             tokens=None, access: Access = Access()) -> web.Application:
+def make_app(
+    generator: MotionGenerator,
+    threads: int = 1,
+    max_streams: int = 200,
+    tokens=None,
+    access: Access = Access(),
+) -> web.Application:
     """The server's app; `tokens`: level graphs already made row-wise (tests share them)."""
     app = web.Application(client_max_size=64 * 1024, middlewares=[guard])
     app[SERVER] = server = Server(generator, threads, max_streams, tokens, access)
@@ -364,27 +405,38 @@ def make_app(generator: MotionGenerator, threads: int = 1, max_streams: int = 20
 
     async def close_sockets(app):
         """On SIGINT/SIGTERM: every client gets a close frame (1001, going away), not a 1006."""
-        await asyncio.gather(*(ws.close(code=WSCloseCode.GOING_AWAY, message=b"server stopping")
-                               for ws in list(server.sockets)))
+        await asyncio.gather(
+            *(
+                ws.close(code=WSCloseCode.GOING_AWAY, message=b"server stopping")
+                for ws in list(server.sockets)
+            )
+        )
 
     app.cleanup_ctx.append(engine_task)
     app.on_shutdown.append(close_sockets)
     return app
 
 
-async def listen(app: web.Application, host: str, port: int,
-                 max_connections: int) -> tuple[web.AppRunner, asyncio.Server]:
+async def listen(
+    app: web.Application, host: str, port: int, max_connections: int
+) -> tuple[web.AppRunner, asyncio.Server]:
     """Serve `app` on host:port (OSError where it cannot listen): a client's disconnect
     cancels its request, idle and half-sent connections are closed, at most
     `max_connections` are open at once."""
-    runner = web.AppRunner(app, handle_signals=False, handler_cancellation=True,
-                           shutdown_timeout=SHUTDOWN_SECONDS, access_log=None,
-                           keepalive_timeout=KEEPALIVE_SECONDS)
+    runner = web.AppRunner(
+        app,
+        handle_signals=False,
+        handler_cancellation=True,
+        shutdown_timeout=SHUTDOWN_SECONDS,
+        access_log=None,
+        keepalive_timeout=KEEPALIVE_SECONDS,
+    )
     await runner.setup()
     open_ = set()
     try:
         listener = await asyncio.get_running_loop().create_server(
-            lambda: _Guarded(runner.server(), open_, max_connections), host, port)
+            lambda: _Guarded(runner.server(), open_, max_connections), host, port
+        )
     except BaseException:
         await runner.cleanup()
         raise
@@ -411,8 +463,12 @@ class _Guarded(asyncio.Protocol):
 
     def connection_made(self, transport) -> None:
         if len(self.open) >= self.cap:
-            _log.warning("refused a connection: %d are open, the most this server keeps "
-                         "(--max-streams + %d)", len(self.open), SPARE_CONNECTIONS)
+            _log.warning(
+                "refused a connection: %d are open, the most this server keeps "
+                "(--max-streams + %d)",
+                len(self.open),
+                SPARE_CONNECTIONS,
+            )
             transport.abort()
             return
         self.transport = transport
@@ -422,7 +478,7 @@ class _Guarded(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         if self.timer is not None:
-            self.head = (self.head + data)[-(len(data) + 3):]  # enough to see b"\r\n\r\n"
+            self.head = (self.head + data)[-(len(data) + 3) :]  # enough to see b"\r\n\r\n"
             if b"\r\n\r\n" in self.head:
                 self.timer.cancel()
                 self.timer, self.head = None, b""

@@ -1,5 +1,6 @@
 """`mogo bench`: a quick run end to end on the shipped bundle and a tiny model, and the pieces
 its figures rest on (FLOP count, bytes read, clip interpolation, interleaving, plots)."""
+
 import json
 from dataclasses import replace
 
@@ -26,13 +27,20 @@ def test_step_flops_equal_torch_flop_counter(cached):
     with torch.inference_mode(), FlopCounterMode(display=False) as counter:
         for level in range(config.num_levels):
             shape = (1, config.heads[level], length, config.head_dim)
-            past = ([(torch.randn(shape), torch.randn(shape))] * config.layers[level]
-                    if cached else None)
-            model.level_forward(level, torch.randn(1, config.text_dim),
-                                torch.zeros(1, dtype=torch.bool),
-                                torch.zeros(1, len(positions), config.num_levels,
-                                            dtype=torch.long),
-                                positions, torch.arange(length) if cached else None, past)
+            past = (
+                [(torch.randn(shape), torch.randn(shape))] * config.layers[level]
+                if cached
+                else None
+            )
+            model.level_forward(
+                level,
+                torch.randn(1, config.text_dim),
+                torch.zeros(1, dtype=torch.bool),
+                torch.zeros(1, len(positions), config.num_levels, dtype=torch.long),
+                positions,
+                torch.arange(length) if cached else None,
+                past,
+            )
     expected = step.step_flops(config, length if cached else 0, 1 if cached else length + 1)
     assert counter.get_total_flops() == expected
 
@@ -46,8 +54,12 @@ def test_clip_interpolates_the_measured_step_times():
 
 def test_interleaved_rotates_and_respects_rounds():
     order = []
-    medians = timing.interleaved({"a": lambda: order.append("a"), "b": lambda: order.append("b")},
-                                  rounds=4, budget_s=100.0, warmup=0)
+    medians = timing.interleaved(
+        {"a": lambda: order.append("a"), "b": lambda: order.append("b")},
+        rounds=4,
+        budget_s=100.0,
+        warmup=0,
+    )
     assert order == ["a", "b", "b", "a", "a", "b", "b", "a"] and set(medians) == {"a", "b"}
 
 
@@ -65,8 +77,9 @@ def test_touched_bytes_leave_out_embedding_tables(tmp_path):
 
 def test_plot_is_a_small_png(tmp_path):
     path = tmp_path / "plot.png"
-    log_line_chart(path, "t", "x", "y", {"a": [(1, 0.5), (10, 0.7), (100, 3.0)],
-                                         "b": [(1, 2.0), (100, 2.2)]})
+    log_line_chart(
+        path, "t", "x", "y", {"a": [(1, 0.5), (10, 0.7), (100, 3.0)], "b": [(1, 2.0), (100, 2.2)]}
+    )
     image = Image.open(path)
     assert image.size == (760, 460) and path.stat().st_size < 200_000
     with pytest.raises(ValueError, match="log axes"):
@@ -88,7 +101,8 @@ def test_quick_run_writes_tables_json_and_plots(tmp_path, capsys):
         assert all(np.isfinite(v) and v > 0 for v in times + list(row["stream_step_ms"].values()))
         assert row["real_time_factor"] * row["clip_s"] == pytest.approx(product["clip_seconds"])
         assert [int(n) for n in row["stream_step_ms"]] == latency.long_stream_points(
-            settings.long_steps)
+            settings.long_steps
+        )
     shipped = read_manifest(DEFAULT_BUNDLE).total_bytes / 1e6  # every file the bundle lists
     assert product["disk_mb"] == pytest.approx(shipped) and product["peak_rss_mib"] > 50
     backends = saved["steps"]["tiny"]["backends"]

@@ -1,6 +1,7 @@
 """The Blender add-on in a real Blender, headless (one Blender run each): the `blender` on PATH
 (skipped without one) and the `bpy` module from PyPI under the Python that MOGO_BPY_PYTHON names
 (Blender 4.x/5.x, which distributions do not package; skipped when unset)."""
+
 import os
 import shutil
 
@@ -11,18 +12,30 @@ from mogo.bench.quality.blender_addon import PythonMismatch, as_module, backgrou
 BLENDER = shutil.which("blender")
 BPY_PYTHON = os.environ.get("MOGO_BPY_PYTHON")  # e.g. a venv with `pip install bpy==4.4.0`
 LAUNCHERS = [
-    pytest.param(lambda: background(BLENDER), id="blender", marks=pytest.mark.skipif(
-        BLENDER is None, reason="Blender is not installed: apt-get install blender")),
-    pytest.param(lambda: as_module(BPY_PYTHON), id="bpy-module", marks=pytest.mark.skipif(
-        not BPY_PYTHON, reason="MOGO_BPY_PYTHON names no Python with the bpy module"))]
+    pytest.param(
+        lambda: background(BLENDER),
+        id="blender",
+        marks=pytest.mark.skipif(
+            BLENDER is None, reason="Blender is not installed: apt-get install blender"
+        ),
+    ),
+    pytest.param(
+        lambda: as_module(BPY_PYTHON),
+        id="bpy-module",
+        marks=pytest.mark.skipif(
+            not BPY_PYTHON, reason="MOGO_BPY_PYTHON names no Python with the bpy module"
+        ),
+    ),
+]
 
 
 @pytest.mark.parametrize("launcher", LAUNCHERS)
 def test_the_addon_generates_retargets_and_streams_in_blender(tmp_path, launcher):
     png = tmp_path / "frame.png"
     try:
-        figures = run(launcher(), seconds=2.0, png=png, frame=10, size=(64, 40), samples=1,
-                      timeout=300)
+        figures = run(
+            launcher(), seconds=2.0, png=png, frame=10, size=(64, 40), samples=1, timeout=300
+        )
     except PythonMismatch as error:
         pytest.skip(str(error))
     scene = figures.scene
@@ -32,11 +45,13 @@ def test_the_addon_generates_retargets_and_streams_in_blender(tmp_path, launcher
     # Install's default: the wheel the add-on ships, this project (PyPI's `mogo` is another),
     # into the empty folder; its dependencies are not there yet (pip was told not to fetch them)
     installed = scene["install"].strip()
-    assert installed.startswith("Error: MOGO: MOGO runtime not found (numpy, onnxruntime, "
-                                "tokenizers, PIL, mogo missing in "), installed
+    assert installed.startswith(
+        "Error: MOGO: MOGO runtime not found (numpy, onnxruntime, tokenizers, PIL, mogo missing in "
+    ), installed
     assert scene["runtime_file"].endswith("/installed/mogo/__init__.py")
-    assert scene["empty_prompt"].strip() == "Error: MOGO: type a prompt, e.g. 'a person walks " \
-                                            "forward'"
+    assert (
+        scene["empty_prompt"].strip() == "Error: MOGO: type a prompt, e.g. 'a person walks forward'"
+    )
     # one key per frame, the 24 fps scene set to the motion's 20 and its range
     assert figures.frames == scene["keys"] == 40 and scene["fps"] == 20.0
     assert (scene["frame_start"], scene["frame_end"]) == (1, 40)

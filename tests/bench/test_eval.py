@@ -1,5 +1,6 @@
 """mogo eval, the semantic checks and the quality report on a small procedural corpus whose
 every clip is listed as test, with an untrained tiny evaluator and the shipped bundle."""
+
 import json
 import subprocess
 import sys
@@ -36,31 +37,41 @@ def evaluator_folder(corpus, tmp_path_factory):
     from mogo.export.models.text_encoder import train_tokenizer
     from mogo.export.onnx.evaluator_graphs import export_evaluator
 
-    captions = [c.split("#")[0] for p in (corpus / "texts").glob("*.txt")
-                for c in p.read_text().splitlines()]
+    captions = [
+        c.split("#")[0]
+        for p in (corpus / "texts").glob("*.txt")
+        for c in p.read_text().splitlines()
+    ]
     tokenizer = train_tokenizer(captions, 100, 16)
     torch.manual_seed(0)
     model = Evaluator(EvaluatorConfig.tiny(tokenizer.get_vocab_size()))
     out = tmp_path_factory.mktemp("evaluator")
-    export_evaluator(model, tokenizer, np.load(corpus / "Mean.npy"), np.load(corpus / "Std.npy"),
-                     out)
+    export_evaluator(
+        model, tokenizer, np.load(corpus / "Mean.npy"), np.load(corpus / "Std.npy"), out
+    )
     return out
 
 
 def test_eval_prints_the_table_without_torch(corpus, evaluator_folder, tmp_path):
     result = tmp_path / "eval.json"
-    script = ("import sys\nfrom mogo.cli import main\n"
-              f"code = main(['eval', '--data', {str(corpus)!r}, '--evaluator', "
-              f"{str(evaluator_folder)!r}, '--limit', '32', '--repeats', '2', "
-              f"{', '.join(map(repr, MM_ARGS))}, '--json', {str(result)!r}])\n"
-              "assert code == 0 and 'torch' not in sys.modules, (code, 'torch' in sys.modules)\n")
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=300)
+    script = (
+        "import sys\nfrom mogo.cli import main\n"
+        f"code = main(['eval', '--data', {str(corpus)!r}, '--evaluator', "
+        f"{str(evaluator_folder)!r}, '--limit', '32', '--repeats', '2', "
+        f"{', '.join(map(repr, MM_ARGS))}, '--json', {str(result)!r}])\n"
+        "assert code == 0 and 'torch' not in sys.modules, (code, 'torch' in sys.modules)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     lines = done.stdout.splitlines()
     assert lines[0].startswith("| Methods | R-Precision Top-1 | Top-2 | Top-3 | FID |")
     assert [line.split(" | ")[0] for line in lines[2:5]] == [
-        "| Ground truth", "| VQ reconstruction", "| Bundle"]
+        "| Ground truth",
+        "| VQ reconstruction",
+        "| Bundle",
+    ]
     rows = json.loads(result.read_text())["rows"]
     assert rows["Ground truth"]["FID"] == pytest.approx([0.0, 0.0], abs=1e-9)  # rounding
     assert rows["Bundle"]["FID"][0] > rows["VQ reconstruction"]["FID"][0] > 0
@@ -71,6 +82,7 @@ def test_eval_prints_the_table_without_torch(corpus, evaluator_folder, tmp_path)
 class MeanFeatures:
     """Another evaluator behind the seam: a motion is its mean first 8 features; a caption is
     that of a real clip it describes (captions repeat), so ground truth retrieves well."""
+
     embed_dim = 8
 
     def __init__(self, table: dict[str, np.ndarray]):
@@ -85,10 +97,16 @@ class MeanFeatures:
 
 def replay_real_clips(monkeypatch, folder: HumanML3DFolder) -> None:
     """Generation replaced by the real clips: for tests of what comes after it."""
+
     def real(generator, items, seed, threads=1, label=""):
-        return [SimpleNamespace(features=folder.features(item.clip_id)[item.start:item.end],
-                                joints=folder.joints(item.clip_id)[item.start:item.end])
-                for item in items]
+        return [
+            SimpleNamespace(
+                features=folder.features(item.clip_id)[item.start : item.end],
+                joints=folder.joints(item.clip_id)[item.start : item.end],
+            )
+            for item in items
+        ]
+
     monkeypatch.setattr(evaluate_module, "generate_items", real)
 
 
@@ -96,10 +114,10 @@ def test_another_evaluator_plugs_in(corpus, monkeypatch):
     folder = HumanML3DFolder(corpus, splits=("test",))
     replay_real_clips(monkeypatch, folder)
     items = caption_items(folder, "test", 32)
-    fake = MeanFeatures({i.caption: folder.features(i.clip_id)[i.start:i.end, :8].mean(0)
-                         for i in items})
-    options = EvalOptions(None, corpus, None, limit=32, repeats=2, mm_captions=0,
-                          regenerate=True)
+    fake = MeanFeatures(
+        {i.caption: folder.features(i.clip_id)[i.start : i.end, :8].mean(0) for i in items}
+    )
+    options = EvalOptions(None, corpus, None, limit=32, repeats=2, mm_captions=0, regenerate=True)
     result = evaluate(options, fake)
     rows = result["rows"]
     assert result["items"] == 32 and "regenerated every repeat" in result["notes"][0]
@@ -109,13 +127,15 @@ def test_another_evaluator_plugs_in(corpus, monkeypatch):
     assert rows["Bundle"] == rows["Ground truth"]
 
 
-@pytest.mark.parametrize("case, message", [
-    ("no_evaluator", "no such evaluator folder"),
-    ("small_limit", "--limit must be at least 32"),
-    ("no_test_split", "test.txt: split file missing"),
-])
-def test_bad_inputs_give_one_line_errors(case, message, corpus, evaluator_folder, tmp_path,
-                                         capsys):
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("no_evaluator", "no such evaluator folder"),
+        ("small_limit", "--limit must be at least 32"),
+        ("no_test_split", "test.txt: split file missing"),
+    ],
+)
+def test_bad_inputs_give_one_line_errors(case, message, corpus, evaluator_folder, tmp_path, capsys):
     data, evaluator, extra = corpus, evaluator_folder, []
     if case == "no_evaluator":
         evaluator = tmp_path / "missing"
@@ -133,19 +153,24 @@ def test_semantic_checks_pass_real_clips_and_fail_wrong_parameters(corpus):
     folder = HumanML3DFolder(corpus, splits=("test",))
     items = semantic.program_items(corpus, folder.ids("test"))
     assert len({item.primitive for item in items}) >= 10
-    wrong = dict(left="right", right="left", both="left", forward="backward",
-                 backward="forward")
+    wrong = dict(left="right", right="left", both="left", forward="backward", backward="forward")
     flipped = 0
     for item in items:
-        joints = folder.joints(item.clip_id)[item.start:item.end]
+        joints = folder.joints(item.clip_id)[item.start : item.end]
         assert semantic.check(item, joints, joints).passed, (item, semantic.check(item, joints))
-        params = {k: wrong.get(v, v + 1 if k == "count" else v) if isinstance(v, (str, int))
-                  and not isinstance(v, bool) and k in ("hand", "foot", "direction", "count")
-                  else v for k, v in item.params.items()}
+        params = {
+            k: wrong.get(v, v + 1 if k == "count" else v)
+            if isinstance(v, (str, int))
+            and not isinstance(v, bool)
+            and k in ("hand", "foot", "direction", "count")
+            else v
+            for k, v in item.params.items()
+        }
         if params != item.params:
             flipped += 1
-            changed = semantic.SemanticItem(item.clip_id, item.caption, item.primitive, params,
-                                            item.start, item.end)
+            changed = semantic.SemanticItem(
+                item.clip_id, item.caption, item.primitive, params, item.start, item.end
+            )
             assert not semantic.check(changed, joints, joints).passed, changed
     assert flipped >= 10
 
@@ -161,9 +186,14 @@ def test_semantic_measurements_on_a_turned_clip():
         offsets[names.index(f"{side}_hip")] = (x, 0, 0)
         offsets[names.index(f"{side}_shoulder")] = (2 * x, 0.5, 0)
     yaw = np.radians(np.linspace(0, 90, 21))
-    rotation = np.stack([np.stack([np.cos(yaw), np.zeros(21), np.sin(yaw)], -1),
-                         np.tile([0.0, 1, 0], (21, 1)),
-                         np.stack([-np.sin(yaw), np.zeros(21), np.cos(yaw)], -1)], 1)
+    rotation = np.stack(
+        [
+            np.stack([np.cos(yaw), np.zeros(21), np.sin(yaw)], -1),
+            np.tile([0.0, 1, 0], (21, 1)),
+            np.stack([-np.sin(yaw), np.zeros(21), np.cos(yaw)], -1),
+        ],
+        1,
+    )
     root = np.stack([np.linspace(0, 2, 21), np.full(21, 0.9), np.zeros(21)], -1)
     joints = root[:, None] + np.einsum("tij,nj->tni", rotation, offsets)
     assert semantic.heading_change(joints) == pytest.approx(90, abs=1e-6)
@@ -175,18 +205,45 @@ def test_quality_report(corpus, evaluator_folder, tmp_path, monkeypatch, capsys)
     from mogo.bench.quality import quality_report
 
     replay_real_clips(monkeypatch, HumanML3DFolder(corpus, splits=("test",)))
-    (tmp_path / "ablation.md").write_text("| variant | MPJPE (mm) |\n|---|---|\n"
-                                          "| 6 levels | 20 |\n")
+    (tmp_path / "ablation.md").write_text(
+        "| variant | MPJPE (mm) |\n|---|---|\n| 6 levels | 20 |\n"
+    )
     out = tmp_path / "QUALITY.md"
-    monkeypatch.setattr(sys, "argv", [
-        "quality_report", "--data", str(corpus), "--evaluator", str(evaluator_folder),
-        "--out", str(out), "--limit", "32", "--repeats", "1", "--mm-captions", "0",
-        "--per-primitive", "1", "--ablation", str(tmp_path)])
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "quality_report",
+            "--data",
+            str(corpus),
+            "--evaluator",
+            str(evaluator_folder),
+            "--out",
+            str(out),
+            "--limit",
+            "32",
+            "--repeats",
+            "1",
+            "--mm-captions",
+            "0",
+            "--per-primitive",
+            "1",
+            "--ablation",
+            str(tmp_path),
+        ],
+    )
     quality_report.main()
     text = out.read_text()
-    for heading in ("## Text-motion metrics", "| Bundle |", "## Does the motion do what",
-                    "| all |", "## Feet", "| generated, feet planted |", "## MoSA-VQ ablation",
-                    "| 6 levels | 20 |"):
+    for heading in (
+        "## Text-motion metrics",
+        "| Bundle |",
+        "## Does the motion do what",
+        "| all |",
+        "## Feet",
+        "| generated, feet planted |",
+        "## MoSA-VQ ablation",
+        "| 6 levels | 20 |",
+    ):
         assert heading in text
     assert "Missing" in quality_report.ablation_section(tmp_path / "nothing")
 
@@ -197,12 +254,16 @@ def test_vq_reconstruction_writes_gifs_and_a_contact_sheet(corpus, tmp_path, mon
     from mogo.bench.quality import vq_reconstruction
 
     out = tmp_path / "recon"
-    monkeypatch.setattr(sys, "argv", ["vq_reconstruction", "--data", str(corpus), "--out",
-                                      str(out), "--clips", "2"])
+    monkeypatch.setattr(
+        sys, "argv", ["vq_reconstruction", "--data", str(corpus), "--out", str(out), "--clips", "2"]
+    )
     vq_reconstruction.main()
     printed = capsys.readouterr().out
-    errors = [float(line.split("MPJPE ")[1].split(" mm")[0]) for line in printed.splitlines()
-              if " frames, MPJPE " in line]
+    errors = [
+        float(line.split("MPJPE ")[1].split(" mm")[0])
+        for line in printed.splitlines()
+        if " frames, MPJPE " in line
+    ]
     assert len(errors) == 2 and all(0 < e < 60 for e in errors)  # the shipped VQ: ~10-25 mm
     gifs = sorted(out.glob("*.gif"))
     assert len(gifs) == 2 and not any(g.stem.startswith("M") for g in gifs)
@@ -222,8 +283,9 @@ def test_vq_report_splits_the_error_of_the_shipped_vq(corpus, monkeypatch, capsy
     turned[:, 0] += 0.01  # a yaw velocity bias: the trajectory turns, the poses are as they were
     whole, poses, trajectory = vq_report.clip_errors(real, turned)
     assert poses == 0.0 and whole == trajectory > 0
-    monkeypatch.setattr(sys, "argv", ["vq_report", "--data", str(corpus), "--limit", "6",
-                                      "--threads", "2"])
+    monkeypatch.setattr(
+        sys, "argv", ["vq_report", "--data", str(corpus), "--limit", "6", "--threads", "2"]
+    )
     vq_report.main()
     row = capsys.readouterr().out.splitlines()[-1].split(" | ")
     assert row[0] == "| default" and row[1] == "6"

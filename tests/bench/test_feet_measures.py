@@ -1,4 +1,5 @@
 """The foot measures of mogo.bench.quality.feet on clips whose answers are known."""
+
 import numpy as np
 
 from mogo.bench.quality.feet import contacts, foot_measures, format_feet
@@ -20,7 +21,7 @@ def _clip(step: float, frames: int = 21) -> tuple[np.ndarray, np.ndarray]:
     joints[..., 0] += step * np.arange(frames)[:, None]
     joints[10, FEET, 1] = -0.05
     features = np.zeros((frames, SMPL_22.feature_dim), np.float32)
-    features[:, VELOCITY:VELOCITY + 66:3] = step  # every joint's x velocity
+    features[:, VELOCITY : VELOCITY + 66 : 3] = step  # every joint's x velocity
     features[:, -4:] = 1.0
     return joints, features
 

@@ -1,13 +1,20 @@
 """`mogo long-streams --quick` end to end on the shipped bundle (two actions, both modes), a run
 of chosen actions, and the window checks it rests on, judged against the procedural animator's own performance."""
+
 import json
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from mogo.bench.quality.stream_checks import (REPERTOIRE, WindowCheck, drift, reaction_frames,
-                                              reference, window_passes)
+from mogo.bench.quality.stream_checks import (
+    REPERTOIRE,
+    WindowCheck,
+    drift,
+    reaction_frames,
+    reference,
+    window_passes,
+)
 from mogo.cli import main
 
 
@@ -24,9 +31,28 @@ def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
 
 
 def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
-    assert main(["long-streams", "--modes", "on", "--minutes", str(1 / 6), "--seeds", "1",
-                 "--switches", "0", "--actions", "spin", "--jobs", "1",
-                 "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "long-streams",
+                "--modes",
+                "on",
+                "--minutes",
+                str(1 / 6),
+                "--seeds",
+                "1",
+                "--switches",
+                "0",
+                "--actions",
+                "spin",
+                "--jobs",
+                "1",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "| spin | a person spins to the left. |" in printed and "walk" not in printed
     assert "switches:" not in printed and "fresh clips" in printed
@@ -34,8 +60,13 @@ def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
     assert [r["action"] for r in result["streams"]] == ["spin"] and result["switches"] == []
 
 
-@pytest.mark.parametrize("args,message", [(["--actions", "moonwalk"], "no action 'moonwalk'"),
-                                          (["--switches", "-1"], "--switches must be >= 0")])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--actions", "moonwalk"], "no action 'moonwalk'"),
+        (["--switches", "-1"], "--switches must be >= 0"),
+    ],
+)
 def test_bad_choices_are_one_line_errors(args, message, capsys):
     assert main(["long-streams", *args]) == 2
     assert message in capsys.readouterr().err

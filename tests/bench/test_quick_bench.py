@@ -1,4 +1,5 @@
 """`mogo bench --quick`: this machine's figures beside the README's, with the runtime alone."""
+
 import re
 from pathlib import Path
 
@@ -8,18 +9,25 @@ README = Path(__file__).resolve().parents[2] / "README.md"
 
 
 def test_it_runs_without_torch_and_prints_both_columns(run_without_torch):
-    done = run_without_torch("from mogo.cli import main\n"
-                             "assert main(['bench', '--quick', '--threads', '1']) == 0\n",
-                             block_export=False)  # the parser lists export's verbs
+    done = run_without_torch(
+        "from mogo.cli import main\nassert main(['bench', '--quick', '--threads', '1']) == 0\n",
+        block_export=False,
+    )  # the parser lists export's verbs
     assert done.returncode == 0, done.stderr
     out = done.stdout
     assert out.startswith("this machine: ") and "onnxruntime" in out
-    assert re.search(r"^  AVX2 (yes|no), AVX-512 (yes|no), AVX-512 VNNI (yes|no)", out,
-                     re.MULTILINE) or "NEON" in out or "unknown" in out
+    assert (
+        re.search(r"^  AVX2 (yes|no), AVX-512 (yes|no), AVX-512 VNNI (yes|no)", out, re.MULTILINE)
+        or "NEON" in out
+        or "unknown" in out
+    )
     first_readme, clip_readme = quick.README[1]
-    row = re.search(rf"^\| 1 \| (\d+) ms / {first_readme:.0f} ms \((\d+\.\d)x\) \| "
-                    rf"(\d+\.\d+) s / {clip_readme:.3f} s \((\d+\.\d)x\) \| (\d+\.\d+) ms \|$",
-                    out, re.MULTILINE)
+    row = re.search(
+        rf"^\| 1 \| (\d+) ms / {first_readme:.0f} ms \((\d+\.\d)x\) \| "
+        rf"(\d+\.\d+) s / {clip_readme:.3f} s \((\d+\.\d)x\) \| (\d+\.\d+) ms \|$",
+        out,
+        re.MULTILINE,
+    )
     assert row, out
     first, first_ratio, clip, clip_ratio, step = map(float, row.groups())
     assert first > 0 and clip > 0 and step > 0
@@ -39,7 +47,6 @@ def test_a_cpu_without_vnni_is_told_what_that_means():
     avx2 = quick.report(rows, "some CPU", {"avx", "avx2", "fma"})
     assert "AVX2 yes, AVX-512 no, AVX-512 VNNI no, AVX-VNNI no" in avx2
     assert "No VNNI here" in avx2
-    assert "No VNNI here" not in quick.report(rows, "some CPU", {"avx2", "avx512f",
-                                                                 "avx512_vnni"})
+    assert "No VNNI here" not in quick.report(rows, "some CPU", {"avx2", "avx512f", "avx512_vnni"})
     arm = quick.report(rows, "some ARM", {"fp", "asimd"})
     assert "NEON yes, NEON dot product no" in arm and "AVX" not in arm.split("README")[0]

@@ -1,5 +1,6 @@
 """`mogo real-motion` on a stand-in for pybullet's wheel: a zip in the cache folder holding two
 small DeepMimic clips where the wheel keeps its motions (no download, no pybullet)."""
+
 import json
 import zipfile
 
@@ -9,8 +10,9 @@ from PIL import Image
 from mogo.bench.quality.real_motion import MOTIONS, deepmimic_clips, errors_mm
 from mogo.cli import main
 
-STANDING = [1 / 30, 0, 0.85, 0] + [1, 0, 0, 0] * 3 + ([1, 0, 0, 0, -0.2] + [1, 0, 0, 0] * 2
-                                                      + [0.3]) * 2
+STANDING = (
+    [1 / 30, 0, 0.85, 0] + [1, 0, 0, 0] * 3 + ([1, 0, 0, 0, -0.2] + [1, 0, 0, 0] * 2 + [0.3]) * 2
+)
 
 
 def _clip(frames: int, step: float) -> str:

@@ -1,6 +1,7 @@
 """bench/quality/realism: its measures read what they say, and corpus v2's animator is closer
 than v1's to the real clips (their figures as `python -m mogo.bench.quality.realism` printed
 them for pybullet 3.2.7's DeepMimic walk, run and jump; no download here)."""
+
 import numpy as np
 import pytest
 
@@ -8,8 +9,13 @@ from mogo.bench.quality.realism import MOVES, gait_measures, jump_measures
 from mogo.export.data.animator import Segment, animate
 
 REAL = {  # docs/model.md's realism table, real column
-    "walk": {"step length / leg": 0.69, "cadence (steps/min)": 102, "pelvis bob (mm)": 34,
-             "pelvis sway (mm)": 36, "foot clearance (mm)": 201},
+    "walk": {
+        "step length / leg": 0.69,
+        "cadence (steps/min)": 102,
+        "pelvis bob (mm)": 34,
+        "pelvis sway (mm)": 36,
+        "foot clearance (mm)": 201,
+    },
     "run": {"pelvis sway (mm)": 11, "arm swing (mm)": 715, "knee flexion in stance (deg)": 47},
     "jump": {"crouch before take-off (mm)": 297, "time in the air (s)": 0.40},
 }
@@ -17,8 +23,12 @@ REAL = {  # docs/model.md's realism table, real column
 
 def _mean(move: str, natural: bool) -> dict[str, float]:
     measure = gait_measures if move in ("walk", "run") else jump_measures
-    values = [measure(animate([MOVES[move][1]], np.random.default_rng(s), natural).joints
-                      .astype(np.float64)) for s in range(4)]
+    values = [
+        measure(
+            animate([MOVES[move][1]], np.random.default_rng(s), natural).joints.astype(np.float64)
+        )
+        for s in range(4)
+    ]
     return {name: float(np.mean([v[name] for v in values])) for name in values[0]}
 
 

@@ -1,5 +1,6 @@
 """bench/training/train_cost: the FLOPs it counts scale with the batch, as the estimate of the
 GPU recipe assumes, and a step costs what its model's size says."""
+
 import pytest
 
 from mogo.bench.training.train_cost import measure

@@ -4,12 +4,33 @@ import numpy as np
 import pytest
 
 from mogo.export.data.animator import CORPORA, PRIMITIVES, Segment, animate, sample_segment
-from mogo.motion.features import (facing_directions, features_to_joints, foot_contacts,
-                                  joints_to_features)
+from mogo.motion.features import (
+    facing_directions,
+    features_to_joints,
+    foot_contacts,
+    joints_to_features,
+)
 from mogo.motion.skeleton import SMPL_22
 
-NAMES = ("walk", "jog", "run", "turn", "jump", "squat", "sit", "bow", "wave", "raise_arms",
-         "clap", "punch", "kick", "spin", "stretch", "jumping_jacks", "idle")  # corpus v1
+NAMES = (
+    "walk",
+    "jog",
+    "run",
+    "turn",
+    "jump",
+    "squat",
+    "sit",
+    "bow",
+    "wave",
+    "raise_arms",
+    "clap",
+    "punch",
+    "kick",
+    "spin",
+    "stretch",
+    "jumping_jacks",
+    "idle",
+)  # corpus v1
 PELVIS, HEAD = 0, 15
 LEFT_WRIST, RIGHT_WRIST, LEFT_SHOULDER, RIGHT_SHOULDER = 20, 21, 16, 17
 FEET = {"left": (7, 10), "right": (8, 11)}  # ankle, ball of the foot
@@ -70,8 +91,9 @@ def test_param_ranges_cover_what_captions_promise():
     walks = [sample_segment("walk", rng).params for _ in range(400)]
     straight = np.mean([w["turn"] == 0 for w in walks if w["direction"] in ("forward", "backward")])
     assert 0.35 < straight < 0.65
-    assert all(w["turn"] == 0 and w["steps"] % 2 == 0 for w in walks
-               if w["direction"] in ("left", "right"))
+    assert all(
+        w["turn"] == 0 and w["steps"] % 2 == 0 for w in walks if w["direction"] in ("left", "right")
+    )
     seconds = {sample_segment("idle", rng).params["seconds"] for _ in range(200)}
     assert seconds == {1.0, 1.5, 2.0, 2.5, 3.0}
 
@@ -97,8 +119,10 @@ def test_every_primitive_animates_validly(primitive):
 
 
 def test_same_rng_state_same_clip():
-    segments = [seg("walk", direction="forward", speed="fast", steps=4, turn=45),
-                seg("wave", hand="both", count=2)]
+    segments = [
+        seg("walk", direction="forward", speed="fast", steps=4, turn=45),
+        seg("wave", hand="both", count=2),
+    ]
     a = animate(segments, np.random.default_rng(5))
     b = animate(segments, np.random.default_rng(5))
     c = animate(segments, np.random.default_rng(6))
@@ -106,8 +130,9 @@ def test_same_rng_state_same_clip():
     assert a.joints.shape != c.joints.shape or not np.allclose(a.joints, c.joints, atol=0.01)
 
 
-@pytest.mark.parametrize("primitive", ["walk", "jog", "run", "turn", "spin", "jump",
-                                       "jumping_jacks", "kick"])
+@pytest.mark.parametrize(
+    "primitive", ["walk", "jog", "run", "turn", "spin", "jump", "jumping_jacks", "kick"]
+)
 def test_planted_feet_do_not_skate(primitive):
     """Where `foot_contacts` flags contact and a foot joint stays at its resting height, it
     stays put (lifting heels and toes pushing off are allowed to move)."""
@@ -240,8 +265,10 @@ def test_clap_brings_the_hands_together_count_times(count):
 def test_punch_extends_the_named_fist_forward():
     joints = clip(seg("punch", hand="right", count=3))
     facing = facing_directions(joints, SMPL_22)[0]
-    reach = {w: (joints[:, w] - joints[:, s]) @ facing
-             for w, s in ((RIGHT_WRIST, RIGHT_SHOULDER), (LEFT_WRIST, LEFT_SHOULDER))}
+    reach = {
+        w: (joints[:, w] - joints[:, s]) @ facing
+        for w, s in ((RIGHT_WRIST, RIGHT_SHOULDER), (LEFT_WRIST, LEFT_SHOULDER))
+    }
     assert reach[RIGHT_WRIST].max() > 0.4 and reach[LEFT_WRIST].max() < 0.3
     out = reach[RIGHT_WRIST] > 0.35
     assert np.sum(np.diff(out.astype(int)) == 1) == 3
@@ -266,15 +293,23 @@ def test_segments_join_without_jumps():
             assert step[start - 1] < max(0.01, step[start - 2] + 0.005), (segments, start)
 
 
-@pytest.mark.parametrize("segments", [
-    [seg("turn", angle=180)],
-    [seg("walk", direction="forward", speed="normal", steps=6, turn=180)],
-    [seg("walk", direction="backward", speed="slow", steps=5, turn=0)],
-    [seg("run", direction="backward", speed="fast", steps=6, turn=-90),
-     seg("spin", direction="left")],
-    [seg("jog", direction="left", speed="fast", steps=6, turn=0),
-     seg("jump", forward=True, count=2), seg("sit")],
-])
+@pytest.mark.parametrize(
+    "segments",
+    [
+        [seg("turn", angle=180)],
+        [seg("walk", direction="forward", speed="normal", steps=6, turn=180)],
+        [seg("walk", direction="backward", speed="slow", steps=5, turn=0)],
+        [
+            seg("run", direction="backward", speed="fast", steps=6, turn=-90),
+            seg("spin", direction="left"),
+        ],
+        [
+            seg("jog", direction="left", speed="fast", steps=6, turn=0),
+            seg("jump", forward=True, count=2),
+            seg("sit"),
+        ],
+    ],
+)
 def test_features_round_trip_to_the_canonical_joints(segments):
     """Including clips that turn around and walk backwards (the facing crosses 180 degrees)."""
     joints = clip(*segments, seed=9)
@@ -286,7 +321,9 @@ def test_random_programs_round_trip():
     rng = np.random.default_rng(10)
     names = sorted(PRIMITIVES)
     for _ in range(8):
-        segments = [sample_segment(names[int(rng.integers(len(names)))], rng)
-                    for _ in range(int(rng.integers(1, 4)))]
+        segments = [
+            sample_segment(names[int(rng.integers(len(names)))], rng)
+            for _ in range(int(rng.integers(1, 4)))
+        ]
         features, canonical = joints_to_features(animate(segments, rng).joints)
         np.testing.assert_allclose(features_to_joints(features), canonical[:-1], atol=1e-4)

@@ -5,8 +5,15 @@ import pytest
 
 from mogo.export.data.animator import PRIMITIVES, Segment, sample_segment
 from mogo.export.data.caption_templates import JOINERS, POOLS, SUBJECTS, TEMPLATES
-from mogo.export.data.captions import (caption_program, caption_segment, conjugate, count_noun,
-                                       render, templates, times_word)
+from mogo.export.data.captions import (
+    caption_program,
+    caption_segment,
+    conjugate,
+    count_noun,
+    render,
+    templates,
+    times_word,
+)
 
 DRAWS = 300  # random segments per template: enough to meet every param combination it fits
 
@@ -51,8 +58,10 @@ def test_program_captions_are_humanml3d_style(pool):
     rng = np.random.default_rng(1)
     names = sorted(PRIMITIVES)
     for _ in range(200):
-        segments = [sample_segment(names[int(rng.integers(len(names)))], rng)
-                    for _ in range(int(rng.integers(1, 4)))]
+        segments = [
+            sample_segment(names[int(rng.integers(len(names)))], rng)
+            for _ in range(int(rng.integers(1, 4)))
+        ]
         sentence = caption_program(segments, rng, pool)
         _well_formed(sentence.text[:-1])
         assert sentence.text.endswith(".") and sentence.text[0].islower()
@@ -76,8 +85,10 @@ def _captions(segment: Segment, n: int = 60) -> list[str]:
     return [caption_segment(segment, rng, pool).text for pool in POOLS for _ in range(n)]
 
 
-@pytest.mark.parametrize("primitive,param", [("wave", "hand"), ("raise_arms", "hand"),
-                                             ("punch", "hand"), ("kick", "foot")])
+@pytest.mark.parametrize(
+    "primitive,param",
+    [("wave", "hand"), ("raise_arms", "hand"), ("punch", "hand"), ("kick", "foot")],
+)
 @pytest.mark.parametrize("side", ["left", "right"])
 def test_captions_name_the_right_limb(primitive, param, side):
     rng = np.random.default_rng(4)
@@ -102,8 +113,12 @@ def test_spin_and_turn_captions_name_the_direction(direction):
 def test_locomotion_captions_name_the_direction(gait, direction):
     rng = np.random.default_rng(5)
     params = dict(sample_segment(gait, rng).params, direction=direction, turn=0)
-    words = {"forward": r"forwards?|ahead", "backward": r"backwards?|backs up",
-             "left": r"left|leftward", "right": r"right|rightward"}[direction]
+    words = {
+        "forward": r"forwards?|ahead",
+        "backward": r"backwards?|backs up",
+        "left": r"left|leftward",
+        "right": r"right|rightward",
+    }[direction]
     for text in _captions(Segment(gait, params)):
         assert re.search(rf"\b({words})\b", text), text
 
@@ -126,7 +141,15 @@ def test_counts_are_words():
 
 
 def test_conjugation():
-    assert [conjugate(v, "s") for v in ("walk", "punch", "do", "carry")] == \
-        ["walks", "punches", "does", "carries"]
-    assert [conjugate(v, "ing") for v in ("jog", "wave", "squat", "walk")] == \
-        ["jogging", "waving", "squatting", "walking"]
+    assert [conjugate(v, "s") for v in ("walk", "punch", "do", "carry")] == [
+        "walks",
+        "punches",
+        "does",
+        "carries",
+    ]
+    assert [conjugate(v, "ing") for v in ("jog", "wave", "squat", "walk")] == [
+        "jogging",
+        "waving",
+        "squatting",
+        "walking",
+    ]

@@ -35,8 +35,12 @@ def test_layout_is_complete(corpus):
     ids = [i for split in ("train", "val", "test") for i in _ids(corpus, split)]
     originals = [f"{k:06d}" for k in range(CLIPS)]
     assert sorted(ids) == sorted(originals + ["M" + i for i in originals])
-    for sub, suffix in (("new_joint_vecs", ".npy"), ("new_joints", ".npy"), ("texts", ".txt"),
-                        ("programs", ".json")):
+    for sub, suffix in (
+        ("new_joint_vecs", ".npy"),
+        ("new_joints", ".npy"),
+        ("texts", ".txt"),
+        ("programs", ".json"),
+    ):
         assert sorted(p.name for p in (corpus / sub).iterdir()) == sorted(i + suffix for i in ids)
     summary = json.loads((corpus / "corpus.json").read_text())
     assert summary["clips"] == CLIPS and summary["seed"] == SEED
@@ -62,7 +66,7 @@ def test_caption_lines_parse_and_match_the_program(corpus):
         lines = path.read_text().splitlines()
         assert len(lines) == len(program["captions"])
         assert len(lines) == (3 if len(program["segments"]) == 1 else 2 + len(program["segments"]))
-        for k, (line, caption) in enumerate(zip(lines, program["captions"])):
+        for k, (line, caption) in enumerate(zip(lines, program["captions"], strict=True)):
             parsed = parse_caption_line(line, 20.0, f"{path}:{k + 1}")
             assert parsed.text == caption["text"] and parsed.text.endswith(".")
             if caption["span"] is None:
@@ -71,7 +75,7 @@ def test_caption_lines_parse_and_match_the_program(corpus):
                 assert [parsed.start_frame, parsed.end_frame] == caption["span"]
         spans = [s["span"] for s in program["segments"]]
         assert spans[0][0] == 0 and spans[-1][1] <= program["frames"]
-        assert all(a[1] == b[0] for a, b in zip(spans[:-1], spans[1:]))
+        assert all(a[1] == b[0] for a, b in zip(spans[:-1], spans[1:], strict=True))
 
 
 def test_mirrored_copies(corpus):
@@ -82,18 +86,21 @@ def test_mirrored_copies(corpus):
         mirrored = np.load(corpus / "new_joints" / f"M{clip_id}.npy")
         np.testing.assert_allclose(mirror_joints(joints, SMPL_22), mirrored, atol=1e-4)
         texts = (corpus / "texts" / f"{clip_id}.txt").read_text().splitlines()
-        assert (corpus / "texts" / f"M{clip_id}.txt").read_text().splitlines() == \
-            [mirror_text(line) for line in texts]
-        for a, b in zip(original["segments"], mirror["segments"]):
+        assert (corpus / "texts" / f"M{clip_id}.txt").read_text().splitlines() == [
+            mirror_text(line) for line in texts
+        ]
+        for a, b in zip(original["segments"], mirror["segments"], strict=True):
             assert mirror_segment(Segment(a["primitive"], a["params"])).params == b["params"]
 
 
 def test_mirror_segment_swaps_sides_and_turns():
-    assert mirror_segment(Segment("walk", {"direction": "left", "speed": "fast", "steps": 4,
-                                           "turn": 90})).params == \
-        {"direction": "right", "speed": "fast", "steps": 4, "turn": -90}
-    assert mirror_segment(Segment("punch", {"hand": "right", "count": 2})).params == \
-        {"hand": "left", "count": 2}
+    assert mirror_segment(
+        Segment("walk", {"direction": "left", "speed": "fast", "steps": 4, "turn": 90})
+    ).params == {"direction": "right", "speed": "fast", "steps": 4, "turn": -90}
+    assert mirror_segment(Segment("punch", {"hand": "right", "count": 2})).params == {
+        "hand": "left",
+        "count": 2,
+    }
     assert mirror_segment(Segment("turn", {"angle": -45})).params == {"angle": 45}
 
 
@@ -102,13 +109,14 @@ def test_heldout_pairs_and_templates_stay_out_of_train_and_val(corpus):
     pairs = {tuple(p) for p in summary["heldout_pairs"]}
     assert pairs == set(heldout_pairs(SEED)) and pairs != set(heldout_pairs(SEED + 1))
     heldout_ids = set(summary["heldout_templates"])
-    assert heldout_ids == {t.id for name in CORPORA["v1"] for t in TEMPLATES[name] if t.heldout} | \
-        {j.id for j in JOINERS if j.heldout}
+    assert heldout_ids == {t.id for name in CORPORA["v1"] for t in TEMPLATES[name] if t.heldout} | {
+        j.id for j in JOINERS if j.heldout
+    }
     for split in ("train", "val"):
         for clip_id in _ids(corpus, split):
             program = _program(corpus, clip_id)
             names = [s["primitive"] for s in program["segments"]]
-            assert not set(zip(names[:-1], names[1:])) & pairs
+            assert not set(zip(names[:-1], names[1:], strict=True)) & pairs
             assert program["caption_pool"] == "train"
             assert not {i for c in program["captions"] for i in c["template_ids"]} & heldout_ids
 

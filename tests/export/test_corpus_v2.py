@@ -1,5 +1,6 @@
 """Corpus v2: its new primitives animate validly, their captions say the action, the corpus is
 the same from the same seed, and steps vary as a person's do."""
+
 import json
 
 import numpy as np
@@ -13,15 +14,28 @@ from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES, SMPL_22
 NEW = tuple(p for p in CORPORA["v2"] if p not in CORPORA["v1"])
 # Words one of which every caption of the primitive says (train and held-out pools).
 SAYS = {
-    "crouch_walk": ("crouch", "low"), "tiptoe": ("tiptoe", "toes", "balls of"), "march": ("march", "high knees"),
-    "limp": ("limp", "hurt", "hobbl"), "skip": ("skip",), "carry": ("carr", "holding", "load"),
-    "stumble": ("stumbl", "footing", "stagger"), "hop": ("hop", "bounc"),
-    "step_up": ("step", "stair"), "crawl": ("crawl", "all fours"),
-    "lie_down": ("lie", "back", "reclin"), "pick_up": ("pick", "lift"),
-    "push": ("push", "shove", "press"), "pull": ("pull", "heav"), "throw": ("throw", "hurl"),
-    "point": ("point", "indicat"), "look_around": ("look", "glanc", "survey"),
-    "shrug": ("shrug",), "salute": ("salut",), "dance": ("danc", "groov"),
-    "uppercut": ("uppercut", "upward"), "duck": ("duck",),
+    "crouch_walk": ("crouch", "low"),
+    "tiptoe": ("tiptoe", "toes", "balls of"),
+    "march": ("march", "high knees"),
+    "limp": ("limp", "hurt", "hobbl"),
+    "skip": ("skip",),
+    "carry": ("carr", "holding", "load"),
+    "stumble": ("stumbl", "footing", "stagger"),
+    "hop": ("hop", "bounc"),
+    "step_up": ("step", "stair"),
+    "crawl": ("crawl", "all fours"),
+    "lie_down": ("lie", "back", "reclin"),
+    "pick_up": ("pick", "lift"),
+    "push": ("push", "shove", "press"),
+    "pull": ("pull", "heav"),
+    "throw": ("throw", "hurl"),
+    "point": ("point", "indicat"),
+    "look_around": ("look", "glanc", "survey"),
+    "shrug": ("shrug",),
+    "salute": ("salut",),
+    "dance": ("danc", "groov"),
+    "uppercut": ("uppercut", "upward"),
+    "duck": ("duck",),
 }
 
 
@@ -77,7 +91,9 @@ def test_natural_steps_vary_and_v1_steps_do_not():
         planted = ankle[:, 1] < ankle[:, 1].min() + 0.002
         starts = np.flatnonzero(np.diff(planted.astype(int)) == 1) + 1
         ends = np.flatnonzero(np.diff(planted.astype(int)) == -1) + 1
-        spots = [ankle[s:e, [0, 2]].mean(0) for s, e in zip(starts, ends[ends > starts[0]])]
+        spots = [
+            ankle[s:e, [0, 2]].mean(0) for s, e in zip(starts, ends[ends > starts[0]], strict=True)
+        ]
         return np.linalg.norm(np.diff(spots, axis=0), axis=-1)[:-1]  # the last one closes
 
     assert np.ptp(strides(False)) < 0.002

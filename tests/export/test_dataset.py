@@ -3,12 +3,15 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from mogo.export.data.humanml3d import Caption, DatasetError, HumanML3DFolder, parse_caption_line
-from mogo.export.train.datasets import (MotionCropDataset, TextMotionDataset, WholeClipBatches,
-                                        collate_text_motion)
-from mogo.motion.skeleton import KIT_21, SMPL_22
-
 from helpers import CLIP_FRAMES
+from mogo.export.data.humanml3d import Caption, DatasetError, HumanML3DFolder, parse_caption_line
+from mogo.export.train.datasets import (
+    MotionCropDataset,
+    TextMotionDataset,
+    WholeClipBatches,
+    collate_text_motion,
+)
+from mogo.motion.skeleton import KIT_21, SMPL_22
 
 
 def test_folder_loads_layout(tiny_humanml3d):
@@ -25,8 +28,11 @@ def test_folder_loads_layout(tiny_humanml3d):
 
 
 def test_kit_folder_uses_kit_skeleton_and_fps(tiny_humanml3d):
-    for path in [tiny_humanml3d / "Mean.npy", tiny_humanml3d / "Std.npy",
-                 *(tiny_humanml3d / "new_joint_vecs").glob("*.npy")]:
+    for path in [
+        tiny_humanml3d / "Mean.npy",
+        tiny_humanml3d / "Std.npy",
+        *(tiny_humanml3d / "new_joint_vecs").glob("*.npy"),
+    ]:
         np.save(path, np.load(path)[..., :251])
     folder = HumanML3DFolder(tiny_humanml3d)
     assert folder.skeleton is KIT_21 and folder.feature_dim == 251
@@ -36,9 +42,12 @@ def test_kit_folder_uses_kit_skeleton_and_fps(tiny_humanml3d):
 
 def test_captions_and_spans(tiny_humanml3d):
     captions = HumanML3DFolder(tiny_humanml3d).captions("000000")
-    assert captions[0] == Caption("a person walks forward.",
-                                  (("a", "DET"), ("person", "NOUN"), ("walk", "VERB"),
-                                   ("forward", "ADV")), 0, None)
+    assert captions[0] == Caption(
+        "a person walks forward.",
+        (("a", "DET"), ("person", "NOUN"), ("walk", "VERB"), ("forward", "ADV")),
+        0,
+        None,
+    )
     assert (captions[1].start_frame, captions[1].end_frame) == (10, 50)
     assert captions[2].tokens == () and captions[2].end_frame is None  # nan#nan: whole clip
 
@@ -47,10 +56,12 @@ def test_parse_caption_line_edge_cases():
     kit = parse_caption_line("a man turns.#a/DET man/NOUN turn/VERB#1.0#3.0", 12.5, "x:1")
     assert (kit.start_frame, kit.end_frame) == (12, 37)
     assert parse_caption_line("odd#x/X#nan#2.0", 20, "x:1").end_frame == 40
-    for bad, message in [("no fields at all", "expected 'caption#"),
-                         ("a#a/DET#zero#1.0", "start time 'zero' is not a number"),
-                         ("a#a/DET#-1.0#1.0", "start time '-1.0' is not a time"),
-                         ("a#aDET#0.0#0.0", "token 'aDET' is not word/POS")]:
+    for bad, message in [
+        ("no fields at all", "expected 'caption#"),
+        ("a#a/DET#zero#1.0", "start time 'zero' is not a number"),
+        ("a#a/DET#-1.0#1.0", "start time '-1.0' is not a time"),
+        ("a#aDET#0.0#0.0", "token 'aDET' is not word/POS"),
+    ]:
         with pytest.raises(DatasetError, match=f"^t.txt:4: {message}"):
             parse_caption_line(bad, 20, "t.txt:4")
 
@@ -81,7 +92,7 @@ def test_motion_crops_are_seeded_per_epoch(tiny_humanml3d, capsys):
     crops.set_epoch(1)
     assert not all(torch.equal(a, crops[i]) for i, a in enumerate(first))
     clip = folder.normalize(folder.features("000007"))  # 61 rows: the crop is a window of it
-    windows = [clip[s:s + 50] for s in range(12)]
+    windows = [clip[s : s + 50] for s in range(12)]
     assert any(np.allclose(crops[3].numpy(), w) for w in windows)
 
 
@@ -89,8 +100,10 @@ def test_whole_clip_batches_hold_every_clip_once_an_epoch(tiny_humanml3d):
     folder = HumanML3DFolder(tiny_humanml3d)
     for length in (CLIP_FRAMES[1], CLIP_FRAMES[2]):  # two more train clips of each of two lengths
         for copy in ("a", "b"):
-            np.save(tiny_humanml3d / "new_joint_vecs" / f"{length}{copy}.npy",
-                    folder.features("000007")[:length])
+            np.save(
+                tiny_humanml3d / "new_joint_vecs" / f"{length}{copy}.npy",
+                folder.features("000007")[:length],
+            )
     ids = [f"{k:06d}" for k in range(8)] + [f"{n}{c}" for n in CLIP_FRAMES[1:3] for c in "ab"]
     (tiny_humanml3d / "train.txt").write_text("".join(i + "\n" for i in ids))
     folder = HumanML3DFolder(tiny_humanml3d)
@@ -105,12 +118,14 @@ def test_whole_clip_batches_hold_every_clip_once_an_epoch(tiny_humanml3d):
     assert all(1 <= len(b) <= 2 and b.shape[1] % 2 == 0 for b in first)
     rows = torch.cat([b.reshape(-1, b.shape[-1]) for b in first])
     expected = [folder.normalize(folder.features(i)) for i in ids]
-    expected = np.concatenate([x[:len(x) - len(x) % 2] for x in expected])
+    expected = np.concatenate([x[: len(x) - len(x) % 2] for x in expected])
     assert sorted(map(tuple, rows.numpy().round(5))) == sorted(map(tuple, expected.round(5)))
     again = WholeClipBatches(folder, "train", batch_size=2, seed=5, down_factor=2)
-    assert all(torch.equal(a, b) for a, b in zip(first, epoch(again, 0)))
-    assert any(not all(torch.equal(a, b) for a, b in zip(first, epoch(batches, n)))
-               for n in range(1, 6))  # which of 3 clips goes alone changes with the epoch
+    assert all(torch.equal(a, b) for a, b in zip(first, epoch(again, 0), strict=True))
+    assert any(
+        not all(torch.equal(a, b) for a, b in zip(first, epoch(batches, n), strict=True))
+        for n in range(1, 6)
+    )  # which of 3 clips goes alone changes with the epoch
 
 
 def test_text_motion_cuts_caption_spans(tiny_humanml3d, capsys):
@@ -176,9 +191,18 @@ def _break(root, problem):
     raise AssertionError(problem)
 
 
-@pytest.mark.parametrize("problem", ["missing Std.npy", "wrong Mean shape", "Std shape",
-                                     "zero Std", "split ID without file", "missing split",
-                                     "missing texts folder"])
+@pytest.mark.parametrize(
+    "problem",
+    [
+        "missing Std.npy",
+        "wrong Mean shape",
+        "Std shape",
+        "zero Std",
+        "split ID without file",
+        "missing split",
+        "missing texts folder",
+    ],
+)
 def test_broken_layout_fails_up_front(tiny_humanml3d, problem):
     message = _break(tiny_humanml3d, problem)
     with pytest.raises(DatasetError, match=message):

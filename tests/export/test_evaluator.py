@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import interrupt_after_step, records
 from mogo.bench.quality.evaluator import OnnxEvaluator, TextMotionEvaluator
 from mogo.cli import main
 from mogo.export.data.humanml3d import HumanML3DFolder
@@ -10,14 +11,27 @@ from mogo.export.models.runs import load_checkpoint
 from mogo.export.models.text_encoder import encode_captions
 from mogo.export.train import train_evaluator
 
-from helpers import interrupt_after_step, records
-
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def train(data, out, *extra) -> int:
-    return main(["train", "evaluator", "--data", str(data), "--out", str(out), "--config",
-                 "tiny", "--batch-size", "4", "--log-every", "1", *map(str, extra)])
+    return main(
+        [
+            "train",
+            "evaluator",
+            "--data",
+            str(data),
+            "--out",
+            str(out),
+            "--config",
+            "tiny",
+            "--batch-size",
+            "4",
+            "--log-every",
+            "1",
+            *map(str, extra),
+        ]
+    )
 
 
 def load_best(run) -> Evaluator:
@@ -29,8 +43,23 @@ def load_best(run) -> Evaluator:
 
 def test_trains_loss_falls_and_the_export_matches_torch(tiny_humanml3d, tmp_path):
     run = tmp_path / "run"
-    assert train(tiny_humanml3d, run, "--steps", 60, "--lr", 3e-3, "--warmup", 5,
-                 "--val-every", 30, "--log-every", 10) == 0
+    assert (
+        train(
+            tiny_humanml3d,
+            run,
+            "--steps",
+            60,
+            "--lr",
+            3e-3,
+            "--warmup",
+            5,
+            "--val-every",
+            30,
+            "--log-every",
+            10,
+        )
+        == 0
+    )
     losses = [r["loss"] for r in records(run, "train")]
     assert losses[-1] < 0.7 * losses[0]  # the tiny captions repeat: a floor above zero
     assert [r["step"] for r in records(run, "val")] == [30, 60]
@@ -45,9 +74,14 @@ def test_trains_loss_falls_and_the_export_matches_torch(tiny_humanml3d, tmp_path
     clips[1] = clips[1][:9]  # shorter than the others: padded in the batch
     with torch.no_grad():
         text = model.embed_text(*encode_captions(evaluator.tokenizer, captions)).numpy()
-        motion = np.concatenate([model.embed_motion(
-            torch.from_numpy(folder.normalize(c))[None], torch.tensor([len(c)])).numpy()
-            for c in clips])
+        motion = np.concatenate(
+            [
+                model.embed_motion(
+                    torch.from_numpy(folder.normalize(c))[None], torch.tensor([len(c)])
+                ).numpy()
+                for c in clips
+            ]
+        )
     assert np.abs(evaluator.embed_text(captions) - text).max() < 1e-4
     assert np.abs(evaluator.embed_motion(clips) - motion).max() < 1e-4
     assert np.allclose(np.linalg.norm(motion, axis=1), 1, atol=1e-5)
@@ -66,11 +100,14 @@ def test_resume_continues_exactly(tiny_humanml3d, tmp_path, monkeypatch):
     assert records(tmp_path / "split") == records(tmp_path / "whole")
 
 
-@pytest.mark.parametrize("case, message", [
-    ("no_val", "val.txt: split file missing"),
-    ("zero_steps", "--steps must be positive"),
-    ("paper", "unknown config 'paper'"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("no_val", "val.txt: split file missing"),
+        ("zero_steps", "--steps must be positive"),
+        ("paper", "unknown config 'paper'"),
+    ],
+)
 def test_bad_inputs_give_one_line_errors(case, message, tiny_humanml3d, tmp_path, capsys):
     extra = ["--steps", 0] if case == "zero_steps" else ["--steps", 1]
     if case == "no_val":

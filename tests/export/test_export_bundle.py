@@ -1,5 +1,6 @@
 """`mogo export` end to end on tiny runs: the bundle it writes loads in the runtime, whose
 tokens are the torch reference's; int8 and fp16 storage are measured, not assumed."""
+
 import shutil
 from dataclasses import replace
 
@@ -9,6 +10,7 @@ import pytest
 import torch
 from onnx import numpy_helper
 
+from helpers import make_tiny_humanml3d
 from mogo.bundle import file_sha256, read_manifest, write_manifest
 from mogo.cli import main
 from mogo.export.models.generate_torch import generate
@@ -21,8 +23,6 @@ from mogo.manifest import SkeletonSpec
 from mogo.motion.skeleton import SMPL_22
 from mogo.sampling import Sampling
 
-from helpers import make_tiny_humanml3d
-
 PROMPT = "a person walks forward."
 
 
@@ -34,12 +34,54 @@ def runs(tmp_path_factory):
     torch.set_num_threads(1)
     try:
         common = ["--config", "tiny", "--batch-size", "4", "--steps", "3", "--warmup", "1"]
-        assert main(["train", "vq", "--data", str(data), "--out", str(root / "vq"),
-                     "--crop-frames", "40", "--val-clips", "2", *common]) == 0
-        assert main(["train", "t2m", "--data", str(data), "--vq", str(root / "vq"),
-                     "--out", str(root / "t2m"), *common]) == 0
-        assert main(["export", "--vq", str(root / "vq"), "--t2m", str(root / "t2m"),
-                     "--out", str(root / "bundle")]) == 0
+        assert (
+            main(
+                [
+                    "train",
+                    "vq",
+                    "--data",
+                    str(data),
+                    "--out",
+                    str(root / "vq"),
+                    "--crop-frames",
+                    "40",
+                    "--val-clips",
+                    "2",
+                    *common,
+                ]
+            )
+            == 0
+        )
+        assert (
+            main(
+                [
+                    "train",
+                    "t2m",
+                    "--data",
+                    str(data),
+                    "--vq",
+                    str(root / "vq"),
+                    "--out",
+                    str(root / "t2m"),
+                    *common,
+                ]
+            )
+            == 0
+        )
+        assert (
+            main(
+                [
+                    "export",
+                    "--vq",
+                    str(root / "vq"),
+                    "--t2m",
+                    str(root / "t2m"),
+                    "--out",
+                    str(root / "bundle"),
+                ]
+            )
+            == 0
+        )
     finally:
         torch.set_num_threads(threads)
     return root
@@ -47,8 +89,15 @@ def runs(tmp_path_factory):
 
 def test_the_manifest_describes_the_bundle(runs):
     manifest = read_manifest(runs / "bundle")
-    expected = {"manifest.json", "tokenizer.json", "text_encoder.onnx", "vq_encoder.onnx",
-                "vq_decoder.onnx", "mean.npy", "std.npy"} | {f"level_{l}.onnx" for l in range(3)}
+    expected = {
+        "manifest.json",
+        "tokenizer.json",
+        "text_encoder.onnx",
+        "vq_encoder.onnx",
+        "vq_decoder.onnx",
+        "mean.npy",
+        "std.npy",
+    } | {f"level_{l}.onnx" for l in range(3)}
     assert {p.name for p in (runs / "bundle").iterdir()} == expected
     assert set(manifest.files) == expected - {"manifest.json"}
     assert manifest.motion.skeleton == SkeletonSpec.of(SMPL_22) and manifest.fps == 20.0
@@ -84,8 +133,14 @@ def _int8_check(runs, folder, **patches):
     with pytest.MonkeyPatch.context() as patch:
         for name, value in patches.items():
             patch.setattr(onnx_bundle, name, value)
-        check = onnx_bundle._quantize_levels(bundle, levels, read_manifest(bundle).end_token,
-                                             text_encoder, tokenizer, [PROMPT, "someone jumps."])
+        check = onnx_bundle._quantize_levels(
+            bundle,
+            levels,
+            read_manifest(bundle).end_token,
+            text_encoder,
+            tokenizer,
+            [PROMPT, "someone jumps."],
+        )
     assert check.prompts == 2 and not (bundle / "int8").exists()
     return check, before, [file_sha256(bundle / level.file) for level in levels]
 
@@ -119,30 +174,105 @@ def test_int8_levels_are_checked_and_kept_only_if_they_agree(runs, tmp_path):
 
 
 def test_export_refuses_a_used_folder_and_mismatched_runs(runs, capsys):
-    assert main(["export", "--vq", str(runs / "vq"), "--t2m", str(runs / "t2m"),
-                 "--out", str(runs / "bundle")]) == 2
+    assert (
+        main(
+            [
+                "export",
+                "--vq",
+                str(runs / "vq"),
+                "--t2m",
+                str(runs / "t2m"),
+                "--out",
+                str(runs / "bundle"),
+            ]
+        )
+        == 2
+    )
     assert "is not empty" in capsys.readouterr().err
-    assert main(["export", "--vq", str(runs / "t2m"), "--t2m", str(runs / "t2m"),
-                 "--out", str(runs / "other")]) == 2
+    assert (
+        main(
+            [
+                "export",
+                "--vq",
+                str(runs / "t2m"),
+                "--t2m",
+                str(runs / "t2m"),
+                "--out",
+                str(runs / "other"),
+            ]
+        )
+        == 2
+    )
     assert "best.pt: not a `mogo train vq` checkpoint" in capsys.readouterr().err
-    assert main(["export", "--vq", str(runs / "vq"), "--t2m", str(runs / "vq"),
-                 "--out", str(runs / "other")]) == 2
+    assert (
+        main(
+            [
+                "export",
+                "--vq",
+                str(runs / "vq"),
+                "--t2m",
+                str(runs / "vq"),
+                "--out",
+                str(runs / "other"),
+            ]
+        )
+        == 2
+    )
     assert "best.pt: not a `mogo train t2m` checkpoint" in capsys.readouterr().err
     assert not (runs / "other").exists()
 
 
 def test_export_takes_a_decoder_fine_tune_of_the_t2ms_vq_only(runs, tmp_path, capsys):
     data = runs / "data"
-    common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "1",
-              "--crop-frames", "40", "--val-clips", "2", "--init", str(runs / "vq")]
-    assert main(["train", "vq", "--out", str(tmp_path / "decoder"), "--tune", "decoder",
-                 *common]) == 0
+    common = [
+        "--data",
+        str(data),
+        "--config",
+        "tiny",
+        "--batch-size",
+        "4",
+        "--steps",
+        "1",
+        "--crop-frames",
+        "40",
+        "--val-clips",
+        "2",
+        "--init",
+        str(runs / "vq"),
+    ]
+    assert (
+        main(["train", "vq", "--out", str(tmp_path / "decoder"), "--tune", "decoder", *common]) == 0
+    )
     assert main(["train", "vq", "--out", str(tmp_path / "all"), *common]) == 0
-    assert main(["export", "--vq", str(tmp_path / "decoder"), "--t2m", str(runs / "t2m"),
-                 "--out", str(tmp_path / "bundle")]) == 0
+    assert (
+        main(
+            [
+                "export",
+                "--vq",
+                str(tmp_path / "decoder"),
+                "--t2m",
+                str(runs / "t2m"),
+                "--out",
+                str(tmp_path / "bundle"),
+            ]
+        )
+        == 0
+    )
     MotionGenerator.load(tmp_path / "bundle").generate(PROMPT, seconds=1.0, seed=0)
-    assert main(["export", "--vq", str(tmp_path / "all"), "--t2m", str(runs / "t2m"),
-                 "--out", str(tmp_path / "other")]) == 2
+    assert (
+        main(
+            [
+                "export",
+                "--vq",
+                str(tmp_path / "all"),
+                "--t2m",
+                str(runs / "t2m"),
+                "--out",
+                str(tmp_path / "other"),
+            ]
+        )
+        == 2
+    )
     assert "trained on the tokens of another VQ checkpoint" in capsys.readouterr().err
 
 
@@ -150,16 +280,29 @@ def test_a_bundles_vq_reads_back_into_torch(runs, tmp_path):
     model, trained = vq_from_bundle(runs / "bundle"), load_vq(runs / "vq")
     read, original = model.state_dict(), trained.state_dict()
     for name in original:
-        if name.startswith(("encoder", "decoder", "quantizer.codebook", "quantizer.scale",
-                            "quantizer.bias", "mean", "std")):
-            stored = original[name] if original[name].numel() < 1024 else \
-                original[name].half().float()  # what fp16 storage keeps
+        if name.startswith(
+            (
+                "encoder",
+                "decoder",
+                "quantizer.codebook",
+                "quantizer.scale",
+                "quantizer.bias",
+                "mean",
+                "std",
+            )
+        ):
+            stored = (
+                original[name] if original[name].numel() < 1024 else original[name].half().float()
+            )  # what fp16 storage keeps
             assert torch.equal(read[name], stored), name
     bundle = tmp_path / "bundle"  # a graph whose scale was altered (and re-hashed) is caught
     shutil.copytree(runs / "bundle", bundle)
     graph = onnx.load(bundle / "vq_decoder.onnx")
-    scale = next(t for t in graph.graph.initializer
-                 if np.array_equal(numpy_helper.to_array(t), original["quantizer.scale"].numpy()))
+    scale = next(
+        t
+        for t in graph.graph.initializer
+        if np.array_equal(numpy_helper.to_array(t), original["quantizer.scale"].numpy())
+    )
     scale.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(scale) * 2, scale.name))
     onnx.save(graph, bundle / "vq_decoder.onnx")
     write_manifest(bundle, read_manifest(bundle))
@@ -169,11 +312,40 @@ def test_a_bundles_vq_reads_back_into_torch(runs, tmp_path):
 
 def test_a_bundles_decoder_is_fine_tuned_and_replaced_without_its_runs(runs, tmp_path, capsys):
     bundle, data = runs / "bundle", runs / "data"
-    common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "2",
-              "--val-clips", "2", "--warmup", "0"]
+    common = [
+        "--data",
+        str(data),
+        "--config",
+        "tiny",
+        "--batch-size",
+        "4",
+        "--steps",
+        "2",
+        "--val-clips",
+        "2",
+        "--warmup",
+        "0",
+    ]
     tuned = tmp_path / "tuned"
-    assert main(["train", "vq", "--out", str(tuned), "--init", str(bundle), "--tune", "decoder",
-                 "--whole-clips", "--lr", "1e-2", *common]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "vq",
+                "--out",
+                str(tuned),
+                "--init",
+                str(bundle),
+                "--tune",
+                "decoder",
+                "--whole-clips",
+                "--lr",
+                "1e-2",
+                *common,
+            ]
+        )
+        == 0
+    )
     recipe = load_checkpoint(tuned / "best.pt")["recipe"]
     manifest = read_manifest(bundle)
     assert recipe["init"] == str(bundle.resolve()) and recipe["whole_clips"]
@@ -183,14 +355,18 @@ def test_a_bundles_decoder_is_fine_tuned_and_replaced_without_its_runs(runs, tmp
     written = read_manifest(new)
     changed = {name for name, entry in written.files.items() if entry != manifest.files[name]}
     assert changed == {"vq_decoder.onnx"} and written.files.keys() == manifest.files.keys()
-    assert all(file_sha256(new / name) == file_sha256(bundle / name)
-               for name in written.files if name not in changed)
+    assert all(
+        file_sha256(new / name) == file_sha256(bundle / name)
+        for name in written.files
+        if name not in changed
+    )
     assert written.training["vq"].recipe["tune"] == "decoder"
     assert written.training["vq"].token_agreement_with_bundle == 1.0
     assert written.training["t2m"] == manifest.training["t2m"]
     assert 0 < written.fp16_storage.vq_decoder_feature_max_abs_difference < 1e-2
-    assert replace(written, files={}, training={}, fp16_storage=None) == \
-        replace(manifest, files={}, training={}, fp16_storage=None)  # the rest as it was
+    assert replace(written, files={}, training={}, fp16_storage=None) == replace(
+        manifest, files={}, training={}, fp16_storage=None
+    )  # the rest as it was
     old_motion = MotionGenerator.load(bundle).generate(PROMPT, seconds=1.0, seed=0)
     new_motion = MotionGenerator.load(new).generate(PROMPT, seconds=1.0, seed=0)
     assert np.array_equal(old_motion.tokens, new_motion.tokens)
@@ -200,13 +376,60 @@ def test_a_bundles_decoder_is_fine_tuned_and_replaced_without_its_runs(runs, tmp
 def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path, capsys):
     bundle, data = runs / "bundle", runs / "data"
     tuned, new = tmp_path / "tuned", tmp_path / "new"
-    assert main(["train", "vq", "--out", str(tuned), "--init", str(bundle), "--tune", "decoder",
-                 "--decoder-lookahead", "1", "--data", str(data), "--config", "tiny",
-                 "--batch-size", "4", "--steps", "2", "--val-clips", "2", "--warmup", "0",
-                 "--crop-frames", "40"]) == 0
-    assert main(["train", "vq", "--out", str(tmp_path / "all"), "--init", str(runs / "vq"),
-                 "--decoder-lookahead", "1", "--data", str(data), "--config", "tiny",
-                 "--steps", "1", "--crop-frames", "40"]) == 2  # the encoder would change
+    assert (
+        main(
+            [
+                "train",
+                "vq",
+                "--out",
+                str(tuned),
+                "--init",
+                str(bundle),
+                "--tune",
+                "decoder",
+                "--decoder-lookahead",
+                "1",
+                "--data",
+                str(data),
+                "--config",
+                "tiny",
+                "--batch-size",
+                "4",
+                "--steps",
+                "2",
+                "--val-clips",
+                "2",
+                "--warmup",
+                "0",
+                "--crop-frames",
+                "40",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "train",
+                "vq",
+                "--out",
+                str(tmp_path / "all"),
+                "--init",
+                str(runs / "vq"),
+                "--decoder-lookahead",
+                "1",
+                "--data",
+                str(data),
+                "--config",
+                "tiny",
+                "--steps",
+                "1",
+                "--crop-frames",
+                "40",
+            ]
+        )
+        == 2
+    )  # the encoder would change
     assert "differs from None of --init" in capsys.readouterr().err
     assert main(["export", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)]) == 0
     old, written = read_manifest(bundle), read_manifest(new)
@@ -222,28 +445,67 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path,
     assert np.array_equal(same[0].features, same[1].features)  # generate: the centred decoder
     with pytest.raises(ValueError, match="no low-latency decoder"):
         centred.stream(PROMPT, low_latency=True)
-    streams = [generator.stream(PROMPT, seed=3, anchoring=False, plant_feet=False,
-                                low_latency=low) for low in (False, True)]
+    streams = [
+        generator.stream(PROMPT, seed=3, anchoring=False, plant_feet=False, low_latency=low)
+        for low in (False, True)
+    ]
     first = [next(k for k in range(1, 60) if len(stream.step())) for stream in streams]
     assert first == [old.vq.decoder.lookahead + 1, 2]  # frames once their lookahead exists
 
 
 def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, capsys):
     bundle, data = runs / "bundle", runs / "data"
-    common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "1",
-              "--val-clips", "2", "--crop-frames", "40"]
-    assert main(["train", "vq", "--out", str(tmp_path / "all"), "--init", str(bundle),
-                 *common]) == 2
+    common = [
+        "--data",
+        str(data),
+        "--config",
+        "tiny",
+        "--batch-size",
+        "4",
+        "--steps",
+        "1",
+        "--val-clips",
+        "2",
+        "--crop-frames",
+        "40",
+    ]
+    assert (
+        main(["train", "vq", "--out", str(tmp_path / "all"), "--init", str(bundle), *common]) == 2
+    )
     assert "a bundle keeps no codebook statistics" in capsys.readouterr().err
     assert main(["train", "vq", "--out", str(tmp_path / "other"), "--seed", "1", *common]) == 0
-    assert main(["train", "vq", "--out", str(tmp_path / "smaller"), "--levels", "2",
-                 *common]) == 0
+    assert main(["train", "vq", "--out", str(tmp_path / "smaller"), "--levels", "2", *common]) == 0
     for run, message in (("other", "gives other tokens than"), ("smaller", "config differs")):
-        assert main(["export", "--vq", str(tmp_path / run), "--bundle", str(bundle),
-                     "--out", str(tmp_path / "new")]) == 2
+        assert (
+            main(
+                [
+                    "export",
+                    "--vq",
+                    str(tmp_path / run),
+                    "--bundle",
+                    str(bundle),
+                    "--out",
+                    str(tmp_path / "new"),
+                ]
+            )
+            == 2
+        )
         assert message in capsys.readouterr().err
-    assert main(["export", "--vq", str(runs / "vq"), "--bundle", str(bundle), "--int8",
-                 "--out", str(tmp_path / "new")]) == 2
+    assert (
+        main(
+            [
+                "export",
+                "--vq",
+                str(runs / "vq"),
+                "--bundle",
+                str(bundle),
+                "--int8",
+                "--out",
+                str(tmp_path / "new"),
+            ]
+        )
+        == 2
+    )
     assert "with --bundle they are copied" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
 
@@ -252,14 +514,56 @@ def test_a_bundle_of_two_frames_per_token_runs_through_the_generator(tmp_path):
     """down_factor 2: every token decodes to two frames, in generate, in a stream and in the
     offline decode of the same tokens alike."""
     data = make_tiny_humanml3d(tmp_path / "data")
-    common = ["--data", str(data), "--config", "tiny", "--batch-size", "4", "--steps", "2",
-              "--warmup", "0"]
-    assert main(["train", "vq", "--out", str(tmp_path / "vq"), "--down-factor", "2",
-                 "--crop-frames", "40", "--val-clips", "2", *common]) == 0
-    assert main(["train", "t2m", "--vq", str(tmp_path / "vq"), "--out", str(tmp_path / "t2m"),
-                 *common]) == 0
-    assert main(["export", "--vq", str(tmp_path / "vq"), "--t2m", str(tmp_path / "t2m"),
-                 "--out", str(tmp_path / "bundle")]) == 0
+    common = [
+        "--data",
+        str(data),
+        "--config",
+        "tiny",
+        "--batch-size",
+        "4",
+        "--steps",
+        "2",
+        "--warmup",
+        "0",
+    ]
+    assert (
+        main(
+            [
+                "train",
+                "vq",
+                "--out",
+                str(tmp_path / "vq"),
+                "--down-factor",
+                "2",
+                "--crop-frames",
+                "40",
+                "--val-clips",
+                "2",
+                *common,
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            ["train", "t2m", "--vq", str(tmp_path / "vq"), "--out", str(tmp_path / "t2m"), *common]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "export",
+                "--vq",
+                str(tmp_path / "vq"),
+                "--t2m",
+                str(tmp_path / "t2m"),
+                "--out",
+                str(tmp_path / "bundle"),
+            ]
+        )
+        == 0
+    )
     generator = MotionGenerator.load(tmp_path / "bundle")
     assert generator.down_factor == 2
     motion = generator.generate(PROMPT, seconds=1.5, seed=2)

@@ -19,7 +19,7 @@ def test_fid_known_answers():
     assert metrics.fid(a, a) == pytest.approx(0, abs=1e-9)
     shift = np.arange(d) / 4
     b = gaussian(rng, 700, shift, np.ones(d))
-    assert metrics.fid(a, b) == pytest.approx(np.sum(shift ** 2), abs=1e-8)
+    assert metrics.fid(a, b) == pytest.approx(np.sum(shift**2), abs=1e-8)
     s1, s2 = np.linspace(0.5, 2, d), np.linspace(3, 1, d)
     c, e = gaussian(rng, 600, np.zeros(d), s1), gaussian(rng, 600, np.ones(d), s2)
     assert metrics.fid(c, e) == pytest.approx(d + np.sum((s1 - s2) ** 2), abs=1e-8)
@@ -43,8 +43,7 @@ def test_r_precision_perfect_and_chance():
     assert np.allclose(metrics.r_precision(one_hot, one_hot, rng), [1, 1, 1])
     assert np.allclose(metrics.r_precision(one_hot, 0.9 * one_hot, rng), [1, 1, 1])
     text, motion = rng.normal(size=(32 * 400, 16)), rng.normal(size=(32 * 400, 16))
-    assert np.allclose(metrics.r_precision(text, motion, rng), [1 / 32, 2 / 32, 3 / 32],
-                       atol=0.006)
+    assert np.allclose(metrics.r_precision(text, motion, rng), [1 / 32, 2 / 32, 3 / 32], atol=0.006)
 
 
 def test_r_precision_counts_ranks_within_the_batch():
@@ -81,15 +80,22 @@ def test_repeat_with_interval():
     assert np.allclose(mean, [1, 1.5]) and interval[0] == 0
 
 
-@pytest.mark.parametrize("call, message", [
-    (lambda: metrics.fid(np.zeros((5, 2)), np.zeros((5, 3))), "sizes differ"),
-    (lambda: metrics.r_precision(np.eye(8), np.eye(8), np.random.default_rng(0)),
-     "at least one batch"),
-    (lambda: metrics.diversity(np.zeros((10, 2)), np.random.default_rng(0)), "at least 300"),
-    (lambda: metrics.multimodality(np.zeros((4, 5, 2)), np.random.default_rng(0)),
-     "generations >= 10"),
-    (lambda: metrics.matching_score(np.zeros((4, 2)), np.zeros((3, 2))), "differ in shape"),
-])
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda: metrics.fid(np.zeros((5, 2)), np.zeros((5, 3))), "sizes differ"),
+        (
+            lambda: metrics.r_precision(np.eye(8), np.eye(8), np.random.default_rng(0)),
+            "at least one batch",
+        ),
+        (lambda: metrics.diversity(np.zeros((10, 2)), np.random.default_rng(0)), "at least 300"),
+        (
+            lambda: metrics.multimodality(np.zeros((4, 5, 2)), np.random.default_rng(0)),
+            "generations >= 10",
+        ),
+        (lambda: metrics.matching_score(np.zeros((4, 2)), np.zeros((3, 2))), "differ in shape"),
+    ],
+)
 def test_bad_inputs(call, message):
     with pytest.raises(ValueError, match=message):
         call()

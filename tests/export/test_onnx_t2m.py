@@ -1,5 +1,6 @@
 """ONNX level graphs and text encoder vs torch; the onnxruntime token loop vs the torch generator
 (tiny config, random weights, exported once per module)."""
+
 import numpy as np
 import onnx
 import pytest
@@ -8,8 +9,12 @@ import torch
 from mogo._session import cpu_session
 from mogo.export.models.generate_torch import generate, step_inputs
 from mogo.export.models.t2m import T2M, T2MConfig
-from mogo.export.models.text_encoder import (SmallTextEncoder, SmallTextEncoderConfig,
-                                             encode_captions, train_tokenizer)
+from mogo.export.models.text_encoder import (
+    SmallTextEncoder,
+    SmallTextEncoderConfig,
+    encode_captions,
+    train_tokenizer,
+)
 from mogo.export.onnx.t2m_graphs import OPSET, export_level, export_text_encoder
 from mogo.sampling import Sampling, choose_token, make_rng, step_uniforms
 from mogo.token_generator import LEVEL_INPUTS, TokenGenerator, balanced_groups
@@ -51,7 +56,7 @@ def dims(value_info):
 def test_level_graphs_have_the_protocol_names_and_dynamic_axes(exported):
     model, paths, graphs = exported
     config = model.config
-    for level, (path, graph) in enumerate(zip(paths, graphs)):
+    for level, (path, graph) in enumerate(zip(paths, graphs, strict=True)):
         proto = onnx.load(path)
         assert proto.opset_import[0].version == OPSET
         inputs = {v.name: dims(v) for v in proto.graph.input}
@@ -88,15 +93,22 @@ def test_level_graphs_match_torch_prefill_and_50_decodes(model, generator):
         positions, past_positions = torch.arange(5), torch.zeros(0, dtype=torch.long)
         cache, ort_cache = None, generator.empty_cache(level, 2)
         for _ in range(51):
-            logits, cache = model.level_forward(level, prompt, uncond, inputs[:, positions],
-                                                positions, past_positions, cache)
+            logits, cache = model.level_forward(
+                level, prompt, uncond, inputs[:, positions], positions, past_positions, cache
+            )
             ort_logits, ort_cache = generator.run(
-                level, prompt.numpy(), uncond.numpy(), inputs[:, positions].numpy(),
-                positions.numpy(), past_positions.numpy(), ort_cache)
+                level,
+                prompt.numpy(),
+                uncond.numpy(),
+                inputs[:, positions].numpy(),
+                positions.numpy(),
+                past_positions.numpy(),
+                ort_cache,
+            )
             np.testing.assert_allclose(ort_logits, logits.numpy(), rtol=0, atol=1e-4)
             past_positions = torch.cat([past_positions, positions])
             positions = positions[-1:] + 1
-        for ort_tensor, tensor in zip(ort_cache, [t for pair in cache for t in pair]):
+        for ort_tensor, tensor in zip(ort_cache, [t for pair in cache for t in pair], strict=True):
             assert ort_tensor.shape == (2, config.heads[level], 55, config.head_dim)
             np.testing.assert_allclose(ort_tensor, tensor.numpy(), rtol=0, atol=1e-4)
 
@@ -106,18 +118,19 @@ def test_greedy_stream_equals_torch_cached_and_recomputed(model, generator):
     tokens = generator.generate(prompt.numpy(), max_frames=30, sampling=Sampling(temperature=0))
     assert tokens.dtype == np.int64 and tokens.shape[1] == model.config.num_levels
     for use_cache in (True, False):
-        expected = generate(model, prompt, max_frames=30, sampling=Sampling(temperature=0),
-                            use_cache=use_cache)
+        expected = generate(
+            model, prompt, max_frames=30, sampling=Sampling(temperature=0), use_cache=use_cache
+        )
         np.testing.assert_array_equal(tokens, expected)
 
 
 @pytest.mark.parametrize("settings, seed", [(SAMPLED, 3), (GUIDED, 4)])
 def test_sampled_and_guided_streams_equal_torch(model, generator, settings, seed):
     prompt = prompts(model.config, 1)[0]
-    tokens = generator.generate(prompt.numpy(), num_frames=25, sampling=settings,
-                                seed=seed)
-    np.testing.assert_array_equal(tokens, generate(model, prompt, num_frames=25, seed=seed,
-                                                   sampling=settings))
+    tokens = generator.generate(prompt.numpy(), num_frames=25, sampling=settings, seed=seed)
+    np.testing.assert_array_equal(
+        tokens, generate(model, prompt, num_frames=25, seed=seed, sampling=settings)
+    )
     assert len(np.unique(tokens[:, 0])) > 3
 
 
@@ -140,10 +153,10 @@ def test_end_token_and_forced_length(model, generator):
 def test_sliding_window_equals_torch_and_bounds_the_cache(model, generator):
     prompt = prompts(model.config, 1)[0]
     expected = generate(model, prompt, num_frames=24, seed=5, window=5, sampling=SAMPLED)
-    assert not np.array_equal(expected, generate(model, prompt, num_frames=24, seed=5,
-                                                 sampling=SAMPLED))
-    stream = generator.start(prompt.numpy(), seed=5, sampling=SAMPLED, window=5,
-                             allow_end=False)
+    assert not np.array_equal(
+        expected, generate(model, prompt, num_frames=24, seed=5, sampling=SAMPLED)
+    )
+    stream = generator.start(prompt.numpy(), seed=5, sampling=SAMPLED, window=5, allow_end=False)
     np.testing.assert_array_equal(np.array([stream.step() for _ in range(24)]), expected)
     order = np.argsort(stream.positions)  # a full window overwrites its oldest slot in place
     np.testing.assert_array_equal(stream.positions[order], [0, 19, 20, 21, 22, 23])
@@ -156,7 +169,7 @@ def recomputed_continuation(model, prompt, ids, steps, sampling, seed):
     """Steps len(ids)..steps-1 of a forced-length stream that had drawn `ids` and goes on under
     `prompt`, recomputing the whole context at every step: what an exact switch must give."""
     L, end = model.config.num_levels, model.config.end_token
-    uncond = torch.tensor([False, True][:2 if sampling.guided else 1])
+    uncond = torch.tensor([False, True][: 2 if sampling.guided else 1])
     prompt = prompt.expand(len(uncond), -1)
     rng = make_rng(seed)
     for _ in range(len(ids)):
@@ -168,8 +181,15 @@ def recomputed_continuation(model, prompt, ids, steps, sampling, seed):
         row = []
         for level in range(L):
             logits = model.level_forward(level, prompt, uncond, inputs, positions)[0].numpy()
-            row.append(choose_token(logits[0], logits[1] if sampling.guided else None,
-                                    uniforms[level], sampling, None if level else end))
+            row.append(
+                choose_token(
+                    logits[0],
+                    logits[1] if sampling.guided else None,
+                    uniforms[level],
+                    sampling,
+                    None if level else end,
+                )
+            )
         ids = np.concatenate([ids, np.array([row], dtype=np.int64)])
     return ids
 
@@ -189,7 +209,8 @@ def test_set_prompt_reprefills_exactly(model, generator):
     np.testing.assert_array_equal(switched[:8], unswitched[:8])
     assert not np.array_equal(switched[8:], unswitched[8:])
     np.testing.assert_array_equal(
-        switched, recomputed_continuation(model, second, switched[:8], 20, sampling, seed=7))
+        switched, recomputed_continuation(model, second, switched[:8], 20, sampling, seed=7)
+    )
     np.testing.assert_array_equal(stream(first), unswitched)  # re-prefill under the same prompt
 
 
@@ -197,8 +218,10 @@ def test_set_prompt_before_the_first_step_and_in_a_window(generator, model):
     first, second = prompts(model.config, 2, seed=8)
     stream = generator.start(first.numpy(), seed=9, allow_end=False)
     stream.set_prompt(second.numpy())
-    np.testing.assert_array_equal(np.array([stream.step() for _ in range(6)]),
-                                  generator.generate(second.numpy(), num_frames=6, seed=9))
+    np.testing.assert_array_equal(
+        np.array([stream.step() for _ in range(6)]),
+        generator.generate(second.numpy(), num_frames=6, seed=9),
+    )
     stream = generator.start(first.numpy(), seed=9, window=3, allow_end=False)
     for _ in range(10):
         stream.step()
@@ -211,8 +234,9 @@ def test_set_prompt_before_the_first_step_and_in_a_window(generator, model):
 
 def test_generator_reads_the_cache_sizes_from_the_graphs(model, generator):
     c = model.config
-    assert generator.cache_shapes == [(c.layers[l], c.heads[l], c.head_dim)
-                                      for l in range(c.num_levels)]
+    assert generator.cache_shapes == [
+        (c.layers[l], c.heads[l], c.head_dim) for l in range(c.num_levels)
+    ]
 
 
 def test_generator_checks_names_and_runs_one_thread_without_spinning(exported):
@@ -233,15 +257,22 @@ def test_text_encoder_graph_matches_torch(tmp_path):
     names = export_text_encoder(encoder, path, max_length=10)
     proto = onnx.load(path)
     assert [(v.name, dims(v)) for v in proto.graph.input] == [
-        ("token_ids", ["batch", "seq"]), ("attention_mask", ["batch", "seq"])]
+        ("token_ids", ["batch", "seq"]),
+        ("attention_mask", ["batch", "seq"]),
+    ]
     assert [(v.name, dims(v)) for v in proto.graph.output] == [
-        ("prompt_embedding", ["batch", encoder.output_dim])]
+        ("prompt_embedding", ["batch", encoder.output_dim])
+    ]
     session = cpu_session(path)
-    for batch in (captions[:3], ["a person walks forward and waves and jumps up and down"],
-                  ["jumps"]):
+    for batch in (
+        captions[:3],
+        ["a person walks forward and waves and jumps up and down"],
+        ["jumps"],
+    ):
         ids, mask = encode_captions(tokenizer, batch)
-        (embedding,) = session.run(list(names.outputs), dict(zip(names.inputs,
-                                                              [ids.numpy(), mask.numpy()])))
+        (embedding,) = session.run(
+            list(names.outputs), dict(zip(names.inputs, [ids.numpy(), mask.numpy()], strict=True))
+        )
         with torch.no_grad():
             expected = encoder.encode(ids, mask).numpy()
         np.testing.assert_allclose(embedding, expected, rtol=0, atol=1e-5)
@@ -252,15 +283,17 @@ def test_continue_from_takes_a_clip_as_the_past(model, generator, window):
     prompt = prompts(model.config, 1, seed=10)[0]
     sampling = SAMPLED
     clip = np.random.default_rng(11).integers(0, model.config.codebook_size, (8, 3))
-    stream = generator.start(prompt.numpy(), seed=12, sampling=sampling, window=window,
-                             allow_end=False)
+    stream = generator.start(
+        prompt.numpy(), seed=12, sampling=sampling, window=window, allow_end=False
+    )
     stream.continue_from(clip)
     for _ in range(len(clip)):  # the recomputation below draws after len(clip) steps' uniforms
         step_uniforms(stream.rng, model.config.num_levels)
     rows = np.array([stream.step() for _ in range(10)])
     if window is None:
         np.testing.assert_array_equal(
-            rows, recomputed_continuation(model, prompt, clip, 18, sampling, seed=12)[8:])
+            rows, recomputed_continuation(model, prompt, clip, 18, sampling, seed=12)[8:]
+        )
     else:
         np.testing.assert_array_equal(np.sort(stream.positions), [0, 14, 15, 16, 17])
     with pytest.raises(ValueError, match="continue from"):
@@ -277,11 +310,13 @@ def test_levels_run_concurrently_give_the_same_tokens(exported, generator):
     prompt = prompts(model.config, 1, seed=3)[0].numpy()
     for settings in (SAMPLED, GUIDED):
         for window in (None, 4):
-            expected = generator.generate(prompt, num_frames=20, sampling=settings,
-                                          seed=1, window=window)
+            expected = generator.generate(
+                prompt, num_frames=20, sampling=settings, seed=1, window=window
+            )
             np.testing.assert_array_equal(
-                parallel.generate(prompt, num_frames=20, sampling=settings, seed=1,
-                                  window=window), expected)
+                parallel.generate(prompt, num_frames=20, sampling=settings, seed=1, window=window),
+                expected,
+            )
     switched = []
     for g in (generator, parallel):  # the re-prefill of a prompt switch, too
         stream = g.start(prompt, seed=2, window=4, allow_end=False)
@@ -291,11 +326,14 @@ def test_levels_run_concurrently_give_the_same_tokens(exported, generator):
     np.testing.assert_array_equal(*switched)
 
 
-@pytest.mark.parametrize("layers, groups, expected", [
-    ([4, 3, 2, 2, 1, 1], 2, [[0, 3, 5], [1, 2, 4]]),  # 7 and 6 layers
-    ([4, 3, 2, 2, 1, 1], 1, [[0, 1, 2, 3, 4, 5]]),
-    ([2, 1, 1], 8, [[0], [1], [2]]),
-    ([18, 16, 8, 4, 2, 2], 2, [[0, 3, 4, 5], [1, 2]]),  # 26 and 24
-])
+@pytest.mark.parametrize(
+    "layers, groups, expected",
+    [
+        ([4, 3, 2, 2, 1, 1], 2, [[0, 3, 5], [1, 2, 4]]),  # 7 and 6 layers
+        ([4, 3, 2, 2, 1, 1], 1, [[0, 1, 2, 3, 4, 5]]),
+        ([2, 1, 1], 8, [[0], [1], [2]]),
+        ([18, 16, 8, 4, 2, 2], 2, [[0, 3, 4, 5], [1, 2]]),  # 26 and 24
+    ],
+)
 def test_balanced_groups(layers, groups, expected):
     assert balanced_groups(layers, groups) == expected

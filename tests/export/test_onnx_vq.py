@@ -1,5 +1,6 @@
 """ONNX VQ encoder and decoder vs torch, and the streaming decoder vs an offline decode (tiny
 config, random weights, each variant exported once per module)."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -14,8 +15,12 @@ from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder
 from mogo.manifest import DecoderGraph, Graph
 from mogo.stream_decoder import StreamingDecoder
 
-VARIANTS = {"down1": dict(down_factor=1), "down2": dict(down_factor=2),
-            "causal1": dict(causal=True), "causal2": dict(causal=True, down_factor=2)}
+VARIANTS = {
+    "down1": dict(down_factor=1),
+    "down2": dict(down_factor=2),
+    "causal1": dict(causal=True),
+    "causal2": dict(causal=True, down_factor=2),
+}
 
 
 @pytest.fixture(scope="module", params=list(VARIANTS))
@@ -49,11 +54,16 @@ def encoder(exported):
     return graph, cpu_session(folder / graph.file)
 
 
-def streaming_decoder(graph: DecoderGraph, session, config: VQConfig,
-                      **changes) -> StreamingDecoder:
-    args = dict(left_context=graph.left_context, lookahead=graph.lookahead,
-                codebook_size=config.codebook_size, ids_name=graph.inputs[0],
-                features_name=graph.outputs[0])
+def streaming_decoder(
+    graph: DecoderGraph, session, config: VQConfig, **changes
+) -> StreamingDecoder:
+    args = dict(
+        left_context=graph.left_context,
+        lookahead=graph.lookahead,
+        codebook_size=config.codebook_size,
+        ids_name=graph.inputs[0],
+        features_name=graph.outputs[0],
+    )
     return StreamingDecoder(session, **{**args, **changes})
 
 
@@ -148,11 +158,16 @@ def test_a_smaller_context_than_the_receptive_field_is_not_exact(exported):
     """The equality above needs the whole receptive field: one token less breaks it."""
     model, graph, session, _ = exported
     ids = random_ids(np.random.default_rng(2), model.config, 120)
-    stream = streaming_decoder(graph, session, model.config,
-                               left_context=graph.left_context - 1,
-                               lookahead=max(0, graph.lookahead - 1))
-    frames = np.concatenate([stream.push(ids[i:i + 1]) for i in range(len(ids))]
-                            + [stream.flush()])
+    stream = streaming_decoder(
+        graph,
+        session,
+        model.config,
+        left_context=graph.left_context - 1,
+        lookahead=max(0, graph.lookahead - 1),
+    )
+    frames = np.concatenate(
+        [stream.push(ids[i : i + 1]) for i in range(len(ids))] + [stream.flush()]
+    )
     assert np.abs(frames - stream.decode_offline(ids)).max() > 1e-3
 
 
@@ -165,8 +180,8 @@ def test_a_causal_stream_emits_each_token_frames_as_soon_as_it_is_pushed(exporte
     stream = streaming_decoder(graph, session, model.config)
     offline = stream.decode_offline(ids)
     for t in range(len(ids)):
-        frames = stream.push(ids[t:t + 1])
-        np.testing.assert_allclose(frames, offline[t * down:(t + 1) * down], rtol=0, atol=1e-5)
+        frames = stream.push(ids[t : t + 1])
+        np.testing.assert_allclose(frames, offline[t * down : (t + 1) * down], rtol=0, atol=1e-5)
     assert len(stream.flush()) == 0
 
 
@@ -175,10 +190,14 @@ def test_bad_ids_are_refused_clearly(exported):
     c = model.config
     stream = streaming_decoder(graph, session, model.config)
     good = random_ids(np.random.default_rng(4), c, 3)
-    cases = [(good[:, :-1], "shape"), (good[0], "shape"), (good[None], "shape"),
-             (good - c.codebook_size, rf"\[0, {c.codebook_size}\)"),
-             (good + c.codebook_size, rf"\[0, {c.codebook_size}\)"),
-             (good.astype(np.float32), "integers")]
+    cases = [
+        (good[:, :-1], "shape"),
+        (good[0], "shape"),
+        (good[None], "shape"),
+        (good - c.codebook_size, rf"\[0, {c.codebook_size}\)"),
+        (good + c.codebook_size, rf"\[0, {c.codebook_size}\)"),
+        (good.astype(np.float32), "integers"),
+    ]
     for ids, message in cases:
         for call in (stream.push, stream.decode_offline):
             with pytest.raises(ValueError, match=message):

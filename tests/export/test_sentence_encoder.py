@@ -2,6 +2,7 @@
 graph (the real one comes from PyPI and is not in the repository): the joined graph gives the
 torch pooling and adapter's outputs, padding does not count, and the repertoire's threshold
 and medoids do what they say. The WordNet table is the generator's output."""
+
 import json
 import struct
 from pathlib import Path
@@ -14,8 +15,13 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from mogo.export.models.sentence_encoder import Adapter, mean_pool, read_safetensors
-from mogo.export.onnx.text_bundle import (REPERTOIRE_SIZE, calibrate, kept_captions, medoids,
-                                          own_captions)
+from mogo.export.onnx.text_bundle import (
+    REPERTOIRE_SIZE,
+    calibrate,
+    kept_captions,
+    medoids,
+    own_captions,
+)
 from mogo.export.onnx.text_graph import export_sentence_text_graph
 
 HIDDEN = 8
@@ -26,19 +32,26 @@ def tiny_minilm(path: Path) -> np.ndarray:
     states), so the joined graph's token_type_ids input can be checked to be zeros."""
     rng = np.random.default_rng(0)
     words, types = rng.normal(size=(30, HIDDEN)), rng.normal(size=(2, HIDDEN))
-    nodes = [helper.make_node("Gather", ["words", "input_ids"], ["w"]),
-             helper.make_node("Gather", ["types", "token_type_ids"], ["t"]),
-             helper.make_node("Add", ["w", "t"], ["sum"]),
-             helper.make_node("Cast", ["attention_mask"], ["m"], to=TensorProto.FLOAT),
-             helper.make_node("Unsqueeze", ["m", "axis"], ["m3"]),
-             helper.make_node("Mul", ["sum", "m3"], ["last_hidden_state"])]
-    inputs = [helper.make_tensor_value_info(n, TensorProto.INT64, ["batch", "sequence"])
-              for n in ("input_ids", "attention_mask", "token_type_ids")]
-    output = helper.make_tensor_value_info("last_hidden_state", TensorProto.FLOAT,
-                                           ["batch", "sequence", HIDDEN])
-    init = [numpy_helper.from_array(words.astype(np.float32), "words"),
-            numpy_helper.from_array(types.astype(np.float32), "types"),
-            numpy_helper.from_array(np.array([-1], np.int64), "axis")]
+    nodes = [
+        helper.make_node("Gather", ["words", "input_ids"], ["w"]),
+        helper.make_node("Gather", ["types", "token_type_ids"], ["t"]),
+        helper.make_node("Add", ["w", "t"], ["sum"]),
+        helper.make_node("Cast", ["attention_mask"], ["m"], to=TensorProto.FLOAT),
+        helper.make_node("Unsqueeze", ["m", "axis"], ["m3"]),
+        helper.make_node("Mul", ["sum", "m3"], ["last_hidden_state"]),
+    ]
+    inputs = [
+        helper.make_tensor_value_info(n, TensorProto.INT64, ["batch", "sequence"])
+        for n in ("input_ids", "attention_mask", "token_type_ids")
+    ]
+    output = helper.make_tensor_value_info(
+        "last_hidden_state", TensorProto.FLOAT, ["batch", "sequence", HIDDEN]
+    )
+    init = [
+        numpy_helper.from_array(words.astype(np.float32), "words"),
+        numpy_helper.from_array(types.astype(np.float32), "types"),
+        numpy_helper.from_array(np.array([-1], np.int64), "axis"),
+    ]
     graph = helper.make_graph(nodes, "tiny", inputs, [output], init)
     onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), path)
     return words + types[0]
@@ -48,8 +61,9 @@ def test_the_joined_graph_gives_pooling_and_adapter_and_ignores_padding(tmp_path
     table = tiny_minilm(tmp_path / "minilm.onnx")
     torch.manual_seed(0)
     adapter = Adapter(HIDDEN, 4, hidden=16).eval()
-    graph = export_sentence_text_graph(tmp_path / "minilm.onnx", adapter,
-                                       tmp_path / "text_encoder.onnx")
+    graph = export_sentence_text_graph(
+        tmp_path / "minilm.onnx", adapter, tmp_path / "text_encoder.onnx"
+    )
     assert graph.inputs == ("token_ids", "attention_mask")
     assert graph.outputs == ("prompt_embedding", "sentence_embedding")
     ids = np.array([[1, 5, 7, 0, 0], [2, 3, 4, 6, 9]], np.int64)
@@ -67,10 +81,10 @@ def test_the_joined_graph_gives_pooling_and_adapter_and_ignores_padding(tmp_path
 
 def test_safetensors_are_read_by_name_and_shape(tmp_path):
     a = np.arange(6, dtype=np.float32).reshape(2, 3)
-    header = json.dumps({"a": dict(dtype="F32", shape=[2, 3], data_offsets=[0, 24]),
-                         "__metadata__": {}}).encode()
-    (tmp_path / "m.safetensors").write_bytes(struct.pack("<Q", len(header)) + header
-                                             + a.tobytes())
+    header = json.dumps(
+        {"a": dict(dtype="F32", shape=[2, 3], data_offsets=[0, 24]), "__metadata__": {}}
+    ).encode()
+    (tmp_path / "m.safetensors").write_bytes(struct.pack("<Q", len(header)) + header + a.tobytes())
     np.testing.assert_array_equal(read_safetensors(tmp_path / "m.safetensors")["a"].numpy(), a)
 
 
@@ -95,8 +109,13 @@ def test_the_repertoire_keeps_every_action_count_side_and_way_its_captions_say()
     """Sentence embeddings blur counts and sides: captions that differ in nothing else sit
     together, and medoids of them all would keep the common count alone."""
     rng = np.random.default_rng(0)
-    rare = ["a person claps twice.", "a person claps three times.", "a person claps six times.",
-            "a person claps four times to the left.", "a person waves four times."]
+    rare = [
+        "a person claps twice.",
+        "a person claps three times.",
+        "a person claps six times.",
+        "a person claps four times to the left.",
+        "a person waves four times.",
+    ]
     several = ["a person claps four times, then waves.", "a person waves then claps."]
     texts = ["a person claps four times."] * 20000 + rare + several
     sentences = rng.normal(size=(1, 16)) + 0.01 * rng.normal(size=(len(texts), 16))
@@ -107,8 +126,10 @@ def test_the_repertoire_keeps_every_action_count_side_and_way_its_captions_say()
     assert list(kept) == sorted(set(kept))
 
 
-@pytest.mark.skipif(not Path("/usr/share/wordnet/data.verb").is_file(),
-                    reason="WordNet is not installed: apt-get install wordnet-base")
+@pytest.mark.skipif(
+    not Path("/usr/share/wordnet/data.verb").is_file(),
+    reason="WordNet is not installed: apt-get install wordnet-base",
+)
 def test_the_committed_wordnet_table_is_the_generators_output(tmp_path):
     from mogo.align_wordnet import WORDNET_VERBS
     from mogo.align_words import VERBS
@@ -120,8 +141,10 @@ def test_the_committed_wordnet_table_is_the_generators_output(tmp_path):
     assert "crouch" not in sum(table.values(), [])  # its first sense is stoop, and hand-written
 
 
-@pytest.mark.skipif(not Path("/usr/share/wordnet/data.noun").is_file(),
-                    reason="WordNet is not installed: apt-get install wordnet-base")
+@pytest.mark.skipif(
+    not Path("/usr/share/wordnet/data.noun").is_file(),
+    reason="WordNet is not installed: apt-get install wordnet-base",
+)
 def test_the_committed_people_are_the_generators_output():
     from mogo.export.data.wordnet_people import ADJECTIVES, PEOPLE
     from mogo.export.data.wordnet_synonyms import people
@@ -149,10 +172,35 @@ def test_the_adapter_trains_in_the_loop_and_keeps_its_best(tmp_path, one_torch_t
     run = tmp_path / "run"
     run.mkdir()
     np.savez(run / CAPTIONS, **arrays)
-    assert main(["train", "text", "--data", str(tmp_path), "--bundle", str(tmp_path),
-                 "--minilm-int8", "unused", "--minilm-fp32", "unused", "--out", str(run),
-                 "--steps", "20", "--batch-size", "16", "--val-every", "10",
-                 "--hidden", "8", "--warmup", "2"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "text",
+                "--data",
+                str(tmp_path),
+                "--bundle",
+                str(tmp_path),
+                "--minilm-int8",
+                "unused",
+                "--minilm-fp32",
+                "unused",
+                "--out",
+                str(run),
+                "--steps",
+                "20",
+                "--batch-size",
+                "16",
+                "--val-every",
+                "10",
+                "--hidden",
+                "8",
+                "--warmup",
+                "2",
+            ]
+        )
+        == 0
+    )
     best = load_checkpoint(run / "best.pt")
     assert best["config"]["in_dim"] == 12 and best["config"]["out_dim"] == 4
     assert best["best_val_error"] < 1.5
@@ -165,13 +213,17 @@ def test_captions_get_variants_with_other_people_as_their_subject():
     from mogo.export.data.wordnet_people import PEOPLE
     from mogo.export.train.train_text import other_subjects
 
-    captions = ["a person walks forward.", "someone claps twice.", "personally, nothing.",
-                "the person waves, then a person sits."]
+    captions = [
+        "a person walks forward.",
+        "someone claps twice.",
+        "personally, nothing.",
+        "the person waves, then a person sits.",
+    ]
     variants, source = other_subjects(captions, np.random.default_rng(0))
     assert list(source) == [0, 1, 3]
     rests = ["walks forward.", "claps twice.", "waves, then a person sits."]
-    for variant, rest in zip(variants, rests):
-        words = variant[:-len(rest)].split()  # the new subject
+    for variant, rest in zip(variants, rests, strict=True):
+        words = variant[: -len(rest)].split()  # the new subject
         assert variant.endswith(" " + rest) and words[0] in ("a", "an", "the", "my")
         assert words[-1] in PEOPLE and len(words) in (2, 3)  # an adjective, maybe
 
@@ -181,14 +233,18 @@ def test_captions_get_variants_with_another_verb_of_their_primitive():
     from mogo.align_words import VERBS
     from mogo.export.train.train_text import other_verbs
 
-    captions = ["a person walks forward.", "someone claps twice, then jogs.",
-                "the person bends forward at the waist.", "a figure jumps in place twice."]
+    captions = [
+        "a person walks forward.",
+        "someone claps twice, then jogs.",
+        "the person bends forward at the waist.",
+        "a figure jumps in place twice.",
+    ]
     known = {w.strip(".,") for c in captions for w in c.split()}
     variants, source = other_verbs(captions, known, np.random.default_rng(0))
     assert list(source) == [0, 1, 3]  # no head verb in the third
-    for variant, k, primitive in zip(variants, source, ("walk", "clap", "jump")):
+    for variant, k, primitive in zip(variants, source, ("walk", "clap", "jump"), strict=True):
         before, after = captions[k].split(), variant.split()
-        changed = [(a, b) for a, b in zip(before, after) if a != b]
+        changed = [(a, b) for a, b in zip(before, after, strict=True) if a != b]
         assert len(before) == len(after) and len(changed) == 1  # the head verb alone
         verb = changed[0][1]
         assert verb.rstrip(",") not in known

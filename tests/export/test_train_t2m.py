@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import interrupt_after_step, mogo_on_two_gloo_processes, records
 from mogo.cli import main
 from mogo.export.data.humanml3d import HumanML3DFolder
 from mogo.export.models.generate_torch import generate
@@ -16,8 +17,6 @@ from mogo.export.train import train_t2m
 from mogo.export.train.datasets import MotionCropDataset
 from mogo.export.train.options import T2MTrainOptions
 from mogo.export.train.training import save_checkpoint
-
-from helpers import interrupt_after_step, mogo_on_two_gloo_processes, records
 
 TRAIN_SPANS, VAL_SPANS = 13, 4  # the tiny_humanml3d captions of at least 40 frames
 
@@ -40,24 +39,51 @@ def vq_run(tiny_humanml3d, tmp_path):
 
 
 def train(data, vq, out, *extra) -> int:
-    return main(["train", "t2m", "--data", str(data), "--vq", str(vq), "--out", str(out),
-                 "--config", "tiny", "--batch-size", "4", "--log-every", "1", *map(str, extra)])
+    return main(
+        [
+            "train",
+            "t2m",
+            "--data",
+            str(data),
+            "--vq",
+            str(vq),
+            "--out",
+            str(out),
+            "--config",
+            "tiny",
+            "--batch-size",
+            "4",
+            "--log-every",
+            "1",
+            *map(str, extra),
+        ]
+    )
 
 
 def test_cli_trains_and_writes_the_run(tiny_humanml3d, vq_run, tmp_path):
     run = tmp_path / "run"
-    assert train(tiny_humanml3d, vq_run, run, "--steps", 4, "--val-every", 2,
-                 "--checkpoint-every", 2) == 0
+    assert (
+        train(tiny_humanml3d, vq_run, run, "--steps", 4, "--val-every", 2, "--checkpoint-every", 2)
+        == 0
+    )
     assert [(r["kind"], r["step"]) for r in records(run)] == [
-        ("train", 1), ("train", 2), ("val", 2), ("train", 3), ("train", 4), ("val", 4)]
+        ("train", 1),
+        ("train", 2),
+        ("val", 2),
+        ("train", 3),
+        ("train", 4),
+        ("val", 4),
+    ]
     assert set(records(run)[-1]) == {"kind", "step", "loss", "acc_0", "acc_1", "acc_2"}
     state = load_checkpoint(run / "checkpoint.pt")
     assert state["step"] == 4 and state["optimizer"] is not None
     assert state["config"]["vq"]["sha256"] == train_t2m.file_sha256(vq_run / "checkpoint.pt")
     assert load_checkpoint(run / "best.pt")["optimizer"] is None
 
-    caches = {split: np.load(run / "tokens" / f"{split}.npz", allow_pickle=False)
-              for split in ("train", "val")}
+    caches = {
+        split: np.load(run / "tokens" / f"{split}.npz", allow_pickle=False)
+        for split in ("train", "val")
+    }
     assert len(caches["train"]["captions"]) == TRAIN_SPANS
     assert len(caches["val"]["captions"]) == VAL_SPANS
     train_cache = caches["train"]
@@ -76,8 +102,12 @@ def test_token_cache_is_reused_until_the_vq_changes(tiny_humanml3d, vq_run, tmp_
     folder = HumanML3DFolder(tiny_humanml3d)
     vq = load_vq(vq_run)
     recipe = dict(T2MTrainOptions.recipe_defaults(), preset="tiny")
-    prepare = lambda sha: train_t2m._prepare(tmp_path, folder, vq, recipe, sha, fresh=False,
-                                             device=torch.device("cpu"))
+
+    def prepare(sha):
+        return train_t2m._prepare(
+            tmp_path, folder, vq, recipe, sha, fresh=False, device=torch.device("cpu")
+        )
+
     cache = tmp_path / "tokens" / "val.npz"
     prepare("a" * 64)
     os.utime(cache, (0, 0))
@@ -98,17 +128,37 @@ def test_resume_continues_exactly(tiny_humanml3d, vq_run, tmp_path, monkeypatch)
     # 13 spans, batch 4: 3 steps an epoch, so step 4 resumes mid-epoch
     assert train(tiny_humanml3d, vq_run, tmp_path / "split", *args, "--resume") == 0
     assert records(tmp_path / "split") == records(tmp_path / "whole")
-    assert train(tiny_humanml3d, vq_run, tmp_path / "split", *args, "--resume",
-                 "--lr", 1e-3) == 2
+    assert train(tiny_humanml3d, vq_run, tmp_path / "split", *args, "--resume", "--lr", 1e-3) == 2
 
 
 def test_two_processes_on_gloo(tiny_humanml3d, vq_run, tmp_path):
     run = tmp_path / "run"
-    mogo_on_two_gloo_processes("train", "t2m", "--data", tiny_humanml3d, "--vq", vq_run, "--out",
-                               run, "--config", "tiny", "--batch-size", 2, "--steps", 3,
-                               "--val-every", 3)
-    for name in ("checkpoint.pt", "best.pt", "metrics.jsonl", "tokenizer.json",
-                 "tokens/train.npz", "tokens/val.npz"):
+    mogo_on_two_gloo_processes(
+        "train",
+        "t2m",
+        "--data",
+        tiny_humanml3d,
+        "--vq",
+        vq_run,
+        "--out",
+        run,
+        "--config",
+        "tiny",
+        "--batch-size",
+        2,
+        "--steps",
+        3,
+        "--val-every",
+        3,
+    )
+    for name in (
+        "checkpoint.pt",
+        "best.pt",
+        "metrics.jsonl",
+        "tokenizer.json",
+        "tokens/train.npz",
+        "tokens/val.npz",
+    ):
         assert (run / name).is_file(), name
     assert load_checkpoint(run / "checkpoint.pt")["config"]["world_size"] == 2
     assert [(r["kind"], r["step"]) for r in records(run)] == [("train", 3), ("val", 3)]
@@ -116,23 +166,42 @@ def test_two_processes_on_gloo(tiny_humanml3d, vq_run, tmp_path):
 
 def test_tiny_overfit_loss_drops(tiny_humanml3d, vq_run, tmp_path, monkeypatch):
     """Memorising 13 sequences, without the token corruption that is there to prevent it."""
-    monkeypatch.setitem(train_t2m.PRESETS, "tiny",
-                        lambda: replace(T2MConfig.tiny(), token_corruption=0.0))
+    monkeypatch.setitem(
+        train_t2m.PRESETS, "tiny", lambda: replace(T2MConfig.tiny(), token_corruption=0.0)
+    )
     run = tmp_path / "run"
-    assert train(tiny_humanml3d, vq_run, run, "--steps", 200, "--lr", 3e-3, "--warmup", 10,
-                 "--val-every", 200, "--log-every", 20) == 0
+    assert (
+        train(
+            tiny_humanml3d,
+            vq_run,
+            run,
+            "--steps",
+            200,
+            "--lr",
+            3e-3,
+            "--warmup",
+            10,
+            "--val-every",
+            200,
+            "--log-every",
+            20,
+        )
+        == 0
+    )
     first, *_, last = [r["loss"] for r in records(run, "train")]
     assert last < 0.5 * first
 
 
-@pytest.mark.parametrize("case, message", [
-    ("no_vq", "no such VQ run folder"),
-    ("empty_data", "folder missing"),
-    ("zero_steps", "--steps must be positive"),
-    ("resume_nothing", "--resume: no checkpoint"),
-])
-def test_bad_inputs_give_one_line_errors(case, message, tiny_humanml3d, vq_run, tmp_path,
-                                         capsys):
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("no_vq", "no such VQ run folder"),
+        ("empty_data", "folder missing"),
+        ("zero_steps", "--steps must be positive"),
+        ("resume_nothing", "--resume: no checkpoint"),
+    ],
+)
+def test_bad_inputs_give_one_line_errors(case, message, tiny_humanml3d, vq_run, tmp_path, capsys):
     data, vq, extra = tiny_humanml3d, vq_run, ["--steps", 1]
     if case == "no_vq":
         vq = tmp_path / "missing"

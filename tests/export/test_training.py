@@ -1,13 +1,20 @@
 import json
 from fractions import Fraction
+from itertools import pairwise
 
 import pytest
 import torch
 from torch import nn
 
 from mogo.export.models.runs import load_checkpoint
-from mogo.export.train.training import (MetricsLog, Process, WeightAverage, batches,
-                                        save_checkpoint, warmup_cosine)
+from mogo.export.train.training import (
+    MetricsLog,
+    Process,
+    WeightAverage,
+    batches,
+    save_checkpoint,
+    warmup_cosine,
+)
 
 SINGLE = Process(rank=0, world_size=1, device=torch.device("cpu"))
 
@@ -17,7 +24,7 @@ def test_warmup_then_cosine():
     assert lr[0] == pytest.approx(0.1) and lr[9] == pytest.approx(1.0)
     assert lr[10] == pytest.approx(1.0) and lr[60] == pytest.approx(0.55)
     assert lr[110] == pytest.approx(0.1) and lr[119] == pytest.approx(0.1)
-    assert all(a >= b for a, b in zip(lr[10:], lr[11:]))
+    assert all(a >= b for a, b in pairwise(lr[10:]))
 
 
 def test_weight_average_follows_the_trained_parameters_only():
@@ -91,7 +98,7 @@ def test_batches_are_endless_and_depend_only_on_seed_and_epoch():
     assert run == _first(seed=1, count=9) and run != _first(seed=2, count=9)
     assert run[3:6] == _first(seed=1, count=3, start_epoch=1)
     for epoch in range(3):
-        items = sum(run[3 * epoch:3 * epoch + 3], [])
+        items = sum(run[3 * epoch : 3 * epoch + 3], [])
         assert len(set(items)) == 9
     with pytest.raises(ValueError, match="fewer than one batch"):
         next(batches(_Items(), 11, SINGLE, 0))

@@ -45,11 +45,13 @@ def tiny_model(mean=None, std=None, **changes) -> MoSAVQ:
 
 # -- torch joint recovery ----------------------------------------------------------------------
 
+
 def test_torch_joints_match_numpy_on_random_features():
     features = np.random.default_rng(1).normal(scale=0.3, size=(3, 50, 263))
     expected = features_to_joints(features)
-    np.testing.assert_allclose(torch_features_to_joints(torch.from_numpy(features)).numpy(),
-                               expected, atol=1e-9)
+    np.testing.assert_allclose(
+        torch_features_to_joints(torch.from_numpy(features)).numpy(), expected, atol=1e-9
+    )
     got32 = torch_features_to_joints(torch.from_numpy(features).float())
     assert got32.dtype == torch.float32 and got32.shape == (3, 50, 22, 3)
     assert np.abs(got32.numpy() - expected).max() < 1e-5
@@ -72,11 +74,22 @@ def test_torch_joints_are_differentiable():
 
 # -- config ------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("change", [dict(down_factor=3), dict(levels=0), dict(codebook_size=1),
-                                    dict(dropout=1.0), dict(quantizer_dropout=1.5),
-                                    dict(ema_decay=1.0), dict(recon_loss="l2"),
-                                    dict(commitment=-1.0), dict(feature_dim=100),
-                                    dict(down_factor=4, stages=1)])
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        dict(down_factor=3),
+        dict(levels=0),
+        dict(codebook_size=1),
+        dict(dropout=1.0),
+        dict(quantizer_dropout=1.5),
+        dict(ema_decay=1.0),
+        dict(recon_loss="l2"),
+        dict(commitment=-1.0),
+        dict(feature_dim=100),
+        dict(down_factor=4, stages=1),
+    ],
+)
 def test_config_rejects_bad_values(change):
     with pytest.raises(ValueError, match="VQConfig"):
         replace(TINY, **change)
@@ -97,6 +110,7 @@ def test_presets_and_checkpoint_round_trip(motion):
 
 
 # -- shapes and the quantizer ------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("down", [1, 2, 4])
 @pytest.mark.parametrize("causal", [False, True])
@@ -198,8 +212,9 @@ def test_decorrelation_of_known_cases():
     independent = torch.tensor([[1.0], [1.0], [-1.0], [-1.0]])
     assert cross_covariance(x, independent, weight).square().sum() == 0
     # y = 3 x: Cov = 3 * sum(x^2) / (N - 1) = 4, so ||Cov||_F^2 = 16
-    torch.testing.assert_close(cross_covariance(x, 3 * x, weight).square().sum(),
-                               torch.tensor(16.0))
+    torch.testing.assert_close(
+        cross_covariance(x, 3 * x, weight).square().sum(), torch.tensor(16.0)
+    )
     # rows with weight 0 do not count
     masked = torch.cat([independent[:2], 5 * x[2:]])
     assert cross_covariance(x, masked, torch.tensor([1.0, 1.0, 0.0, 0.0])).square().sum() == 0
@@ -213,8 +228,10 @@ def test_scale_bias_and_decorrelation_switches(motion):
     losses = plain(x).losses
     assert losses["modulation"] == 0 and losses["decorrelation"] == 0
     c = plain.config
-    torch.testing.assert_close(losses["total"], losses["recon"] + c.joint_weight * losses["joints"]
-                               + c.commitment * losses["commit"])
+    torch.testing.assert_close(
+        losses["total"],
+        losses["recon"] + c.joint_weight * losses["joints"] + c.commitment * losses["commit"],
+    )
 
     full = tiny_model()
     with torch.no_grad():
@@ -237,6 +254,7 @@ def test_the_bias_learns_only_from_its_regulariser(motion):
 
 # -- decoder context ---------------------------------------------------------------------------
 
+
 def changed_tokens(model, ids, position):
     """Tokens (sorted) whose decoded frames change when every level's id at `position` does."""
     other = ids.clone()
@@ -256,8 +274,9 @@ def test_receptive_field_is_what_a_perturbation_reaches(down, causal):
     position = lookahead + 3
     ids = torch.randint(TINY.codebook_size, (1, position + left + 4, TINY.levels))
     # frames of token t depend on tokens t - left .. t + lookahead
-    assert changed_tokens(model, ids, position) == list(range(position - lookahead,
-                                                              position + left + 1))
+    assert changed_tokens(model, ids, position) == list(
+        range(position - lookahead, position + left + 1)
+    )
 
 
 @pytest.mark.parametrize("down", [1, 2])
@@ -268,8 +287,8 @@ def test_causal_decoder_ignores_later_tokens(down):
     later[:, 11:] = torch.randint(TINY.codebook_size, (2, 9, TINY.levels))
     with torch.no_grad():
         a, b = model.decode(ids), model.decode(later)
-    assert torch.equal(a[:, :11 * down], b[:, :11 * down])
-    assert not torch.equal(a[:, 11 * down:], b[:, 11 * down:])
+    assert torch.equal(a[:, : 11 * down], b[:, : 11 * down])
+    assert not torch.equal(a[:, 11 * down :], b[:, 11 * down :])
 
 
 def test_receptive_field_of_the_presets():
@@ -287,11 +306,13 @@ def test_a_narrowed_decoder_sees_at_most_its_lookahead(lookahead):
     assert reach == lookahead
     position = lookahead + 3
     ids = torch.randint(TINY.codebook_size, (1, position + left + 4, TINY.levels))
-    assert changed_tokens(model, ids, position) == list(range(position - lookahead,
-                                                              position + left + 1))
+    assert changed_tokens(model, ids, position) == list(
+        range(position - lookahead, position + left + 1)
+    )
 
 
 # -- training ----------------------------------------------------------------------------------
+
 
 def test_overfitting_one_batch_lowers_the_loss(motion):
     x, mean, std = motion
@@ -320,11 +341,15 @@ def test_overfitting_one_batch_lowers_the_loss(motion):
 
 def test_metrics_of_clips_batched_by_length_equal_those_clip_by_clip():
     from mogo.export.train.train_vq import clip_batches
+
     torch.manual_seed(0)
     model = MoSAVQ(TINY).eval()
     clips = [0.3 * torch.randn(1, frames, TINY.feature_dim) for frames in (20, 20, 31, 20, 31, 40)]
     batches = list(clip_batches(clips, torch.device("cpu"), batch_size=2))
     assert [tuple(b.shape[:2]) for b in batches] == [(2, 20), (1, 20), (2, 31), (1, 40)]
-    one_by_one, batched = reconstruction_metrics(model, clips), reconstruction_metrics(model, batches)
+    one_by_one, batched = (
+        reconstruction_metrics(model, clips),
+        reconstruction_metrics(model, batches),
+    )
     for name in ("mpjpe_mm", "feature_l1", "mpjpe_mm_by_levels", "codebook_usage"):
         np.testing.assert_allclose(batched[name], one_by_one[name], rtol=1e-5)

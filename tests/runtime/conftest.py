@@ -1,9 +1,9 @@
 """Fixtures the runtime tests share."""
+
 import pytest
 
-from mogo import MotionGenerator
-
 from helpers import bundle_with_old_text_side
+from mogo import MotionGenerator
 
 
 @pytest.fixture(scope="session")

@@ -1,5 +1,6 @@
 """`mogo blender-addon`: the add-on zip Blender installs, written whole, never over a file, with
 this runtime's wheel for the add-on's Install (never PyPI's unrelated `mogo`)."""
+
 import ast
 import io
 import subprocess
@@ -15,8 +16,9 @@ def test_the_zip_holds_the_addon_folder_and_is_the_same_on_every_build():
     assert data == addon_bytes()
     names = zipfile.ZipFile(io.BytesIO(data)).namelist()
     wheel, _ = runtime_wheel()
-    assert sorted(names) == sorted([f"{FOLDER}/{p.name}" for p in SOURCE.glob("*.py")]
-                                   + [f"{FOLDER}/{wheel}"])
+    assert sorted(names) == sorted(
+        [f"{FOLDER}/{p.name}" for p in SOURCE.glob("*.py")] + [f"{FOLDER}/{wheel}"]
+    )
     init = ast.parse((SOURCE / "__init__.py").read_text())
     info = next(n for n in init.body if isinstance(n, ast.Assign) and n.targets[0].id == "bl_info")
     assert ast.literal_eval(info.value)["blender"] == (3, 4, 0)
@@ -43,21 +45,42 @@ def test_the_shipped_wheel_is_this_runtime_and_pip_installs_it(tmp_path):
     assert name.startswith("mogo_edge-") and name.endswith("-py3-none-any.whl")
     (tmp_path / name).write_bytes(data)
     target = tmp_path / "packages"
-    done = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index",
-                           "--target", str(target), str(tmp_path / name)],
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--no-deps",
+            "--no-index",
+            "--target",
+            str(target),
+            str(tmp_path / name),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     (info,) = target.glob("mogo_edge-*.dist-info")
     metadata = (info / "METADATA").read_text()
     assert "Name: mogo-edge\n" in metadata
-    requirements = sorted(line.split(": ")[1].split(">")[0] for line in metadata.splitlines()
-                          if line.startswith("Requires-Dist"))
+    requirements = sorted(
+        line.split(": ")[1].split(">")[0]
+        for line in metadata.splitlines()
+        if line.startswith("Requires-Dist")
+    )
     assert requirements == ["numpy", "onnxruntime", "pillow", "tokenizers"]  # no extra
     assert (target / "mogo" / "generator.py").is_file()
     assert (target / "mogo" / "default_bundle" / "manifest.json").is_file()
     assert not [name for name in ("export", "bench", "web") if (target / "mogo" / name).exists()]
     # what was installed imports as this runtime (the dependencies from this environment)
     check = "import mogo, sys; print(mogo.__file__); assert mogo.MotionGenerator"
-    done = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True,
-                          env={"PYTHONPATH": str(target)}, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-c", check],
+        capture_output=True,
+        text=True,
+        env={"PYTHONPATH": str(target)},
+        timeout=60,
+    )
     assert done.returncode == 0 and done.stdout.startswith(str(target)), done.stderr

@@ -1,5 +1,6 @@
 """Prompt alignment: the rules on a table of free-form prompts, the LLM backend against a
 local fake server (good, slow, malformed, failing answers), and aligned generation."""
+
 import json
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -30,56 +31,90 @@ RULES_TABLE = [
     ("walk forward", [WALK]),
     ("Walk forward.", [WALK]),
     ("a person walks forward, then waves with the right hand", [WALK, WAVE_RIGHT]),
-    ("a man walks backward slowly and then turns left. after that, he claps his hands four "
-     "times.", ["a person walks backward slowly.", "a person turns left.",
-                "a person claps his hands four times."]),
+    (
+        "a man walks backward slowly and then turns left. after that, he claps his hands four "
+        "times.",
+        [
+            "a person walks backward slowly.",
+            "a person turns left.",
+            "a person claps his hands four times.",
+        ],
+    ),
     ("someone sidesteps to the right", ["a person sidesteps to the right."]),
     ("take a seat", ["a person takes a seat."]),
     ("jump forward", ["a person jumps forward."]),
     # requests, subjects and filler
     ("make the guy do a cartwheel and then sit", ["a person does a cartwheel.", "a person sits."]),
-    ("I want him to stroll ahead and after that wave 3 times",
-     ["a person strolls ahead.", "a person waves three times."]),
-    ("can you make someone sprint forward; then crouch down twice",
-     ["a person sprints forward.", "a person crouches down twice."]),
-    ("could you have somebody stroll ahead and afterwards wave their right arm",
-     ["a person strolls ahead.", "a person waves their right arm."]),
-    ("so um like the character should kinda run fast and then maybe kick with the left leg "
-     "and finally bow", ["a person runs fast.", "a person kicks with the left leg.",
-                         "a person bows."]),
-    ("I would like to see an animation of a person running quickly forward then doing squats",
-     ["a person runs quickly forward.", "a person does squats."]),
+    (
+        "I want him to stroll ahead and after that wave 3 times",
+        ["a person strolls ahead.", "a person waves three times."],
+    ),
+    (
+        "can you make someone sprint forward; then crouch down twice",
+        ["a person sprints forward.", "a person crouches down twice."],
+    ),
+    (
+        "could you have somebody stroll ahead and afterwards wave their right arm",
+        ["a person strolls ahead.", "a person waves their right arm."],
+    ),
+    (
+        "so um like the character should kinda run fast and then maybe kick with the left leg "
+        "and finally bow",
+        ["a person runs fast.", "a person kicks with the left leg.", "a person bows."],
+    ),
+    (
+        "I would like to see an animation of a person running quickly forward then doing squats",
+        ["a person runs quickly forward.", "a person does squats."],
+    ),
     ("she stretches, then sits", ["a person stretches.", "a person sits."]),
-    ("he raises both arms above his head before doing a bow",
-     ["a person raises both arms above his head.", "a person does a bow."]),
+    (
+        "he raises both arms above his head before doing a bow",
+        ["a person raises both arms above his head.", "a person does a bow."],
+    ),
     # sequence words
     ("jump 3 times before sitting down", ["a person jumps three times.", "a person sits down."]),
-    ("after walking forward, wave with the left hand",
-     [WALK, "a person waves with the left hand."]),
+    (
+        "after walking forward, wave with the left hand",
+        [WALK, "a person waves with the left hand."],
+    ),
     ("wave with the right hand after walking forward", [WALK, WAVE_RIGHT]),
     ("walking in a circle and then waving", ["a person walks in a circle.", "a person waves."]),
-    ("first jog backwards, next turn around, finally sit down",
-     ["a person jogs backwards.", "a person turns around.", "a person sits down."]),
+    (
+        "first jog backwards, next turn around, finally sit down",
+        ["a person jogs backwards.", "a person turns around.", "a person sits down."],
+    ),
     ("walk, jump, sit down", ["a person walks.", "a person jumps.", "a person sits down."]),
     ("walk; jump; sit", ["a person walks.", "a person jumps.", "a person sits."]),
-    ("hop on the spot 2 times, followed by a bow",
-     ["a person hops on the spot twice.", "a person takes a bow."]),
+    (
+        "hop on the spot 2 times, followed by a bow",
+        ["a person hops on the spot twice.", "a person takes a bow."],
+    ),
     ("walk forward and when it is finished wave", [WALK, "a person waves."]),
-    ("kick out the right leg and once that's done, hop in place once",
-     ["a person kicks out the right leg.", "a person hops in place once."]),
-    ("stand still for 2 seconds then walk backwards",
-     ["a person stands still for two seconds.", "a person walks backwards."]),
+    (
+        "kick out the right leg and once that's done, hop in place once",
+        ["a person kicks out the right leg.", "a person hops in place once."],
+    ),
+    (
+        "stand still for 2 seconds then walk backwards",
+        ["a person stands still for two seconds.", "a person walks backwards."],
+    ),
     # at the same time: one step
     ("wave while walking forward", ["a person waves while walking forward."]),
     ("the person jogs in a circle as he claps", ["a person jogs in a circle as he claps."]),
-    ("squat down and stand back up three times",
-     ["a person squats down and stands back up three times."]),
+    (
+        "squat down and stand back up three times",
+        ["a person squats down and stands back up three times."],
+    ),
     # synonyms onto the vocabulary
-    ("make her march to the left and then punch twice with the right fist",
-     ["a person walks to the left.", "a person punches twice with the right fist."]),
+    (
+        "make her march to the left and then punch twice with the right fist",
+        ["a person walks to the left.", "a person punches twice with the right fist."],
+    ),
     ("the dude hurries forward and then applauds", ["a person runs forward.", "a person claps."]),
-    ("spin around counter-clockwise then stop",
-     ["a person spins around counterclockwise.", "a person stands."]),
+    (
+        "spin around counter-clockwise then stop",
+        ["a person spins around counterclockwise.", "a person stands."],
+    ),
     ("a woman twirls to the left", ["a person spins to the left."]),
     ("star jumps x4", ["a person does jumping jacks four times."]),
     # numbers
@@ -89,8 +124,10 @@ RULES_TABLE = [
     ("clap twice", ["a person claps twice."]),
     ("punch one time with your left fist", ["a person punches once with their left fist."]),
     ("kick with the right leg 2x", ["a person kicks with the right leg twice."]),
-    ("do 5 jumping jacks then stand still for 3 seconds",
-     ["a person does five jumping jacks.", "a person stands still for three seconds."]),
+    (
+        "do 5 jumping jacks then stand still for 3 seconds",
+        ["a person does five jumping jacks.", "a person stands still for three seconds."],
+    ),
     # typos, shouting, spacing
     ("the person wlaks fowrard then sqauts", [WALK, "a person squats."]),
     ("plese make her stretch then bow politly", ["a person stretches.", "a person bows politely."]),
@@ -101,11 +138,17 @@ RULES_TABLE = [
     ("Él camina hacia adelante then jumps", ["a person jumps."]),
     ("ｗａｖｅ　ｔｗｉｃｅ", ["a person waves twice."]),
     # rambling
-    ("ok so first you walk forward a bit, like maybe four steps, and then you turn to the "
-     "left, and after that you just wait there for a moment, and then finally you wave with "
-     "both hands to say goodbye",
-     ["a person walks forward four steps.", "a person turns to the left.",
-      "a person waits there for a moment.", "a person waves with both hands to say hello."]),
+    (
+        "ok so first you walk forward a bit, like maybe four steps, and then you turn to the "
+        "left, and after that you just wait there for a moment, and then finally you wave with "
+        "both hands to say goodbye",
+        [
+            "a person walks forward four steps.",
+            "a person turns to the left.",
+            "a person waits there for a moment.",
+            "a person waves with both hands to say hello.",
+        ],
+    ),
 ]
 
 
@@ -122,9 +165,18 @@ def test_the_table_is_large_enough():
 
 
 def test_durations_follow_the_primitive_and_the_count(rules):
-    seconds = {text: rules.align(text).steps[0].seconds
-               for text in ("walk forward", "wave", "jump", "jump four times", "sit down",
-                            "stand still for 5 seconds", "clap 60 times")}
+    seconds = {
+        text: rules.align(text).steps[0].seconds
+        for text in (
+            "walk forward",
+            "wave",
+            "jump",
+            "jump four times",
+            "sit down",
+            "stand still for 5 seconds",
+            "clap 60 times",
+        )
+    }
     assert seconds["jump"] < seconds["wave"] < seconds["walk forward"] < seconds["sit down"]
     assert seconds["jump four times"] > seconds["jump"] + 1.5
     assert seconds["stand still for 5 seconds"] == 5.0
@@ -138,12 +190,18 @@ def test_unknown_and_ignored_words_are_reported(rules):
     assert rules.align("walk forward").note is None
 
 
-@pytest.mark.parametrize("text,message", [
-    ("", "no usable words"), ("   ", "no usable words"), ("!!! ...", "no usable words"),
-    ("日本語のテキスト", "no usable words"), ("please", "no motion"),
-    ("hello world", "no motion"),
-    ("can you", "no motion"),
-])
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ("", "no usable words"),
+        ("   ", "no usable words"),
+        ("!!! ...", "no usable words"),
+        ("日本語のテキスト", "no usable words"),
+        ("please", "no motion"),
+        ("hello world", "no motion"),
+        ("can you", "no motion"),
+    ],
+)
 def test_unusable_prompts_raise_a_clear_error(rules, text, message):
     with pytest.raises(ValueError, match=message):
         rules.align(text)
@@ -163,10 +221,12 @@ def test_helpers():
 
 
 # -- the LLM backend against a fake local server ----------------------------------------------
-GOOD_ANSWER = ('The person strolls, then waves. Two steps: {"not": "this one"} is a thought.\n'
-               '{"prompt": "a person strolls forward, then waves.", "steps": ['
-               '{"prompt": "a person strolls forward.", "seconds": 3.5}, '
-               '{"prompt": "a person waves with the right hand.", "seconds": 2}]}')
+GOOD_ANSWER = (
+    'The person strolls, then waves. Two steps: {"not": "this one"} is a thought.\n'
+    '{"prompt": "a person strolls forward, then waves.", "steps": ['
+    '{"prompt": "a person strolls forward.", "seconds": 3.5}, '
+    '{"prompt": "a person waves with the right hand.", "seconds": 2}]}'
+)
 
 
 class FakeServer:
@@ -183,12 +243,14 @@ class FakeServer:
         class Handler(BaseHTTPRequestHandler):
             def do_POST(self):
                 length = int(self.headers["Content-Length"])
-                server.requests.append((self.path, dict(self.headers),
-                                        json.loads(self.rfile.read(length))))
+                server.requests.append(
+                    (self.path, dict(self.headers), json.loads(self.rfile.read(length)))
+                )
                 if server.hold:
                     server.released.wait(30)
                 reply = server.raw or json.dumps(
-                    {"choices": [{"message": {"role": "assistant", "content": server.content}}]})
+                    {"choices": [{"message": {"role": "assistant", "content": server.content}}]}
+                )
                 self.send_response(server.status)
                 self.send_header("Content-Type", "application/json")
                 self.end_headers()
@@ -216,14 +278,19 @@ PROMPT = "have somebody stroll ahead and afterwards wave"
 
 def test_llm_good_answer_after_thinking(server):
     alignment = LLMAligner(server.url, model="tiny", api_key="secret").align(PROMPT)
-    assert alignment == Alignment((AlignedStep("a person strolls forward.", 3.5),
-                                   AlignedStep("a person waves with the right hand.", 2.0)),
-                                  "llm")
+    assert alignment == Alignment(
+        (
+            AlignedStep("a person strolls forward.", 3.5),
+            AlignedStep("a person waves with the right hand.", 2.0),
+        ),
+        "llm",
+    )
     path, headers, body = server.requests[0]
     assert path == "/v1/chat/completions" and headers["Authorization"] == "Bearer secret"
     assert body["model"] == "tiny" and body["temperature"] == 0
-    assert body["messages"][0]["role"] == "system" and "step by step" in body["messages"][0][
-        "content"]
+    assert (
+        body["messages"][0]["role"] == "system" and "step by step" in body["messages"][0]["content"]
+    )
     assert body["messages"][-1] == {"role": "user", "content": PROMPT}
 
 
@@ -245,22 +312,47 @@ def test_llm_without_url_or_key(server, monkeypatch):
     assert "Authorization" not in server.requests[0][1]
 
 
-@pytest.mark.parametrize("setup,note", [
-    (dict(hold=True), "the LLM did not answer within 0.5 s; used the rules"),
-    (dict(status=500), "the LLM server answered HTTP 500; used the rules"),
-    (dict(content="Sure! The person walks, then waves."), "the LLM answer was not valid JSON"),
-    (dict(content='{"prompt": "a person walks.", "steps": [{"prompt": "a person walks.", '
-                  '"seconds": 3'), "the LLM answer was not valid JSON"),
-    (dict(raw="<html>bad gateway</html>"), "the LLM server's reply was not usable"),
-    (dict(raw='{"choices": []}'), "no choices[0].message.content"),
-    (dict(content='{"prompt": "x", "steps": []}'), "has 0 steps; 1 to 8 are allowed"),
-    (dict(content='{"prompt": "x", "steps": [{"prompt": "a person walks.", "seconds": 99}]}'),
-     "step 1 has seconds 99"),
-    (dict(content='{"prompt": "x", "steps": [{"prompt": " ", "seconds": 2}]}'),
-     "step 1 has no prompt text"),
-    (dict(content='{"steps": "walk"}'), "does not match the schema"),
-], ids=["timeout", "http-500", "no-json", "broken-json", "not-json-reply", "no-choices",
-        "no-steps", "seconds-out-of-range", "empty-step", "wrong-schema"])
+@pytest.mark.parametrize(
+    "setup,note",
+    [
+        (dict(hold=True), "the LLM did not answer within 0.5 s; used the rules"),
+        (dict(status=500), "the LLM server answered HTTP 500; used the rules"),
+        (dict(content="Sure! The person walks, then waves."), "the LLM answer was not valid JSON"),
+        (
+            dict(
+                content='{"prompt": "a person walks.", "steps": [{"prompt": "a person walks.", '
+                '"seconds": 3'
+            ),
+            "the LLM answer was not valid JSON",
+        ),
+        (dict(raw="<html>bad gateway</html>"), "the LLM server's reply was not usable"),
+        (dict(raw='{"choices": []}'), "no choices[0].message.content"),
+        (dict(content='{"prompt": "x", "steps": []}'), "has 0 steps; 1 to 8 are allowed"),
+        (
+            dict(
+                content='{"prompt": "x", "steps": [{"prompt": "a person walks.", "seconds": 99}]}'
+            ),
+            "step 1 has seconds 99",
+        ),
+        (
+            dict(content='{"prompt": "x", "steps": [{"prompt": " ", "seconds": 2}]}'),
+            "step 1 has no prompt text",
+        ),
+        (dict(content='{"steps": "walk"}'), "does not match the schema"),
+    ],
+    ids=[
+        "timeout",
+        "http-500",
+        "no-json",
+        "broken-json",
+        "not-json-reply",
+        "no-choices",
+        "no-steps",
+        "seconds-out-of-range",
+        "empty-step",
+        "wrong-schema",
+    ],
+)
 def test_llm_failures_fall_back_to_the_rules(server, rules, setup, note):
     """Only the held server may time out: the others get a timeout no busy machine reaches."""
     for name, value in setup.items():
@@ -279,8 +371,9 @@ def test_llm_unreachable_server_falls_back(rules):
 
 # -- aligned generation --------------------------------------------------------------------------
 def test_generate_aligned_plays_the_steps_as_one_motion(generator, tmp_path):
-    motion = generator.generate("make the guy walk forward and then wave twice", seconds=3,
-                                seed=0, align=True)
+    motion = generator.generate(
+        "make the guy walk forward and then wave twice", seconds=3, seed=0, align=True
+    )
     steps = motion.alignment.steps
     assert [s.prompt for s in steps] == [WALK, "a person waves twice."]
     assert sum(s.seconds for s in steps) == pytest.approx(3.0)
@@ -290,8 +383,12 @@ def test_generate_aligned_plays_the_steps_as_one_motion(generator, tmp_path):
     document = json.loads(motion.save_json(tmp_path / "m.json").read_text())
     assert document["alignment"]["source"] == "rules"
     assert [s["prompt"] for s in document["alignment"]["steps"]] == [s.prompt for s in steps]
-    again = generator.generate("make the guy walk forward and then wave twice", seconds=3,
-                               seed=0, align=RuleAligner(generator.vocabulary()))
+    again = generator.generate(
+        "make the guy walk forward and then wave twice",
+        seconds=3,
+        seed=0,
+        align=RuleAligner(generator.vocabulary()),
+    )
     assert (again.tokens == motion.tokens).all()
 
 
@@ -307,22 +404,57 @@ def test_generate_aligned_list_and_default(generator):
 
 # -- the command line ----------------------------------------------------------------------------
 def test_cli_align_rules_prints_and_stores_the_steps(tmp_path, capsys):
-    assert main(["generate", "make the guy do a cartwheel and then sit", "--align", "rules",
-                 "--seconds", "3", "--seed", "0", "--out", str(tmp_path), "--name", "m"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "make the guy do a cartwheel and then sit",
+                "--align",
+                "rules",
+                "--seconds",
+                "3",
+                "--seed",
+                "0",
+                "--out",
+                str(tmp_path),
+                "--name",
+                "m",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out.splitlines()
-    assert printed[0] == ('steps (rules): 1.3 s "a person does a cartwheel." | '
-                          '1.7 s "a person sits."')
+    assert printed[0] == (
+        'steps (rules): 1.3 s "a person does a cartwheel." | 1.7 s "a person sits."'
+    )
     assert printed[1] == "note: the model does not know cartwheel (kept as written)"
     document = json.loads((tmp_path / "m.json").read_text())
-    assert [p["text"] for p in document["prompts"]] == ["a person does a cartwheel.",
-                                                         "a person sits."]
+    assert [p["text"] for p in document["prompts"]] == [
+        "a person does a cartwheel.",
+        "a person sits.",
+    ]
 
 
 def test_cli_align_llm_falls_back_and_says_why(server, tmp_path, capsys, monkeypatch):
     server.status = 500
     monkeypatch.setenv("MOGO_LLM_URL", server.url)
-    assert main(["generate", "walk forward then wave", "--align", "llm", "--seconds", "2",
-                 "--seed", "0", "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "walk forward then wave",
+                "--align",
+                "llm",
+                "--seconds",
+                "2",
+                "--seed",
+                "0",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "steps (rules): " in printed
     assert "note: the LLM server answered HTTP 500; used the rules" in printed
@@ -332,12 +464,23 @@ def test_cli_align_llm_falls_back_and_says_why(server, tmp_path, capsys, monkeyp
 
 def test_numbers_are_spelt_as_the_captions_spell_them():
     assert [spoken_number(n) for n in (0, 13, 20, 45, 99, 100, 135, 360, 999, 1000, -1)] == [
-        "zero", "thirteen", "twenty", "forty-five", "ninety-nine", "a hundred",
-        "a hundred and thirty-five", "three hundred and sixty", "nine hundred and ninety-nine",
-        "1000", "-1"]
+        "zero",
+        "thirteen",
+        "twenty",
+        "forty-five",
+        "ninety-nine",
+        "a hundred",
+        "a hundred and thirty-five",
+        "three hundred and sixty",
+        "nine hundred and ninety-nine",
+        "1000",
+        "-1",
+    ]
     assert spoken_numbers("turn 90 degrees, clap 2 times, wave 1 time, jump 3 times") == (
-        "turn ninety degrees, clap twice, wave once, jump three times")
+        "turn ninety degrees, clap twice, wave once, jump three times"
+    )
     for kept in ("walk for 2.5 seconds", "jump 12x", "the v2 model", "1,000 steps"):
         assert spoken_numbers(kept) == kept
     assert caption_phrases("do 4 Star Jumps, then spin counter clockwise") == (
-        "do 4 jumping jacks, then spin counterclockwise")
+        "do 4 jumping jacks, then spin counterclockwise"
+    )

@@ -2,6 +2,7 @@
 their tokens across anchors and fresh clips, a held state bounded by the span, prompt switches
 re-anchoring at once (test_generator's switch test checks there is no jump in the pose),
 clips the model ends starting afresh, one-off prompts settling into the hold."""
+
 import numpy as np
 import pytest
 
@@ -17,15 +18,27 @@ def generator():
     return MotionGenerator.load()
 
 
-@pytest.mark.parametrize("prompt,ends", [
-    ("a person walks forward.", False), ("a person jogs backward.", False),
-    ("someone waves with the right hand.", False), ("a person does jumping jacks.", False),
-    ("a person spins to the left.", False), ("a person stands still.", False),
-    ("a person claps.", False), ("a person sits down.", True), ("a person takes a seat.", True),
-    ("a person bows.", True), ("a person turns left.", True), ("a person jumps.", True),
-    ("someone kicks with the right foot.", True), ("a person waves three times.", True),
-    ("a person walks forward for 4 steps.", True), ("a person walks, then waves.", True),
-])
+@pytest.mark.parametrize(
+    "prompt,ends",
+    [
+        ("a person walks forward.", False),
+        ("a person jogs backward.", False),
+        ("someone waves with the right hand.", False),
+        ("a person does jumping jacks.", False),
+        ("a person spins to the left.", False),
+        ("a person stands still.", False),
+        ("a person claps.", False),
+        ("a person sits down.", True),
+        ("a person takes a seat.", True),
+        ("a person bows.", True),
+        ("a person turns left.", True),
+        ("a person jumps.", True),
+        ("someone kicks with the right foot.", True),
+        ("a person waves three times.", True),
+        ("a person walks forward for 4 steps.", True),
+        ("a person walks, then waves.", True),
+    ],
+)
 def test_prompts_that_end_are_told_from_those_that_go_on(prompt, ends):
     assert settles(prompt) is ends
 
@@ -50,7 +63,7 @@ def test_re_anchored_streams_are_deterministic_and_decode_like_their_tokens(gene
     plain = generator.stream("a person jogs forward.", seed=3, anchoring=False)
     plain.advance(100)
     tokens = plain.finish().tokens
-    assert np.array_equal(tokens[:SMALL.span], motion.tokens[:SMALL.span])  # until the anchor
+    assert np.array_equal(tokens[: SMALL.span], motion.tokens[: SMALL.span])  # until the anchor
     assert not np.array_equal(tokens, motion.tokens)
 
 
@@ -72,7 +85,7 @@ def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
     assert stream.anchor.anchors == before + 1
     assert stream.tokens.steps == SMALL.switch_keep  # a fresh clip from the last step
     recent = stream.anchor.recent.copy()
-    assert np.array_equal(recent, stream.finish().tokens[13 - SMALL.keep:13])
+    assert np.array_equal(recent, stream.finish().tokens[13 - SMALL.keep : 13])
 
 
 def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator):
@@ -103,7 +116,7 @@ def test_a_spin_the_model_ends_starts_again_and_keeps_turning(generator):
     stream.advance(200)
     motion = stream.finish()
     clip = generator.generate("a person spins to the left.", seed=0).tokens
-    assert np.array_equal(motion.tokens[:len(clip)], clip)  # the first clip: generate's
+    assert np.array_equal(motion.tokens[: len(clip)], clip)  # the first clip: generate's
     assert stream.anchor.fresh >= 3 and stream.anchor.fresh == stream.anchor.anchors
     facing = facing_directions(motion.joints[:200], generator.skeleton, facing_sigma=0)
     turned = np.degrees(np.ptp(np.unwrap(np.arctan2(facing[:, 0], facing[:, 2]))))

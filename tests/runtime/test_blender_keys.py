@@ -1,5 +1,6 @@
 """The Blender add-on's numpy maths without Blender (the add-on package itself needs bpy, so
 its motion_keys module is loaded from its file): keys and presets."""
+
 import importlib.util
 import sys
 
@@ -51,7 +52,6 @@ def test_our_rig_stands_on_the_floor_facing_minus_y(keys):
     assert np.all(ours.tails[feet, 1] < ours.heads[feet, 1])  # toes point at -Y
 
 
-
 LONG = "a person walks forward, then waves with the right hand, then turns around and claps"
 
 
@@ -62,15 +62,21 @@ def test_action_names_fit_blender_and_are_cut_after_a_whole_word(keys):
     room = keys.NAME_BYTES - len(".001")
     assert keys.action_name("a person walks forward.") == "a person walks forward."
     assert keys.action_name("a person jogs.", " (live)") == "a person jogs. (live)"
-    for text, suffix in [(LONG, ""), (LONG, " (live)"), (LONG[:56] + ".001", " on Mannequin"),
-                         (LONG + ".012", " on mixamorig:Armature")]:
+    for text, suffix in [
+        (LONG, ""),
+        (LONG, " (live)"),
+        (LONG[:56] + ".001", " on Mannequin"),
+        (LONG + ".012", " on mixamorig:Armature"),
+    ]:
         name = keys.action_name(text, suffix)
         number = ".0" + text.rsplit(".0", 1)[1] if ".0" in text else ""
         assert len(name.encode()) <= room and name.endswith(number + suffix), name
-        words = name[:len(name) - len(number + suffix)]
+        words = name[: len(name) - len(number + suffix)]
         assert LONG.startswith(words) and LONG[len(words)] in " ,", name  # a whole word
-    assert keys.action_name(LONG + ".001", " on Mannequin") == \
-        "a person walks forward, then waves with.001 on Mannequin"
+    assert (
+        keys.action_name(LONG + ".001", " on Mannequin")
+        == "a person walks forward, then waves with.001 on Mannequin"
+    )
     for text in ("人" * 40, "x" * 100):  # no space to cut at: whole characters
         name = keys.action_name(text)
         assert len(name.encode()) <= room and text.startswith(name) and len(name) > 15

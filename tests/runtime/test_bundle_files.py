@@ -1,6 +1,7 @@
 """Bundle verification on a hand-made folder (no models needed): what is refused, and how; the
 manifest schema (mogo.manifest) on it and on the shipped bundle; damaged graphs on a copy of
 the shipped bundle."""
+
 import dataclasses
 import json
 import os
@@ -10,12 +11,20 @@ import shutil
 import numpy as np
 import pytest
 
-from mogo.bundle import (MANIFEST, Bundle, BundleError, file_sha256, read_manifest,
-                         write_manifest)
+from mogo.bundle import MANIFEST, Bundle, BundleError, file_sha256, read_manifest, write_manifest
 from mogo.cli import main
 from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
-from mogo.manifest import (T2M, VQ, DecoderGraph, Defaults, Graph, Manifest, MotionFormat,
-                           Normalization, Text)
+from mogo.manifest import (
+    T2M,
+    VQ,
+    DecoderGraph,
+    Defaults,
+    Graph,
+    Manifest,
+    MotionFormat,
+    Normalization,
+    Text,
+)
 from mogo.motion.skeleton import SMPL_22
 
 GRAPHS = ("text_encoder.onnx", "level_0.onnx", "vq_encoder.onnx", "vq_decoder.onnx")
@@ -25,16 +34,27 @@ def small_manifest() -> Manifest:
     """A manifest of the hand-made folder: one level, the HumanML3D skeleton."""
     return Manifest(
         motion=MotionFormat.of(SMPL_22, Normalization(mean="mean.npy", std="std.npy")),
-        text=Text(tokenizer="tokenizer.json", max_length=8, kind="SmallTextEncoder",
-                  encoder=Graph("text_encoder.onnx", ("token_ids", "attention_mask"),
-                                ("prompt_embedding",))),
-        t2m=T2M(config=dict(dim=16, text_dim=16, max_relative_distance=8),
-                levels=(Graph("level_0.onnx", ("prompt",), ("logits",)),)),
-        vq=VQ(config=dict(feature_dim=263, levels=1, codebook_size=8, down_factor=1),
-              encoder=Graph("vq_encoder.onnx", ("features",), ("ids",)),
-              decoder=DecoderGraph("vq_decoder.onnx", ("ids",), ("features",), 2, 2)),
-        defaults=Defaults(temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=16,
-                          max_seconds=9.8))
+        text=Text(
+            tokenizer="tokenizer.json",
+            max_length=8,
+            kind="SmallTextEncoder",
+            encoder=Graph(
+                "text_encoder.onnx", ("token_ids", "attention_mask"), ("prompt_embedding",)
+            ),
+        ),
+        t2m=T2M(
+            config=dict(dim=16, text_dim=16, max_relative_distance=8),
+            levels=(Graph("level_0.onnx", ("prompt",), ("logits",)),),
+        ),
+        vq=VQ(
+            config=dict(feature_dim=263, levels=1, codebook_size=8, down_factor=1),
+            encoder=Graph("vq_encoder.onnx", ("features",), ("ids",)),
+            decoder=DecoderGraph("vq_decoder.onnx", ("ids",), ("features",), 2, 2),
+        ),
+        defaults=Defaults(
+            temperature=1.0, top_k=0, top_p=0.9, guidance=1.0, window=16, max_seconds=9.8
+        ),
+    )
 
 
 @pytest.fixture
@@ -63,21 +83,35 @@ def test_a_good_bundle_loads(bundle):
         loaded.root = bundle.parent  # verified as it is: never pointed elsewhere afterwards
 
 
-@pytest.mark.parametrize("damage,message", [
-    (lambda r: (r / "level_0.onnx").unlink(), "level_0.onnx: missing"),
-    (lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 50), "level_0.onnx: 600 bytes"),
-    (lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 101),
-     "level_0.onnx: 1212 bytes, the manifest says 1200"),
-    (lambda r: (r / "level_0.onnx").write_bytes(b"GRAPH BYTES " * 100),
-     "level_0.onnx: sha256 does not match"),
-    # a listed sha256 that is not the file's, sorting below it and above it
-    (lambda r: _edit(r, lambda m: m["files"]["level_0.onnx"].update(sha256="0" * 64)),
-     "level_0.onnx: sha256 does not match"),
-    (lambda r: _edit(r, lambda m: m["files"]["level_0.onnx"].update(sha256="f" * 64)),
-     "level_0.onnx: sha256 does not match"),
-    (lambda r: (r / MANIFEST).unlink(), "manifest.json: missing"),
-    (lambda r: (r / MANIFEST).write_text("{not json"), "manifest.json: not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "damage,message",
+    [
+        (lambda r: (r / "level_0.onnx").unlink(), "level_0.onnx: missing"),
+        (
+            lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 50),
+            "level_0.onnx: 600 bytes",
+        ),
+        (
+            lambda r: (r / "level_0.onnx").write_bytes(b"graph bytes " * 101),
+            "level_0.onnx: 1212 bytes, the manifest says 1200",
+        ),
+        (
+            lambda r: (r / "level_0.onnx").write_bytes(b"GRAPH BYTES " * 100),
+            "level_0.onnx: sha256 does not match",
+        ),
+        # a listed sha256 that is not the file's, sorting below it and above it
+        (
+            lambda r: _edit(r, lambda m: m["files"]["level_0.onnx"].update(sha256="0" * 64)),
+            "level_0.onnx: sha256 does not match",
+        ),
+        (
+            lambda r: _edit(r, lambda m: m["files"]["level_0.onnx"].update(sha256="f" * 64)),
+            "level_0.onnx: sha256 does not match",
+        ),
+        (lambda r: (r / MANIFEST).unlink(), "manifest.json: missing"),
+        (lambda r: (r / MANIFEST).write_text("{not json"), "manifest.json: not valid JSON"),
+    ],
+)
 def test_damage_is_refused_naming_the_file(bundle, damage, message):
     damage(bundle)
     with pytest.raises(BundleError, match=message):
@@ -106,29 +140,45 @@ def _skeleton(m):
     return m["motion"]["skeleton"]
 
 
-@pytest.mark.parametrize("change,message", [
-    (lambda m: m["t2m"]["levels"][0].pop("file"), "t2m.levels[0].file: missing"),
-    (lambda m: m.pop("defaults"), "defaults: missing"),
-    (lambda m: m["motion"].update(fps="20"), "motion.fps: expected a number, got '20'"),
-    (lambda m: m["defaults"].update(top_k=True), "defaults.top_k: expected an integer"),
-    (lambda m: m["defaults"].update(temprature=1.0), "defaults.temprature: unknown key"),
-    (lambda m: m["text"]["encoder"].update(inputs="token_ids"),
-     "text.encoder.inputs: expected a list"),
-    (lambda m: m["vq"]["decoder"].pop("lookahead"), "vq.decoder.lookahead: missing"),
-    (lambda m: m["vq"]["config"].pop("down_factor"),
-     "vq.config.down_factor: missing or not a positive integer"),
-    (lambda m: m["vq"]["config"].update(feature_dim=251),
-     "vq.config.feature_dim: 251, the feature layout (motion.features) has 263"),
-    (lambda m: m["vq"]["config"].update(levels=2), "t2m.levels: 1 graphs for 2 VQ levels"),
-    (lambda m: _skeleton(m)["face_joints"].pop(), "motion.skeleton.face_joints: 3 items, "
-                                                  "expected 4"),
-    (lambda m: _skeleton(m)["parents"].reverse(), "motion.skeleton.parents: [19, 18, 17"),
-    (lambda m: _skeleton(m)["rest_offsets"].pop(), "motion.skeleton.rest_offsets: 21 rows for "
-                                                   "22 joints"),
-    (lambda m: m["motion"]["features"][3].update(stop=66), "motion.features: not the layout"),
-    (lambda m: m.update(format_version=1), "format version 1; this runtime reads version 2 "
-                                           "(re-export the bundle with `mogo export`"),
-])
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (lambda m: m["t2m"]["levels"][0].pop("file"), "t2m.levels[0].file: missing"),
+        (lambda m: m.pop("defaults"), "defaults: missing"),
+        (lambda m: m["motion"].update(fps="20"), "motion.fps: expected a number, got '20'"),
+        (lambda m: m["defaults"].update(top_k=True), "defaults.top_k: expected an integer"),
+        (lambda m: m["defaults"].update(temprature=1.0), "defaults.temprature: unknown key"),
+        (
+            lambda m: m["text"]["encoder"].update(inputs="token_ids"),
+            "text.encoder.inputs: expected a list",
+        ),
+        (lambda m: m["vq"]["decoder"].pop("lookahead"), "vq.decoder.lookahead: missing"),
+        (
+            lambda m: m["vq"]["config"].pop("down_factor"),
+            "vq.config.down_factor: missing or not a positive integer",
+        ),
+        (
+            lambda m: m["vq"]["config"].update(feature_dim=251),
+            "vq.config.feature_dim: 251, the feature layout (motion.features) has 263",
+        ),
+        (lambda m: m["vq"]["config"].update(levels=2), "t2m.levels: 1 graphs for 2 VQ levels"),
+        (
+            lambda m: _skeleton(m)["face_joints"].pop(),
+            "motion.skeleton.face_joints: 3 items, expected 4",
+        ),
+        (lambda m: _skeleton(m)["parents"].reverse(), "motion.skeleton.parents: [19, 18, 17"),
+        (
+            lambda m: _skeleton(m)["rest_offsets"].pop(),
+            "motion.skeleton.rest_offsets: 21 rows for 22 joints",
+        ),
+        (lambda m: m["motion"]["features"][3].update(stop=66), "motion.features: not the layout"),
+        (
+            lambda m: m.update(format_version=1),
+            "format version 1; this runtime reads version 2 "
+            "(re-export the bundle with `mogo export`",
+        ),
+    ],
+)
 def test_a_manifest_off_the_schema_is_refused_naming_the_key(bundle, change, message):
     _edit(bundle, change)
     with pytest.raises(BundleError, match=re.escape(f"manifest.json: {message}")):
@@ -165,25 +215,38 @@ def test_arrays_are_checked(bundle):
 
 
 # -- what issue 18 found accepted or worded wrongly -----------------------------------------------
-@pytest.mark.parametrize("change,message", [
-    (lambda m: m["files"]["level_0.onnx"].pop("sha256"), "files.level_0.onnx.sha256: missing"),
-    (lambda m: m["motion"]["normalization"].pop("mean"), "motion.normalization.mean: missing"),
-    (lambda m: m["files"]["level_0.onnx"].update(bytes="1200"),
-     "files.level_0.onnx.bytes: expected an integer, got '1200'"),
-    (lambda m: m["motion"].update(fps="twenty"), "motion.fps: expected a number, got 'twenty'"),
-    (lambda m: m["motion"].update(fps=0), "motion.fps: 0.0, must be > 0"),
-    (lambda m: m["defaults"].update(top_k=-5), "defaults.top_k: top_k must be >= 0"),
-    (lambda m: m["defaults"].update(temperature=-1.0), "defaults.temperature: temperature must"),
-    (lambda m: m["defaults"].update(guidance=float("nan")),
-     "defaults.guidance: expected a finite number, got nan"),
-    (lambda m: m["defaults"].update(top_p=float("inf")), "defaults.top_p: expected a finite"),
-    (lambda m: m["defaults"].update(window=0), "defaults.window: 0, must be > 0"),
-    (lambda m: m["defaults"].update(max_seconds=-1), "defaults.max_seconds: -1.0, must be > 0"),
-    (lambda m: m["vq"]["decoder"].update(lookahead=-2), "vq.decoder.lookahead: -2, must be >= 0"),
-    (lambda m: m["text"].update(max_length=0), "text.max_length: 0, must be > 0"),
-    (lambda m: m.update(format_version="2"), "format_version: expected an integer, got '2'"),
-    (lambda m: m.pop("format_version"), "format_version: missing"),
-])
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (lambda m: m["files"]["level_0.onnx"].pop("sha256"), "files.level_0.onnx.sha256: missing"),
+        (lambda m: m["motion"]["normalization"].pop("mean"), "motion.normalization.mean: missing"),
+        (
+            lambda m: m["files"]["level_0.onnx"].update(bytes="1200"),
+            "files.level_0.onnx.bytes: expected an integer, got '1200'",
+        ),
+        (lambda m: m["motion"].update(fps="twenty"), "motion.fps: expected a number, got 'twenty'"),
+        (lambda m: m["motion"].update(fps=0), "motion.fps: 0.0, must be > 0"),
+        (lambda m: m["defaults"].update(top_k=-5), "defaults.top_k: top_k must be >= 0"),
+        (
+            lambda m: m["defaults"].update(temperature=-1.0),
+            "defaults.temperature: temperature must",
+        ),
+        (
+            lambda m: m["defaults"].update(guidance=float("nan")),
+            "defaults.guidance: expected a finite number, got nan",
+        ),
+        (lambda m: m["defaults"].update(top_p=float("inf")), "defaults.top_p: expected a finite"),
+        (lambda m: m["defaults"].update(window=0), "defaults.window: 0, must be > 0"),
+        (lambda m: m["defaults"].update(max_seconds=-1), "defaults.max_seconds: -1.0, must be > 0"),
+        (
+            lambda m: m["vq"]["decoder"].update(lookahead=-2),
+            "vq.decoder.lookahead: -2, must be >= 0",
+        ),
+        (lambda m: m["text"].update(max_length=0), "text.max_length: 0, must be > 0"),
+        (lambda m: m.update(format_version="2"), "format_version: expected an integer, got '2'"),
+        (lambda m: m.pop("format_version"), "format_version: missing"),
+    ],
+)
 def test_a_bad_value_in_the_manifest_names_the_file_and_key(bundle, change, message):
     _edit(bundle, change)
     with pytest.raises(BundleError, match=re.escape(f"{bundle / MANIFEST}: {message}")):
@@ -194,12 +257,15 @@ def test_a_bundle_path_that_is_no_bundle_folder_gets_one_line(bundle, tmp_path):
     (tmp_path / "file").write_text("x")
     (tmp_path / "zz").write_text("x")  # names sorting before and after manifest.json
     (tmp_path / "empty").mkdir()
-    for path, message in ((tmp_path / "file", "a file, not a bundle folder"),
-                          (tmp_path / "zz", "a file, not a bundle folder"),
-                          (bundle / MANIFEST, f"a file, not a bundle folder; give its folder, "
-                                              f"{bundle}"),
-                          (tmp_path / "empty", "an empty folder; a bundle folder holds a "
-                                               "manifest.json and the files it lists")):
+    for path, message in (
+        (tmp_path / "file", "a file, not a bundle folder"),
+        (tmp_path / "zz", "a file, not a bundle folder"),
+        (bundle / MANIFEST, f"a file, not a bundle folder; give its folder, {bundle}"),
+        (
+            tmp_path / "empty",
+            "an empty folder; a bundle folder holds a manifest.json and the files it lists",
+        ),
+    ):
         with pytest.raises(BundleError, match=re.escape(f"{path}: {message}") + "$"):
             Bundle.load(path)
 
@@ -215,11 +281,14 @@ def test_an_unreadable_bundle_folder_is_refused_naming_it(bundle, monkeypatch, d
 
 def test_a_manifest_that_cannot_be_read_is_one_line_naming_it(bundle, monkeypatch):
     """Permission denied on manifest.json; _open_file stands in (root reads any file)."""
+
     def denied(path, *args, **kwargs):
         raise PermissionError(13, "Permission denied", str(path))
+
     monkeypatch.setattr("mogo.motion.untrusted._open_file", denied)
-    with pytest.raises(BundleError, match=re.escape(f"{bundle / MANIFEST}: cannot read it "
-                                                    "(Permission denied)")):
+    with pytest.raises(
+        BundleError, match=re.escape(f"{bundle / MANIFEST}: cannot read it (Permission denied)")
+    ):
         Bundle.load(bundle)
 
 
@@ -235,8 +304,9 @@ def test_a_damaged_graph_with_a_matching_sha256_is_one_line_naming_it(shipped_co
     graph = shipped_copy / "level_0.onnx"
     graph.write_bytes(graph.read_bytes()[:100_000])
     write_manifest(shipped_copy, read_manifest(shipped_copy))
-    message = (f"{graph}: not a valid ONNX graph: Failed to load model because protobuf "
-               "parsing failed.")
+    message = (
+        f"{graph}: not a valid ONNX graph: Failed to load model because protobuf parsing failed."
+    )
     with pytest.raises(BundleError, match=re.escape(message)):
         MotionGenerator.load(shipped_copy)
     assert main(["info", str(shipped_copy)]) == 2  # info opens the graphs it calls verified
@@ -245,23 +315,33 @@ def test_a_damaged_graph_with_a_matching_sha256_is_one_line_naming_it(shipped_co
 
 def test_graph_names_off_the_manifest_are_refused_naming_the_file(shipped_copy):
     _edit(shipped_copy, lambda m: m["text"]["encoder"]["inputs"].__setitem__(0, "tokens"))
-    with pytest.raises(BundleError, match=re.escape(
+    with pytest.raises(
+        BundleError,
+        match=re.escape(
             f"{shipped_copy / 'text_encoder.onnx'}: the graph's inputs are not the manifest's "
-            "(number 0 is 'token_ids', the manifest says 'tokens')")):
+            "(number 0 is 'token_ids', the manifest says 'tokens')"
+        ),
+    ):
         MotionGenerator.load(shipped_copy)
     shutil.copy(shipped_copy / "level_1.onnx", shipped_copy / "level_0.onnx")
     _edit(shipped_copy, lambda m: m["text"]["encoder"]["inputs"].__setitem__(0, "token_ids"))
     write_manifest(shipped_copy, read_manifest(shipped_copy))
-    with pytest.raises(BundleError, match=re.escape(
-            f"{shipped_copy / 'level_0.onnx'}: the graph's inputs are not the manifest's")):
+    with pytest.raises(
+        BundleError,
+        match=re.escape(
+            f"{shipped_copy / 'level_0.onnx'}: the graph's inputs are not the manifest's"
+        ),
+    ):
         Bundle.load(shipped_copy).open_graphs()
 
 
 def test_a_damaged_tokenizer_is_one_line_naming_it(shipped_copy):
     (shipped_copy / "tokenizer.json").write_text("{not a tokenizer")
     write_manifest(shipped_copy, read_manifest(shipped_copy))
-    with pytest.raises(BundleError, match=re.escape(
-            f"{shipped_copy / 'tokenizer.json'}: not valid JSON (line 1, column 2: ")):
+    with pytest.raises(
+        BundleError,
+        match=re.escape(f"{shipped_copy / 'tokenizer.json'}: not valid JSON (line 1, column 2: "),
+    ):
         MotionGenerator.load(shipped_copy)
 
 
@@ -270,15 +350,23 @@ def test_info_says_what_it_checked(capsys):
     assert "sha256 verified; 10 graphs open with the manifest's names" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("write,message", [
-    (lambda p: p.write_text("hello"), "mean.npy: not a .npy array file"),
-    (lambda p: p.write_bytes(b"\xff" * 300), "mean.npy: not a .npy array file"),
-    (lambda p: p.write_bytes(p.read_bytes()[:200]),
-     "mean.npy: its header claims an array of shape (263,) (1052 bytes), the file holds 72 "
-     "bytes"),
-    (lambda p: np.save(p, np.full(263, "a")), "mean.npy: holds <U1 values, expected real numbers"),
-    (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: contains NaN or infinite values"),
-])
+@pytest.mark.parametrize(
+    "write,message",
+    [
+        (lambda p: p.write_text("hello"), "mean.npy: not a .npy array file"),
+        (lambda p: p.write_bytes(b"\xff" * 300), "mean.npy: not a .npy array file"),
+        (
+            lambda p: p.write_bytes(p.read_bytes()[:200]),
+            "mean.npy: its header claims an array of shape (263,) (1052 bytes), the file holds 72 "
+            "bytes",
+        ),
+        (
+            lambda p: np.save(p, np.full(263, "a")),
+            "mean.npy: holds <U1 values, expected real numbers",
+        ),
+        (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: contains NaN or infinite values"),
+    ],
+)
 def test_a_bad_normalisation_array_is_one_line_naming_it(bundle, write, message):
     write(bundle / "mean.npy")
     write_manifest(bundle, read_manifest(bundle))
@@ -323,8 +411,12 @@ def test_an_outside_file_named_and_listed_with_its_sha256_is_refused_by_name(bun
 def test_a_referenced_file_outside_the_folder_is_refused(bundle, key):
     outside = str(bundle.parent / "elsewhere")
     section = "motion" if key == "mean" else "text"
-    _edit(bundle, lambda m: (m[section]["normalization"] if key == "mean" else m[section])
-          .update({key: outside}))
+    _edit(
+        bundle,
+        lambda m: (m[section]["normalization"] if key == "mean" else m[section]).update(
+            {key: outside}
+        ),
+    )
     with pytest.raises(BundleError, match=re.escape(f"{outside!r} leaves the bundle folder") + "$"):
         Bundle.load(bundle)
 
@@ -362,18 +454,22 @@ def test_every_file_the_runtime_reads_must_be_listed_with_its_sha256(bundle, nam
         Bundle.load(bundle)
 
 
-@pytest.mark.parametrize("file,array,message", [
-    ("mean.npy", np.zeros(262), "mean.npy: shape (262,), expected (263,)"),
-    ("std.npy", np.ones(264), "std.npy: shape (264,), expected (263,)"),
-    ("mean.npy", np.zeros((263, 1)), "mean.npy: shape (263, 1), expected (263,)"),
-    ("std.npy", np.ones((1, 263)), "std.npy: shape (1, 263), expected (263,)"),
-    ("mean.npy", np.r_[np.zeros(262), np.nan], "mean.npy: contains NaN or infinite values"),
-    ("std.npy", np.r_[np.ones(262), np.inf], "std.npy: contains NaN or infinite values"),
-    ("std.npy", np.r_[np.ones(262), np.nan], "std.npy: contains NaN or infinite values"),
-    ("std.npy", np.r_[np.ones(262), -1.0], "std.npy: has values <= 0"),
-])
-def test_normalisation_arrays_of_the_wrong_shape_or_not_finite_are_refused(bundle, file, array,
-                                                                           message):
+@pytest.mark.parametrize(
+    "file,array,message",
+    [
+        ("mean.npy", np.zeros(262), "mean.npy: shape (262,), expected (263,)"),
+        ("std.npy", np.ones(264), "std.npy: shape (264,), expected (263,)"),
+        ("mean.npy", np.zeros((263, 1)), "mean.npy: shape (263, 1), expected (263,)"),
+        ("std.npy", np.ones((1, 263)), "std.npy: shape (1, 263), expected (263,)"),
+        ("mean.npy", np.r_[np.zeros(262), np.nan], "mean.npy: contains NaN or infinite values"),
+        ("std.npy", np.r_[np.ones(262), np.inf], "std.npy: contains NaN or infinite values"),
+        ("std.npy", np.r_[np.ones(262), np.nan], "std.npy: contains NaN or infinite values"),
+        ("std.npy", np.r_[np.ones(262), -1.0], "std.npy: has values <= 0"),
+    ],
+)
+def test_normalisation_arrays_of_the_wrong_shape_or_not_finite_are_refused(
+    bundle, file, array, message
+):
     np.save(bundle / file, array.astype(np.float32))
     write_manifest(bundle, read_manifest(bundle))
     with pytest.raises(BundleError, match=re.escape(message)):

@@ -34,11 +34,23 @@ def _random_clip(seed: int, swing_degrees: float, jitter_m: float = 0.0) -> np.n
     return joints
 
 
-def _round_trip(tmp_path, joints: np.ndarray, scale: float = 1.0,
-                bone_translations: bool = False, naming: str = "mixamo") -> np.ndarray:
+def _round_trip(
+    tmp_path,
+    joints: np.ndarray,
+    scale: float = 1.0,
+    bone_translations: bool = False,
+    naming: str = "mixamo",
+) -> np.ndarray:
     path = tmp_path / "clip.bvh"
-    save_bvh(path, joints, SMPL_22, fps=20.0, scale=scale, bone_translations=bone_translations,
-             naming=naming)
+    save_bvh(
+        path,
+        joints,
+        SMPL_22,
+        fps=20.0,
+        scale=scale,
+        bone_translations=bone_translations,
+        naming=naming,
+    )
     clip = read_bvh(path)
     assert clip.fps == pytest.approx(20.0) and clip.positions.shape == joints.shape
     order = [NAMINGS[naming].index(name) for name in clip.names]
@@ -100,7 +112,9 @@ def test_bad_input_is_refused(tmp_path):
     with pytest.raises(ValueError, match="fps"):
         save_bvh(tmp_path / "a.bvh", joints, SMPL_22, fps=0.0)
     for scale in (0.0, -0.5, -100.0):
-        with pytest.raises(ValueError, match=f"scale must be a positive number up to 10000, got {scale}"):
+        with pytest.raises(
+            ValueError, match=f"scale must be a positive number up to 10000, got {scale}"
+        ):
             save_bvh(tmp_path / "a.bvh", joints, SMPL_22, fps=20.0, scale=scale)
     assert not (tmp_path / "a.bvh").exists()
     (tmp_path / "b.bvh").write_text("not a bvh")
@@ -108,8 +122,9 @@ def test_bad_input_is_refused(tmp_path):
         read_bvh(tmp_path / "b.bvh")
 
 
-@pytest.mark.parametrize("naming,scale,unit", [("mixamo", 1.0, "metres"),
-                                               ("smpl", 100.0, "centimetres")])
+@pytest.mark.parametrize(
+    "naming,scale,unit", [("mixamo", 1.0, "metres"), ("smpl", 100.0, "centimetres")]
+)
 def test_our_files_come_back_through_the_importer(tmp_path, naming, scale, unit):
     """Our export -> mogo.motion.mocap's import (names, unit and up axis detected): motion of
     the rig's proportions exactly; a generated walk as the rig has it (0.7 cm off its joints

@@ -1,6 +1,9 @@
 """Our BVH files read by a third-party reader (bvhio, a dev dependency): its forward
 kinematics gives what our rig says, the rest pose is a clean T-pose, angles are continuous.
 Nothing here uses mogo.motion.bvh's reader."""
+
+from itertools import pairwise
+
 import numpy as np
 import pytest
 
@@ -19,8 +22,9 @@ def _clip(seed: int, swing_degrees: float, frames: int = 60, turns: float = 2.0)
     t = np.linspace(0.0, 1.0, frames)[:, None]
     axes = rng.normal(size=(22, 3))
     axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
-    angles = np.radians(swing_degrees) * np.sin(2 * np.pi * rng.uniform(1, 3, 22) * t
-                                                + rng.uniform(0, 2 * np.pi, 22))
+    angles = np.radians(swing_degrees) * np.sin(
+        2 * np.pi * rng.uniform(1, 3, 22) * t + rng.uniform(0, 2 * np.pi, 22)
+    )
     local = qfrom_axis_angle(axes[None], angles)
     local[:, 0] = qmul(qyaw(2 * np.pi * turns * t[:, 0]), local[:, 0])
     return _pose(local, np.stack([np.sin(3 * t[:, 0]), 0.9 + 0 * t[:, 0], t[:, 0]], -1))
@@ -33,8 +37,9 @@ def _pose(local: np.ndarray, root: np.ndarray) -> np.ndarray:
     world[:, 0], joints[:, 0] = local[:, 0], root
     for j in range(1, 22):
         p = SMPL_22.parents[j]
-        joints[:, j] = joints[:, p] + qrot(world[:, p], np.broadcast_to(
-            SMPL_22.rest_offsets[j], joints[:, j].shape))
+        joints[:, j] = joints[:, p] + qrot(
+            world[:, p], np.broadcast_to(SMPL_22.rest_offsets[j], joints[:, j].shape)
+        )
         world[:, j] = qmul(world[:, p], local[:, j])
     return joints
 
@@ -71,10 +76,10 @@ def test_rest_pose_is_a_clean_t_pose_on_the_floor(tmp_path):
     assert list(rest)[0] == "Hips" and len(rest) == 22
     for side, sign in (("Left", 1.0), ("Right", -1.0)):
         chain = [rest[f"{side}{part}"] for part in ("Arm", "ForeArm", "Hand")]
-        for a, b in zip(chain, chain[1:]):  # arms straight out along +-X
+        for a, b in pairwise(chain):  # arms straight out along +-X
             np.testing.assert_allclose(b - a, [sign * np.linalg.norm(b - a), 0, 0], atol=1e-6)
         leg = [rest[f"{side}{part}"] for part in ("UpLeg", "Leg", "Foot")]
-        for a, b in zip(leg, leg[1:]):  # legs straight down
+        for a, b in pairwise(leg):  # legs straight down
             np.testing.assert_allclose(b - a, [0, -np.linalg.norm(b - a), 0], atol=1e-6)
         foot, toe = rest[f"{side}Foot"], rest[f"{side}ToeBase"]
         assert foot[1] == pytest.approx(0.0, abs=1e-6) and toe[1] == pytest.approx(0.0, abs=1e-6)
@@ -112,14 +117,17 @@ def test_bvhio_reads_what_our_rig_says(tmp_path, naming, scale):
     joints = _clip(seed=1, swing_degrees=90.0)
     np.testing.assert_allclose(
         _positions(_write(tmp_path, joints, naming=naming, scale=scale), naming, scale),
-        joints, atol=1e-5)
+        joints,
+        atol=1e-5,
+    )
     stretched = joints + 0.003 * np.random.default_rng(2).normal(size=joints.shape)
     ours = rig.posed_joints(stretched, SMPL_22)
     theirs = _positions(_write(tmp_path, stretched))
     np.testing.assert_allclose(theirs, ours, atol=1e-5)
     assert np.linalg.norm(theirs - stretched, axis=-1).mean() < 0.01
-    exact = _positions(_write(tmp_path, stretched, scale=100.0, bone_translations=True),
-                       scale=100.0)
+    exact = _positions(
+        _write(tmp_path, stretched, scale=100.0, bone_translations=True), scale=100.0
+    )
     np.testing.assert_allclose(exact, stretched, atol=1e-5)
 
 
@@ -132,8 +140,10 @@ def test_a_file_in_centimetres_is_the_file_in_metres_times_100(tmp_path):
         path = tmp_path / f"{unit}.bvh"
         save_bvh(path, joints, SMPL_22, fps=20.0, scale=UNITS[unit])
         head, frames = path.read_text().split("Frame Time:")
-        offsets[unit] = np.array([line.split()[1:] for line in head.splitlines()
-                                  if line.strip().startswith("OFFSET")], float)
+        offsets[unit] = np.array(
+            [line.split()[1:] for line in head.splitlines() if line.strip().startswith("OFFSET")],
+            float,
+        )
         motion[unit] = np.array([line.split() for line in frames.splitlines()[1:]], float)
     assert len(offsets["m"]) == 22 + 5  # the joints and the end sites (head, hands, feet)
     np.testing.assert_allclose(offsets["cm"], 100 * offsets["m"], atol=1e-4)
@@ -155,19 +165,29 @@ def test_a_generated_spin_reads_back_and_turns_on_past_a_circle(tmp_path):
     """The shipped model's spin (its root turns about 370 degrees in 4 s): forward kinematics
     of the file is within a centimetre on average (the README's figure), exact with
     bone_translations, and the root's Y channel runs on without a jump."""
-    motion = MotionGenerator.load().generate("a person spins around in a circle.",
-                                             seconds=4.0, seed=0)
+    motion = MotionGenerator.load().generate(
+        "a person spins around in a circle.", seconds=4.0, seed=0
+    )
     motion.save_bvh(tmp_path / "spin.bvh")
-    parsed = bvhio.readAsHierarchy(str(tmp_path / "spin.bvh")), np.array(
-        [line.split() for line in (tmp_path / "spin.bvh").read_text().split(
-            "Frame Time:")[1].splitlines()[1:]], float)
+    parsed = (
+        bvhio.readAsHierarchy(str(tmp_path / "spin.bvh")),
+        np.array(
+            [
+                line.split()
+                for line in (tmp_path / "spin.bvh")
+                .read_text()
+                .split("Frame Time:")[1]
+                .splitlines()[1:]
+            ],
+            float,
+        ),
+    )
     error = np.linalg.norm(_positions(parsed) - motion.joints, axis=-1)
     assert error.mean() < 0.01
     values = parsed[1]
     assert np.ptp(values[:, 5]) > 300.0 and np.abs(np.diff(values[:, 3:], axis=0)).max() < 180
     motion.save_bvh(tmp_path / "exact.bvh", scale=100.0, bone_translations=True)
-    exact = _positions((bvhio.readAsHierarchy(str(tmp_path / "exact.bvh")), parsed[1]),
-                       scale=100.0)
+    exact = _positions((bvhio.readAsHierarchy(str(tmp_path / "exact.bvh")), parsed[1]), scale=100.0)
     np.testing.assert_allclose(exact, motion.joints, atol=1e-5)
 
 
@@ -181,8 +201,10 @@ def test_a_somersault_has_continuous_angles(tmp_path, twist):
     frames = 73
     t = np.linspace(0.0, 1.0, frames)
     local = np.tile(np.array([1.0, 0, 0, 0]), (frames, 22, 1))
-    local[:, 0] = qmul(qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(360 * t)),
-                       qyaw(np.radians(twist * np.sin(6 * np.pi * t))))
+    local[:, 0] = qmul(
+        qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(360 * t)),
+        qyaw(np.radians(twist * np.sin(6 * np.pi * t))),
+    )
     joints = _pose(local, np.tile([0.0, 1.0, 0.0], (frames, 1)))
     parsed = _write(tmp_path, joints)
     steps = np.abs(np.diff(parsed[1][:, 3:6], axis=0))  # the root: 5 degrees a frame, or so
@@ -190,8 +212,9 @@ def test_a_somersault_has_continuous_angles(tmp_path, twist):
     np.testing.assert_allclose(_positions(parsed), joints, atol=1e-5)
 
 
-@pytest.mark.parametrize("phases", [[("z", 178), ("x", 100), ("z", 0)],
-                                    [("z", 90), ("x", 150), ("z", 178)]])
+@pytest.mark.parametrize(
+    "phases", [[("z", 178), ("x", 100), ("z", 0)], [("z", 90), ("x", 150), ("z", 178)]]
+)
 def test_a_tumble_keeps_continuous_angles(tmp_path, phases):
     """The root rolls (about Z), pitches past X = 90, rolls again: each frame's triple is the
     one nearest the frame before (not frame 0, nor an older one), so no channel jumps."""
@@ -200,8 +223,10 @@ def test_a_tumble_keeps_continuous_angles(tmp_path, phases):
         z += list(np.linspace(z[-1], target if axis == "z" else z[-1], 12)[1:])
         x += list(np.linspace(x[-1], target if axis == "x" else x[-1], 12)[1:])
     local = np.tile(np.array([1.0, 0, 0, 0]), (len(z), 22, 1))
-    local[:, 0] = qmul(qfrom_axis_angle(np.array([0, 0, 1.0]), np.radians(z)),
-                       qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(x)))
+    local[:, 0] = qmul(
+        qfrom_axis_angle(np.array([0, 0, 1.0]), np.radians(z)),
+        qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(x)),
+    )
     joints = _pose(local, np.tile([0.0, 1.0, 0.0], (len(z), 1)))
     parsed = _write(tmp_path, joints)
     assert np.abs(np.diff(parsed[1][:, 3:6], axis=0)).max() < 30.0  # 16 degrees a frame at most
@@ -215,8 +240,9 @@ def test_the_first_frame_has_the_principal_angles(tmp_path):
     local = np.tile(np.array([1.0, 0, 0, 0]), (frames, 22, 1))
     local[:, 0] = qfrom_axis_angle(np.array([1.0, 0, 0]), np.radians(np.linspace(86, 106, frames)))
     parsed = _write(tmp_path, _pose(local, np.tile([0.0, 1.0, 0.0], (frames, 1))))
-    np.testing.assert_allclose(parsed[1][:, 3:6], [[0, 86 + 5 * t, 0] for t in range(frames)],
-                               atol=1e-4)  # Z X Y of the root, X running on past 90 at once
+    np.testing.assert_allclose(
+        parsed[1][:, 3:6], [[0, 86 + 5 * t, 0] for t in range(frames)], atol=1e-4
+    )  # Z X Y of the root, X running on past 90 at once
 
 
 @pytest.mark.parametrize("degrees", [90.0, -90.0])
@@ -229,7 +255,8 @@ def test_gimbal_locked_poses_come_back(tmp_path, degrees):
     pitch = qfrom_axis_angle(np.array([1.0, 0, 0]), np.full(frames, np.radians(degrees)))
     local[:, 0] = qmul(pitch, qyaw(yaw))  # Rx(+-90) @ Ry(yaw): locked ZXY
     local[:, SMPL_22.index("left_hip")] = qfrom_axis_angle(
-        np.array([1.0, 0, 0]), np.full(frames, np.radians(-degrees)))
+        np.array([1.0, 0, 0]), np.full(frames, np.radians(-degrees))
+    )
     joints = _pose(local, np.tile([0.0, 0.3, 0.0], (frames, 1)))
     parsed = _write(tmp_path, joints)
     root = parsed[1][:, 3:6]  # Zrotation Xrotation Yrotation of the pelvis

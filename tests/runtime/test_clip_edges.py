@@ -6,22 +6,31 @@ these 14 clips, against 5-20% in the worst tenth of mid-clip frames); given the 
 right context from steps drawn past the cut, they are no worse than mid-clip (at most 15%).
 Bone-length deviation measures it: the skeleton is rigid, so a bone's length never changes.
 """
+
 import numpy as np
 import pytest
 
 from mogo import MotionGenerator
 
 LAST = 3  # frames at the end that collapsed
-CLIPS = [("a person walks forward.", 1.5, 0), ("a person walks forward.", 4.0, 1),
-         ("someone waves with the right hand.", 2.0, 0),
-         ("someone waves with the right hand.", 3.0, 4),
-         ("a person jumps on the spot three times.", 2.0, 0),
-         ("a person squats down and stands up.", 2.0, 0),
-         ("a person squats down and stands up.", 3.5, 2), ("a person runs backward.", 2.0, 0),
-         ("a person runs backward.", 3.0, 4), ("a person walks in a circle.", 2.5, 3),
-         ("a man bows.", 2.0, 5), ("someone claps.", 1.5, 6)]
-SCHEDULES = [([("a person walks forward.", 2.0), ("someone waves with the right hand.", 1.5)], 0),
-             ([("a person walks forward.", 1.5), ("a person jumps on the spot.", 1.5)], 1)]
+CLIPS = [
+    ("a person walks forward.", 1.5, 0),
+    ("a person walks forward.", 4.0, 1),
+    ("someone waves with the right hand.", 2.0, 0),
+    ("someone waves with the right hand.", 3.0, 4),
+    ("a person jumps on the spot three times.", 2.0, 0),
+    ("a person squats down and stands up.", 2.0, 0),
+    ("a person squats down and stands up.", 3.5, 2),
+    ("a person runs backward.", 2.0, 0),
+    ("a person runs backward.", 3.0, 4),
+    ("a person walks in a circle.", 2.5, 3),
+    ("a man bows.", 2.0, 5),
+    ("someone claps.", 1.5, 6),
+]
+SCHEDULES = [
+    ([("a person walks forward.", 2.0), ("someone waves with the right hand.", 1.5)], 0),
+    ([("a person walks forward.", 1.5), ("a person jumps on the spot.", 1.5)], 1),
+]
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +56,7 @@ def edges(generator) -> list[tuple[float, float]]:
     for motion in motions:
         deviation = bone_deviation(generator, motion.joints)
         n = len(deviation)
-        result.append((deviation[-LAST:].max(), np.percentile(deviation[n // 4:3 * n // 4], 90)))
+        result.append((deviation[-LAST:].max(), np.percentile(deviation[n // 4 : 3 * n // 4], 90)))
     return result
 
 

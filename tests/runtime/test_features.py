@@ -1,16 +1,21 @@
 import numpy as np
 import pytest
 
-from mogo.motion.features import (JointStream, canonicalize, facing_directions, features_to_joints,
-                                  joints_to_features)
+from helpers import rest_pose, travelling_clip
+from mogo.motion.features import (
+    JointStream,
+    canonicalize,
+    facing_directions,
+    features_to_joints,
+    joints_to_features,
+)
 from mogo.motion.mirror import mirror_joints, mirror_text
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
-from helpers import rest_pose, travelling_clip
 
-
-@pytest.mark.parametrize("turn,backwards", [(0.0, False), (180.0, False), (180.0, True),
-                                            (-400.0, True), (720.0, False)])
+@pytest.mark.parametrize(
+    "turn,backwards", [(0.0, False), (180.0, False), (180.0, True), (-400.0, True), (720.0, False)]
+)
 def test_round_trip_recovers_canonical_joints(turn, backwards):
     rng = np.random.default_rng(int(turn) % 97 + backwards)
     clip = travelling_clip(rng, turn_degrees=turn, backwards=backwards)
@@ -27,8 +32,11 @@ def test_canonical_clip_is_on_floor_at_origin_facing_z():
     np.testing.assert_allclose(canonical[0, 0, [0, 2]], 0.0, atol=1e-9)
     np.testing.assert_allclose(facing_directions(canonical, SMPL_22)[0], [0, 0, 1], atol=1e-9)
     # Canonicalising preserves the shape of the motion (a rigid transform).
-    np.testing.assert_allclose(np.linalg.norm(canonical[:, 7] - canonical[:, 0], axis=-1),
-                               np.linalg.norm(clip[:, 7] - clip[:, 0], axis=-1), atol=1e-9)
+    np.testing.assert_allclose(
+        np.linalg.norm(canonical[:, 7] - canonical[:, 0], axis=-1),
+        np.linalg.norm(clip[:, 7] - clip[:, 0], axis=-1),
+        atol=1e-9,
+    )
 
 
 def test_kit_skeleton_round_trip():
@@ -41,8 +49,9 @@ def test_kit_skeleton_round_trip():
 def test_recovery_is_batched():
     rng = np.random.default_rng(3)
     batch = np.stack([joints_to_features(travelling_clip(rng, frames=40))[0] for _ in range(3)])
-    np.testing.assert_allclose(features_to_joints(batch),
-                               np.stack([features_to_joints(f) for f in batch]), atol=1e-6)
+    np.testing.assert_allclose(
+        features_to_joints(batch), np.stack([features_to_joints(f) for f in batch]), atol=1e-6
+    )
 
 
 def test_feature_blocks_mean_what_the_format_says():
@@ -67,14 +76,20 @@ def test_turning_left_gives_positive_facing_change():
     assert abs(turned - 90.0) < 1e-3  # +90 degrees (left) turns +Z toward +X
 
 
-@pytest.mark.parametrize("bad,message", [
-    (np.zeros((10, 21, 3)), r"^joints must be \(T, 22, 3\) for the humanml3d skeleton, got "
-                            r"shape \(10, 21, 3\)$"),
-    (np.zeros((10, 23, 3)), r"got shape \(10, 23, 3\)$"),
-    (np.zeros((10, 22, 4)), r"got shape \(10, 22, 4\)$"),
-    (np.zeros((1, 22, 3)), "^a clip needs at least 2 frames, got 1$"),
-    (np.full((5, 22, 3), np.nan), "NaN"),
-])
+@pytest.mark.parametrize(
+    "bad,message",
+    [
+        (
+            np.zeros((10, 21, 3)),
+            r"^joints must be \(T, 22, 3\) for the humanml3d skeleton, got "
+            r"shape \(10, 21, 3\)$",
+        ),
+        (np.zeros((10, 23, 3)), r"got shape \(10, 23, 3\)$"),
+        (np.zeros((10, 22, 4)), r"got shape \(10, 22, 4\)$"),
+        (np.zeros((1, 22, 3)), "^a clip needs at least 2 frames, got 1$"),
+        (np.full((5, 22, 3), np.nan), "NaN"),
+    ],
+)
 def test_bad_joints_are_rejected(bad, message):
     with pytest.raises(ValueError, match=message):
         joints_to_features(bad)
@@ -87,8 +102,9 @@ def test_unknown_feature_dim_is_rejected():
 
 @pytest.mark.parametrize("dims", [100, 300])
 def test_features_of_another_skeleton_are_refused_with_both_sizes(dims):
-    with pytest.raises(ValueError, match=f"^features have {dims} dims, the humanml3d skeleton "
-                                         "needs 263$"):
+    with pytest.raises(
+        ValueError, match=f"^features have {dims} dims, the humanml3d skeleton needs 263$"
+    ):
         features_to_joints(np.zeros((2, 5, dims)), SMPL_22)
 
 
@@ -102,20 +118,26 @@ def test_float64_features_give_float64_joints_and_others_float32():
 
 
 def test_features_need_a_time_axis():
-    with pytest.raises(ValueError, match=r"^features must be \(\.\.\., T, D\), got shape "
-                                         r"\(263,\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^features must be \(\.\.\., T, D\), got shape "
+        r"\(263,\)$",
+    ):
         features_to_joints(np.zeros(263))
 
 
 def test_mirroring_twice_is_identity():
     clip = travelling_clip(np.random.default_rng(5))
-    for skeleton, data in [(SMPL_22, clip),
-                           (KIT_21, travelling_clip(np.random.default_rng(6), KIT_21))]:
+    for skeleton, data in [
+        (SMPL_22, clip),
+        (KIT_21, travelling_clip(np.random.default_rng(6), KIT_21)),
+    ]:
         np.testing.assert_array_equal(mirror_joints(mirror_joints(data, skeleton), skeleton), data)
     text = "A person waves the left hand, then turns right, spinning clockwise. LEFT!"
     assert mirror_text(mirror_text(text)) == text
-    assert mirror_text(text) == ("A person waves the right hand, then turns left, "
-                                 "spinning counterclockwise. RIGHT!")
+    assert mirror_text(text) == (
+        "A person waves the right hand, then turns left, spinning counterclockwise. RIGHT!"
+    )
 
 
 def test_mirrored_clip_turns_the_other_way():
@@ -124,8 +146,9 @@ def test_mirrored_clip_turns_the_other_way():
     mirrored, _ = joints_to_features(mirror_joints(clip, SMPL_22))
     np.testing.assert_allclose(mirrored[:, 0], -features[:, 0], atol=1e-5)
     left_wrist, right_wrist = SMPL_22.index("left_wrist"), SMPL_22.index("right_wrist")
-    np.testing.assert_allclose(mirror_joints(clip, SMPL_22)[:, left_wrist, 0],
-                               -clip[:, right_wrist, 0])
+    np.testing.assert_allclose(
+        mirror_joints(clip, SMPL_22)[:, left_wrist, 0], -clip[:, right_wrist, 0]
+    )
 
 
 def test_joint_stream_equals_one_recovery_whatever_the_chunks():

@@ -7,6 +7,7 @@ the facing is up x across, smoothed by gaussian_filter1d(sigma=20, mode='nearest
 velocities of row t are in the facing frame of frame t, the root's XZ velocity in that of t+1.
 Rotation matrices here are plain numpy, independent of runtime/motion/quaternion.py.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -93,8 +94,9 @@ def test_rotations_block_is_the_identity_when_every_bone_lies_along_its_raw_offs
             pose[joint] = pose[parent] + length * SMPL_22.raw_offsets[joint]
     features, _ = joints_to_features(_placed_in_world(np.repeat(pose[None], 3, axis=0)))
     rotations = features[:, ROT].reshape(2, J - 1, 6)
-    np.testing.assert_allclose(rotations, np.broadcast_to([1.0, 0, 0, 0, 1.0, 0], rotations.shape),
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        rotations, np.broadcast_to([1.0, 0, 0, 0, 1.0, 0], rotations.shape), atol=1e-6
+    )
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -110,8 +112,11 @@ def test_a_turned_bone_at_the_end_of_a_chain_gives_its_rotation(leaf):
     # raw offset onto the turned bone; its 6D form is that matrix's first two columns.
     joint = SMPL_22.index(leaf)
     pose = np.zeros((J, 3))
-    bone = _yaw(0.7) @ np.array([[1.0, 0, 0], [0, 0.6, -0.8], [0, 0.8, 0.6]]) \
+    bone = (
+        _yaw(0.7)
+        @ np.array([[1.0, 0, 0], [0, 0.6, -0.8], [0, 0.8, 0.6]])
         @ SMPL_22.raw_offsets[joint]
+    )
     for j, parent in enumerate(SMPL_22.parents):
         if parent >= 0:
             direction = bone if j == joint else SMPL_22.raw_offsets[j]
@@ -119,8 +124,11 @@ def test_a_turned_bone_at_the_end_of_a_chain_gives_its_rotation(leaf):
     features, _ = joints_to_features(_placed_in_world(np.repeat(pose[None], 3, axis=0)))
     rotation = _rotation_between(SMPL_22.raw_offsets[joint], bone)
     rotations = features[:, ROT].reshape(2, J - 1, 6)
-    np.testing.assert_allclose(rotations[:, joint - 1], np.broadcast_to(
-        np.concatenate([rotation[:, 0], rotation[:, 1]]), (2, 6)), atol=1e-6)
+    np.testing.assert_allclose(
+        rotations[:, joint - 1],
+        np.broadcast_to(np.concatenate([rotation[:, 0], rotation[:, 1]]), (2, 6)),
+        atol=1e-6,
+    )
 
 
 def test_given_local_rotations_fill_the_6d_block_and_must_have_their_shape():
@@ -128,11 +136,17 @@ def test_given_local_rotations_fill_the_6d_block_and_must_have_their_shape():
     half = np.sin(np.pi / 4) * np.array([1.0, 0.0, 0.0])  # 90 degrees about +X, every joint
     rotations = np.broadcast_to(np.array([np.cos(np.pi / 4), *half]), (3, J, 4))
     features, _ = joints_to_features(clip, local_rotations=rotations)
-    np.testing.assert_allclose(features[:, ROT].reshape(2, J - 1, 6), np.broadcast_to(
-        [1.0, 0, 0, 0, 0, 1.0], (2, J - 1, 6)), atol=1e-6)  # columns of Rx(90): x, z
+    np.testing.assert_allclose(
+        features[:, ROT].reshape(2, J - 1, 6),
+        np.broadcast_to([1.0, 0, 0, 0, 0, 1.0], (2, J - 1, 6)),
+        atol=1e-6,
+    )  # columns of Rx(90): x, z
     for wrong in (rotations[..., :3], np.ones((3, 22, 5)), np.ones((3, 23, 4))):
-        with pytest.raises(ValueError, match=r"^local_rotations must be \(3, 22, 4\), got "
-                                             rf"\({', '.join(map(str, wrong.shape))}\)$"):
+        with pytest.raises(
+            ValueError,
+            match=r"^local_rotations must be \(3, 22, 4\), got "
+            rf"\({', '.join(map(str, wrong.shape))}\)$",
+        ):
             joints_to_features(clip, local_rotations=wrong)
 
 
@@ -146,8 +160,9 @@ def test_a_facing_sigma_of_zero_or_less_smooths_nothing():
 
 def test_local_rotations_start_with_the_root_rotation_given():
     positions = _turning_clip(0.2 * np.arange(4), 0.05)
-    root = np.stack([np.cos(0.1 * np.arange(4)), np.zeros(4), np.sin(0.1 * np.arange(4)),
-                     np.zeros(4)], axis=-1)
+    root = np.stack(
+        [np.cos(0.1 * np.arange(4)), np.zeros(4), np.sin(0.1 * np.arange(4)), np.zeros(4)], axis=-1
+    )
     rotations = local_rotations_from_joints(positions, SMPL_22, root)
     assert rotations.shape == (4, J, 4)
     np.testing.assert_array_equal(rotations[:, 0], root)
@@ -156,8 +171,11 @@ def test_local_rotations_start_with_the_root_rotation_given():
 def test_a_frame_with_no_left_right_direction_is_refused_by_name():
     clip = np.repeat(_rest_pose()[None], 5, axis=0)
     clip[3, [1, 16]] = clip[3, [2, 17]]  # left hip and shoulder onto the right ones
-    with pytest.raises(ValueError, match="^cannot compute the facing direction at frame 3: "
-                                         "the hips and shoulders give no left-right direction$"):
+    with pytest.raises(
+        ValueError,
+        match="^cannot compute the facing direction at frame 3: "
+        "the hips and shoulders give no left-right direction$",
+    ):
         joints_to_features(clip)
 
 
@@ -176,8 +194,9 @@ def _contact_clip(ankle_step: float, foot_step: float) -> np.ndarray:
     return joints
 
 
-@pytest.mark.parametrize("squared, expected", [(0.00199, 1.0), (0.00201, 0.0),
-                                               (0.00099, 1.0), (0.0039, 0.0)])
+@pytest.mark.parametrize(
+    "squared, expected", [(0.00199, 1.0), (0.00201, 0.0), (0.00099, 1.0), (0.0039, 0.0)]
+)
 def test_contact_threshold_is_0_002_squared_metres_per_frame(squared, expected):
     # Strictly below 0.002 m^2 of displacement per frame (not per second) is a contact.
     step = np.sqrt(squared)
@@ -194,8 +213,7 @@ def test_each_contact_column_belongs_to_its_own_joint():
     np.testing.assert_array_equal(features[:, CONTACT], np.tile([1.0, 0.0, 1.0, 0.0], (3, 1)))
 
 
-def _turning_clip(angles: np.ndarray, speed: float, rolls: np.ndarray | None = None
-                  ) -> np.ndarray:
+def _turning_clip(angles: np.ndarray, speed: float, rolls: np.ndarray | None = None) -> np.ndarray:
     """The rest pose turned to the given yaw each frame, its root walking forward at `speed`
     m/frame along its facing; starts canonical (root XZ at 0, facing +Z). `rolls`: angles
     (rad) the body leans sideways (about its forward axis) each frame."""
@@ -203,7 +221,9 @@ def _turning_clip(angles: np.ndarray, speed: float, rolls: np.ndarray | None = N
     root = np.concatenate([np.zeros((1, 3)), np.cumsum(speed * headings[:-1], axis=0)])
     rolls = np.zeros_like(angles) if rolls is None else rolls
     pose = _rest_pose()
-    return np.stack([pose @ _roll(b).T @ _yaw(a).T + r for a, b, r in zip(angles, rolls, root)])
+    return np.stack(
+        [pose @ _roll(b).T @ _yaw(a).T + r for a, b, r in zip(angles, rolls, root, strict=True)]
+    )
 
 
 def _roll(angle: float) -> np.ndarray:
@@ -226,8 +246,11 @@ def test_joint_velocities_are_in_the_facing_frame_of_the_current_frame():
     # The root's XZ velocity uses the facing of t+1 (r_rot[1:] in the original).
     root = np.einsum("tij,tj->ti", np.stack([_yaw(-a) for a in angles[1:]]), step[:, 0])
     np.testing.assert_allclose(features[:, 1:3], root[:, [0, 2]], atol=1e-6)
-    np.testing.assert_allclose(features[:, POS].reshape(7, J - 1, 3),
-                               np.broadcast_to(_rest_pose()[1:], (7, J - 1, 3)), atol=1e-5)
+    np.testing.assert_allclose(
+        features[:, POS].reshape(7, J - 1, 3),
+        np.broadcast_to(_rest_pose()[1:], (7, J - 1, 3)),
+        atol=1e-5,
+    )
 
 
 def _scipy_facing(joints: np.ndarray, sigma: float = 20.0) -> np.ndarray:
@@ -245,13 +268,17 @@ def _scipy_facing(joints: np.ndarray, sigma: float = 20.0) -> np.ndarray:
 # 40 and 200 frames: shorter and longer than the 80-frame half-kernel of the default sigma
 # (None: HumanML3D's 20); sigma 0.75 (a facing_sigma of one's own) cuts its kernel at an odd
 # radius, 3 frames; a body that leans sideways weighs less in the smoothing, as in the original
-@pytest.mark.parametrize("frames, sigma, lean", [(40, None, 0.0), (200, None, 0.0),
-                                                 (60, 0.75, 0.0), (120, None, 0.6)])
+@pytest.mark.parametrize(
+    "frames, sigma, lean", [(40, None, 0.0), (200, None, 0.0), (60, 0.75, 0.0), (120, None, 0.6)]
+)
 def test_facing_is_smoothed_like_scipy_gaussian_filter1d(frames, sigma, lean):
     pytest.importorskip("scipy")
     rng = np.random.default_rng(3)
-    angles = 0.04 * np.arange(frames) + 0.3 * np.sin(0.1 * np.arange(frames)) \
+    angles = (
+        0.04 * np.arange(frames)
+        + 0.3 * np.sin(0.1 * np.arange(frames))
         + rng.normal(0.0, 0.15, frames)
+    )
     joints = _turning_clip(angles, 0.03, lean * np.sin(0.3 * np.arange(frames)) ** 2)
     options = {} if sigma is None else dict(facing_sigma=sigma)
     sigma = 20.0 if sigma is None else sigma
@@ -273,7 +300,7 @@ def test_a_displacement_of_exactly_the_threshold_is_not_a_contact():
     # square; the clip is already canonical, so no rotation blurs the displacement.
     joints = _contact_clip(0.0, 0.0)
     joints[:, L_ANKLE, 0] = 0.25 + 0.0625 * np.arange(4)
-    features, _ = joints_to_features(joints, contact_threshold=0.0625 ** 2)
+    features, _ = joints_to_features(joints, contact_threshold=0.0625**2)
     np.testing.assert_array_equal(features[:, 259], 0.0)
-    features, _ = joints_to_features(joints, contact_threshold=np.nextafter(0.0625 ** 2, 1.0))
+    features, _ = joints_to_features(joints, contact_threshold=np.nextafter(0.0625**2, 1.0))
     np.testing.assert_array_equal(features[:, 259], 1.0)

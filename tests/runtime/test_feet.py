@@ -2,13 +2,23 @@
 continuous blends, rigid legs on or above the floor, the body stepping back where a flagged
 foot still swings, any chunking of a stream giving the offline result, and the generator's
 plant_feet option (off: the joints as decoded)."""
+
 import numpy as np
 import pytest
 
 from mogo.generator import STREAM_DECODE_EVERY, MotionGenerator
 from mogo.motion.features import JointStream, feature_layout
-from mogo.motion.feet import (BLEND_OUT, BODY_FRAMES, BODY_STEP, LOOKAHEAD, PIN_FRAMES,
-                             FootPlanter, leg_joints, planted, two_bone_ik)
+from mogo.motion.feet import (
+    BLEND_OUT,
+    BODY_FRAMES,
+    BODY_STEP,
+    LOOKAHEAD,
+    PIN_FRAMES,
+    FootPlanter,
+    leg_joints,
+    planted,
+    two_bone_ik,
+)
 from mogo.motion.rig import rest_offsets
 from mogo.motion.skeleton import KIT_21, SMPL_22
 
@@ -39,8 +49,12 @@ def test_ik_keeps_bone_lengths_reaches_reachable_targets_and_bends_towards_the_p
     normal = np.cross(target - hip, pole - hip)
     assert np.abs(np.sum((knee - hip) * normal, -1)).max() < 1e-9
     axis = direction
-    side = lambda p: np.sum((p - hip) * (pole - hip - np.sum((pole - hip) * axis, -1,
-                                                             keepdims=True) * axis), -1)
+
+    def side(p):
+        return np.sum(
+            (p - hip) * (pole - hip - np.sum((pole - hip) * axis, -1, keepdims=True) * axis), -1
+        )
+
     assert np.all(side(knee) > 0)
     far = hip + 2 * (upper + lower)[:, None] * direction  # out of reach: on the line, stretched
     knee, ankle = two_bone_ik(hip, far, pole, upper, lower)
@@ -65,7 +79,7 @@ def _features(joints: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     """Features with only what the planter reads: joint velocities and the contact channels."""
     features = np.zeros((len(joints), SMPL_22.feature_dim), np.float32)
     step = np.diff(joints, axis=0, append=joints[-1:])
-    features[:, VELOCITY:VELOCITY + 66] = step.reshape(len(joints), -1)
+    features[:, VELOCITY : VELOCITY + 66] = step.reshape(len(joints), -1)
     features[:, -4:] = contacts
     return features
 
@@ -111,8 +125,9 @@ def test_legs_get_the_skeletons_canonical_bone_lengths_and_feet_stay_on_or_above
 
 def test_a_flagged_foot_stepping_fast_moves_the_body_back_by_the_excess_smoothly():
     features, joints = _sliding_left_foot(speed=0.1)  # flagged in [15, 35) at 10 cm a frame
-    np.testing.assert_allclose(planted(features, joints, SMPL_22)[:, 0], joints[:, 0],
-                               atol=1e-6)  # by default the body is left as decoded
+    np.testing.assert_allclose(
+        planted(features, joints, SMPL_22)[:, 0], joints[:, 0], atol=1e-6
+    )  # by default the body is left as decoded
     out = planted(features, joints, SMPL_22, body_step=BODY_STEP)
     upper = [j for j in range(22) if j not in LEGS[:, 1:].reshape(-1)]  # hips and above
     shift = out[:, upper] - joints[:, upper]
@@ -121,7 +136,7 @@ def test_a_flagged_foot_stepping_fast_moves_the_body_back_by_the_excess_smoothly
     assert np.abs(shift[:, :2]).max() < 1e-6
     excess = 0.1 - BODY_STEP  # per flagged frame, spread over BODY_FRAMES frames
     np.testing.assert_allclose(shift[:16, 2], 0.0, atol=1e-6)
-    np.testing.assert_allclose(shift[35 + BODY_FRAMES - 1:, 2], -20 * excess, atol=1e-5)
+    np.testing.assert_allclose(shift[35 + BODY_FRAMES - 1 :, 2], -20 * excess, atol=1e-5)
     steps = np.diff(shift[:, 2])
     assert steps.max() < 1e-6 and steps.min() > -excess - 1e-6  # no jump back
     assert np.abs(np.diff(steps)).max() < excess / BODY_FRAMES + 1e-6  # eased in and out
@@ -137,7 +152,7 @@ def test_any_chunking_gives_the_offline_result(seed):
     planter, rows, pieces, at = FootPlanter(SMPL_22, body_step=BODY_STEP), [], [], 0
     while at < len(joints):
         size = int(rng.integers(0, 12))
-        out = planter.push(features[at:at + size], joints[at:at + size])
+        out = planter.push(features[at : at + size], joints[at : at + size])
         rows.append(out[0])
         pieces.append(out[1])
         at += size
@@ -162,7 +177,7 @@ def test_a_stream_emits_the_offline_result_of_its_own_frames(generator):
     assert np.array_equal(raw.features, motion.features)
     offline = planted(raw.features, raw.joints, generator.skeleton)
     assert np.array_equal(motion.joints, offline)
-    assert np.array_equal(streamed, offline[:len(streamed)])
+    assert np.array_equal(streamed, offline[: len(streamed)])
 
 
 def test_planted_feet_add_their_lookahead_to_the_first_frame(generator):
@@ -181,8 +196,9 @@ def test_generated_feet_slide_less_and_plant_feet_false_keeps_the_decoded_joints
     contact = raw.features[:-1, -4:] > 0.5
 
     def sliding(joints):
-        return np.linalg.norm(np.diff(joints[:, CONTACT_JOINTS], axis=0)[..., [0, 2]],
-                              axis=-1)[contact].mean()
+        return np.linalg.norm(np.diff(joints[:, CONTACT_JOINTS], axis=0)[..., [0, 2]], axis=-1)[
+            contact
+        ].mean()
 
     assert sliding(motion.joints) < 0.5 * sliding(raw.joints)
 
@@ -200,8 +216,23 @@ def test_the_cli_plants_feet_unless_told_not_to(generator, tmp_path):
     from mogo.cli import main
 
     for flag, plant in (("--plant-feet", True), ("--no-plant-feet", False)):
-        assert main(["generate", "a person jogs forward.", "--seconds", "2", "--seed", "5",
-                     "--out", str(tmp_path), "--name", flag[2:], flag]) == 0
-        motion = generator.generate("a person jogs forward.", seconds=2, seed=5,
-                                    plant_feet=plant)
+        assert (
+            main(
+                [
+                    "generate",
+                    "a person jogs forward.",
+                    "--seconds",
+                    "2",
+                    "--seed",
+                    "5",
+                    "--out",
+                    str(tmp_path),
+                    "--name",
+                    flag[2:],
+                    flag,
+                ]
+            )
+            == 0
+        )
+        motion = generator.generate("a person jogs forward.", seconds=2, seed=5, plant_feet=plant)
         assert np.array_equal(np.load(tmp_path / f"{flag[2:]}.npy"), motion.joints)

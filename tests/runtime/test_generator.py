@@ -1,6 +1,7 @@
 """The public runtime on the default bundle shipped in the package: text -> motion, streams,
 prompt switching, determinism, a held state that stays constant however long a stream runs,
 and refusal of bad input."""
+
 import hashlib
 import shutil
 import subprocess
@@ -34,8 +35,9 @@ def test_generate_gives_a_motion_of_the_asked_length(generator):
 
 
 def test_the_model_can_end_the_motion_itself_and_batches_prompts(generator):
-    motions = generator.generate_batch(["a person jumps on the spot three times.",
-                                        "someone waves."], seed=3)
+    motions = generator.generate_batch(
+        ["a person jumps on the spot three times.", "someone waves."], seed=3
+    )
     assert len(motions) == 2 and [m.seed for m in motions] == [3, 4]
     for motion in motions:
         assert 1 <= len(motion.joints) <= MAX_FRAMES
@@ -46,10 +48,12 @@ def test_same_seed_same_tokens_also_in_another_process(generator):
     again = generator.generate("a person runs backward.", seconds=1, seed=7).tokens
     other = generator.generate("a person runs backward.", seconds=1, seed=8).tokens
     assert np.array_equal(tokens, again) and not np.array_equal(tokens, other)
-    script = ("import hashlib, numpy as np\n"
-              "from mogo.generator import MotionGenerator\n"
-              "t = MotionGenerator.load().generate('a person runs backward.', seconds=1, seed=7)"
-              ".tokens\nprint(hashlib.sha256(np.ascontiguousarray(t).tobytes()).hexdigest())\n")
+    script = (
+        "import hashlib, numpy as np\n"
+        "from mogo.generator import MotionGenerator\n"
+        "t = MotionGenerator.load().generate('a person runs backward.', seconds=1, seed=7)"
+        ".tokens\nprint(hashlib.sha256(np.ascontiguousarray(t).tobytes()).hexdigest())\n"
+    )
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == hashlib.sha256(tokens.tobytes()).hexdigest()
@@ -68,7 +72,7 @@ def test_sessions_in_parallel_threads_do_not_affect_each_other(generator):
         thread.start()
     for thread in threads:
         thread.join()
-    assert all(np.array_equal(a, b) for a, b in zip(alone, together))
+    assert all(np.array_equal(a, b) for a, b in zip(alone, together, strict=True))
 
 
 def test_streamed_frames_equal_the_offline_decode(generator):
@@ -89,7 +93,7 @@ def test_streamed_frames_equal_the_offline_decode(generator):
     assert np.array_equal(offline.tokens, motion.tokens)
     np.testing.assert_allclose(motion.joints, offline.joints, atol=1e-5)
     np.testing.assert_allclose(motion.features, offline.features, atol=1e-4)
-    np.testing.assert_allclose(streamed, offline.joints[:len(streamed)], atol=1e-5)
+    np.testing.assert_allclose(streamed, offline.joints[: len(streamed)], atol=1e-5)
 
 
 def test_frames_iterator_and_lookahead(generator):
@@ -109,8 +113,10 @@ def test_frames_iterator_and_lookahead(generator):
     # the same frames, each once, as from a stream read by step() alone
     plain = generator.stream("a person walks forward.", seed=0, plant_feet=False)
     steps = lookahead + 1 + 2 * STREAM_DECODE_EVERY + 1 + 2 * STREAM_DECODE_EVERY
-    np.testing.assert_array_equal(np.concatenate([first, frames, following, *later]),
-                                  np.concatenate([plain.step() for _ in range(steps)]))
+    np.testing.assert_array_equal(
+        np.concatenate([first, frames, following, *later]),
+        np.concatenate([plain.step() for _ in range(steps)]),
+    )
     assert len(list(plain.frames(limit=300))) == 300  # past CPython's cache of small ints
 
 
@@ -124,16 +130,18 @@ def test_prompt_switch_keeps_the_past_changes_the_future_without_a_jump(generato
     switched.set_prompt("a person jumps on the spot.")
     switched.advance(steps - switch)
     switched = switched.finish()
-    assert switched.prompts == [(0, "a person walks forward."),
-                                (switch, "a person jumps on the spot.")]
+    assert switched.prompts == [
+        (0, "a person walks forward."),
+        (switch, "a person jumps on the spot."),
+    ]
     assert np.array_equal(switched.tokens[:switch], plain.tokens[:switch])
     assert not np.array_equal(switched.tokens[switch:], plain.tokens[switch:])
     lookahead = generator.manifest.vq.decoder.lookahead
     before = switch - lookahead  # frames not yet influenced by any token after the switch
     np.testing.assert_allclose(switched.joints[:before], plain.joints[:before], atol=1e-5)
     moves = np.abs(np.diff(switched.joints, axis=0)).max(axis=(1, 2))  # per-frame joint motion
-    around = moves[switch - 3:switch + 3]
-    elsewhere = np.concatenate([moves[:switch - 3], moves[switch + 3:]])
+    around = moves[switch - 3 : switch + 3]
+    elsewhere = np.concatenate([moves[: switch - 3], moves[switch + 3 :]])
     assert around.max() <= elsewhere.max()
 
 
@@ -159,9 +167,13 @@ def test_continue_from_goes_on_from_the_end_of_a_clip(generator):
 def _held_state(stream) -> tuple:
     """The sizes of everything a stream keeps between steps."""
     tokens = stream.tokens
-    return (tuple(held.shape for cache in tokens.caches for held in cache),
-            tokens.positions.shape, tokens.slot_tokens.shape, len(stream._unread),
-            stream._record is None)
+    return (
+        tuple(held.shape for cache in tokens.caches for held in cache),
+        tokens.positions.shape,
+        tokens.slot_tokens.shape,
+        len(stream._unread),
+        stream._record is None,
+    )
 
 
 @pytest.mark.parametrize("window", [None, 8], ids=["bundle-window", "window-8"])
@@ -170,8 +182,7 @@ def test_a_long_stream_holds_a_constant_state(generator, window):
     latest `window` steps, nothing a stream holds grows, and the decoder keeps at most its
     receptive field. Four trips round the window show what 20,000 steps would. (Re-anchored,
     the default, a stream never fills the window: test_anchoring.)"""
-    stream = generator.stream("a person jogs in a circle.", seed=11, window=window,
-                              anchoring=False)
+    stream = generator.stream("a person jogs in a circle.", seed=11, window=window, anchoring=False)
     window = window or generator.defaults.window
     decoder = generator.manifest.vq.decoder
     most_buffered = decoder.left_context + decoder.lookahead + STREAM_DECODE_EVERY - 1
@@ -191,22 +202,25 @@ def test_a_long_stream_holds_a_constant_state(generator, window):
     assert stream._feet.pending == min(decoded, FEET_LOOKAHEAD)
 
 
-@pytest.mark.parametrize("call,message", [
-    (lambda g: g.generate(""), "the prompt is empty"),
-    (lambda g: g.generate("   \n"), "the prompt is empty"),
-    (lambda g: g.generate("walk", seconds=0), "seconds must be a positive number"),
-    (lambda g: g.generate("walk", seconds=-2), "seconds must be a positive number"),
-    (lambda g: g.generate("walk", seconds=float("nan")), "seconds must be a positive number"),
-    (lambda g: g.generate("walk", seconds=1e6), "at most 600"),
-    (lambda g: g.generate("walk", temperature=-1), "temperature must be >= 0"),
-    (lambda g: g.generate("walk", top_k=-3), "top_k must be >= 0"),
-    (lambda g: g.generate("walk", top_p=0), r"top_p must be in \(0, 1\]"),
-    (lambda g: g.generate("walk", seed=-1), "seed must be >= 0, got -1"),
-    (lambda g: g.generate_batch([]), "no prompt given"),
-    (lambda g: g.generate_batch("walk"), "generate_batch takes a list of prompts"),
-    (lambda g: g.play([]), "the schedule is empty"),
-    (lambda g: g.stream(""), "the prompt is empty"),
-])
+@pytest.mark.parametrize(
+    "call,message",
+    [
+        (lambda g: g.generate(""), "the prompt is empty"),
+        (lambda g: g.generate("   \n"), "the prompt is empty"),
+        (lambda g: g.generate("walk", seconds=0), "seconds must be a positive number"),
+        (lambda g: g.generate("walk", seconds=-2), "seconds must be a positive number"),
+        (lambda g: g.generate("walk", seconds=float("nan")), "seconds must be a positive number"),
+        (lambda g: g.generate("walk", seconds=1e6), "at most 600"),
+        (lambda g: g.generate("walk", temperature=-1), "temperature must be >= 0"),
+        (lambda g: g.generate("walk", top_k=-3), "top_k must be >= 0"),
+        (lambda g: g.generate("walk", top_p=0), r"top_p must be in \(0, 1\]"),
+        (lambda g: g.generate("walk", seed=-1), "seed must be >= 0, got -1"),
+        (lambda g: g.generate_batch([]), "no prompt given"),
+        (lambda g: g.generate_batch("walk"), "generate_batch takes a list of prompts"),
+        (lambda g: g.play([]), "the schedule is empty"),
+        (lambda g: g.stream(""), "the prompt is empty"),
+    ],
+)
 def test_bad_input_is_refused_clearly(generator, call, message):
     with pytest.raises(ValueError, match=message):
         call(generator)
@@ -249,6 +263,7 @@ def test_the_default_bundle_runs_with_torch_unimportable(run_without_torch):
     result = run_without_torch(
         "from mogo.generator import MotionGenerator\n"
         "motion = MotionGenerator.load().generate('a person waves.', seconds=1, seed=0)\n"
-        "print(motion.joints.shape)\n")
+        "print(motion.joints.shape)\n"
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "(20, 22, 3)"

@@ -1,5 +1,6 @@
 """Our GLB read by a third-party glTF library (pygltflib, a dev dependency): a well-formed
 skinned, animated asset whose joints, posed by its own animation, are where our rig puts them."""
+
 import numpy as np
 import pytest
 
@@ -18,15 +19,17 @@ DTYPE = {5126: np.float32, 5123: np.uint16, 5125: np.uint32}
 def _data(gltf, index: int) -> np.ndarray:
     accessor = gltf.accessors[index]
     view = gltf.bufferViews[accessor.bufferView]
-    raw = gltf.binary_blob()[view.byteOffset:view.byteOffset + view.byteLength]
-    return np.frombuffer(raw, DTYPE[accessor.componentType]).reshape(accessor.count,
-                                                                     WIDTH[accessor.type])
+    raw = gltf.binary_blob()[view.byteOffset : view.byteOffset + view.byteLength]
+    return np.frombuffer(raw, DTYPE[accessor.componentType]).reshape(
+        accessor.count, WIDTH[accessor.type]
+    )
 
 
 @pytest.fixture(scope="module")
 def written(tmp_path_factory):
-    motion = MotionGenerator.load().generate("a person spins around in a circle.", seconds=3.0,
-                                             seed=0)
+    motion = MotionGenerator.load().generate(
+        "a person spins around in a circle.", seconds=3.0, seed=0
+    )
     path = tmp_path_factory.mktemp("glb") / "spin.glb"
     motion.save_glb(path)
     return motion, pygltflib.GLTF2().load(str(path))
@@ -39,10 +42,13 @@ def test_the_file_is_a_skinned_mesh_with_one_animation(written):
     assert [gltf.nodes[j].name for j in skin.joints] == list(NAMINGS["mixamo"])
     primitive = gltf.meshes[0].primitives[0]
     positions = _data(gltf, primitive.attributes.POSITION)
-    np.testing.assert_allclose(positions.min(0), gltf.accessors[
-        primitive.attributes.POSITION].min, atol=1e-6)
-    joints, weights = (_data(gltf, primitive.attributes.JOINTS_0),
-                       _data(gltf, primitive.attributes.WEIGHTS_0))
+    np.testing.assert_allclose(
+        positions.min(0), gltf.accessors[primitive.attributes.POSITION].min, atol=1e-6
+    )
+    joints, weights = (
+        _data(gltf, primitive.attributes.JOINTS_0),
+        _data(gltf, primitive.attributes.WEIGHTS_0),
+    )
     assert joints.max() < 22 and np.allclose(weights.sum(1), 1.0)
     assert _data(gltf, primitive.indices).max() < len(positions)
     assert positions[:, 1].min() > -0.06 and positions[:, 1].max() < 1.9  # stands on the floor
@@ -72,7 +78,8 @@ def test_the_animation_poses_the_joints_where_our_rig_puts_them(written):
         else:
             world_rotation[:, joint] = world_rotation[:, parent] @ local[:, joint]
             world[:, joint] = world[:, parent] + np.einsum(
-                "tij,tj->ti", world_rotation[:, parent], translation[:, joint])
+                "tij,tj->ti", world_rotation[:, parent], translation[:, joint]
+            )
     joints = motion.joints.astype(np.float64)
     np.testing.assert_allclose(world, rig.posed_joints(joints, SMPL_22), atol=1e-5)
     assert np.linalg.norm(world - joints, axis=-1).mean() < 0.02

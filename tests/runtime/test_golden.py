@@ -25,6 +25,7 @@ cases keep the bytes from before it); issue 19 re-recorded the re-anchored strea
 38 re-recorded play/walk_then_wave (play re-anchored) and continue_from/40_frames (a stream
 continued from a clip starts a fresh clip from the clip's last step).
 """
+
 import functools
 import hashlib
 import json
@@ -61,8 +62,12 @@ GENERATE = {
     "wave_2.5s_seed1": ("someone waves with the right hand.", 2.5, 1, {}),
     "jump_2s_seed3": ("a person jumps on the spot three times.", 2.0, 3, {}),
     "run_back_3s_greedy": ("a person runs backward.", 3.0, 2, dict(temperature=0.0)),
-    "squat_2.5s_top_k": ("a person squats down and stands up.", 2.5, 5,
-                         dict(temperature=0.8, top_k=40, top_p=1.0)),
+    "squat_2.5s_top_k": (
+        "a person squats down and stands up.",
+        2.5,
+        5,
+        dict(temperature=0.8, top_k=40, top_p=1.0),
+    ),
     "circle_3s_guided": ("a person walks in a circle.", 3.0, 11, dict(guidance=2.0)),
     "turn_8s_past_the_window": ("a person walks forward, then turns around.", 8.0, 4, {}),
     "wave_model_ended": ("someone waves.", None, 3, {}),
@@ -77,18 +82,19 @@ def _generate(name: str) -> Callable:
     def run(generator) -> dict[str, Case]:
         motion = generator.generate(prompt, seconds=seconds, seed=seed, **options)
         return {f"generate/{name}": _case(motion)}
+
     return run
 
 
 def _batch(generator) -> dict[str, Case]:
-    motions = generator.generate_batch(["a person walks forward.", "a person sits down."],
-                                       seconds=2.0, seed=9)
+    motions = generator.generate_batch(
+        ["a person walks forward.", "a person sits down."], seconds=2.0, seed=9
+    )
     return {f"generate/batch_{k}": _case(motion) for k, motion in enumerate(motions)}
 
 
 def _play(generator) -> dict[str, Case]:
-    played = generator.play([("a person walks forward.", 2.0), ("a person waves.", 1.5)],
-                            seed=1)
+    played = generator.play([("a person walks forward.", 2.0), ("a person waves.", 1.5)], seed=1)
     return {"play/walk_then_wave": _case(played, played.prompts)}
 
 
@@ -100,8 +106,12 @@ def _stream_switch(plant_feet: bool) -> Callable:
         stream.set_prompt("a person jumps on the spot.")
         frames += list(stream.frames(30))
         suffix = "" if plant_feet else "_feet_as_decoded"
-        return {f"stream/60_frames_switch_at_30{suffix}":
-                dict(joints=np.array(frames), tokens=None, prompts=stream.prompts)}
+        return {
+            f"stream/60_frames_switch_at_30{suffix}": dict(
+                joints=np.array(frames), tokens=None, prompts=stream.prompts
+            )
+        }
+
     return run
 
 
@@ -130,9 +140,12 @@ def _continue_from(generator) -> dict[str, Case]:
     encoded = generator.encode_motion(clip)
     stream = generator.stream("a person turns left.", seed=9)
     stream.continue_from(clip)
-    return {"continue_from/encoded_clip": dict(joints=None, tokens=encoded, prompts=None),
-            "continue_from/40_frames": dict(joints=np.array(list(stream.frames(40))),
-                                            tokens=None, prompts=None)}
+    return {
+        "continue_from/encoded_clip": dict(joints=None, tokens=encoded, prompts=None),
+        "continue_from/40_frames": dict(
+            joints=np.array(list(stream.frames(40))), tokens=None, prompts=None
+        ),
+    }
 
 
 # scenario: one run of the public API, with the cases it gives (several share their draws)
@@ -165,9 +178,12 @@ def fingerprint() -> dict:
     import onnxruntime
     from numpy._core._multiarray_umath import __cpu_features__
 
-    return {"machine": platform.machine(), "numpy": np.__version__,
-            "onnxruntime": onnxruntime.__version__,
-            "cpu_features": sorted(name for name, on in __cpu_features__.items() if on)}
+    return {
+        "machine": platform.machine(),
+        "numpy": np.__version__,
+        "onnxruntime": onnxruntime.__version__,
+        "cpu_features": sorted(name for name, on in __cpu_features__.items() if on),
+    }
 
 
 class Draws:
@@ -192,20 +208,28 @@ class Draws:
             self.drawn.extend(chosen.tolist())
             return chosen
         start = len(self.drawn)
-        want = self.recorded[start:start + len(chosen)].astype(chosen.dtype)
+        want = self.recorded[start : start + len(chosen)].astype(chosen.dtype)
         if len(want) < len(chosen):
-            self.mismatches.append(f"draw {start}: more draws than the {len(self.recorded)} "
-                                   f"recorded")
+            self.mismatches.append(
+                f"draw {start}: more draws than the {len(self.recorded)} recorded"
+            )
             want = chosen
         cond = np.asarray(cond)
         for row in np.flatnonzero(chosen != want):
-            where = (f"draw {start + row}: this machine draws {chosen[row]}, the recording "
-                     f"{want[row]}")
-            failed = (len(self.near_ties) + len(self.mismatches) >
-                      MAX_NEAR_TIE_SHARE * len(self.recorded))  # no need to look further
+            where = (
+                f"draw {start + row}: this machine draws {chosen[row]}, the recording {want[row]}"
+            )
+            failed = len(self.near_ties) + len(self.mismatches) > MAX_NEAR_TIE_SHARE * len(
+                self.recorded
+            )  # no need to look further
             tie = not failed and self.near_tie(
-                cond[row], None if uncond is None else np.asarray(uncond)[row], uniforms[row],
-                sampling, None if forbid is None else forbid[row], want[row])
+                cond[row],
+                None if uncond is None else np.asarray(uncond)[row],
+                uniforms[row],
+                sampling,
+                None if forbid is None else forbid[row],
+                want[row],
+            )
             (self.near_ties if tie else self.mismatches).append(where)
         self.drawn.extend(want.tolist())
         return want
@@ -227,31 +251,51 @@ class Draws:
             z = cond if uncond is None else uncond + sampling.guidance * (cond - uncond)
         rank = np.empty(len(z), np.int64)
         rank[np.argsort(-z, kind="stable")] = np.arange(len(z))
-        drawn = self.real(cond[None], None if uncond is None else uncond[None],
-                          np.array([uniform]), sampling, [forbid])[0]
+        drawn = self.real(
+            cond[None],
+            None if uncond is None else uncond[None],
+            np.array([uniform]),
+            sampling,
+            [forbid],
+        )[0]
         ids = np.arange(len(z))
-        shapes = [np.where(rank <= rank[token], 1.0, -1.0),  # the token's slot ends later
-                  np.where(rank < rank[token], -1.0, 1.0),  # or starts earlier
-                  *(sign * np.where(ids == one, 1.0, -1.0)  # one logit against the others
-                    for one in (token, drawn) for sign in (1, -1))]
-        moves = [size * shape for size in LOGIT_NOISE * spread * np.arange(1, 65) / 64
-                 for shape in shapes]
+        shapes = [
+            np.where(rank <= rank[token], 1.0, -1.0),  # the token's slot ends later
+            np.where(rank < rank[token], -1.0, 1.0),  # or starts earlier
+            *(
+                sign * np.where(ids == one, 1.0, -1.0)  # one logit against the others
+                for one in (token, drawn)
+                for sign in (1, -1)
+            ),
+        ]
+        moves = [
+            size * shape
+            for size in LOGIT_NOISE * spread * np.arange(1, 65) / 64
+            for shape in shapes
+        ]
         gap = z[drawn] - z[token]  # or the token just above or below this machine's token
-        moves += [np.where(ids == token, gap + side * 1e-9, 0.0) for side in (1, -1)
-                  if abs(gap) + 1e-9 <= 2 * LOGIT_NOISE * spread]
+        moves += [
+            np.where(ids == token, gap + side * 1e-9, 0.0)
+            for side in (1, -1)
+            if abs(gap) + 1e-9 <= 2 * LOGIT_NOISE * spread
+        ]
         for move in moves:
             moved = None if uncond is None else (uncond + move)[None]
-            if self.real((cond + move)[None], moved, np.array([uniform]), sampling,
-                         [forbid])[0] == token:
+            if (
+                self.real((cond + move)[None], moved, np.array([uniform]), sampling, [forbid])[0]
+                == token
+            ):
                 return True
         return False
 
 
 def run_scenario(generator, name: str, draws: Draws) -> dict[str, Case]:
     """SCENARIOS[name] with `draws` standing in for the sampler wherever the runtime calls it."""
-    modules = [module for module_name, module in sorted(sys.modules.items())
-               if module_name.startswith("mogo") and
-               getattr(module, "choose_tokens", None) is Draws.real]
+    modules = [
+        module
+        for module_name, module in sorted(sys.modules.items())
+        if module_name.startswith("mogo") and getattr(module, "choose_tokens", None) is Draws.real
+    ]
     for module in modules:
         module.choose_tokens = draws
     try:
@@ -311,12 +355,17 @@ def model_sha256() -> str:
 
 def test_the_golden_file_is_of_the_shipped_model():
     assert RECORDED.get("model_sha256") == model_sha256(), (
-        "the default bundle's model files changed: re-record golden.json (module docstring)")
+        "the default bundle's model files changed: re-record golden.json (module docstring)"
+    )
 
 
 def test_every_case_is_recorded():
-    cases = {case for scenario in SCENARIOS for case in RECORDED["cases"]
-             if RECORDED["cases"][case]["scenario"] == scenario}
+    cases = {
+        case
+        for scenario in SCENARIOS
+        for case in RECORDED["cases"]
+        if RECORDED["cases"][case]["scenario"] == scenario
+    }
     assert cases == set(RECORDED["cases"])
     assert {entry["scenario"] for entry in RECORDED["cases"].values()} == set(SCENARIOS)
 
@@ -328,18 +377,22 @@ def test_the_case_keeps_the_determinism_contract(case):
     got, arrays = cases[case], recorded_arrays()
     assert len(draws.drawn) == len(draws.recorded), (
         f"{case}: {len(draws.drawn)} draws replayed of {len(draws.recorded)} recorded (did the "
-        f"runtime stop calling mogo.sampling.choose_tokens?)")
+        f"runtime stop calling mogo.sampling.choose_tokens?)"
+    )
     assert not draws.mismatches, f"{case}: the sampler drew otherwise: {draws.mismatches[:5]}"
     assert len(draws.near_ties) <= MAX_NEAR_TIE_SHARE * len(draws.drawn), (
         f"{case}: {len(draws.near_ties)} near ties in {len(draws.drawn)} draws: "
-        f"{draws.near_ties[:5]}")
+        f"{draws.near_ties[:5]}"
+    )
     if "prompts" in want:
         assert [[int(frame), text] for frame, text in got["prompts"]] == want["prompts"]
     if "tokens" in want:
         tokens = arrays[f"tokens/{case}"]
         assert got["tokens"].shape == tokens.shape, f"{case}: tokens {got['tokens'].shape}"
         differ = np.count_nonzero(got["tokens"] != tokens)
-        allowed = ENCODED_MISMATCH_SHARE * tokens.size if case == "continue_from/encoded_clip" else 0
+        allowed = (
+            ENCODED_MISMATCH_SHARE * tokens.size if case == "continue_from/encoded_clip" else 0
+        )
         assert differ <= allowed, f"{case}: {differ} of {tokens.size} tokens differ"
     if "joints" in want:
         joints = arrays[f"joints/{case}"]
@@ -370,18 +423,36 @@ QEMU = shutil.which("qemu-x86_64")
 
 
 @pytest.mark.skipif(os.environ.get("MOGO_GOLDEN_EMULATED") == "1", reason="already emulated")
-@pytest.mark.skipif(platform.system() != "Linux" or platform.machine() != "x86_64" or not QEMU,
-                    reason="needs x86-64 Linux and qemu-user (apt-get install qemu-user)")
+@pytest.mark.skipif(
+    platform.system() != "Linux" or platform.machine() != "x86_64" or not QEMU,
+    reason="needs x86-64 Linux and qemu-user (apt-get install qemu-user)",
+)
 def test_the_contract_holds_on_sse4_kernels():
     """Another instruction set for real: one case replayed on an emulated CPU with SSE4.2 and
     no AVX (qemu's Nehalem), where onnxruntime's int8 kernels round differently (logits up to
     0.16 apart) and this machine's bytes are not to be had."""
     case = "generate/walk_2s_seed0"
     test = f"{__file__}::test_the_case_keeps_the_determinism_contract[{case}]"
-    command = [QEMU, "-cpu", "Nehalem", sys.executable, "-m", "pytest", test, "-q",
-               "-p", "no:cacheprovider"]
-    result = subprocess.run(command, capture_output=True, text=True, timeout=900,
-                            env={**os.environ, "MOGO_GOLDEN_EMULATED": "1"}, cwd=HERE.parent.parent)
+    command = [
+        QEMU,
+        "-cpu",
+        "Nehalem",
+        sys.executable,
+        "-m",
+        "pytest",
+        test,
+        "-q",
+        "-p",
+        "no:cacheprovider",
+    ]
+    result = subprocess.run(
+        command,
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env={**os.environ, "MOGO_GOLDEN_EMULATED": "1"},
+        cwd=HERE.parent.parent,
+    )
     assert result.returncode == 0 and "1 passed" in result.stdout, result.stdout[-3000:]
 
 

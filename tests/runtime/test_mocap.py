@@ -4,6 +4,7 @@ motions, written here from known skeletons and rotations, come back as the sourc
 The files are written with scipy's Euler angles and checked against forward kinematics done
 here, so a wrong Euler order, axis turn or unit in the reader shows as an error in cm.
 """
+
 import json
 import re
 
@@ -41,26 +42,33 @@ class Rig:
                 world[:, j], place[:, j] = self.rotations[:, j], self.root
             else:
                 world[:, j] = world[:, p] @ self.rotations[:, j]
-                place[:, j] = place[:, p] + np.einsum("tij,tj->ti", world[:, p],
-                                                      self.translations[:, j])
+                place[:, j] = place[:, p] + np.einsum(
+                    "tij,tj->ti", world[:, p], self.translations[:, j]
+                )
         return place
 
     def write(self, path, order="ZXY", scale=1.0, z_up=False, everywhere=False):
         """The BVH: Euler `order` (intrinsic, as BVH channels mean), lengths times `scale`,
         Z up or Y up, position channels on every joint or on the root only."""
         turn = Y_UP_TO_Z_UP if z_up else np.eye(3)
-        children = {j: [c for c, p in enumerate(self.parents) if p == j] for j in
-                    range(len(self.names))}
+        children = {
+            j: [c for c, p in enumerate(self.parents) if p == j] for j in range(len(self.names))
+        }
         lines, columns = ["HIERARCHY"], []
 
         def joint(j, depth):
             pad, moves = "  " * depth, depth == 0 or everywhere
             offset = turn @ self.offsets[j] * scale
-            lines.extend([f"{pad}{'ROOT' if depth == 0 else 'JOINT'} {self.names[j]}", pad + "{",
-                          f"{pad}  OFFSET {offset[0]:.6f} {offset[1]:.6f} {offset[2]:.6f}",
-                          f"{pad}  CHANNELS {6 if moves else 3} "
-                          + ("Xposition Yposition Zposition " if moves else "")
-                          + " ".join(f"{axis}rotation" for axis in order)])
+            lines.extend(
+                [
+                    f"{pad}{'ROOT' if depth == 0 else 'JOINT'} {self.names[j]}",
+                    pad + "{",
+                    f"{pad}  OFFSET {offset[0]:.6f} {offset[1]:.6f} {offset[2]:.6f}",
+                    f"{pad}  CHANNELS {6 if moves else 3} "
+                    + ("Xposition Yposition Zposition " if moves else "")
+                    + " ".join(f"{axis}rotation" for axis in order),
+                ]
+            )
             if moves:
                 place = self.root if depth == 0 else self.translations[:, j]
                 columns.append(place @ turn.T * scale)
@@ -69,8 +77,9 @@ class Rig:
             for child in children[j]:
                 joint(child, depth + 1)
             if not children[j]:
-                lines.extend([f"{pad}  End Site", pad + "  {", f"{pad}    OFFSET 0 0.05 0",
-                              pad + "  }"])
+                lines.extend(
+                    [f"{pad}  End Site", pad + "  {", f"{pad}    OFFSET 0 0.05 0", pad + "  }"]
+                )
             lines.append(pad + "}")
 
         joint(0, 0)
@@ -92,28 +101,51 @@ def _swing(frames, count, seed, amplitude=0.5):
 
 def _smpl_joints(names: dict[str, str]) -> list[tuple[str, str | None, tuple]]:
     """Our skeleton's rest offsets under a rig's names (ours -> theirs)."""
-    return [(names.get(n, n), names.get(SMPL_22.joint_names[p], SMPL_22.joint_names[p])
-             if p >= 0 else None, tuple(SMPL_22.rest_offsets[j]))
-            for j, (n, p) in enumerate(zip(SMPL_22.joint_names, SMPL_22.parents))]
+    return [
+        (
+            names.get(n, n),
+            names.get(SMPL_22.joint_names[p], SMPL_22.joint_names[p]) if p >= 0 else None,
+            tuple(SMPL_22.rest_offsets[j]),
+        )
+        for j, (n, p) in enumerate(zip(SMPL_22.joint_names, SMPL_22.parents, strict=True))
+    ]
 
 
-MIXAMO = {"pelvis": "mixamorig:Hips", "spine1": "mixamorig:Spine", "spine2": "mixamorig:Spine1",
-          "spine3": "mixamorig:Spine2", "neck": "mixamorig:Neck", "head": "mixamorig:Head"}
+MIXAMO = {
+    "pelvis": "mixamorig:Hips",
+    "spine1": "mixamorig:Spine",
+    "spine2": "mixamorig:Spine1",
+    "spine3": "mixamorig:Spine2",
+    "neck": "mixamorig:Neck",
+    "head": "mixamorig:Head",
+}
 for side in ("Left", "Right"):
     low = side.lower()
-    MIXAMO.update({f"{low}_collar": f"mixamorig:{side}Shoulder",
-                   f"{low}_shoulder": f"mixamorig:{side}Arm",
-                   f"{low}_elbow": f"mixamorig:{side}ForeArm",
-                   f"{low}_wrist": f"mixamorig:{side}Hand", f"{low}_hip": f"mixamorig:{side}UpLeg",
-                   f"{low}_knee": f"mixamorig:{side}Leg", f"{low}_ankle": f"mixamorig:{side}Foot",
-                   f"{low}_foot": f"mixamorig:{side}ToeBase"})
+    MIXAMO.update(
+        {
+            f"{low}_collar": f"mixamorig:{side}Shoulder",
+            f"{low}_shoulder": f"mixamorig:{side}Arm",
+            f"{low}_elbow": f"mixamorig:{side}ForeArm",
+            f"{low}_wrist": f"mixamorig:{side}Hand",
+            f"{low}_hip": f"mixamorig:{side}UpLeg",
+            f"{low}_knee": f"mixamorig:{side}Leg",
+            f"{low}_ankle": f"mixamorig:{side}Foot",
+            f"{low}_foot": f"mixamorig:{side}ToeBase",
+        }
+    )
 
 
 def _moving_rig(names, frames=30, fps=30.0, seed=0):
     joints = _smpl_joints(names)
     rotations = _swing(frames, len(joints), seed)
-    root = np.stack([np.linspace(0, 1.2, frames), 0.95 + 0.03 * np.sin(np.arange(frames)),
-                     np.linspace(0, -0.4, frames)], axis=-1)
+    root = np.stack(
+        [
+            np.linspace(0, 1.2, frames),
+            0.95 + 0.03 * np.sin(np.arange(frames)),
+            np.linspace(0, -0.4, frames),
+        ],
+        axis=-1,
+    )
     return Rig(joints, rotations, root, fps)
 
 
@@ -137,8 +169,9 @@ def test_our_own_file_with_position_channels_on_every_joint(tmp_path):
 
 
 def test_position_channels_on_every_joint_replace_the_offsets(tmp_path):
-    rig = _moving_rig({n: n.replace("left_", "L_").replace("right_", "R_").title()
-                       for n in SMPL_22.joint_names})  # SMPL-X style: L_Elbow
+    rig = _moving_rig(
+        {n: n.replace("left_", "L_").replace("right_", "R_").title() for n in SMPL_22.joint_names}
+    )  # SMPL-X style: L_Elbow
     stretch = 1 + 0.1 * np.sin(np.arange(len(rig.root)))[:, None, None]
     rig.translations = rig.offsets * stretch  # bones that stretch, as generated motion's do
     clip = read_mocap(rig.write(tmp_path / "stretchy.bvh", order="YXZ", everywhere=True))
@@ -147,17 +180,33 @@ def test_position_channels_on_every_joint_replace_the_offsets(tmp_path):
 
 # -- DeepMimic --------------------------------------------------------------------------------------
 DEEPMIMIC_BONES = {  # the humanoid3d: parent, offset (metres, facing +X, left is -Z)
-    "chest": ("root", (0, 0.236151, 0)), "neck": ("chest", (0, 0.223894, 0)),
-    "right_hip": ("root", (0, 0, 0.084887)), "right_knee": ("right_hip", (0, -0.421546, 0)),
+    "chest": ("root", (0, 0.236151, 0)),
+    "neck": ("chest", (0, 0.223894, 0)),
+    "right_hip": ("root", (0, 0, 0.084887)),
+    "right_knee": ("right_hip", (0, -0.421546, 0)),
     "right_ankle": ("right_knee", (0, -0.40987, 0)),
     "right_shoulder": ("chest", (-0.02405, 0.2435, 0.18311)),
     "right_elbow": ("right_shoulder", (0, -0.274788, 0)),
-    "left_hip": ("root", (0, 0, -0.084887)), "left_knee": ("left_hip", (0, -0.421546, 0)),
+    "left_hip": ("root", (0, 0, -0.084887)),
+    "left_knee": ("left_hip", (0, -0.421546, 0)),
     "left_ankle": ("left_knee", (0, -0.40987, 0)),
     "left_shoulder": ("chest", (-0.02405, 0.2435, -0.18311)),
-    "left_elbow": ("left_shoulder", (0, -0.274788, 0))}
-ORDER = ["chest", "neck", "right_hip", "right_knee", "right_ankle", "right_shoulder",
-         "right_elbow", "left_hip", "left_knee", "left_ankle", "left_shoulder", "left_elbow"]
+    "left_elbow": ("left_shoulder", (0, -0.274788, 0)),
+}
+ORDER = [
+    "chest",
+    "neck",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "right_shoulder",
+    "right_elbow",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "left_shoulder",
+    "left_elbow",
+]
 
 
 def _deepmimic_sample(path, frames=12, seed=1):
@@ -199,8 +248,9 @@ def test_a_deepmimic_motion_gives_its_joints(tmp_path):
     np.testing.assert_allclose(clip.joints[:, SMPL_22.index("left_wrist")], wrist, atol=1e-5)
 
 
-@pytest.mark.parametrize("scale, unit", [(1 / 0.0254, "inches"),
-                                         (0.45 / 0.0254, "CMU units (1/0.45 inch)")])
+@pytest.mark.parametrize(
+    "scale, unit", [(1 / 0.0254, "inches"), (0.45 / 0.0254, "CMU units (1/0.45 inch)")]
+)
 def test_a_cmu_style_zxy_file_of_deepmimic_motion(tmp_path, scale, unit):
     """CMU names and extra joints (zero-offset LowerBack and Neck, LHipJoint, fingers),
     Zrotation Xrotation Yrotation channels, inches or CMU's own unit, 30 fps: the DeepMimic
@@ -216,37 +266,49 @@ def test_a_cmu_style_zxy_file_of_deepmimic_motion(tmp_path, scale, unit):
 def cmu_rig(rotations: dict[str, np.ndarray], root: np.ndarray, fps: float) -> Rig:
     """DeepMimic motion (local rotation matrices by joint, root positions) on a CMU-named
     skeleton whose joints sit where the DeepMimic import puts ours."""
-    rest = {name: np.array(offset, dtype=np.float64)
-            for name, (_, offset) in DEEPMIMIC_BONES.items()}
+    rest = {
+        name: np.array(offset, dtype=np.float64) for name, (_, offset) in DEEPMIMIC_BONES.items()
+    }
     joints, moves = [("Hips", None, (0, 0, 0))], {"Hips": rotations["root"]}
     pelvis = np.array([0, 0.07, 0])  # the DeepMimic fill: the pelvis 7 cm above its root
     for side, z in (("Left", -1), ("Right", 1)):
         low = side.lower()
         collar = np.array([-0.01, 0.215, 0.075 * z])  # the DeepMimic fill, CMU's midpoint rule
         inner = 2 * collar - rest[f"{low}_shoulder"]
-        joints += [(f"{side[0]}HipJoint", "Hips", -pelvis),
-                   (f"{side}UpLeg", f"{side[0]}HipJoint", rest[f"{low}_hip"]),
-                   (f"{side}Leg", f"{side}UpLeg", rest[f"{low}_knee"]),
-                   (f"{side}Foot", f"{side}Leg", rest[f"{low}_ankle"]),
-                   (f"{side}ToeBase", f"{side}Foot", (0.12, -0.035, 0)),
-                   (f"{side}Shoulder", "Spine1", inner),
-                   (f"{side}Arm", f"{side}Shoulder", rest[f"{low}_shoulder"] - inner),
-                   (f"{side}ForeArm", f"{side}Arm", rest[f"{low}_elbow"]),
-                   (f"{side}Hand", f"{side}ForeArm", (0, -0.258947, 0)),
-                   (f"{side}HandIndex1", f"{side}Hand", (0, -0.08, 0))]
-        moves |= {f"{side}UpLeg": rotations[f"{low}_hip"], f"{side}Leg": rotations[f"{low}_knee"],
-                  f"{side}Foot": rotations[f"{low}_ankle"],
-                  f"{side}Arm": rotations[f"{low}_shoulder"],
-                  f"{side}ForeArm": rotations[f"{low}_elbow"]}
+        joints += [
+            (f"{side[0]}HipJoint", "Hips", -pelvis),
+            (f"{side}UpLeg", f"{side[0]}HipJoint", rest[f"{low}_hip"]),
+            (f"{side}Leg", f"{side}UpLeg", rest[f"{low}_knee"]),
+            (f"{side}Foot", f"{side}Leg", rest[f"{low}_ankle"]),
+            (f"{side}ToeBase", f"{side}Foot", (0.12, -0.035, 0)),
+            (f"{side}Shoulder", "Spine1", inner),
+            (f"{side}Arm", f"{side}Shoulder", rest[f"{low}_shoulder"] - inner),
+            (f"{side}ForeArm", f"{side}Arm", rest[f"{low}_elbow"]),
+            (f"{side}Hand", f"{side}ForeArm", (0, -0.258947, 0)),
+            (f"{side}HandIndex1", f"{side}Hand", (0, -0.08, 0)),
+        ]
+        moves |= {
+            f"{side}UpLeg": rotations[f"{low}_hip"],
+            f"{side}Leg": rotations[f"{low}_knee"],
+            f"{side}Foot": rotations[f"{low}_ankle"],
+            f"{side}Arm": rotations[f"{low}_shoulder"],
+            f"{side}ForeArm": rotations[f"{low}_elbow"],
+        }
     spine = (0.236151 - 0.07) / 2  # the DeepMimic fill: spine1 halfway to the chest joint
-    joints += [("LowerBack", "Hips", (0, 0, 0)), ("Spine", "LowerBack", (0, spine, 0)),
-               ("Spine1", "Spine", (0, spine, 0)), ("Neck", "Spine1", (0, 0, 0)),
-               ("Neck1", "Neck", rest["neck"]), ("Head", "Neck1", (0.02, 0.10, 0))]
+    joints += [
+        ("LowerBack", "Hips", (0, 0, 0)),
+        ("Spine", "LowerBack", (0, spine, 0)),
+        ("Spine1", "Spine", (0, spine, 0)),
+        ("Neck", "Spine1", (0, 0, 0)),
+        ("Neck1", "Neck", rest["neck"]),
+        ("Head", "Neck1", (0.02, 0.10, 0)),
+    ]
     moves |= {"Spine1": rotations["chest"], "Neck1": rotations["neck"]}
     joints = sorted(joints, key=lambda j: _depth(j, joints))  # parents first
     frames = len(root)
-    local = np.stack([moves.get(name, np.tile(np.eye(3), (frames, 1, 1)))
-                      for name, _, _ in joints], axis=1)
+    local = np.stack(
+        [moves.get(name, np.tile(np.eye(3), (frames, 1, 1))) for name, _, _ in joints], axis=1
+    )
     return Rig(joints, local, root + rotations["root"] @ pelvis, fps)
 
 
@@ -263,7 +325,9 @@ def test_a_mapping_file_maps_other_names(tmp_path):
     names = {n: f"Bip01 {n.replace('_', ' ').title()}" for n in SMPL_22.joint_names}
     rig = _moving_rig(names)
     path = rig.write(tmp_path / "biped.bvh")
-    with pytest.raises(ValueError, match=r"biped.bvh: cannot map .* lacks pelvis, left_hip, .*--map"):
+    with pytest.raises(
+        ValueError, match=r"biped.bvh: cannot map .* lacks pelvis, left_hip, .*--map"
+    ):
         read_mocap(path)
     table = dict(names, spine3=[names["spine2"], names["neck"], 0.5])
     (tmp_path / "map.json").write_text(json.dumps(table))
@@ -275,9 +339,15 @@ def test_a_mapping_file_maps_other_names(tmp_path):
     assert _error(clip, expected) < TOLERANCE
 
 
-@pytest.mark.parametrize("table, message", [
-    ("[1, 2]", "must be a JSON object"), ('{"pelvis": 3}', "pelvis: expected a joint name"),
-    ('{"hips": "Hips"}', "unknown joint.* hips"), ("{", "not valid JSON")])
+@pytest.mark.parametrize(
+    "table, message",
+    [
+        ("[1, 2]", "must be a JSON object"),
+        ('{"pelvis": 3}', "pelvis: expected a joint name"),
+        ('{"hips": "Hips"}', "unknown joint.* hips"),
+        ("{", "not valid JSON"),
+    ],
+)
 def test_a_bad_mapping_file_is_one_clear_error(tmp_path, table, message):
     (tmp_path / "map.json").write_text(table)
     with pytest.raises(ValueError, match=message):
@@ -294,18 +364,30 @@ def test_a_clip_at_another_frame_rate_is_resampled_to_20_fps(tmp_path):
     assert np.abs(resample(clip.joints, 60.0, 20.0) - every_third).max() < TOLERANCE
 
 
-@pytest.mark.parametrize("text, message", [
-    ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0", "not a readable BVH"),
-    ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Wrotation\n}\n"
-     "MOTION\nFrames: 1\nFrame Time: 0.1\n0 0 0\n", "unknown channel"),
-    ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\n"
-     "MOTION\nFrames: 2\nFrame Time: 0.1\n0 0 0\n", "3 motion values, expected 2 frames x 3"),
-    ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\n"
-     "MOTION\nFrames: 1\nFrame Time: 0.1\n0 0 0\n", "cannot map its skeleton onto the 22 joints: .* lacks"),
-    ('{"Frames": [[0.1, 1, 2]]}', "at least 2 rows of 44 numbers"),
-    ('{"Frames": [[0.1, 1, 2], "x"]}', "not a DeepMimic motion file"),
-    ("hello", "not a BVH file"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0", "not a readable BVH"),
+        (
+            "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Wrotation\n}\n"
+            "MOTION\nFrames: 1\nFrame Time: 0.1\n0 0 0\n",
+            "unknown channel",
+        ),
+        (
+            "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\n"
+            "MOTION\nFrames: 2\nFrame Time: 0.1\n0 0 0\n",
+            "3 motion values, expected 2 frames x 3",
+        ),
+        (
+            "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\n"
+            "MOTION\nFrames: 1\nFrame Time: 0.1\n0 0 0\n",
+            "cannot map its skeleton onto the 22 joints: .* lacks",
+        ),
+        ('{"Frames": [[0.1, 1, 2]]}', "at least 2 rows of 44 numbers"),
+        ('{"Frames": [[0.1, 1, 2], "x"]}', "not a DeepMimic motion file"),
+        ("hello", "not a BVH file"),
+    ],
+)
 def test_an_unreadable_or_unmappable_file_is_one_clear_error(tmp_path, text, message):
     (tmp_path / "bad.bvh").write_text(text)
     with pytest.raises(ValueError, match=message) as error:

@@ -1,6 +1,7 @@
 """Output files: a take is never overwritten silently, written whole (all four files or none,
 never a mix of two takes, no temporary left, whatever signal ends it; only regular files
 replaced), checked before generating, and every failure to write is one `mogo: error:` line."""
+
 import errno
 import json
 import math
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from helpers import travelling_clip
 from mogo import Motion, files
 from mogo.addon_zip import write_addon
 from mogo.cli import main
@@ -24,16 +26,20 @@ from mogo.motion.bvh import NAMINGS
 from mogo.motion.mocap import read_bvh
 from mogo.motion.skeleton import SMPL_22
 
-from helpers import travelling_clip
-
 TAKE = (".bvh", ".gif", ".npy", ".json")
 
 
 def motion(seed: int = 0, frames: int = 20) -> Motion:
     joints = travelling_clip(np.random.default_rng(seed), SMPL_22, frames=frames)
-    return Motion(features=np.zeros((frames, 263), np.float32), joints=joints.astype(np.float32),
-                  fps=20.0, tokens=np.zeros((frames // 4, 6), np.int64), skeleton=SMPL_22,
-                  prompts=[(0, "a person walks")], seed=seed)
+    return Motion(
+        features=np.zeros((frames, 263), np.float32),
+        joints=joints.astype(np.float32),
+        fps=20.0,
+        tokens=np.zeros((frames // 4, 6), np.int64),
+        skeleton=SMPL_22,
+        prompts=[(0, "a person walks")],
+        seed=seed,
+    )
 
 
 def contents(folder) -> dict:
@@ -121,7 +127,12 @@ def test_single_files_are_replaced_whole_and_named_as_written(tmp_path):
     with pytest.raises(IsADirectoryError):
         clip.save_gif(tmp_path / "d.gif")
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "a.bvh", "d.gif", "f.npy", "walk.v2.npy", "x.npy"]
+        "a.bvh",
+        "d.gif",
+        "f.npy",
+        "walk.v2.npy",
+        "x.npy",
+    ]
 
 
 def test_json_is_strict_and_nan_is_refused(tmp_path):
@@ -197,14 +208,20 @@ def test_ctrl_c_during_the_renames_waits_until_they_are_done(tmp_path, monkeypat
     assert sorted(contents(tmp_path)) == sorted(f"walk{suffix}" for suffix in TAKE)
 
 
-@pytest.mark.parametrize("name, message", [
-    ("../../x", "--name must be a file name, without a folder"),
-    (".", "--name must be a file name"), ("..", "--name must be a file name"),
-    ("", "--name must be a file name"), ("a/b", "--name must be a file name"),
-    ("x" * 300, "--name is too long: 300 bytes, at most"),
-])
-def test_bad_names_and_folders_are_refused_before_generating(tmp_path, monkeypatch, capsys,
-                                                             name, message):
+@pytest.mark.parametrize(
+    "name, message",
+    [
+        ("../../x", "--name must be a file name, without a folder"),
+        (".", "--name must be a file name"),
+        ("..", "--name must be a file name"),
+        ("", "--name must be a file name"),
+        ("a/b", "--name must be a file name"),
+        ("x" * 300, "--name is too long: 300 bytes, at most"),
+    ],
+)
+def test_bad_names_and_folders_are_refused_before_generating(
+    tmp_path, monkeypatch, capsys, name, message
+):
     monkeypatch.setattr("mogo.cli._load_generator", lambda args: pytest.fail("generated"))
     out = tmp_path / "deep" / "out"
     assert main(["generate", "a person walks.", "--out", str(out), "--name", name]) == 2
@@ -214,16 +231,20 @@ def test_bad_names_and_folders_are_refused_before_generating(tmp_path, monkeypat
 
 
 def test_an_output_folder_that_is_a_file_or_blocked_fails_before_generating(
-        tmp_path, monkeypatch, capsys):
+    tmp_path, monkeypatch, capsys
+):
     monkeypatch.setattr("mogo.cli._load_generator", lambda args: pytest.fail("generated"))
     (tmp_path / "file").write_text("x")
     assert main(["generate", "a person walks.", "--out", str(tmp_path / "file")]) == 2
     assert capsys.readouterr().err == f"mogo: error: {tmp_path / 'file'}: not a folder\n"
     (tmp_path / "x.gif").mkdir()
-    assert main(["generate", "a person walks.", "--out", str(tmp_path), "--name", "x",
-                 "--overwrite"]) == 2
-    assert capsys.readouterr().err == (f"mogo: error: {tmp_path / 'x.gif'}: a folder is in the "
-                                       "way of this file\n")
+    assert (
+        main(["generate", "a person walks.", "--out", str(tmp_path), "--name", "x", "--overwrite"])
+        == 2
+    )
+    assert capsys.readouterr().err == (
+        f"mogo: error: {tmp_path / 'x.gif'}: a folder is in the way of this file\n"
+    )
 
 
 def test_generating_twice_keeps_both_takes_and_says_so(tmp_path, capsys):
@@ -233,8 +254,10 @@ def test_generating_twice_keeps_both_takes_and_says_so(tmp_path, capsys):
     capsys.readouterr()
     assert main(args) == 0
     printed = capsys.readouterr().out
-    assert (f"note: {tmp_path / 'a_person_walks'}.* is an earlier take, kept; this one is "
-            "a_person_walks-2 (--overwrite replaces)") in printed
+    assert (
+        f"note: {tmp_path / 'a_person_walks'}.* is an earlier take, kept; this one is "
+        "a_person_walks-2 (--overwrite replaces)"
+    ) in printed
     assert f"wrote {tmp_path / 'a_person_walks-2.gif'}" in printed
     assert {k: v for k, v in contents(tmp_path).items() if k in before} == before
     assert len(contents(tmp_path)) == 8
@@ -245,15 +268,20 @@ def test_an_os_error_while_writing_is_one_line_naming_the_file(tmp_path, monkeyp
         raise PermissionError(errno.EACCES, "Permission denied", str(path))
 
     monkeypatch.setattr(Motion, "_write_json", denied)
-    assert main(["generate", "a person walks.", "--seconds", "1", "--out", str(tmp_path),
-                 "--name", "w"]) == 2
+    assert (
+        main(
+            ["generate", "a person walks.", "--seconds", "1", "--out", str(tmp_path), "--name", "w"]
+        )
+        == 2
+    )
     assert capsys.readouterr().err == f"mogo: error: {tmp_path / 'w.json'}: Permission denied\n"
     assert list(tmp_path.iterdir()) == []
 
 
 def run_mogo(*args, stdout=subprocess.PIPE, close_stdout=False):
-    process = subprocess.Popen([sys.executable, "-m", "mogo", *args], stdout=stdout,
-                               stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "mogo", *args], stdout=stdout, stderr=subprocess.PIPE, text=True
+    )
     if close_stdout:  # `mogo ... | true`: the reader is gone before anything is written
         process.stdout.close()
     _, error = process.communicate(timeout=120)
@@ -265,25 +293,43 @@ def test_a_closed_or_full_standard_output_is_one_line(tmp_path):
     written is a note naming the files, status 0 (it was exit 2 and an error after the work);
     `mogo stream`'s product is its standard output: an error, or a normal end for a reader
     that stopped."""
-    written = ", ".join(str(tmp_path / f"a_person_walks{suffix}") for suffix in
-                        (".bvh", ".gif", ".npy", ".json"))
-    code, error = run_mogo("generate", "a person walks.", "--seconds", "1", "--out", str(tmp_path),
-                           close_stdout=True)
-    assert (code, error) == (0, "note: cannot write to standard output (Broken pipe); the take "
-                                f"was written: {written}\n")
+    written = ", ".join(
+        str(tmp_path / f"a_person_walks{suffix}") for suffix in (".bvh", ".gif", ".npy", ".json")
+    )
+    code, error = run_mogo(
+        "generate", "a person walks.", "--seconds", "1", "--out", str(tmp_path), close_stdout=True
+    )
+    assert (code, error) == (
+        0,
+        f"note: cannot write to standard output (Broken pipe); the take was written: {written}\n",
+    )
     with open("/dev/full", "w") as full:
-        code, error = run_mogo("generate", "a person walks.", "--seconds", "1", "--out",
-                               str(tmp_path), "--name", "again", stdout=full)
-    assert code == 0 and error.startswith("note: cannot write to standard output (No space "
-                                          "left on device); the take was written: ")
+        code, error = run_mogo(
+            "generate",
+            "a person walks.",
+            "--seconds",
+            "1",
+            "--out",
+            str(tmp_path),
+            "--name",
+            "again",
+            stdout=full,
+        )
+    assert code == 0 and error.startswith(
+        "note: cannot write to standard output (No space left on device); the take was written: "
+    )
     assert len(list(tmp_path.iterdir())) == 8
     with open("/dev/full", "w") as full:
-        code, error = run_mogo("stream", "a person walks.", "--frames", "500", "--seed", "0",
-                               stdout=full)
-    assert (code, error) == (2, "mogo: error: cannot write to standard output: No space left "
-                                "on device\n")
-    code, error = run_mogo("stream", "a person walks.", "--seed", "0",
-                           close_stdout=True)  # `mogo stream | head`
+        code, error = run_mogo(
+            "stream", "a person walks.", "--frames", "500", "--seed", "0", stdout=full
+        )
+    assert (code, error) == (
+        2,
+        "mogo: error: cannot write to standard output: No space left on device\n",
+    )
+    code, error = run_mogo(
+        "stream", "a person walks.", "--seed", "0", close_stdout=True
+    )  # `mogo stream | head`
     assert (code, error) == (0, "")
 
 
@@ -296,10 +342,25 @@ def small_file_limit():
 def test_a_real_write_failure_is_one_line_and_changes_nothing(tmp_path):
     motion(0).save_take(tmp_path, "walk")
     before = contents(tmp_path)
-    done = subprocess.run([sys.executable, "-m", "mogo", "generate", "a person walks.",
-                           "--seconds", "2", "--out", str(tmp_path), "--name", "walk",
-                           "--overwrite"],
-                          capture_output=True, text=True, preexec_fn=small_file_limit)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mogo",
+            "generate",
+            "a person walks.",
+            "--seconds",
+            "2",
+            "--out",
+            str(tmp_path),
+            "--name",
+            "walk",
+            "--overwrite",
+        ],
+        capture_output=True,
+        text=True,
+        preexec_fn=small_file_limit,
+    )
     assert done.returncode == 2  # the .bvh fits, the .gif does not
     assert done.stderr == f"mogo: error: {tmp_path / 'walk.gif'}: File too large\n"
     assert contents(tmp_path) == before
@@ -340,10 +401,25 @@ def test_ctrl_c_at_any_moment_leaves_a_whole_take_or_none(tmp_path, overwrite):
     before = contents(out)
     for moment in ("generate", "_write_bvh", "_write_gif", "_write_json"):
         process = subprocess.Popen(
-            [sys.executable, str(script), "generate", "a person walks.", "--seconds", "1",
-             "--seed", "1", "--out", str(out), "--name", "walk",
-             *(["--overwrite"] if overwrite else [])],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            [
+                sys.executable,
+                str(script),
+                "generate",
+                "a person walks.",
+                "--seconds",
+                "1",
+                "--seed",
+                "1",
+                "--out",
+                str(out),
+                "--name",
+                "walk",
+                *(["--overwrite"] if overwrite else []),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         while process.stderr.readline().strip() != moment:
             assert process.poll() is None, f"ended before {moment}"
         process.send_signal(signal.SIGINT)
@@ -360,6 +436,7 @@ def test_ctrl_c_at_any_moment_leaves_a_whole_take_or_none(tmp_path, overwrite):
 
 
 # -- issue 39: only regular files replaced; SIGTERM and SIGHUP; two writers at once ----------
+
 
 def special_nodes(folder):
     """A FIFO, a symbolic link, a socket and (as root) a copy of /dev/null's device node, each
@@ -385,11 +462,17 @@ def test_a_device_fifo_socket_or_link_is_refused_never_replaced(tmp_path):
     nodes = special_nodes(tmp_path)
     before = kinds(tmp_path)
     clip = motion(0)
-    save = {".gif": clip.save_gif, ".json": clip.save_json, ".npy": clip.save_npy,
-            ".bvh": clip.save_bvh}
+    save = {
+        ".gif": clip.save_gif,
+        ".json": clip.save_json,
+        ".npy": clip.save_npy,
+        ".bvh": clip.save_bvh,
+    }
     for name, kind in nodes.items():
-        with pytest.raises(FileExistsError, match=f"{kind} is in the way of this file; only "
-                                                  "regular files are replaced"):
+        with pytest.raises(
+            FileExistsError,
+            match=f"{kind} is in the way of this file; only regular files are replaced",
+        ):
             save[os.path.splitext(name)[1]](tmp_path / name)
     assert kinds(tmp_path) == before and (tmp_path / "target.json").read_text() == "kept"
     stem = "fifo"  # a take with a FIFO as its .gif: refused with overwrite, numbered without
@@ -402,11 +485,16 @@ def test_a_device_fifo_socket_or_link_is_refused_never_replaced(tmp_path):
 def test_the_commands_refuse_a_special_file_before_the_work(tmp_path, capsys, monkeypatch):
     special_nodes(tmp_path)
     monkeypatch.setattr("mogo.cli._load_generator", lambda args: pytest.fail("generated"))
-    assert main(["generate", "a person walks.", "--out", str(tmp_path), "--name", "fifo",
-                 "--overwrite"]) == 2
+    assert (
+        main(
+            ["generate", "a person walks.", "--out", str(tmp_path), "--name", "fifo", "--overwrite"]
+        )
+        == 2
+    )
     assert capsys.readouterr().err == (
         f"mogo: error: {tmp_path / 'fifo.gif'}: a FIFO is in the way of this file; only "
-        "regular files are replaced\n")
+        "regular files are replaced\n"
+    )
     os.symlink(tmp_path / "target.json", tmp_path / "addon.zip")
     assert main(["blender-addon", "--out", str(tmp_path / "addon.zip"), "--overwrite"]) == 2
     assert "a symbolic link is in the way" in capsys.readouterr().err
@@ -436,10 +524,22 @@ SLOW_RENAMES = textwrap.dedent("""
 def run_slowly(tmp_path, pause, *args, **options):
     script = tmp_path / "slow_renames.py"
     script.write_text(SLOW_RENAMES)
-    return subprocess.Popen([sys.executable, str(script), str(pause), "generate",
-                             "a person walks.", "--seconds", "1", *args],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            **options)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            str(script),
+            str(pause),
+            "generate",
+            "a person walks.",
+            "--seconds",
+            "1",
+            *args,
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        **options,
+    )
 
 
 @pytest.mark.parametrize("number", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
@@ -448,8 +548,9 @@ def test_a_signal_during_the_renames_waits_for_the_whole_take(tmp_path, number):
     whole, nothing hidden is left, and the command ends by the signal (status 128 + it)."""
     out = tmp_path / "out"
     motion(7).save_take(out, "walk")
-    process = run_slowly(tmp_path, 0.3, "--seed", "1", "--out", str(out), "--name", "walk",
-                         "--overwrite")
+    process = run_slowly(
+        tmp_path, 0.3, "--seed", "1", "--out", str(out), "--name", "walk", "--overwrite"
+    )
     while process.stderr.readline().strip() != "rename":
         assert process.poll() is None, "ended before the renames"
     process.send_signal(number)
@@ -467,9 +568,23 @@ def test_sigterm_and_sighup_while_writing_leave_no_temporary(tmp_path, number):
     motion(7).save_take(out, "walk")
     before = contents(out)
     process = subprocess.Popen(
-        [sys.executable, str(script), "generate", "a person walks.", "--seconds", "1", "--out",
-         str(out), "--name", "walk", "--overwrite"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            str(script),
+            "generate",
+            "a person walks.",
+            "--seconds",
+            "1",
+            "--out",
+            str(out),
+            "--name",
+            "walk",
+            "--overwrite",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     while process.stderr.readline().strip() != "_write_gif":
         assert process.poll() is None, "ended before writing"
     process.send_signal(number)
@@ -481,8 +596,12 @@ def test_sigterm_and_sighup_while_writing_leave_no_temporary(tmp_path, number):
 def test_two_overwriting_writers_at_once_leave_one_whole_take(tmp_path):
     out = tmp_path / "out"
     motion(7).save_take(out, "walk")
-    writers = [run_slowly(tmp_path, 0.2, "--seed", str(seed), "--out", str(out), "--name",
-                          "walk", "--overwrite") for seed in (1, 2)]
+    writers = [
+        run_slowly(
+            tmp_path, 0.2, "--seed", str(seed), "--out", str(out), "--name", "walk", "--overwrite"
+        )
+        for seed in (1, 2)
+    ]
     for process in writers:
         _, error = process.communicate(timeout=120)
         assert process.returncode == 0, error
@@ -507,26 +626,38 @@ def test_odd_output_folders_are_refused_before_generating(tmp_path, monkeypatch,
     os.symlink(tmp_path / "missing" / "x", tmp_path / "nowhere")
     nowhere = "a symbolic link that leads nowhere (a loop or a missing target)"
     for out, message in (
-            (tmp_path / "loop", f"{tmp_path / 'loop'}: {nowhere}"),
-            (tmp_path / "loop" / "sub", f"{tmp_path / 'loop'}: {nowhere} (so "
-                                        f"{tmp_path / 'loop' / 'sub'} cannot be made in it)"),
-            (tmp_path / "nowhere", f"{tmp_path / 'nowhere'}: {nowhere}"),
-            (tmp_path / "a" / ("y" * 300) / "b", f"{tmp_path / 'a' / ('y' * 300) / 'b'}: a "
-                                                  "folder name longer than 255 bytes")):
+        (tmp_path / "loop", f"{tmp_path / 'loop'}: {nowhere}"),
+        (
+            tmp_path / "loop" / "sub",
+            f"{tmp_path / 'loop'}: {nowhere} (so {tmp_path / 'loop' / 'sub'} cannot be made in it)",
+        ),
+        (tmp_path / "nowhere", f"{tmp_path / 'nowhere'}: {nowhere}"),
+        (
+            tmp_path / "a" / ("y" * 300) / "b",
+            f"{tmp_path / 'a' / ('y' * 300) / 'b'}: a folder name longer than 255 bytes",
+        ),
+    ):
         assert main(["generate", "a person walks.", "--out", str(out)]) == 2
         assert capsys.readouterr().err == f"mogo: error: {message}\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["loop", "nowhere"]
 
 
-@pytest.mark.parametrize("options, error, message", [
-    (dict(naming=["mixamo"]), ValueError, r"naming must be one of mixamo, smpl, got \['mixamo'\]"),
-    (dict(scale=[1, 2]), TypeError, "scale must be a number, got list"),
-    (dict(scale=np.array([1.0, 2.0])), TypeError, "scale must be a number, got ndarray"),
-    (dict(scale=math.nan), ValueError, "scale must be a positive number up to 10000, got nan"),
-    (dict(scale=1e308), ValueError, "scale must be a positive number up to 10000"),
-    (dict(bone_translations=[1]), TypeError, "bone_translations must be True or False"),
-    (dict(overwrite="no"), TypeError, "overwrite must be True or False, got str"),
-])
+@pytest.mark.parametrize(
+    "options, error, message",
+    [
+        (
+            dict(naming=["mixamo"]),
+            ValueError,
+            r"naming must be one of mixamo, smpl, got \['mixamo'\]",
+        ),
+        (dict(scale=[1, 2]), TypeError, "scale must be a number, got list"),
+        (dict(scale=np.array([1.0, 2.0])), TypeError, "scale must be a number, got ndarray"),
+        (dict(scale=math.nan), ValueError, "scale must be a positive number up to 10000, got nan"),
+        (dict(scale=1e308), ValueError, "scale must be a positive number up to 10000"),
+        (dict(bone_translations=[1]), TypeError, "bone_translations must be True or False"),
+        (dict(overwrite="no"), TypeError, "overwrite must be True or False, got str"),
+    ],
+)
 def test_a_takes_options_are_checked_before_any_file(tmp_path, options, error, message):
     """Old: "unhashable type: 'list'", numpy's "truth value of an array ... is ambiguous", a
     BVH of NaN offsets, and overwrite="no" taken for True (replacing the earlier take)."""

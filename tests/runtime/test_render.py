@@ -4,11 +4,10 @@ import numpy as np
 import pytest
 from PIL import Image, ImageFont
 
+from helpers import travelling_clip
 from mogo.cli import main
 from mogo.motion.render import _wrap, iter_frames, render_frames, save_gif, write_gif
 from mogo.motion.skeleton import KIT_21, SMPL_22
-
-from helpers import travelling_clip
 
 
 @pytest.mark.parametrize("skeleton", [SMPL_22, KIT_21])
@@ -62,12 +61,14 @@ def test_the_streamed_gif_holds_every_frame_and_only_a_few_at_a_time(tmp_path):
         assert gif.n_frames == 300 and gif.info["loop"] == 0 and gif.info["duration"] == 50
         for t in (0, 1, 150, 299):
             gif.seek(t)
-            assert np.array_equal(np.asarray(gif.convert("RGB")),
-                                  np.asarray(drawn[t].convert("RGB")))
+            assert np.array_equal(
+                np.asarray(gif.convert("RGB")), np.asarray(drawn[t].convert("RGB"))
+            )
 
 
-@pytest.mark.parametrize("caption, cut", [("walk " * 4000, True), ("w" * 20000, True),
-                                          (" \n" * 10000 + "jump", False)])
+@pytest.mark.parametrize(
+    "caption, cut", [("walk " * 4000, True), ("w" * 20000, True), (" \n" * 10000 + "jump", False)]
+)
 def test_a_caption_of_any_length_wraps_into_three_lines_that_fit(caption, cut):
     font = ImageFont.load_default(size=13)
     lines = _wrap(caption, font, 304, max_lines=3)

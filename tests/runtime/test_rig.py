@@ -1,5 +1,6 @@
 """The rig's rotations: the same pose gives the same local rotations whichever way the body
 faces, twist follows the body (no flips), and the leaves (head, hands, toes) are derived."""
+
 import numpy as np
 
 from mogo import MotionGenerator
@@ -14,8 +15,11 @@ def _local(joints: np.ndarray) -> np.ndarray:
 
 
 def _walk() -> np.ndarray:
-    return MotionGenerator.load().generate("a person walks forward and waves.", seconds=3.0,
-                                           seed=0).joints.astype(np.float64)
+    return (
+        MotionGenerator.load()
+        .generate("a person walks forward and waves.", seconds=3.0, seed=0)
+        .joints.astype(np.float64)
+    )
 
 
 def test_local_rotations_do_not_depend_on_the_facing():
@@ -41,7 +45,8 @@ def test_forward_kinematics_keeps_the_rig_rigid():
     offsets = rig.rest_offsets(SMPL_22)
     posed = rig.posed_joints(joints, SMPL_22)
     bones = np.linalg.norm(posed[:, 1:] - posed[:, SMPL_22.parents[1:]], axis=-1)
-    np.testing.assert_allclose(bones, np.broadcast_to(np.linalg.norm(offsets[1:], axis=-1),
-                                                      bones.shape), atol=1e-9)
+    np.testing.assert_allclose(
+        bones, np.broadcast_to(np.linalg.norm(offsets[1:], axis=-1), bones.shape), atol=1e-9
+    )
     error = np.linalg.norm(posed - joints, axis=-1)
     assert error.mean() < 0.02 and error.max() < 0.15  # docs/bvh.md states the figures

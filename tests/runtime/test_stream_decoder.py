@@ -2,6 +2,7 @@
 same tokens, whatever the burst size, the push sizes and the length (around the lookahead and
 the whole receptive field); the first frame comes as soon as its right context exists; the
 buffer stays bounded; and the receptive field the manifest states is the decoder's own."""
+
 import json
 from types import SimpleNamespace
 
@@ -32,9 +33,15 @@ def shipped(generator) -> StreamingDecoder:
 
 
 def decoder(shipped, every=1) -> StreamingDecoder:
-    return StreamingDecoder(shipped.session, left_context=LEFT, lookahead=LOOKAHEAD,
-                            codebook_size=shipped.codebook_size, ids_name=shipped.ids_name,
-                            features_name=shipped.features_name, every=every)
+    return StreamingDecoder(
+        shipped.session,
+        left_context=LEFT,
+        lookahead=LOOKAHEAD,
+        codebook_size=shipped.codebook_size,
+        ids_name=shipped.ids_name,
+        features_name=shipped.features_name,
+        every=every,
+    )
 
 
 def random_ids(shipped, n: int, seed: int = 0) -> np.ndarray:
@@ -43,11 +50,18 @@ def random_ids(shipped, n: int, seed: int = 0) -> np.ndarray:
 
 def streamed(d: StreamingDecoder, ids: np.ndarray, chunk: int) -> list[np.ndarray]:
     """The frames each push returned, then the flush's."""
-    return [d.push(ids[i:i + chunk]) for i in range(0, len(ids), chunk)] + [d.flush()]
+    return [d.push(ids[i : i + chunk]) for i in range(0, len(ids), chunk)] + [d.flush()]
 
 
-LENGTHS = [1, LOOKAHEAD, LOOKAHEAD + 1, LOOKAHEAD + 2, LEFT + LOOKAHEAD + 1,
-           LEFT + LOOKAHEAD + 2, 2 * (LEFT + LOOKAHEAD) + 7]
+LENGTHS = [
+    1,
+    LOOKAHEAD,
+    LOOKAHEAD + 1,
+    LOOKAHEAD + 2,
+    LEFT + LOOKAHEAD + 1,
+    LEFT + LOOKAHEAD + 2,
+    2 * (LEFT + LOOKAHEAD) + 7,
+]
 
 
 @pytest.mark.parametrize("every", [1, 3, 8])
@@ -58,24 +72,25 @@ def test_streamed_frames_are_the_offline_decode(generator, shipped, every, chunk
     d = decoder(shipped, every)
     offline = d.decode_offline(ids)
     frames = np.concatenate(streamed(d, ids, chunk))
-    assert frames.shape == offline.shape == (length * generator.down_factor,
-                                             shipped.feature_dim)
+    assert frames.shape == offline.shape == (length * generator.down_factor, shipped.feature_dim)
     np.testing.assert_allclose(frames, offline, atol=1e-5, rtol=0)
 
 
 @pytest.mark.parametrize("every,chunk", [(1, 1), (8, 5)])
-@pytest.mark.parametrize("length,context", [(LOOKAHEAD + 2, LOOKAHEAD), (70, LOOKAHEAD),
-                                            (70, 4), (5, LOOKAHEAD + 9)])
+@pytest.mark.parametrize(
+    "length,context", [(LOOKAHEAD + 2, LOOKAHEAD), (70, LOOKAHEAD), (70, 4), (5, LOOKAHEAD + 9)]
+)
 def test_a_flush_with_context_gives_the_offline_decode_of_stream_and_context_cut(
-        shipped, every, chunk, length, context):
+    shipped, every, chunk, length, context
+):
     """A cut stream: its last frames see the tokens after the cut, not the end padding."""
     ids = random_ids(shipped, length + context, seed=length)
     d = decoder(shipped, every)
     head = ids[:length]
-    pushed = [d.push(head[i:i + chunk]) for i in range(0, length, chunk)]
+    pushed = [d.push(head[i : i + chunk]) for i in range(0, length, chunk)]
     frames = np.concatenate(pushed + [d.flush(ids[length:])])
     offline = d.decode_offline(ids)
-    offline = offline[:length * len(offline) // len(ids)]  # the frames of the first `length`
+    offline = offline[: length * len(offline) // len(ids)]  # the frames of the first `length`
     assert frames.shape == offline.shape
     np.testing.assert_allclose(frames, offline, atol=1e-5, rtol=0)
     assert d.pushed == d.emitted == d.buffered_tokens == 0
@@ -85,11 +100,11 @@ def test_a_flush_with_context_gives_the_offline_decode_of_stream_and_context_cut
 def test_the_first_frame_comes_once_its_lookahead_is_pushed_then_bursts_of_every(shipped, every):
     d = decoder(shipped, every)
     ids = random_ids(shipped, LOOKAHEAD + 1 + 3 * every)
-    counts = [len(d.push(ids[i:i + 1])) for i in range(len(ids))]
+    counts = [len(d.push(ids[i : i + 1])) for i in range(len(ids))]
     assert counts[:LOOKAHEAD] == [0] * LOOKAHEAD  # waiting for the first frame's right context
     assert counts[LOOKAHEAD] == 1  # token 0 has its lookahead: its frame at once
     burst = [0] * (every - 1) + [every]
-    assert counts[LOOKAHEAD + 1:] == burst * 3
+    assert counts[LOOKAHEAD + 1 :] == burst * 3
     assert d.emitted == 1 + 3 * every and d.pushed == len(ids)
 
 
@@ -108,7 +123,7 @@ def test_the_buffer_stays_bounded(shipped, every, chunk):
     ids = random_ids(shipped, 160)
     bound = LEFT + LOOKAHEAD + every - 1
     for i in range(0, len(ids), chunk):
-        d.push(ids[i:i + chunk])
+        d.push(ids[i : i + chunk])
         assert d.buffered_tokens <= bound
     assert d.buffered_tokens >= LEFT + LOOKAHEAD  # ... and no less than the receptive field
 
@@ -135,7 +150,7 @@ def test_push_many_gives_each_decoder_the_frames_of_its_own_push(shipped):
         live = [k for k, start in enumerate(starts) if start <= step]
         rows = [ids[k][step - starts[k]][None] for k in live]
         got = push_many([together[k] for k in live], rows)
-        for k, row, frames in zip(live, rows, got):
+        for k, row, frames in zip(live, rows, got, strict=True):
             expected = alone[k].push(row)
             np.testing.assert_allclose(frames, expected, rtol=0, atol=1e-6)
             made += len(frames)
@@ -160,7 +175,7 @@ def test_the_stated_receptive_field_holds(shipped):
         changed = ids.copy()
         changed[j] = (changed[j] + 1) % shipped.codebook_size
         moved = np.abs(d.decode_offline(changed) - base).max(axis=1)
-        assert moved[:j - LOOKAHEAD].max() < 1e-6 and moved[j + LEFT + 1:].max() < 1e-6
+        assert moved[: j - LOOKAHEAD].max() < 1e-6 and moved[j + LEFT + 1 :].max() < 1e-6
         assert moved[j] > 1e-3
 
 
@@ -171,14 +186,16 @@ def test_empty_input_and_bad_ids(shipped):
     assert d.flush().shape == (0, shipped.feature_dim)
     with pytest.raises(ValueError, match="must lie in"):
         d.flush(np.full((2, levels), codes))
-    for ids, message in [(np.full((2, levels), codes), "must lie in"),
-                         (np.full((2, levels), codes + 7), "must lie in"),
-                         (np.full((2, levels), -1), "must lie in"),
-                         (np.zeros((2, levels), np.float32), "must be integers"),
-                         (np.zeros((2, levels + 1), np.int64), r"must be \(n, %d\)" % levels),
-                         (np.zeros((2, levels - 1), np.int64), r"must be \(n, %d\)" % levels),
-                         (np.zeros(levels, np.int64), "must be"),
-                         (np.zeros((2, levels, 1), np.int64), r"must be \(n, %d\)" % levels)]:
+    for ids, message in [
+        (np.full((2, levels), codes), "must lie in"),
+        (np.full((2, levels), codes + 7), "must lie in"),
+        (np.full((2, levels), -1), "must lie in"),
+        (np.zeros((2, levels), np.float32), "must be integers"),
+        (np.zeros((2, levels + 1), np.int64), rf"must be \(n, {levels}\)"),
+        (np.zeros((2, levels - 1), np.int64), rf"must be \(n, {levels}\)"),
+        (np.zeros(levels, np.int64), "must be"),
+        (np.zeros((2, levels, 1), np.int64), rf"must be \(n, {levels}\)"),
+    ]:
         with pytest.raises(ValueError, match=message):
             d.push(ids)
     with pytest.raises(ValueError, match="every must be >= 1"):
@@ -207,9 +224,9 @@ class WindowDecoder(ort.InferenceSession):
     def run(self, names, feeds):
         ids = feeds["ids"][0] + 1.0  # + 1: token 0 differs from the padding
         padded = np.pad(ids, ((self.left, self.lookahead), (0, 0)))
-        windows = np.stack([padded[t:t + len(self.weights)] for t in range(len(ids))])
+        windows = np.stack([padded[t : t + len(self.weights)] for t in range(len(ids))])
         frames = np.einsum("twl,wlf->tf", windows, self.weights).reshape(-1, 3)
-        return [np.concatenate([frames, frames[:self.extra]])[None].astype(np.float32)]
+        return [np.concatenate([frames, frames[: self.extra]])[None].astype(np.float32)]
 
 
 @pytest.mark.parametrize("factor", [2, 4])
@@ -222,10 +239,10 @@ def test_several_frames_per_token_stream_as_they_decode_offline(factor, every, c
     offline = d.decode_offline(ids)
     assert offline.shape == (length * factor, 3)
     np.testing.assert_allclose(np.concatenate(streamed(d, ids, chunk)), offline, rtol=1e-6)
-    head = ids[:length - 2]
-    pushed = [d.push(head[i:i + chunk]) for i in range(0, len(head), chunk)]
-    cut = np.concatenate(pushed + [d.flush(ids[length - 2:])])
-    np.testing.assert_allclose(cut, offline[:(length - 2) * factor], rtol=1e-6)
+    head = ids[: length - 2]
+    pushed = [d.push(head[i : i + chunk]) for i in range(0, len(head), chunk)]
+    cut = np.concatenate(pushed + [d.flush(ids[length - 2 :])])
+    np.testing.assert_allclose(cut, offline[: (length - 2) * factor], rtol=1e-6)
 
 
 def test_a_decoder_making_no_whole_number_of_frames_per_token_is_refused():
@@ -238,7 +255,7 @@ def test_the_smallest_valid_decoder_is_accepted():
     """No left context, no lookahead (each token alone), one code: all valid; less is not."""
     d = StreamingDecoder(WindowDecoder(0, 0, 1), 0, 0, 1)
     ids = np.zeros((4, 2), np.int64)
-    assert [len(d.push(ids[i:i + 1])) for i in range(4)] == [1, 1, 1, 1]
+    assert [len(d.push(ids[i : i + 1])) for i in range(4)] == [1, 1, 1, 1]
     assert d.buffered_tokens == 0
     with pytest.raises(ValueError, match="must lie in \\[0, 1\\)"):
         d.push(np.ones((1, 2), np.int64))

@@ -1,11 +1,13 @@
 """Every way of making motion is the one re-anchored stream: generate past a clip's length,
 play; and the stream's corners they rely on: the shipped re-anchoring, the one-off cap when
 the model never ends a clip, continue_from on a re-anchored stream, frames read in part."""
+
 import warnings
 from dataclasses import replace
 
 import numpy as np
 import pytest
+
 from mogo import Anchoring, MotionGenerator
 from mogo.arguments import CutWarning
 from mogo.generator import EMBEDDINGS_KEPT
@@ -20,9 +22,14 @@ def generator():
 def test_streams_re_anchor_with_the_shipped_defaults(generator):
     """The figures docs/long_streams.md measured: a change here is a change of behaviour."""
     shipped = Anchoring()
-    assert (shipped.span, shipped.keep, shipped.switch_keep, shipped.still_keep,
-            shipped.max_one_off, shipped.hold_prompt) == (80, 10, 1, 5, 196,
-                                                          "a person stands still.")
+    assert (
+        shipped.span,
+        shipped.keep,
+        shipped.switch_keep,
+        shipped.still_keep,
+        shipped.max_one_off,
+        shipped.hold_prompt,
+    ) == (80, 10, 1, 5, 196, "a person stands still.")
     assert shipped.max_one_off == round(generator.defaults.max_seconds * generator.fps)
     assert generator.stream("a person walks forward.", seed=0).anchor.anchoring == shipped
 
@@ -38,8 +45,7 @@ def test_a_one_off_the_model_never_ends_holds_at_max_one_off(generator):
     assert stream.anchor.holding and stream.anchor.fresh == 1 and stream.tokens.steps == 0
 
 
-def test_continue_from_on_a_re_anchored_stream_starts_a_fresh_clip_from_the_clips_end(
-        generator):
+def test_continue_from_on_a_re_anchored_stream_starts_a_fresh_clip_from_the_clips_end(generator):
     """As at a switch: the model sees the clip's last switch_keep steps, the anchor keeps its
     last `keep` for the next re-anchor, the decoder the whole clip (its left context)."""
     clip = generator.generate("a person walks forward.", seconds=5, seed=4)
@@ -47,13 +53,14 @@ def test_continue_from_on_a_re_anchored_stream_starts_a_fresh_clip_from_the_clip
     stream = generator.stream("a person jogs forward.", seed=9)
     stream.continue_from(clip)
     tokens = generator.encode_motion(clip)  # the clip's features encoded again
-    assert np.array_equal(stream.anchor.recent, tokens[-shipped.keep:])
+    assert np.array_equal(stream.anchor.recent, tokens[-shipped.keep :])
     assert stream.tokens.steps == shipped.switch_keep and stream.anchor.anchors == 1
     assert np.array_equal(stream.tokens.last, tokens[-1])
     assert stream.decoder.pushed == len(tokens)
     row = stream._next_tokens()
-    assert np.array_equal(stream.anchor.recent,
-                          np.concatenate([tokens[1 - shipped.keep:], row[None]]))
+    assert np.array_equal(
+        stream.anchor.recent, np.concatenate([tokens[1 - shipped.keep :], row[None]])
+    )
     with pytest.raises(ValueError, match="before the first step"):
         stream.continue_from(clip)
 
@@ -137,8 +144,9 @@ def test_the_readmes_play_example_turns_left_for_seeds_0_to_7(generator):
     """A switch to a one-off action re-anchors under it at once: the turn happens (with the
     old prompt's context kept, half of these seeds did not turn)."""
     for seed in range(8):
-        motion = generator.play([("a person walks forward", 3), ("a person turns left", 2)],
-                                seed=seed)
+        motion = generator.play(
+            [("a person walks forward", 3), ("a person turns left", 2)], seed=seed
+        )
         facing = facing_directions(motion.joints[60:], generator.skeleton, facing_sigma=0)
         angle = np.degrees(np.unwrap(np.arctan2(facing[:, 0], facing[:, 2])))
         assert angle[-1] - angle[0] > 45, f"seed {seed} turned {angle[-1] - angle[0]:.0f} deg"

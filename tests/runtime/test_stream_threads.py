@@ -1,5 +1,6 @@
 """A MotionStream read on one thread and switched from another (a UI thread, Blender's live
 mode): each switch waits for the step under way, none is lost, the stream stays whole."""
+
 import threading
 
 import numpy as np

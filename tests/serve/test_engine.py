@@ -2,6 +2,7 @@
 batched call (mogo.stream_decoder.push_many), full windows by the unpadded decoder
 (mogo.serve.interior), and every stream gets the frames its own per-stream decoder gives
 (to a float rounding: the interior's matrix products are narrower)."""
+
 import numpy as np
 import pytest
 
@@ -23,8 +24,9 @@ def play(generator, engine_parts, seconds: float = 9.0) -> dict[int, np.ndarray]
     now = 0.0
     while now < seconds:
         while starts and starts[0] <= now:
-            stream = engine.open(f"a person walks {len(starts)} steps", len(starts), sampling,
-                                 starts.pop(0))
+            stream = engine.open(
+                f"a person walks {len(starts)} steps", len(starts), sampling, starts.pop(0)
+            )
             got[stream.id] = []
         due = engine.due(now)
         for stream, _, joints in engine.round(due) if due else []:
@@ -33,8 +35,9 @@ def play(generator, engine_parts, seconds: float = 9.0) -> dict[int, np.ndarray]
     return {k: np.concatenate(v) for k, v in got.items()}
 
 
-def test_batched_decoding_gives_each_stream_its_own_decoders_frames(generator, engine_parts,
-                                                                   monkeypatch):
+def test_batched_decoding_gives_each_stream_its_own_decoders_frames(
+    generator, engine_parts, monkeypatch
+):
     sizes = []
     decode = StreamingDecoder._decode_windows
 
@@ -45,8 +48,11 @@ def test_batched_decoding_gives_each_stream_its_own_decoders_frames(generator, e
     monkeypatch.setattr(StreamingDecoder, "_decode_windows", counted)
     batched = play(generator, engine_parts)
     assert max(sizes) >= 3  # windows of several streams went in one call
-    monkeypatch.setattr(engine_module, "push_many", lambda decoders, ids, interior: [
-        d.push(i) for d, i in zip(decoders, ids)])
+    monkeypatch.setattr(
+        engine_module,
+        "push_many",
+        lambda decoders, ids, interior: [d.push(i) for d, i in zip(decoders, ids, strict=True)],
+    )
     sizes.clear()
     alone = play(generator, engine_parts)
     assert max(sizes) == 1
@@ -57,7 +63,8 @@ def test_batched_decoding_gives_each_stream_its_own_decoders_frames(generator, e
 
 
 def test_a_decoder_the_rewrite_cannot_cut_or_gets_wrong_decodes_whole_windows(
-        generator, engine_parts, monkeypatch):
+    generator, engine_parts, monkeypatch
+):
     def refused(data):
         raise ValueError("an upsampling on the time path")
 

@@ -3,30 +3,42 @@ server's two readers: a WebSocket message and a POST /v1/generate body. Any inpu
 result or the one documented error, ProtocolError (sent back as an error message or a 400);
 what the readers pass on is then checked by the generator, whose TypeError or ValueError
 the server sends back the same way."""
+
 import json
 import warnings
+
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mogo.generator import _seed
 from mogo.serve import protocol
 
-EXAMPLES = settings(max_examples=400, deadline=None,
-                    suppress_health_check=[HealthCheck.function_scoped_fixture])
+EXAMPLES = settings(
+    max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 
 FIELDS = sorted(protocol.START_FIELDS | protocol.LATER_FIELDS | protocol.CLIP_FIELDS)
 values = st.recursive(
-    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=40)
+    st.none()
+    | st.booleans()
+    | st.integers()
+    | st.floats()
+    | st.text(max_size=40)
     | st.sampled_from(["a person walks", "bvh", "npy", "\ud800", "", " "]),
-    lambda inner: st.lists(inner, max_size=4)
-    | st.dictionaries(st.sampled_from(FIELDS) | st.text(max_size=8), inner, max_size=4),
-    max_leaves=12)
+    lambda inner: (
+        st.lists(inner, max_size=4)
+        | st.dictionaries(st.sampled_from(FIELDS) | st.text(max_size=8), inner, max_size=4)
+    ),
+    max_leaves=12,
+)
 objects = st.dictionaries(st.sampled_from(FIELDS), values, max_size=6)
-messages = (st.text(max_size=200)
-            | values.map(json.dumps)
-            | objects.map(json.dumps)
-            | st.integers(1, 5000).map(lambda n: "[" * n)
-            | st.integers(4000, 5000).map(lambda n: json.dumps({"prompt": "x" * n})))
+messages = (
+    st.text(max_size=200)
+    | values.map(json.dumps)
+    | objects.map(json.dumps)
+    | st.integers(1, 5000).map(lambda n: "[" * n)
+    | st.integers(4000, 5000).map(lambda n: json.dumps({"prompt": "x" * n}))
+)
 
 
 def utf8(text: str) -> bytes:
@@ -57,10 +69,14 @@ def test_a_websocket_message_gives_a_result_or_a_protocol_error(generator, messa
 
 
 @EXAMPLES
-@given(data=st.binary(max_size=300) | messages.map(utf8)
-       | objects.map(lambda o: utf8(json.dumps(o, ensure_ascii=False))),
-       charset=st.none() | st.sampled_from(["utf-8", "UTF8", "latin-1", "bogus", ""])
-       | st.text(max_size=10))
+@given(
+    data=st.binary(max_size=300)
+    | messages.map(utf8)
+    | objects.map(lambda o: utf8(json.dumps(o, ensure_ascii=False))),
+    charset=st.none()
+    | st.sampled_from(["utf-8", "UTF8", "latin-1", "bogus", ""])
+    | st.text(max_size=10),
+)
 def test_an_http_body_gives_a_clip_request_or_a_protocol_error(generator, data, charset):
     try:
         clip = protocol.clip(protocol.body(data, charset))

@@ -1,6 +1,7 @@
 """Served streams on the engine's clock: the tokens of `mogo stream` for the same prompt, seed
 and switches, whatever else runs; a switch changes what a stream does, a burst of new streams
 all start, streams at one step of their clips share one call of each level graph."""
+
 from collections import Counter
 
 import numpy as np
@@ -51,8 +52,12 @@ def test_a_burst_of_new_streams_all_start(generator, engine_parts):
     assert started == {stream.id for stream in burst}
 
 
-STREAMS = [("a person walks forward.", 3, {}), ("a person jogs forward.", 4, {"guidance": 2.0}),
-           ("a person waves.", 5, {"top_k": 40}), ("a person walks forward.", 6, {})]
+STREAMS = [
+    ("a person walks forward.", 3, {}),
+    ("a person jogs forward.", 4, {"guidance": 2.0}),
+    ("a person waves.", 5, {"top_k": 40}),
+    ("a person walks forward.", 6, {}),
+]
 SWITCHES = {0: (100, "a person jumps on the spot."), 1: (150, "a person turns left.")}
 STEPS = 128 + 2 * 8 + 30  # past the shipped window and two of the old stepper's compactions
 
@@ -63,8 +68,10 @@ def drawn_served(generator, engine_parts, shard: bool, monkeypatch) -> list[np.n
     if shard:
         monkeypatch.setattr(engine_module, "SHARD_FROM", 2)
     engine = Engine(generator, 2 if shard else 1, tokens=engine_parts)
-    streams = [engine.open(prompt, seed, generator.sampling(None, **options), 0.0)
-               for prompt, seed, options in STREAMS]
+    streams = [
+        engine.open(prompt, seed, generator.sampling(None, **options), 0.0)
+        for prompt, seed, options in STREAMS
+    ]
     late = engine.open("a person jumps.", 9, generator.sampling(None), 0.0)
     rows: list[list[np.ndarray]] = [[] for _ in streams]
     while min(s.steps for s in streams) < STEPS:
@@ -81,8 +88,7 @@ def drawn_served(generator, engine_parts, shard: bool, monkeypatch) -> list[np.n
 
 
 @pytest.mark.parametrize("shard", [False, True], ids=["one-thread", "two-shards"])
-def test_served_streams_draw_the_tokens_of_mogo_stream(generator, engine_parts, shard,
-                                                       monkeypatch):
+def test_served_streams_draw_the_tokens_of_mogo_stream(generator, engine_parts, shard, monkeypatch):
     """The shipped bundle's window (128) is beyond its relative distances (64); re-anchored,
     fresh clips and holds included: the same rows as a MotionStream of the same prompt, seed,
     sampling and switches (guided streams step alone on the bundle's own graphs)."""
@@ -109,8 +115,9 @@ def test_step_together_gives_each_stream_its_own_tokens_in_any_group(generator, 
     walk, wave = generator.embed(["a person walks forward.", "a person waves."])
 
     def run(together: bool) -> list[list[np.ndarray]]:
-        a, b, c = (engine_parts.start(walk, seed, sampling, 128, allow_end=False)
-                   for seed in range(3))
+        a, b, c = (
+            engine_parts.start(walk, seed, sampling, 128, allow_end=False) for seed in range(3)
+        )
         schedule = [[a, b], [c], [a, c], [b], [a, b], [a, b], "switch", [a, b], [a, b], [c]]
         drawn = {id(s): [] for s in (a, b, c)}
         for group in schedule:
@@ -118,21 +125,19 @@ def test_step_together_gives_each_stream_its_own_tokens_in_any_group(generator, 
                 b.set_prompt(wave)  # same layout, its cache recomputed
                 continue
             rows = step_together(group) if together else [s.step() for s in group]
-            for stream, row in zip(group, rows):
+            for stream, row in zip(group, rows, strict=True):
                 drawn[id(stream)].append(row)
         return [np.array(rows) for rows in drawn.values()]
 
-    for alone, together in zip(run(False), run(True)):
+    for alone, together in zip(run(False), run(True), strict=True):
         assert np.array_equal(alone, together)
 
 
-def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator,
-                                                                       engine_parts):
+def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator, engine_parts):
     """Past a re-anchor: the same decoding, joints and foot planting (mogo.motion.feet)."""
     for plant_feet in (True, False):
         engine = Engine(generator, 1, tokens=engine_parts)
-        stream = engine.open("a person walks forward", 3, generator.sampling(None), 0.0,
-                             plant_feet)
+        stream = engine.open("a person walks forward", 3, generator.sampling(None), 0.0, plant_feet)
         got = []
         while sum(map(len, got)) < 120:
             got += [joints for _, _, joints in engine.round([stream])]
@@ -143,8 +148,9 @@ def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator
         np.testing.assert_allclose(served, expected, atol=1e-5)
 
 
-def test_streams_at_one_step_share_one_call_of_each_level_graph(generator, engine_parts,
-                                                                 monkeypatch):
+def test_streams_at_one_step_share_one_call_of_each_level_graph(
+    generator, engine_parts, monkeypatch
+):
     """Each round draws its rows with one call of each level graph for each step of their
     clips the due streams are at. Four streams start together; one 0.3 s later takes extra
     steps to join them."""
@@ -180,5 +186,3 @@ def test_streams_at_one_step_share_one_call_of_each_level_graph(generator, engin
         assert sorted(made) == sorted(n for n in groups.values() for _ in range(levels))
     assert 0 < streams[-1].extra <= ALIGN_STEPS
     assert sum(made == [5] * levels for _, made in rounds) > 10  # the late stream joined
-
-

@@ -1,6 +1,7 @@
 """The server on an ephemeral port, with real WebSocket and HTTP clients: the protocol, faults
 on one socket that leave the others streaming, the stream cap, disconnects, slow readers, and
 the same frames for a stream alone and among others. Every test is bounded in time."""
+
 import asyncio
 import io
 import json
@@ -13,28 +14,31 @@ pytest.importorskip("onnx")
 
 from aiohttp import ClientSession, WSMsgType  # noqa: E402
 
-from mogo.serve import protocol  # noqa: E402
 from mogo.serve import engine as engine_module  # noqa: E402
+from mogo.serve import protocol  # noqa: E402
 from mogo.serve.engine import Engine  # noqa: E402
-from mogo.serve.server import (QUEUED_BURSTS, SERVER, Access, Server, listen,  # noqa: E402
-                               make_app, stop)
+from mogo.serve.server import QUEUED_BURSTS, SERVER, Access, Server, listen, make_app, stop  # noqa: E402
 
 TIMEOUT = 60  # seconds for a whole test: far above what each needs, so a hang fails
 
 
-def serving(generator, engine_parts, test, max_streams=8, access=None, threads=1,
-            max_connections=64):
+def serving(
+    generator, engine_parts, test, max_streams=8, access=None, threads=1, max_connections=64
+):
     """Run `test(base_url, server)` against a server on an ephemeral port, as `mogo serve`
     runs it (mogo.serve.server.listen)."""
+
     async def main():
-        app = make_app(generator, threads, max_streams, tokens=engine_parts,
-                       access=access or Access())
+        app = make_app(
+            generator, threads, max_streams, tokens=engine_parts, access=access or Access()
+        )
         runner, listener = await listen(app, "127.0.0.1", 0, max_connections)
         port = listener.sockets[0].getsockname()[1]
         try:
             await asyncio.wait_for(test(f"http://127.0.0.1:{port}", app[SERVER]), TIMEOUT)
         finally:
             await stop(runner, listener)
+
     asyncio.run(main())
 
 
@@ -74,15 +78,20 @@ def test_a_stream_starts_switches_and_stops(generator, engine_parts):
         async with ClientSession() as session:
             health = await (await session.get(url + "/v1/health")).json()
         assert health["status"] == "ok" and health["streams"] == 0
+
     serving(generator, engine_parts, test)
 
 
 def test_bad_messages_get_an_error_on_their_socket_and_the_others_go_on(generator, engine_parts):
-    bad = ["{not json", json.dumps({"prompt": "a person jumps", "colour": "red"}),
-           json.dumps({"prompt": "x" * (protocol.MAX_MESSAGE_CHARS + 1)}),
-           json.dumps({"prompt": ""}),
-           json.dumps({"prompt": "a person jumps", "seed": -1}),
-           json.dumps({"prompt": "a person jumps", "top_p": 7}), json.dumps([1, 2])]
+    bad = [
+        "{not json",
+        json.dumps({"prompt": "a person jumps", "colour": "red"}),
+        json.dumps({"prompt": "x" * (protocol.MAX_MESSAGE_CHARS + 1)}),
+        json.dumps({"prompt": ""}),
+        json.dumps({"prompt": "a person jumps", "seed": -1}),
+        json.dumps({"prompt": "a person jumps", "top_p": 7}),
+        json.dumps([1, 2]),
+    ]
 
     async def test(url, server):
         async with ClientSession() as session:
@@ -106,11 +115,13 @@ def test_bad_messages_get_an_error_on_their_socket_and_the_others_go_on(generato
             assert "far from what this model knows" in (await next_of(far, "note"))["note"]
             await far.send_json({"prompt": "someone saunters forward"})  # other words
             assert (await next_of(far, "note"))["note"] == (
-                "played as the known caption 'a person takes three steps forward straight'")
+                "played as the known caption 'a person takes three steps forward straight'"
+            )
             await frames(ws, 10)
             await frames(other, 30)
             for socket in (ws, other, far):
                 await socket.close()
+
     serving(generator, engine_parts, test)
 
 
@@ -126,6 +137,7 @@ def test_past_the_cap_a_stream_is_refused_clearly(generator, engine_parts):
             assert (await second.receive()).type in (WSMsgType.CLOSE, WSMsgType.CLOSED)
             await frames(first, 10)
             await first.close()
+
     serving(generator, engine_parts, test, max_streams=1)
 
 
@@ -139,6 +151,7 @@ def test_a_disconnect_mid_stream_frees_the_stream(generator, engine_parts):
         # the session is gone without a stop or a close handshake of ours
         while server.engine.streams or server.queues:
             await asyncio.sleep(0.05)
+
     serving(generator, engine_parts, test)
 
 
@@ -153,6 +166,7 @@ def test_a_client_that_does_not_read_holds_up_no_other(generator, engine_parts):
             assert bursts[-1]["index"] + len(bursts[-1]["joints"]) >= 120
             await idle.close()
             await reader.close()
+
     serving(generator, engine_parts, test)
 
 
@@ -169,8 +183,10 @@ def test_a_full_queue_drops_its_oldest_burst():
 def test_generate_returns_the_file(generator, engine_parts):
     async def test(url, server):
         async with ClientSession() as session:
+
             def post(**body):
                 return session.post(url + "/v1/generate", json=body)
+
             async with post(prompt="a person jumps", seconds=2, seed=1, format="bvh") as answer:
                 assert answer.status == 200 and (await answer.text()).startswith("HIERARCHY")
             async with post(prompt="a person jumps", seconds=2, seed=1, format="npy") as answer:
@@ -182,19 +198,26 @@ def test_generate_returns_the_file(generator, engine_parts):
                 assert answer.status == 200 and "fps" in json.dumps(await answer.json())
             async with post(prompt="a person jumps", seconds=2, format="glb") as answer:
                 assert answer.status == 200 and (await answer.read())[:4] == b"glTF"
-            for body in (dict(prompt="a person jumps", format="gif"), dict(prompt=""),
-                         dict(prompt="a person jumps", seconds=-1), dict(prompt="a", size=3)):
+            for body in (
+                dict(prompt="a person jumps", format="gif"),
+                dict(prompt=""),
+                dict(prompt="a person jumps", seconds=-1),
+                dict(prompt="a", size=3),
+            ):
                 async with post(**body) as answer:
                     assert answer.status == 400 and (await answer.json())["error"]
+
     serving(generator, engine_parts, test)
 
 
-def test_a_stream_gives_the_same_frames_alone_and_among_others(generator, engine_parts,
-                                                               monkeypatch):
+def test_a_stream_gives_the_same_frames_alone_and_among_others(
+    generator, engine_parts, monkeypatch
+):
     """On the engine's own clock (no wall time): others start before, with and after it; the
     switch lands on a fixed step of the stream (where it lands is the one thing a client's
     timing decides). Among others every round runs as two shards on two threads."""
     monkeypatch.setattr(engine_module, "SHARD_FROM", 2)
+
     def play(others: list[float], seconds: float = 12.0) -> np.ndarray:
         engine = Engine(generator, 2, tokens=engine_parts)
         sampling = generator.sampling(None)
@@ -214,12 +237,13 @@ def test_a_stream_gives_the_same_frames_alone_and_among_others(generator, engine
 
     alone = play([])
     among = play([0.95, 1.0, 1.3, 4.0, 9.0])
-    assert len(alone) > 150 and np.array_equal(alone, among[:len(alone)])
+    assert len(alone) > 150 and np.array_equal(alone, among[: len(alone)])
 
 
 @pytest.mark.parametrize("binary", [False, True])
-def test_the_benchmark_client_counts_every_frame_in_either_encoding(generator, engine_parts,
-                                                                    binary):
+def test_the_benchmark_client_counts_every_frame_in_either_encoding(
+    generator, engine_parts, binary
+):
     """`mogo bench-serve`'s client (mogo.bench.speed.serve.client): one arrival time per frame,
     from JSON bursts or binary ones, whatever their size."""
     from mogo.bench.speed.serve import client
@@ -229,4 +253,5 @@ def test_the_benchmark_client_counts_every_frame_in_either_encoding(generator, e
         assert len(arrivals) >= 9 and arrivals == sorted(arrivals)
         assert 0 < first < arrivals[-1] - arrivals[0] + first
         assert (len(arrivals) - 1) % 8 == 0  # a burst of the first frame, then bursts of 8
+
     serving(generator, engine_parts, test)

@@ -1,5 +1,6 @@
 """The viewer page carries its icon inline, so the browser asks the server for no
 /favicon.ico (a 404 in the console before). test_viewer.py checks the console in Chromium."""
+
 import urllib.parse
 import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
