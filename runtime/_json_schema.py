@@ -45,7 +45,7 @@ def read(kind, value, path: str):
         item_kinds = [args[0]] * len(items) if Ellipsis in args else args
         return tuple(
             read(k, v, f"{path}[{i}]")
-            for i, (k, v) in enumerate(zip(item_kinds, items, strict=True))
+            for i, (k, v) in enumerate(zip(item_kinds, items, strict=False))
         )
     if typing.get_origin(kind) is dict:
         return {

@@ -130,7 +130,7 @@ def write_all(
         check_replaceable(paths)  # before the work, and again as the files are replaced
     folder.mkdir(parents=True, exist_ok=True)
     with _temporaries(folder, len(writers)) as temporaries:
-        for write, temporary, path in zip(writers, temporaries, paths, strict=True):
+        for write, temporary, path in zip(writers, temporaries, paths, strict=False):
             try:
                 write(temporary)
                 _fsync(temporary)
@@ -158,7 +158,7 @@ def _rename_all(temporaries: Sequence[Path], paths: Sequence[Path], replace: boo
         check_replaceable(paths)
     aside, placed = [], []
     try:
-        for temporary, path in zip(temporaries, paths, strict=True):
+        for temporary, path in zip(temporaries, paths, strict=False):
             if replace and os.path.lexists(path):
                 aside.append((_new_name(path.parent, ".old"), path))
                 os.replace(path, aside[-1][0])

@@ -84,7 +84,7 @@ class MotionGenerator:
             intra_op_threads=1,
             level_workers=threads,
         )
-        for graph, session in zip(levels, self.tokens.sessions, strict=True):
+        for graph, session in zip(levels, self.tokens.sessions, strict=False):
             check_types(bundle.path(graph.file), session, io_types(manifest, graph))
         self.down_factor = manifest.vq.down_factor
         self._decoder = manifest.vq.decoder
@@ -344,7 +344,7 @@ class MotionGenerator:
             except ValueError as error:
                 raise ScheduleError(k, str(error)) from None
         return self._play(
-            list(zip(prompts, lengths, strict=True)),
+            list(zip(prompts, lengths, strict=False)),
             seed,
             sampling,
             plant_feet,
@@ -646,7 +646,7 @@ class MotionStream:
             np.zeros((0, g.skeleton.num_joints, 3), np.float32),
         )
         tokens, features, joints = (
-            np.concatenate(column) for column in zip(empty, *(self._record or []), strict=True)
+            np.concatenate(column) for column in zip(empty, *(self._record or []), strict=False)
         )
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
 
@@ -677,7 +677,7 @@ class MotionStream:
         final = self._feet.push(features, joints)
         if end:
             final = tuple(
-                np.concatenate(pair) for pair in zip(final, self._feet.flush(), strict=True)
+                np.concatenate(pair) for pair in zip(final, self._feet.flush(), strict=False)
             )
         return final
 

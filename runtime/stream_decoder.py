@@ -183,9 +183,9 @@ def push_many(
     graph that decodes a window less `cut` tokens at each end, cut) (mogo.serve.interior),
     for the windows whose new tokens lie `cut` tokens or more from both ends: every window of
     a stream past its first left context (the same frames to a float rounding)."""
-    windows = [decoder.feed(i) for decoder, i in zip(decoders, ids, strict=True)]
+    windows = [decoder.feed(i) for decoder, i in zip(decoders, ids, strict=False)]
     groups: dict[tuple[int, int], list[int]] = {}
-    for k, (decoder, window) in enumerate(zip(decoders, windows, strict=True)):
+    for k, (decoder, window) in enumerate(zip(decoders, windows, strict=False)):
         if window is not None:
             cut = 0 if interior is None else interior[1]
             if decoder.emitted - decoder._start < cut or decoder.lookahead < cut:
@@ -199,7 +199,7 @@ def push_many(
         decoded = first._decode_windows(
             np.stack([windows[k] for k in ks]), interior[0] if cut else None, cut
         )
-        for k, features in zip(ks, decoded, strict=True):
+        for k, features in zip(ks, decoded, strict=False):
             frames[k] = decoders[k].take(features, cut)
     return frames
 

@@ -64,12 +64,12 @@ class TokenGenerator:
             raise ValueError(f"{len(level_paths)} graph files for {len(graphs)} graph entries")
         self.sessions = [
             graph_session(path, graph, intra_op_threads)
-            for path, graph in zip(level_paths, graphs, strict=True)
+            for path, graph in zip(level_paths, graphs, strict=False)
         ]
         self.graphs = list(graphs)
         self.cache_shapes = [
             _cache_shape(session, path)
-            for session, path in zip(self.sessions, level_paths, strict=True)
+            for session, path in zip(self.sessions, level_paths, strict=False)
         ]
         self.end_token = end_token
         self.num_levels = len(graphs)
@@ -169,9 +169,9 @@ class TokenGenerator:
             return [call(level) for level in group]
 
         others = [self._pool.submit(run_group, group) for group in self.level_groups[1:]]
-        results = dict(zip(self.level_groups[0], run_group(self.level_groups[0]), strict=True))
-        for group, future in zip(self.level_groups[1:], others, strict=True):
-            results.update(zip(group, future.result(), strict=True))
+        results = dict(zip(self.level_groups[0], run_group(self.level_groups[0]), strict=False))
+        for group, future in zip(self.level_groups[1:], others, strict=False):
+            results.update(zip(group, future.result(), strict=False))
         return [results[level] for level in range(self.num_levels)]
 
     def empty_cache(self, level: int, batch: int) -> Cache:
@@ -304,8 +304,8 @@ class TokenStream:
         """Full window: the new slot (the last of every present) replaces the oldest step slot
         in place; the prefix slot 0 stays. Slots are then in ring order, oldest at _oldest."""
         slot = self._oldest
-        for cache, present in zip(self.caches, presents, strict=True):
-            for held, new in zip(cache, present, strict=True):
+        for cache, present in zip(self.caches, presents, strict=False):
+            for held, new in zip(cache, present, strict=False):
                 held[:, :, slot] = new[:, :, -1]
         self.positions[slot] = n
         self.slot_tokens[slot] = self.last
@@ -330,7 +330,7 @@ def step_together(streams: Sequence[TokenStream]) -> list[np.ndarray | None]:
             groups.setdefault(key, []).append(k)
     drawn: list[np.ndarray | None] = [None] * len(streams)
     for ks in groups.values():
-        for k, row in zip(ks, _step_group([streams[k] for k in ks]), strict=True):
+        for k, row in zip(ks, _step_group([streams[k] for k in ks]), strict=False):
             drawn[k] = row
     return drawn
 
@@ -351,7 +351,7 @@ def _step_group(members: list[TokenStream]) -> list[np.ndarray | None]:
         caches = last[1]  # the same streams in the same order: their caches as they lie, no copy
     else:
         caches = [
-            [stacked(parts) for parts in zip(*(s.caches[level] for s in members), strict=True)]
+            [stacked(parts) for parts in zip(*(s.caches[level] for s in members), strict=False)]
             for level in range(g.num_levels)
         ]
     position, past = np.array([first.steps], np.int64), first.positions
@@ -363,11 +363,11 @@ def _step_group(members: list[TokenStream]) -> list[np.ndarray | None]:
         logits[:, level, : level_logits.shape[1]] = level_logits
     drawn = [
         s._drawn(logits[a:b], [[held[a:b] for held in present] for _, present in outputs], u)
-        for s, a, b, u in zip(members, rows[:-1], rows[1:], uniforms, strict=True)
+        for s, a, b, u in zip(members, rows[:-1], rows[1:], uniforms, strict=False)
     ]
     group = (members, [present for _, present in outputs])
     for stream, row in zip(
-        members, drawn, strict=True
+        members, drawn, strict=False
     ):  # the presents are their caches (not a full window)
         took = row is not None and len(stream.positions) > len(past)
         stream._group = group if took and len(members) > 1 else None

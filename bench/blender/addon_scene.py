@@ -241,7 +241,7 @@ def _heads(scene, armature) -> dict:
 def _render(scene, armatures, request: dict) -> None:
     """Both armatures as rods parented to their bones, a floor, a camera and a sun; Cycles
     on the CPU (Workbench and EEVEE need a display)."""
-    for armature, colour in zip(armatures, ((0.8, 0.45, 0.15), (0.3, 0.45, 0.75)), strict=True):
+    for armature, colour in zip(armatures, ((0.8, 0.45, 0.15), (0.3, 0.45, 0.75)), strict=False):
         _rods(armature, colour)
     scene.frame_set(scene.frame_start + request.get("frame", 0))
     bpy.ops.mesh.primitive_plane_add(size=12.0)

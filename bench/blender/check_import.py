@@ -82,7 +82,7 @@ def main() -> None:
 def _errors(heads: dict, reference: dict) -> dict:
     per_joint, total, count = {}, 0.0, 0
     for name, positions in reference.items():
-        distances = [math.dist(a, b) for a, b in zip(heads[name], positions, strict=True)]
+        distances = [math.dist(a, b) for a, b in zip(heads[name], positions, strict=False)]
         per_joint[name] = max(distances)
         total, count = total + sum(distances), count + len(distances)
     return dict(mean=total / count, max=max(per_joint.values()), per_joint=per_joint)

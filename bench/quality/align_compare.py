@@ -192,7 +192,7 @@ def main() -> None:
     requests = [request(p, np.random.default_rng(k)) for k, p in enumerate(programs)]
     alignments = [rules.align(text) for text in requests]
     matched = [
-        len(a.steps) == len(p["segments"]) for a, p in zip(alignments, programs, strict=True)
+        len(a.steps) == len(p["segments"]) for a, p in zip(alignments, programs, strict=False)
     ]
     before = unknown_fraction(requests, vocabulary)
     after = unknown_fraction([s.prompt for a in alignments for s in a.steps], vocabulary)

@@ -223,7 +223,7 @@ def _figures(scene: dict, motion) -> Figures:
         name.split(":")[-1]: _ours({"x": [head]}, "x")[0]
         for name, head in scene["target_rest"].items()
     }
-    ours = dict(zip(NAMINGS["mixamo"], np.moveaxis(armature, 1, 0), strict=True))
+    ours = dict(zip(NAMINGS["mixamo"], np.moveaxis(armature, 1, 0), strict=False))
     follow = {}
     for name, (root, part) in FOLLOWERS.items():
         expected = SCALE[part] * (ours[name] - ours[root])

@@ -196,7 +196,7 @@ def score(
 
     mean, interval = metrics.repeat_with_interval(once, repeats)
     return {
-        column: (float(m), float(i)) for column, m, i in zip(COLUMNS, mean, interval, strict=True)
+        column: (float(m), float(i)) for column, m, i in zip(COLUMNS, mean, interval, strict=False)
     }
 
 

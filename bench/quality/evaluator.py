@@ -68,7 +68,7 @@ class OnnxEvaluator:
             ids = np.array([e.ids for e in encodings], np.int64)
             mask = np.array([e.attention_mask for e in encodings], np.int64)
             out.append(
-                self._text.run(None, dict(zip(self._text_names, (ids, mask), strict=True)))[0]
+                self._text.run(None, dict(zip(self._text_names, (ids, mask), strict=False)))[0]
             )
         return np.concatenate(out) if out else np.zeros((0, self.embed_dim), np.float32)
 
@@ -85,7 +85,7 @@ class OnnxEvaluator:
             for i, r in enumerate(rows):
                 batch[i, : lengths[i]] = (clips[r] - self.mean) / self.std
             out[rows] = self._motion.run(
-                None, dict(zip(self._motion_names, (batch, lengths), strict=True))
+                None, dict(zip(self._motion_names, (batch, lengths), strict=False))
             )[0]
         return out
 

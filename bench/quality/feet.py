@@ -312,13 +312,13 @@ def semantic_both_ways(
         for joints, kept in zip(
             (motion.joints, planted(motion.features, motion.joints, generator.skeleton)),
             verdicts,
-            strict=True,
+            strict=False,
         ):
             kept.append(check(item, joints, real))
     decoded, planted_rates = (pass_rates(items, kept) for kept in verdicts)
     rows = {name: (decoded[name], planted_rates[name]) for name in decoded}
     rows["all"] = tuple(
-        tuple(map(sum, zip(*column, strict=True))) for column in zip(*rows.values(), strict=True)
+        tuple(map(sum, zip(*column, strict=False))) for column in zip(*rows.values(), strict=False)
     )
     return rows
 

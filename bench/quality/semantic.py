@@ -319,7 +319,7 @@ def check(item: SemanticItem, joints: np.ndarray, reference: np.ndarray | None =
 def pass_rates(items: list[SemanticItem], verdicts: list[Verdict]) -> dict[str, tuple[int, int]]:
     """-> {primitive: (passed, total)}, primitives in alphabetical order."""
     rates: dict[str, list[int]] = {}
-    for item, verdict in zip(items, verdicts, strict=True):
+    for item, verdict in zip(items, verdicts, strict=False):
         counts = rates.setdefault(item.primitive, [0, 0])
         counts[0] += verdict.passed
         counts[1] += 1
@@ -361,11 +361,12 @@ def semantic_report(
     others = [[o for o in chosen if o.primitive != item.primitive] for item in chosen]
     other = [
         check(item, real(group[rng.integers(len(group))]), real(item))
-        for item, group in zip(chosen, others, strict=True)
+        for item, group in zip(chosen, others, strict=False)
     ]
     motions = generate_items(generator, chosen, seed, threads, "semantic check")
     generated = [
-        check(item, motion.joints, real(item)) for item, motion in zip(chosen, motions, strict=True)
+        check(item, motion.joints, real(item))
+        for item, motion in zip(chosen, motions, strict=False)
     ]
     columns = dict(
         real=pass_rates(items, [check(item, real(item), real(item)) for item in items]),
@@ -383,7 +384,7 @@ def format_semantic(report: dict[str, dict[str, tuple[int, int]]]) -> str:
         return f"{counts[0] / counts[1]:.0%} ({counts[0]}/{counts[1]})"
 
     totals = {
-        name: tuple(map(sum, zip(*(row[name] for row in report.values()), strict=True)))
+        name: tuple(map(sum, zip(*(row[name] for row in report.values()), strict=False)))
         for name in ("real", "generated", "other")
     }
     lines = [

@@ -55,7 +55,7 @@ def pass_rate(
     seeds k, n + k, 2n + k, ...); and per primitive [passed, generated]. `sampling`: options
     of MotionGenerator.generate (guidance=2, ...)."""
     per: dict[str, list[int]] = {}
-    for k, (item, prompt) in enumerate(zip(items, prompts, strict=True)):
+    for k, (item, prompt) in enumerate(zip(items, prompts, strict=False)):
         for seed in range(k, seeds * len(items), len(items)):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -102,7 +102,7 @@ def played_rates(
     """Of the prompts played as a known caption (`generator.known(p).played`): how many, the
     share of them whose caption is of their item's action, and of its action and what it says
     (a caption of several actions is neither)."""
-    played = [(item, generator.known(p).played) for item, p in zip(items, prompts, strict=True)]
+    played = [(item, generator.known(p).played) for item, p in zip(items, prompts, strict=False)]
     played = [(said(item), known.get(caption)) for item, caption in played if caption is not None]
     if not played:
         return 0, float("nan"), float("nan")

@@ -38,7 +38,7 @@ def reconstruct(generator: MotionGenerator, features: np.ndarray) -> np.ndarray:
 
 def side_by_side(left: list[Image.Image], right: list[Image.Image]) -> list[Image.Image]:
     frames = []
-    for a, b in zip(left, right, strict=True):
+    for a, b in zip(left, right, strict=False):
         frame = Image.new("RGB", (a.width + b.width, a.height))
         frame.paste(a.convert("RGB"), (0, 0))
         frame.paste(b.convert("RGB"), (a.width, 0))

@@ -57,7 +57,7 @@ def report(
     errors = np.array(
         [
             clip_errors(r, b, generator.skeleton)
-            for r, b in zip(real, reconstruct(generator, real, threads, low_latency), strict=True)
+            for r, b in zip(real, reconstruct(generator, real, threads, low_latency), strict=False)
         ]
     )
     worst = int(np.argmax(errors[:, 0]))

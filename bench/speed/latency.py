@@ -121,7 +121,7 @@ def binned(times: np.ndarray, bins: int = 50) -> list[tuple[int, float]]:
     edges = np.linspace(0, len(times), bins + 1).astype(int)
     return [
         (int(a), 1e3 * float(times[a:b].mean()))
-        for a, b in zip(edges[:-1], edges[1:], strict=True)
+        for a, b in zip(edges[:-1], edges[1:], strict=False)
         if b > a
     ]
 

@@ -253,7 +253,7 @@ def pose_joints(track: Track, body: Body) -> np.ndarray:
 
     # Spine, neck and head by forward kinematics.
     frame = pelvis_frame
-    for joint, rotation in zip((3, 6, 9), rotations[1:4], strict=True):
+    for joint, rotation in zip((3, 6, 9), rotations[1:4], strict=False):
         joints[:, joint] = joints[:, SMPL_22.parents[joint]] + qrot(frame, o[joint])
         frame = qmul(frame, rotation)
     chest = frame

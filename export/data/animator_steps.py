@@ -203,7 +203,8 @@ def _step_track(
     plans = _plans(body, start, steps, pad, period, gait.swing, beats)
     t = np.arange(int(round((active + 2 * pad) * FPS))) / FPS
     xz, lift, yaw, pitch, u = (
-        np.stack(c, 1) for c in zip(*(_foot_channels(t, plan, gait) for plan in plans), strict=True)
+        np.stack(c, 1)
+        for c in zip(*(_foot_channels(t, plan, gait) for plan in plans), strict=False)
     )
     in_air = np.sin(np.pi * u)  # (T, 2)
 
@@ -304,7 +305,7 @@ def locomotion(
     curvature = turn / length
     points = place.xz + _arc(advance, place.yaw + heading, curvature)
     yaws = place.yaw + curvature * advance
-    steps = [(f,) + _stance(body, p, y, f) for f, p, y in zip(feet, points, yaws, strict=True)]
+    steps = [(f,) + _stance(body, p, y, f) for f, p, y in zip(feet, points, yaws, strict=False)]
     track = _step_track(body, place, steps, gait, period, beats, hurt)
     if gait_name == "stumble":
         _stumble(track, body, period, beats[trip])
@@ -335,7 +336,7 @@ def turning(
     yaws = place.yaw + angle * np.minimum(np.arange(1, count + 1), count - 1) / (count - 1)
     steps = [
         (f,) + _stance(body, place.xz, y, f)
-        for f, y in zip(_alternating(lead, count), yaws, strict=True)
+        for f, y in zip(_alternating(lead, count), yaws, strict=False)
     ]
     period = gait.period * rng.uniform(0.93, 1.07) / body.tempo
     return _step_track(body, place, steps, gait, period), Place(place.xz, place.yaw + angle)

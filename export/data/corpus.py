@@ -85,7 +85,7 @@ def mirror_segment(segment: Segment) -> Segment:
 
 
 def _pairs(segments: list[Segment]) -> set[tuple[str, str]]:
-    return {(a.primitive, b.primitive) for a, b in zip(segments[:-1], segments[1:], strict=True)}
+    return {(a.primitive, b.primitive) for a, b in zip(segments[:-1], segments[1:], strict=False)}
 
 
 def _draw_program(rng: np.random.Generator, plan: Plan, force_pair: bool) -> list[Segment]:
@@ -135,7 +135,7 @@ def _captions(segments: list[Segment], spans, rng: np.random.Generator, pool: st
             {"text": sentence.text, "template_ids": list(sentence.template_ids), "span": None}
         )
     if len(segments) > 1:
-        for segment, (start, end) in zip(segments, spans, strict=True):
+        for segment, (start, end) in zip(segments, spans, strict=False):
             sentence = caption_segment(segment, rng, pool)
             captions.append(
                 {
@@ -187,7 +187,7 @@ def make_clip(index: int, plan: Plan) -> ClipResult:
         "heldout_pairs": sorted(map(list, _pairs(segments) & plan.heldout_pairs)),
         "segments": [
             {"primitive": s.primitive, "params": s.params, "span": list(span)}
-            for s, span in zip(segments, spans, strict=True)
+            for s, span in zip(segments, spans, strict=False)
         ],
         "captions": captions,
     }
@@ -195,7 +195,7 @@ def make_clip(index: int, plan: Plan) -> ClipResult:
     mirrored = dict(program, id="M" + clip_id, mirror_of=clip_id)
     mirrored["segments"] = [
         dict(s, params=mirror_segment(seg).params)
-        for s, seg in zip(program["segments"], segments, strict=True)
+        for s, seg in zip(program["segments"], segments, strict=False)
     ]
     mirrored["captions"] = [dict(c, text=mirror_text(c["text"])) for c in captions]
     _write_clip(plan, "M" + clip_id, mirror_joints(animation.joints, SMPL_22), mirrored)

@@ -231,7 +231,7 @@ class SentenceTower(nn.Module):
     def sentences(self, token_ids: Tensor, attention_mask: Tensor) -> Tensor:
         """The frozen encoder's unit sentence embeddings (B, in_dim) of a tokenised batch."""
         ids, mask = token_ids.cpu().numpy(), attention_mask.cpu().numpy()
-        keys = [row[m > 0].tobytes() for row, m in zip(ids, mask, strict=True)]
+        keys = [row[m > 0].tobytes() for row, m in zip(ids, mask, strict=False)]
         new = [k for k in dict.fromkeys(keys) if k not in self._known]
         if new:
             if self._session is None:
@@ -241,7 +241,7 @@ class SentenceTower(nn.Module):
             rows = [keys.index(k) for k in new]
             width = int(mask[rows].sum(1).max())
             self._known.update(
-                zip(new, pooled(self._session, ids[rows, :width], mask[rows, :width]), strict=True)
+                zip(new, pooled(self._session, ids[rows, :width], mask[rows, :width]), strict=False)
             )
         return torch.from_numpy(np.stack([self._known[k] for k in keys]))
 

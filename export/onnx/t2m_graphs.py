@@ -62,7 +62,7 @@ class LevelStep(nn.Module):
             token_ids,
             positions,
             past_positions,
-            list(zip(past[0::2], past[1::2], strict=True)),
+            list(zip(past[0::2], past[1::2], strict=False)),
         )
         return logits, *[t for pair in presents for t in pair]
 

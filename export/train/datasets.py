@@ -125,7 +125,7 @@ class WholeClipBatches(Dataset):
         rng = np.random.default_rng([self.seed, epoch])
         self._batches = [
             batch
-            for same, shares in zip(self._by_length, self._shares, strict=True)
+            for same, shares in zip(self._by_length, self._shares, strict=False)
             for batch in np.array_split(rng.permutation(same), shares)
         ]
 

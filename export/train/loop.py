@@ -212,7 +212,7 @@ class _Window:
         self.count += 1
 
     def means(self) -> dict[str, float]:
-        return dict(zip(self.names, (self.sums / self.count).tolist(), strict=True))
+        return dict(zip(self.names, (self.sums / self.count).tolist(), strict=False))
 
     def rate(self) -> float:
         """Steps a second."""

@@ -85,7 +85,7 @@ def tokenize_split(
     for batch in equal_length_groups(lengths, TOKENIZE_BATCH):
         x = torch.from_numpy(np.stack([raw[i][: lengths[i]] for i in batch])).to(device)
         ids = vq.encode((x - vq.mean) / vq.std).cpu().numpy().astype(np.int32)
-        for i, clip_ids in zip(batch, ids, strict=True):
+        for i, clip_ids in zip(batch, ids, strict=False):
             tokens[i] = clip_ids
         progress.update(len(batch))
     progress.close()
@@ -276,7 +276,7 @@ def caption_variants(captions: list[str], tokenizer: Tokenizer) -> dict[str, lis
     verbs, of_verb = other_verbs(texts, known, rng)
     variants: dict[str, list[str]] = {}
     for variant, source in zip(
-        subjects + verbs, np.concatenate([of_subject, of_verb]), strict=True
+        subjects + verbs, np.concatenate([of_subject, of_verb]), strict=False
     ):
         variants.setdefault(texts[source], []).append(variant)
     return variants
@@ -365,7 +365,7 @@ class T2MTrainer(Trainer):
                 batch,
                 captions=[
                     others[int(pick * len(others))] if chance < self.recipe["variants"] else caption
-                    for caption, (chance, pick) in zip(batch["captions"], draws, strict=True)
+                    for caption, (chance, pick) in zip(batch["captions"], draws, strict=False)
                     for others in [self.variants.get(caption) or [caption]]
                 ],
             )

@@ -340,7 +340,7 @@ def all_reduce_mean(values: dict[str, float], process: Process) -> dict[str, flo
         [float(values[n]) for n in names], dtype=torch.float64, device=process.device
     )
     dist.all_reduce(tensor)
-    return {n: float(v) / process.world_size for n, v in zip(names, tensor.tolist(), strict=True)}
+    return {n: float(v) / process.world_size for n, v in zip(names, tensor.tolist(), strict=False)}
 
 
 def _plain(value):

@@ -50,7 +50,7 @@ SMPL_NAMES = (
 )
 PRESETS = {
     "MIXAMO": [(name,) for name in BONE_NAMES],
-    "SMPL": list(zip(SMPL_NAMES, NAMINGS["smpl"], strict=True)),
+    "SMPL": list(zip(SMPL_NAMES, NAMINGS["smpl"], strict=False)),
 }
 NAME_BYTES = 63  # Blender's longest ID name (UTF-8 bytes; 3.4 to 4.x)
 NUMBERED = re.compile(r"\.\d{3,}$")  # ".001": Blender's number for a name already taken

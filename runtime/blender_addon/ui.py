@@ -140,7 +140,7 @@ def fill_mapping(settings, preset: str) -> None:
         raise UserError("pick a target armature first")
     found = auto_map(preset, [bone.name for bone in settings.target.data.bones])
     settings.mapping.clear()
-    for joint, bone in zip(BONE_NAMES, found, strict=True):
+    for joint, bone in zip(BONE_NAMES, found, strict=False):
         item = settings.mapping.add()
         item.joint, item.bone = joint, bone
 

@@ -41,7 +41,7 @@ def feature_layout(skeleton: Skeleton) -> list[tuple[str, int, int]]:
     stops = np.cumsum([width for _, width in widths])
     return [
         (name, int(stop - width), int(stop))
-        for (name, width), stop in zip(widths, stops, strict=True)
+        for (name, width), stop in zip(widths, stops, strict=False)
     ]
 
 
@@ -228,7 +228,7 @@ def local_rotations_from_joints(
     rotations[:, 0] = root_quat
     for chain in skeleton.chains:
         accumulated = root_quat
-        for parent, child in zip(chain[:-1], chain[1:], strict=True):
+        for parent, child in zip(chain[:-1], chain[1:], strict=False):
             bone = positions[:, child] - positions[:, parent]
             rest = np.broadcast_to(skeleton.raw_offsets[child], bone.shape)
             local = qmul(qinv(accumulated), qbetween(rest, bone))

@@ -198,7 +198,7 @@ class FootPlanter:
         starts = held & ~np.concatenate([self._held[None], held[:-1]])
         pins = np.repeat(self._pin[None], n, 0)  # a contact going on from earlier frames
         for i, k in zip(
-            *np.nonzero(starts[: ready + BLEND_IN]), strict=True
+            *np.nonzero(starts[: ready + BLEND_IN]), strict=False
         ):  # each contact: its pin
             length = np.cumprod(held[i : i + PIN_FRAMES, k]).sum()
             pins[i, k] = paths[i : i + length, k].mean(0)

@@ -165,7 +165,7 @@ def _interpolate(joints: np.ndarray, source_times: np.ndarray, times: np.ndarray
 
 def _points(positions: np.ndarray, sources: list[tuple[int, int, float]]) -> np.ndarray:
     """Our 22 joints (T, 22, 3) from a rig's joints (T, J, 3): each a + f (b - a)."""
-    a, b, f = (np.array(column) for column in zip(*sources, strict=True))
+    a, b, f = (np.array(column) for column in zip(*sources, strict=False))
     return positions[:, a] + f[:, None] * (positions[:, b] - positions[:, a])
 
 
@@ -368,7 +368,7 @@ def _forward_kinematics(
     positions = np.zeros((frames, len(parents), 3))
     rotations = np.zeros((frames, len(parents), 3, 3))
     column = 0
-    for joint, (parent, joint_channels) in enumerate(zip(parents, channels, strict=True)):
+    for joint, (parent, joint_channels) in enumerate(zip(parents, channels, strict=False)):
         translation = np.tile(offsets[joint], (frames, 1))
         local = np.tile(np.eye(3), (frames, 1, 1))
         for channel in joint_channels:

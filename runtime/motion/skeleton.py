@@ -38,7 +38,7 @@ class Skeleton:
     def parents(self) -> np.ndarray:
         parents = np.full(self.num_joints, -1, dtype=np.int64)
         for chain in self.chains:
-            for parent, child in zip(chain[:-1], chain[1:], strict=True):
+            for parent, child in zip(chain[:-1], chain[1:], strict=False):
                 parents[child] = parent
         return parents
 

@@ -173,12 +173,12 @@ class Engine:
         rows = [
             stream.drawn(row)
             for stream, row in zip(
-                due, step_together([stream.tokens for stream in due]), strict=True
+                due, step_together([stream.tokens for stream in due]), strict=False
             )
         ]
         decoded = push_many([s.decoder for s in due], [row[None] for row in rows], self.interior)
         made = []
-        for stream, row, features in zip(due, rows, decoded, strict=True):
+        for stream, row, features in zip(due, rows, decoded, strict=False):
             first = stream.frames_emitted
             joints = stream.emit(row[None], features)
             if len(joints):

@@ -140,7 +140,7 @@ def _cut_to(
         cut = target - crop[name]
         if cut:
             bounds = [f"{name}.interior_{which}" for which in ("starts", "ends", "axes")]
-            for bound, value in zip(bounds, (cut, -cut, -1), strict=True):
+            for bound, value in zip(bounds, (cut, -cut, -1), strict=False):
                 graph.initializer.append(numpy_helper.from_array(np.array([value]), bound))
             sliced = f"{name}.interior"
             slices.append(

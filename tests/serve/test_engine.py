@@ -51,7 +51,7 @@ def test_batched_decoding_gives_each_stream_its_own_decoders_frames(
     monkeypatch.setattr(
         engine_module,
         "push_many",
-        lambda decoders, ids, interior: [d.push(i) for d, i in zip(decoders, ids, strict=True)],
+        lambda decoders, ids, interior: [d.push(i) for d, i in zip(decoders, ids, strict=False)],
     )
     sizes.clear()
     alone = play(generator, engine_parts)
