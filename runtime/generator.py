@@ -378,6 +378,10 @@ class MotionGenerator:
         shown.close()
         return stream.finish()
 
+    def _denormalised(self, normalised: np.ndarray) -> np.ndarray:
+        """The decoder's normalised features in the bundle's units (clips and streams alike)."""
+        return normalised * self.bundle.std + self.bundle.mean
+
     def decode(
         self,
         tokens: np.ndarray,
@@ -393,7 +397,7 @@ class MotionGenerator:
         the cut being the clip's end (as a stream's finish() does)."""
         decoder = self.streaming_decoder()
         normalised = decoder.decode_offline(tokens)[:frames]
-        features = normalised * self.bundle.std + self.bundle.mean
+        features = self._denormalised(normalised)
         joints = JointStream(self.skeleton).push(features)
         if checked_bool(plant_feet, "plant_feet"):  # foot cleanup (issue 25)
             joints = planted(features, joints, self.skeleton)
@@ -619,7 +623,7 @@ class MotionStream:
                 self.tokens.continue_from(tokens)
             else:
                 self.anchor.continued(tokens)
-            self._final(self._denormalise(self.decoder.push(tokens)))
+            self._final(self.generator._denormalised(self.decoder.push(tokens)))
             self._skip = self._pending_frames()  # the clip's own last frames: not again
 
     def advance(self, steps: int) -> None:
@@ -660,7 +664,7 @@ class MotionStream:
         return row if self.anchor is None else self.anchor.after(row)
 
     def emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False) -> np.ndarray:
-        features, joints = self._final(self._denormalise(normalised), end)
+        features, joints = self._final(self.generator._denormalised(normalised), end)
         skip = min(self._skip, len(joints))
         features, joints, self._skip = features[skip:], joints[skip:], self._skip - skip
         self.frames_emitted += len(joints)
@@ -680,9 +684,6 @@ class MotionStream:
                 np.concatenate(pair) for pair in zip(final, self._feet.flush(), strict=False)
             )
         return final
-
-    def _denormalise(self, normalised: np.ndarray) -> np.ndarray:
-        return normalised * self.generator.bundle.std + self.generator.bundle.mean
 
     def _pending_frames(self) -> int:
         """Frames drawn as tokens but not yet emitted (the decoder's lookahead, and the
