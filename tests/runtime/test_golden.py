@@ -229,21 +229,22 @@ class Draws:
                 sampling,
                 None if forbid is None else forbid[row],
                 want[row],
+                chosen[row],
             )
             (self.near_ties if tie else self.mismatches).append(where)
         self.drawn.extend(want.tolist())
         return want
 
-    def near_tie(self, cond, uncond, uniform, sampling, forbid, token) -> bool:
-        """Whether the recorded `token` is drawn once every logit moves by at most
-        LOGIT_NOISE (guided: scaled as uncond + s (cond - uncond) scales a noise on each).
-        Six moves, each in 64 sizes up to the bound, are tried, the extremes for an
-        inverse-CDF draw over a sorted nucleus: the
-        logits sorted up to the token up and the rest down (its slot ends later), those
-        before it down and the rest up (its slot starts earlier, or it wins an argmax), and
-        the token's or this machine's token's logit alone up or down against all others
-        (two neighbours swap places, the nucleus gains or loses the token); and the token
-        put just above or below this machine's token, where several crowd together."""
+    def near_tie(self, cond, uncond, uniform, sampling, forbid, token, drawn) -> bool:
+        """Whether the recorded `token` is drawn instead of this machine's `drawn` once every
+        logit moves by at most LOGIT_NOISE (guided: scaled as uncond + s (cond - uncond) scales
+        a noise on each). Six moves, each in 64 sizes up to the bound, are tried, the extremes
+        for an inverse-CDF draw over a sorted nucleus: the logits sorted up to the token up and
+        the rest down (its slot ends later), those before it down and the rest up (its slot
+        starts earlier, or it wins an argmax), and the token's or this machine's token's logit
+        alone up or down against all others (two neighbours swap places, the nucleus gains or
+        loses the token); and the token put just above or below this machine's token, where
+        several crowd together."""
         spread = abs(sampling.guidance) + abs(1 - sampling.guidance) if sampling.guided else 1
         cond = np.array(cond, np.float64)
         uncond = None if uncond is None else np.array(uncond, np.float64)
@@ -251,13 +252,6 @@ class Draws:
             z = cond if uncond is None else uncond + sampling.guidance * (cond - uncond)
         rank = np.empty(len(z), np.int64)
         rank[np.argsort(-z, kind="stable")] = np.arange(len(z))
-        drawn = self.real(
-            cond[None],
-            None if uncond is None else uncond[None],
-            np.array([uniform]),
-            sampling,
-            [forbid],
-        )[0]
         ids = np.arange(len(z))
         shapes = [
             np.where(rank <= rank[token], 1.0, -1.0),  # the token's slot ends later
