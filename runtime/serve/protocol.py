@@ -9,7 +9,8 @@ HTTP POST /v1/generate: one such JSON object (UTF-8), {"prompt", "seconds", "see
 Server -> client:
     {"type": "started", "stream": id, "seed": s, "fps": 20, "joints": [names], "parents": [..]}
     {"type": "frames", "index": i, "joints": [[[x, y, z] x 22] x n]}   frames i .. i+n-1, metres
-    {"type": "switched", "prompt": "..."} | {"type": "error", "error": "..."}
+    {"type": "switched", "prompt": "...", "index": i}    frames from i on follow the prompt
+    {"type": "error", "error": "..."}
     binary (if asked): one message per burst, little-endian uint32 index, uint32 n, then
     float32 joints (n, 22, 3).
 """
@@ -155,8 +156,9 @@ def error(text: str) -> str:
     return json.dumps({"type": "error", "error": text})
 
 
-def switched(prompt: str) -> str:
-    return json.dumps({"type": "switched", "prompt": prompt})
+def switched(prompt: str, index: int) -> str:
+    """A switch accepted: frames from `index` on follow `prompt`."""
+    return json.dumps({"type": "switched", "prompt": prompt, "index": index})
 
 
 def note(text: str) -> str:

@@ -221,10 +221,11 @@ class Server:
         seed = _seed(start.seed)
         return self.engine.open(text, seed, sampling, self.clock(), start.plant_feet), notes
 
-    def switch(self, stream: ServedStream, prompt: str) -> list[str]:
+    def switch(self, stream: ServedStream, prompt: str) -> tuple[int, list[str]]:
+        """The switch played: the first frame that follows it, and the prompt's notes."""
         text, notes = self.checked_prompt(prompt)
         self.engine.switch(stream, text)
-        return notes
+        return stream.prompts[-1][0], notes
 
 
 async def stream_socket(request: web.Request) -> web.WebSocketResponse:
@@ -273,8 +274,8 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                             f"too many switches: at most {SWITCHES_PER_SECOND} a second "
                             f"({SWITCH_BURST} at once); this one was not played"
                         )
-                    notes = await server.call(server.switch, stream, prompt)
-                    await ws.send_str(protocol.switched(prompt))
+                    index, notes = await server.call(server.switch, stream, prompt)
+                    await ws.send_str(protocol.switched(prompt, index))
                 for note in notes:
                     await ws.send_str(protocol.note(note))
             except protocol.ProtocolError as error:
