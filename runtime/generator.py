@@ -44,6 +44,7 @@ from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import MAX_GENERATE_SECONDS, io_types
 from mogo.motion.features import JointStream
+from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.motion.feet import FootPlanter, planted
 from mogo.progress import Progress
 from mogo.repertoire import Familiarity
@@ -636,14 +637,20 @@ class MotionStream:
 
     def finish(self) -> Motion:
         """End the stream: the remaining frames and, if the stream was recorded by `advance`,
-        the whole Motion. The stream is cut, not ended: it draws the decoder's lookahead in
-        more steps, not kept, as the right context of its last frames (as `generate` does), so
-        they are the frames the stream would have emitted had it gone on."""
+        the whole Motion. The stream is cut, not ended: it draws more steps, not kept, as the
+        right context of its last frames (the decoder's lookahead, and the feet's before it),
+        so they are the frames the stream would have emitted had it gone on."""
         g = self.generator
+        levels = g.tokens.num_levels
         with self._lock:
-            context = [self._next_tokens() for _ in range(self.decoder.lookahead)]
-            features = self.decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
-            self.emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
+            left = self._pending_frames() - self._skip  # the frames still to come out
+            feet = 0 if self._feet is None else math.ceil(FEET_LOOKAHEAD / g.down_factor)
+            drawn = [self._next_tokens() for _ in range(feet + self.decoder.lookahead)]
+            ahead = np.reshape(drawn, (-1, levels))
+            features = np.concatenate(
+                [self.decoder.push(ahead[:feet]), self.decoder.flush(ahead[feet:])]
+            )
+            self.emit(np.zeros((0, levels), np.int64), features, limit=left)
         empty = (
             np.zeros((0, g.tokens.num_levels), np.int64),
             np.zeros((0, g.manifest.feature_dim), np.float32),
@@ -663,27 +670,26 @@ class MotionStream:
         self.steps += 1
         return row if self.anchor is None else self.anchor.after(row)
 
-    def emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False) -> np.ndarray:
-        features, joints = self._final(self.generator._denormalised(normalised), end)
+    def emit(
+        self, tokens: np.ndarray, normalised: np.ndarray, limit: int | None = None
+    ) -> np.ndarray:
+        """The frames that became final from decoded rows (at most `limit`: `finish`)."""
+        features, joints = self._final(self.generator._denormalised(normalised))
         skip = min(self._skip, len(joints))
         features, joints, self._skip = features[skip:], joints[skip:], self._skip - skip
+        features, joints = features[:limit], joints[:limit]
         self.frames_emitted += len(joints)
         if self._record is not None:
             self._record.append((tokens, features.astype(np.float32), joints))
         return joints
 
-    def _final(self, features: np.ndarray, end: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def _final(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Decoded rows in, the rows now final out with their joints: the feet planted when
-        asked, LOOKAHEAD frames later (all of them at the `end`)."""
+        asked, LOOKAHEAD frames later."""
         joints = self._joints.push(features)
         if self._feet is None:
             return features, joints
-        final = self._feet.push(features, joints)
-        if end:
-            final = tuple(
-                np.concatenate(pair) for pair in zip(final, self._feet.flush(), strict=False)
-            )
-        return final
+        return self._feet.push(features, joints)
 
     def _pending_frames(self) -> int:
         """Frames drawn as tokens but not yet emitted (the decoder's lookahead, and the
