@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 MAGIC = b"MOGO"
 VERSION = 1  # the format written; states of a newer one are refused
 HEADER = struct.Struct("<4sBI32s")  # magic, version, payload length, sha256 of the payload
-MAX_STATE_CHARS = 65536  # refused before decoding: a state is ~2-15 KB
+MAX_STATE_CHARS = 32768  # refused before decoding: a state is ~2-17 KB
 MAX_PAYLOAD = 1 << 17  # bytes of JSON a payload may inflate to (a zip bomb stops here)
 MAX_PROMPT_CHARS = 4096
 MAX_STEPS = 1 << 40

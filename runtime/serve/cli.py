@@ -14,6 +14,7 @@ import sys
 from urllib.parse import urlsplit
 
 from mogo.cli import CliError, _load_generator, needs_extra
+from mogo.serve.protocol import STATE_EVERY_SECONDS
 
 TOKEN_VARIABLE = "MOGO_SERVE_TOKEN"
 RESERVED_DESCRIPTORS = 64  # file descriptors kept for the process itself (graphs, logs)
@@ -56,6 +57,15 @@ def add_commands(commands) -> None:
         help="a secret every request must carry ('Authorization: "
         f"Bearer TOKEN' or ?token=TOKEN); env {TOKEN_VARIABLE}",
     )
+    serve.add_argument(
+        "--state-every",
+        type=float,
+        default=STATE_EVERY_SECONDS,
+        metavar="SECONDS",
+        help="send each client its stream's state this often, to resume it on any server "
+        f"with the same bundle (default {STATE_EVERY_SECONDS:g}; 0: on request and after "
+        "switches only)",
+    )
     serve.set_defaults(run=_cmd_serve)
 
 
@@ -83,12 +93,23 @@ def _cmd_serve(args: argparse.Namespace) -> None:
             + ("" if token else "; anyone who reaches it can use it (see --token)"),
             file=sys.stderr,
         )
-    app = server.make_app(_load_generator(args), args.threads or 2, args.max_streams, access=access)
+    if not 0 <= args.state_every <= 3600:
+        raise CliError(
+            f"--state-every must be between 0 and 3600 seconds, got {args.state_every:g}"
+        )
+    app = server.make_app(
+        _load_generator(args),
+        args.threads or 2,
+        args.max_streams,
+        access=access,
+        state_every=args.state_every,
+    )
     asyncio.run(_serve(app, args.host, args.port, _connections(args.max_streams)))
 
 
 async def _serve(app, host: str, port: int, connections: int) -> None:
-    """Listen, then say so; serve until SIGINT, SIGTERM or SIGHUP, then close every socket."""
+    """Listen, then say so; serve until SIGINT, SIGTERM or SIGHUP, then drain: every client
+    gets its stream's state to resume elsewhere (docs/deploy.md), every socket is closed."""
     from mogo.serve import server
 
     address = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
@@ -110,6 +131,8 @@ async def _serve(app, host: str, port: int, connections: int) -> None:
     )
     try:
         await stopping.wait()
+        listener.close()  # new connections go elsewhere at once (a proxy retries them)
+        await app[server.SERVER].drain()
     finally:
         await server.stop(runner, listener)
 
