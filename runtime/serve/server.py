@@ -515,11 +515,12 @@ def make_app(
 
 
 async def listen(
-    app: web.Application, host: str, port: int, max_connections: int
+    app: web.Application, host: str, port: int, max_connections: int, reuse_port: bool = False
 ) -> tuple[web.AppRunner, asyncio.Server]:
     """Serve `app` on host:port (OSError where it cannot listen): a client's disconnect
     cancels its request, idle and half-sent connections are closed, at most
-    `max_connections` are open at once."""
+    `max_connections` are open at once. `reuse_port`: other processes listen on the port
+    too (SO_REUSEPORT: the kernel spreads the connections; `mogo serve --workers`)."""
     runner = web.AppRunner(
         app,
         handle_signals=False,
@@ -532,7 +533,10 @@ async def listen(
     open_ = set()
     try:
         listener = await asyncio.get_running_loop().create_server(
-            lambda: _Guarded(runner.server(), open_, max_connections), host, port
+            lambda: _Guarded(runner.server(), open_, max_connections),
+            host,
+            port,
+            reuse_port=reuse_port or None,
         )
     except BaseException:
         await runner.cleanup()
