@@ -130,18 +130,20 @@ class Engine:
         self.streams[stream.id] = stream
         return stream
 
-    def resume(self, state: State, now: float, send_from: int) -> ServedStream:
-        """A stream going on from `state` (its prompt checked by the caller), sending frames
-        from `send_from` on: it catches up at once to where a stream of its steps would be,
-        and past the frames its client already has."""
-        stream = ServedStream(
+    def restore(self, state: State) -> ServedStream:
+        """A stream going on from `state` (its prompt checked by the caller), its cache made
+        again (tens of ms: on any thread, the engine's goes on stepping); `resume` starts it."""
+        return ServedStream(
             self, state.prompt, state.seed, state.sampling, 0, state.plant_feet, state
         )
+
+    def resume(self, stream: ServedStream, now: float, send_from: int) -> None:
+        """Start a restored stream, sending frames from `send_from` on: it catches up at once
+        to where a stream of its steps would be, and past the frames its client has."""
         ahead = max(0, send_from - stream.frames_emitted) // self.generator.down_factor
         stream.start_tick = self.tick(now) - stream.steps - ahead
         stream.send_from = send_from
         self.streams[stream.id] = stream
-        return stream
 
     def switch(self, stream: ServedStream, prompt: str) -> None:
         stream.switch_prompt(prompt)

@@ -160,6 +160,7 @@ class Server:
         self.thread = ThreadPoolExecutor(1, "mogo-engine")
         self.clip_workers = threads
         self.clips = ThreadPoolExecutor(threads, "mogo-generate")
+        self.restores = ThreadPoolExecutor(1, "mogo-resume")  # resumed streams' caches
         self.clip_jobs = 0  # running and waiting
         self.wake = asyncio.Event()
         self.queues: dict[int, asyncio.Queue] = {}
@@ -237,22 +238,39 @@ class Server:
         seed = _seed(start.seed)
         return self.engine.open(text, seed, sampling, self.clock(), start.plant_feet), notes
 
-    def resume(self, resume: protocol.Resume) -> tuple[ServedStream, list[str]]:
+    async def resume(self, resume: protocol.Resume) -> tuple[ServedStream, list[str]]:
         """A stream going on from a client's state (mogo.stream_state), refused with one
-        error where the state is not one this server goes on from."""
+        error where the state is not one this server goes on from. Its cache is made again
+        on a thread of its own: the engine goes on stepping the others meanwhile."""
+        state, first, notes = await self.call(self._resumable, resume)
+        try:
+            stream = await asyncio.get_running_loop().run_in_executor(
+                self.restores, self.engine.restore, state
+            )
+        except StateError as error:
+            raise protocol.ProtocolError(str(error)) from None
+        await self.call(self._resume, stream, first)
+        return stream, notes
+
+    def _resumable(self, resume: protocol.Resume):
+        """The state read and checked, the first frame to send, the prompt's notes."""
         self.admit()
         try:
             state = read_state(resume.state, self.generator)
             if state.low_latency:
                 raise StateError("the state is of a low-latency stream; the server's are not")
             _, notes = self.checked_prompt(state.prompt)
-            frame = state.payload["frames"]  # checked by restore, in Engine.resume
+            frame = state.payload["frames"]  # checked by restore, in Engine.restore
             first = frame if resume.first is None else resume.first
             if not isinstance(frame, int) or first > frame + RESUME_AHEAD_SECONDS * self.engine.fps:
                 raise StateError(f'"from" is more than {RESUME_AHEAD_SECONDS:g} s past the state')
-            return self.engine.resume(state, self.clock(), max(first, frame)), notes
         except StateError as error:
             raise protocol.ProtocolError(str(error)) from None
+        return state, max(first, frame), notes
+
+    def _resume(self, stream: ServedStream, first: int) -> None:
+        self.admit()  # again: other streams may have come while its cache was made
+        self.engine.resume(stream, self.clock(), first)
 
     def switch(self, stream: ServedStream, prompt: str) -> list[str]:
         text, notes = self.checked_prompt(prompt)
@@ -313,7 +331,7 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                 if stream is None:
                     if "resume" in body:
                         start = protocol.resume(body)
-                        stream, notes = await server.call(server.resume, start)
+                        stream, notes = await server.resume(start)
                     else:
                         start = protocol.start(body)
                         stream, notes = await server.call(server.open, start)
@@ -499,6 +517,7 @@ def make_app(
         server.thread.shutdown(wait=False, cancel_futures=True)
         server.engine.shutdown()
         server.clips.shutdown(wait=False, cancel_futures=True)
+        server.restores.shutdown(wait=False, cancel_futures=True)
 
     async def close_sockets(app):
         """On SIGINT/SIGTERM: every client gets a close frame (1001, going away), not a 1006."""
