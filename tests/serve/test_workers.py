@@ -20,9 +20,13 @@ from mogo.cli import main  # noqa: E402
 SOCKETS = 16  # all on one worker by chance: 2 ** -15
 
 
-def test_bad_worker_counts_are_one_line(capsys):
+def test_bad_worker_counts_and_state_periods_are_one_line(capsys):
     assert main(["serve", "--workers", "0"]) == 2
     assert capsys.readouterr().err == "mogo: error: --workers must be at least 1, got 0\n"
+    assert main(["serve", "--state-every", "-1"]) == 2
+    assert capsys.readouterr().err == (
+        "mogo: error: --state-every must be between 0 and 3600 seconds, got -1\n"
+    )
 
 
 @pytest.mark.skipif(not hasattr(socket, "SO_REUSEPORT"), reason="needs SO_REUSEPORT (Linux)")
