@@ -6,7 +6,14 @@ own socket while the others stream on; a drained server hands every client its s
 import asyncio
 import base64
 import json
+import signal
+import socket
 import struct
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -198,3 +205,63 @@ def test_states_come_every_few_seconds(generator, engine_parts):
             assert second["frame"] > first["frame"]
 
     two_servers(generator, engine_parts, test, state_every=0.5)
+
+
+def serve_on(port: int, log) -> subprocess.Popen:
+    """A real `mogo serve` on `port`, once its health check answers."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--threads", "1"],
+        stderr=log,
+    )
+    deadline = time.monotonic() + 60
+    while True:
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/v1/health", timeout=2):
+                return process
+        except OSError:
+            assert process.poll() is None and time.monotonic() < deadline, "no mogo serve"
+            time.sleep(0.2)
+
+
+def test_the_example_client_resumes_by_itself_when_its_server_drains(tmp_path):
+    """examples/websocket_client.py against a real `mogo serve` that is drained (SIGTERM)
+    mid-stream and replaced by another on the same port: the client reconnects, resumes, and
+    its frames run on with no gap and nothing twice."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    example = Path(__file__).resolve().parents[2] / "examples" / "websocket_client.py"
+    log = open(tmp_path / "serve.log", "w")  # noqa: SIM115 (closed below)
+    servers = [serve_on(port, log)]
+    client = subprocess.Popen(
+        [sys.executable, str(example), f"ws://127.0.0.1:{port}/v1/stream"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        lines = []
+        while not any(line.startswith("frames") for line in lines):
+            lines.append(client.stdout.readline())
+            assert lines[-1], client.stderr.read()
+        servers[0].send_signal(signal.SIGTERM)
+        assert servers[0].wait(15) == 0
+        servers.append(serve_on(port, log))
+        out, err = client.communicate(timeout=120)
+        assert client.returncode == 0, err
+    finally:
+        for process in [client, *servers]:
+            if process.poll() is None:
+                process.kill()
+                process.wait(10)
+        log.close()
+    lines += out.splitlines()
+    assert "reconnecting" in lines
+    ranges = [
+        tuple(int(n) for n in line.split()[1].rstrip(",").split("-"))
+        for line in lines
+        if line.startswith("frames")
+    ]
+    assert ranges[0][0] == 0 and ranges[-1][1] >= 100
+    for (_, end), (start, _) in zip(ranges, ranges[1:], strict=False):
+        assert start == end + 1, ranges
