@@ -259,6 +259,9 @@ class Server:
             state = read_state(resume.state, self.generator)
             if state.low_latency:
                 raise StateError("the state is of a low-latency stream; the server's are not")
+            window = self.generator.defaults.window  # what a resume may replay: bounded
+            if state.window is None or state.window > window:
+                raise StateError(f"the state's window is larger than this server's ({window})")
             _, notes = self.checked_prompt(state.prompt)
             frame = state.payload["frames"]  # checked by restore, in Engine.restore
             first = frame if resume.first is None else resume.first

@@ -143,6 +143,7 @@ def test_bad_resume_states_get_one_error_each_and_the_others_stream_on(generator
         "at most": "A" * 40_000,
         '"resume" must be a state': 12,
         "not a stream state": "bm90IGEgc3RhdGU",
+        "window is larger": reseal(state, "window", 4000),  # a resume would replay 4000 steps
     }
 
     async def test(a, b, _):
