@@ -50,6 +50,9 @@ from mogo.progress import Progress
 from mogo.repertoire import Familiarity
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StreamingDecoder
+from mogo.stream_state import StateError
+from mogo.stream_state import read as read_state
+from mogo.stream_state import write as write_state
 from mogo.text_side import TextSide
 from mogo.token_generator import Stopped, TokenGenerator, TokenStream
 
@@ -489,6 +492,30 @@ class MotionGenerator:
             low_latency,
         )
 
+    def resume(self, state: str) -> MotionStream:
+        """The stream `MotionStream.state()` was taken from, going on from there: the next
+        frames are those the original made after it (on this machine, the same graphs). A
+        state of another bundle, corrupted, truncated, hostile or of a newer format: one
+        ValueError (mogo.stream_state.StateError) naming the problem. Costs a prefill and
+        a step per token step since the stream's clip started or re-anchored (tens of ms)."""
+        resumed = read_state(state, self)
+        if resumed.low_latency and self._low_latency is None:
+            raise StateError(
+                "the state is of a low-latency stream; this bundle has no such decoder"
+            )
+        stream = MotionStream(
+            self,
+            resumed.prompt,
+            resumed.seed,
+            resumed.sampling,
+            resumed.window,
+            resumed.plant_feet,
+            resumed.anchoring,
+            resumed.low_latency,
+        )
+        resumed.restore(stream)
+        return stream
+
     def streaming_decoder(
         self, session: ort.InferenceSession | None = None, low_latency: bool = False
     ) -> StreamingDecoder:
@@ -564,7 +591,7 @@ class MotionStream:
         )
         self.decoder = generator.streaming_decoder(decoder_session, low_latency=low_latency)
         self._joints = JointStream(generator.skeleton)
-        self._feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
+        self.feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
         self.frames_emitted = 0
         self._skip = 0
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
@@ -627,6 +654,14 @@ class MotionStream:
             self._final(self.generator._denormalised(self.decoder.push(tokens)))
             self._skip = self._pending_frames()  # the clip's own last frames: not again
 
+    def state(self) -> str:
+        """Everything that keeps this stream going, as compact text (mogo.stream_state, a
+        few KB): `MotionGenerator.resume(state)` goes on from here, also in another process
+        or on another machine with the same bundle. Its first frame is frame
+        `frames_emitted` (frames decoded but not yet read from frames() come first)."""
+        with self._lock:
+            return write_state(self)
+
     def advance(self, steps: int) -> None:
         """Draw `steps` token steps, keeping everything for `finish()`."""
         steps = checked_int(steps, "steps", 0)
@@ -644,7 +679,7 @@ class MotionStream:
         levels = g.tokens.num_levels
         with self._lock:
             left = self._pending_frames() - self._skip  # the frames still to come out
-            feet = 0 if self._feet is None else math.ceil(FEET_LOOKAHEAD / g.down_factor)
+            feet = 0 if self.feet is None else math.ceil(FEET_LOOKAHEAD / g.down_factor)
             drawn = [self._next_tokens() for _ in range(feet + self.decoder.lookahead)]
             ahead = np.reshape(drawn, (-1, levels))
             features = np.concatenate(
@@ -687,14 +722,14 @@ class MotionStream:
         """Decoded rows in, the rows now final out with their joints: the feet planted when
         asked, LOOKAHEAD frames later."""
         joints = self._joints.push(features)
-        if self._feet is None:
+        if self.feet is None:
             return features, joints
-        return self._feet.push(features, joints)
+        return self.feet.push(features, joints)
 
     def _pending_frames(self) -> int:
         """Frames drawn as tokens but not yet emitted (the decoder's lookahead, and the
         frames the foot planter holds back)."""
-        held = 0 if self._feet is None else self._feet.pending
+        held = 0 if self.feet is None else self.feet.pending
         return (self.decoder.pushed - self.decoder.emitted) * self.generator.down_factor + held
 
 
