@@ -398,7 +398,7 @@ class MotionGenerator:
         Steps past the cut are only the right context of the last kept frames (decoded
         without it, against the zero padding of an end, they collapse): Motion.tokens keeps
         the steps the kept frames come from. The feet are planted in the kept frames alone,
-        the cut being the clip's end (as a stream's finish() does)."""
+        the cut being the clip's end."""
         decoder = self.streaming_decoder()
         normalised = decoder.decode_offline(tokens)[:frames]
         features = self._denormalised(normalised)

@@ -9,6 +9,7 @@ import pytest
 from mogo import Anchoring, MotionGenerator
 from mogo.anchoring import settles
 from mogo.motion.features import facing_directions
+from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 
 SMALL = Anchoring(span=20, keep=5, max_one_off=60)
 
@@ -51,15 +52,13 @@ def test_re_anchored_streams_are_deterministic_and_decode_like_their_tokens(gene
         stream.advance(100)
         runs.append((stream.finish(), stream.anchor.anchors))
     (motion, anchors), (again, _) = runs
-    assert anchors == (100 + lookahead - SMALL.span) // (SMALL.span - SMALL.keep) + 1
+    ahead = lookahead + FEET_LOOKAHEAD  # steps finish() draws past the cut (down factor 1)
+    assert anchors == (100 + ahead - SMALL.span) // (SMALL.span - SMALL.keep) + 1
     assert np.array_equal(motion.tokens, again.tokens)
     assert np.array_equal(motion.joints, again.joints)
-    longer = generator.stream("a person jogs forward.", seed=3, anchoring=SMALL)
-    longer.advance(100 + lookahead)
-    context = longer.finish().tokens
-    assert np.array_equal(context[:100], motion.tokens)
-    offline = generator.decode(context, [], frames=100)
-    np.testing.assert_allclose(motion.joints, offline.joints, atol=1e-5)
+    np.testing.assert_allclose(
+        motion.joints, offline_past_the_cut(generator, motion, SMALL), atol=1e-5
+    )
     plain = generator.stream("a person jogs forward.", seed=3, anchoring=False)
     plain.advance(100)
     tokens = plain.finish().tokens
@@ -111,7 +110,6 @@ def test_a_spin_the_model_ends_starts_again_and_keeps_turning(generator):
     """The model ends a spin after one turn (2 s, within the span): a fresh clip of it starts
     (re-anchored from the turn's standing end instead, the model stood). Frames still decode
     like the tokens across the fresh clips."""
-    lookahead = generator.manifest.vq.decoder.lookahead
     stream = generator.stream("a person spins to the left.", seed=0)
     stream.advance(200)
     motion = stream.finish()
@@ -121,12 +119,20 @@ def test_a_spin_the_model_ends_starts_again_and_keeps_turning(generator):
     facing = facing_directions(motion.joints[:200], generator.skeleton, facing_sigma=0)
     turned = np.degrees(np.ptp(np.unwrap(np.arctan2(facing[:, 0], facing[:, 2]))))
     assert turned > 3 * 360 - 90  # about 180 degrees a second, as the corpus spins
-    longer = generator.stream("a person spins to the left.", seed=0)
-    longer.advance(200 + lookahead)
+    np.testing.assert_allclose(
+        motion.joints, offline_past_the_cut(generator, motion, Anchoring()), atol=1e-5
+    )
+
+
+def offline_past_the_cut(generator, motion, anchoring) -> np.ndarray:
+    """`motion`'s frames decoded offline from its tokens and those that follow them, its
+    last frames planted with the feet's lookahead as the stream going on plants them."""
+    prompt, steps = motion.prompts[0][1], len(motion.tokens)
+    longer = generator.stream(prompt, seed=motion.seed, anchoring=anchoring)
+    longer.advance(steps + FEET_LOOKAHEAD + generator.manifest.vq.decoder.lookahead)
     context = longer.finish().tokens
-    assert np.array_equal(context[:200], motion.tokens)
-    offline = generator.decode(context, [], frames=200)
-    np.testing.assert_allclose(motion.joints, offline.joints, atol=1e-5)
+    assert np.array_equal(context[:steps], motion.tokens)
+    return generator.decode(context, [], frames=steps + FEET_LOOKAHEAD).joints[:steps]
 
 
 def test_anchoring_arguments_are_checked(generator):
