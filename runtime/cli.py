@@ -30,6 +30,15 @@ from mogo.arguments import (
     plural,
     shown,
 )
+from mogo.cli_flags import (
+    OldSpelling,
+    add_bundle,
+    add_bundle_argument,
+    add_out,
+    add_overwrite,
+    add_threads,
+    current_spelling,
+)
 from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
@@ -422,7 +431,7 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
 def _generation_arguments(command: argparse.ArgumentParser) -> None:
     """--bundle, --seed, a flag per field of Sampling (--top-k for top_k), --threads and
     --no-plant-feet."""
-    command.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
+    add_bundle(command)
     command.add_argument(
         "--seed", type=int, help="same seed, same motion (default: random, printed)"
     )
@@ -438,10 +447,9 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
         help="refuse a prompt far from what the model was trained on (bundles "
         "with a repertoire; `mogo info` shows its threshold)",
     )
-    command.add_argument(
-        "--threads",
-        type=int,
-        help="cores to use; the same motion for any count (default: 2 where "
+    add_threads(
+        command,
+        "cores to use; the same motion for any count (default: 2 where "
         "there are 2 or more, the fastest measured)",
     )
     command.add_argument(
@@ -469,12 +477,11 @@ def _add_runtime_commands(commands) -> None:
         "--prompts-file",
         help="a schedule instead of one prompt: lines 'SECONDS PROMPT', played as one motion",
     )
-    generate.add_argument("--out", default="out", help="output folder (default out/)")
+    add_out(generate, "output folder", default="out")
     generate.add_argument("--name", help="file name without extension (default: from the prompt)")
-    generate.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace an earlier take of the same name (default: keep it, and "
+    add_overwrite(
+        generate,
+        "replace an earlier take of the same name (default: keep it, and "
         "name this one NAME-2, NAME-3, ...: the first free)",
     )
     generate.add_argument(
@@ -546,20 +553,21 @@ def _add_runtime_commands(commands) -> None:
     addon = commands.add_parser(
         "blender-addon", help="write the Blender add-on as the zip Blender installs"
     )
-    addon.add_argument(
-        "--out", default="mogo_blender.zip", help="the zip to write (default mogo_blender.zip)"
-    )
-    addon.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    add_out(addon, "the zip to write", default="mogo_blender.zip")
+    add_overwrite(addon)
     addon.set_defaults(run=_cmd_blender_addon)
 
     info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
-    info.add_argument("bundle", nargs="?", help="bundle folder")
+    add_bundle_argument(info)
     info.set_defaults(run=_cmd_info)
 
 
 class _Parser(argparse.ArgumentParser):
     """argparse with its errors (unknown flag, 'x' for a number) as the one `mogo: error:`
-    line every bad input gets, instead of a usage block; --help still shows the usage."""
+    line every bad input gets, instead of a usage block; --help still shows the usage. The
+    top parser keeps the old spellings its verbs still take (mogo.cli_flags.OldSpelling)."""
+
+    old_spellings: tuple[OldSpelling, ...] = ()
 
     def error(self, message: str):
         self.exit(2, f"mogo: error: {message} (see {self.prog} --help)\n")
@@ -582,8 +590,9 @@ def build_parser() -> argparse.ArgumentParser:
     # by name: an environment that still has the old `mogo` distribution beside `mogo-edge`
     # lists each verb twice
     plugins = {plugin.name: plugin for plugin in entry_points(group=PLUGIN_GROUP)}
-    for name in sorted(plugins):
-        plugins[name].load()(commands)
+    parser.old_spellings = tuple(
+        old for name in sorted(plugins) for old in plugins[name].load()(commands) or ()
+    )
     return parser
 
 
@@ -592,7 +601,10 @@ def main(argv: list[str] | None = None) -> int:
         with contextlib.suppress(AttributeError, ValueError):
             stream.reconfigure(errors="backslashreplace")
     try:
-        args = build_parser().parse_args(argv)
+        parser = build_parser()
+        args = parser.parse_args(
+            current_spelling(sys.argv[1:] if argv is None else argv, parser.old_spellings)
+        )
     except KeyboardInterrupt:  # Ctrl-C while the verbs load: a quiet stop, as during a run
         return 130
     status = _run(args)

@@ -1,4 +1,4 @@
-"""`mogo eval BUNDLE --data DIR --evaluator DIR`: a bundle's text-to-motion quality on a test
+"""`mogo bench eval BUNDLE --data DIR --evaluator DIR`: a bundle's text-to-motion quality on a test
 split, by the protocol every paper reports (docs/evaluation.md), without torch.
 
 Items are the test split's caption spans of 40..196 feature rows (cut to the first 196), the

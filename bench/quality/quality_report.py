@@ -3,7 +3,7 @@
     python -m mogo.bench.quality.quality_report --data DIR --evaluator RUN/evaluator \
         --out docs/quality.md
 
-the metric table of `mogo eval`, the per-primitive semantic pass rates (mogo.bench.quality.semantic)
+the metric table of `mogo bench eval`, the per-primitive semantic pass rates (mogo.bench.quality.semantic)
 for the real and the generated clips, the foot measures (mogo.bench.quality.feet), and the
 MoSA-VQ ablation table that
 `python -m mogo.bench.training.vq_ablation --runs RUNS` writes to RUNS/ablation.md

@@ -1,4 +1,4 @@
-"""`python -m mogo.bench.speed.portable`: the portable bundle (`mogo export --portable`) measured
+"""`python -m mogo.bench.speed.portable`: the portable bundle (`mogo export portable`) measured
 for docs/portable.md, as markdown: its size, every graph's opset and ops, token agreement with
 the int8 bundle, and how fast a 5-s clip comes out of it in our runtime, in the JavaScript port
 under Node and in headless Chromium (those two skipped where absent).

@@ -1,4 +1,4 @@
-"""`mogo bench` part 2, the step: one whole time step (every level, sampling included) of a
+"""`mogo bench latency` part 2, the step: one whole time step (every level, sampling included) of a
 model size against the KV cache length, on onnxruntime fp32 and int8, torch eager with the KV
 cache and torch eager recomputing the prefix, each row with its floor (bytes over bandwidth or
 FLOPs over peak, whichever is larger). Random weights: the cost does not depend on them."""

@@ -104,7 +104,7 @@ LOW_LATENCY_DECODER = "vq_decoder_low_latency.onnx"
 
 
 def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
-    """`mogo export --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of RUN, for a
+    """`mogo export decoder --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of RUN, for a
     decoder fine-tune of OLD's own VQ (`mogo train vq --init OLD --tune decoder`), which needs
     none of OLD's training runs. A decoder of a shorter lookahead (`--decoder-lookahead`) goes
     beside OLD's as its low-latency decoder (replacing any OLD had); else it replaces OLD's.

@@ -1,4 +1,4 @@
-"""`mogo export --portable --bundle IN --out OUT`: a bundle whose graphs run where Python does
+"""`mogo export portable --bundle IN --out OUT`: a bundle whose graphs run where Python does
 not: Unity's inference engine (Sentis: ONNX opsets 7 to 15) and onnxruntime-web.
 
 Every graph of IN is rewritten, nothing retrained: the int8 level graphs' quantised MatMuls

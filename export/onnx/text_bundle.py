@@ -1,4 +1,4 @@
-"""`mogo export --text RUN --bundle OLD --out NEW`: OLD with a pretrained sentence encoder as
+"""`mogo export text --text RUN --bundle OLD --out NEW`: OLD with a pretrained sentence encoder as
 its text side (a `mogo train text` run: all-MiniLM-L6-v2 and the adapter onto OLD's prompt
 space), and the repertoire it reports prompts against. OLD's own text encoder and tokenizer
 stay, renamed (`text.trained`): the runtime reads with them the prompts whose every word they

@@ -14,6 +14,7 @@ import sys
 from urllib.parse import urlsplit
 
 from mogo.cli import CliError, _load_generator, needs_extra
+from mogo.cli_flags import add_bundle, add_threads
 
 TOKEN_VARIABLE = "MOGO_SERVE_TOKEN"
 RESERVED_DESCRIPTORS = 64  # file descriptors kept for the process itself (graphs, logs)
@@ -31,12 +32,8 @@ def add_commands(commands) -> None:
         help="address to listen on (default 127.0.0.1: this machine only)",
     )
     serve.add_argument("--port", type=int, default=8765, help="port (default 8765)")
-    serve.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    serve.add_argument(
-        "--threads",
-        type=int,
-        help="cores for the level graphs (default 2 where there are 2 or more)",
-    )
+    add_bundle(serve)
+    add_threads(serve, "cores for the level graphs (default 2 where there are 2 or more)")
     serve.add_argument(
         "--max-streams",
         type=int,

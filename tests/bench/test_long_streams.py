@@ -1,4 +1,4 @@
-"""`mogo long-streams --quick` end to end on the shipped bundle (two actions, both modes), a run
+"""`mogo bench long-streams --quick` end to end on the shipped bundle (two actions, both modes), a run
 of chosen actions, and the window checks it rests on, judged against the procedural animator's own performance."""
 
 import json
@@ -19,7 +19,7 @@ from mogo.cli import main
 
 
 def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
-    assert main(["long-streams", "--quick", "--jobs", "1", "--out", str(tmp_path)]) == 0
+    assert main(["bench", "long-streams", "--quick", "--jobs", "1", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     assert "| walk forward | a person walks forward. |" in printed
     assert "| sit down (one-off: hold) |" in printed and "within 1.5 s" in printed
@@ -34,6 +34,7 @@ def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
     assert (
         main(
             [
+                "bench",
                 "long-streams",
                 "--modes",
                 "on",
@@ -68,7 +69,7 @@ def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
     ],
 )
 def test_bad_choices_are_one_line_errors(args, message, capsys):
-    assert main(["long-streams", *args]) == 2
+    assert main(["bench", "long-streams", *args]) == 2
     assert message in capsys.readouterr().err
 
 
