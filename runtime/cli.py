@@ -63,7 +63,7 @@ def require_torch() -> None:
         raise CliError(needs_extra("training", "train"))
 
 
-def _load_generator(args: argparse.Namespace):
+def load_generator(args: argparse.Namespace):
     from mogo.generator import MotionGenerator
 
     if args.threads is not None and args.threads < 1:
@@ -180,7 +180,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     )  # before the work
     seconds = sum(s for _, s in schedule) if args.prompts_file else args.seconds
     long = seconds is not None and seconds >= LONG_TAKE_SECONDS
-    generator = _load_generator(args)
+    generator = load_generator(args)
     rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
     sampling = _sampling(args, generator)
     if args.prompts_file:
@@ -276,7 +276,7 @@ def _align_hint(args: argparse.Namespace, far: bool) -> str:
 def _cmd_stream(args: argparse.Namespace) -> None:
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be at least 1, got {args.frames}")
-    generator = _load_generator(args)
+    generator = load_generator(args)
     stream = generator.stream(
         args.text,
         seed=args.seed,

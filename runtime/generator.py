@@ -194,10 +194,10 @@ class MotionGenerator:
         drawn (minutes, for a long clip)."""
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
-        seed = _seed(seed)
+        seed = checked_seed(seed)
         aligner = self.aligner(align)
         plant_feet = checked_bool(plant_feet, "plant_feet")
-        text = checked_prompt(text) if aligner else self._prompt(text)
+        text = checked_prompt(text) if aligner else self.read_prompt(text)
         return self._generate(
             text,
             seconds,
@@ -272,7 +272,7 @@ class MotionGenerator:
             raise ValueError("no prompt given")
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
-        seed = _seed(seed)
+        seed = checked_seed(seed)
         aligner = self.aligner(align)
         plant_feet = checked_bool(plant_feet, "plant_feet")
         for k, text in enumerate(texts):  # not a comprehension: its own frame (Python 3.11)
@@ -280,7 +280,7 @@ class MotionGenerator:
             texts[k] = (
                 checked_prompt(text, f"texts[{k}]")
                 if aligner
-                else self._prompt(text, f"texts[{k}]")
+                else self.read_prompt(text, f"texts[{k}]")
             )
         return [
             self._generate(text, seconds, seed + k, sampling, aligner, plant_feet)
@@ -317,7 +317,7 @@ class MotionGenerator:
         ScheduleError naming it. progress=True: a progress line on stderr while the token
         steps are drawn."""
         sampling = self.sampling(sampling, **options)
-        seed = _seed(seed)
+        seed = checked_seed(seed)
         plant_feet = checked_bool(plant_feet, "plant_feet")
         entries = checked_schedule(schedule)
         lengths = []
@@ -338,7 +338,7 @@ class MotionGenerator:
         prompts = []
         for k, entry in enumerate(entries):
             try:
-                prompts.append(self._prompt(entry[0], "prompt"))
+                prompts.append(self.read_prompt(entry[0], "prompt"))
             except TypeError as error:
                 raise TypeError(f"schedule[{k}]: {error}") from None
             except ValueError as error:
@@ -461,7 +461,7 @@ class MotionGenerator:
         decode with the bundle's low-latency decoder (its frames wait a few tokens, not the
         centred decoder's 31; a little less exact: docs/model.md), every token."""
         sampling = self.sampling(sampling, **options)
-        seed = _seed(seed)
+        seed = checked_seed(seed)
         window = self.defaults.window if window is None else checked_int(window, "window", 1)
         if anchoring is True:
             anchoring = Anchoring()
@@ -479,7 +479,7 @@ class MotionGenerator:
             )
         return MotionStream(
             self,
-            self._prompt(text),
+            self.read_prompt(text),
             seed,
             sampling,
             window,
@@ -524,7 +524,7 @@ class MotionGenerator:
     def _steps(self, seconds: float) -> int:
         return max(1, math.ceil(round(seconds * self.fps) / self.down_factor))
 
-    def _prompt(self, text: object, name: str = "text") -> str:
+    def read_prompt(self, text: object, name: str = "text") -> str:
         """A prompt checked where it enters the API (see mogo.text_side.TextSide.read)."""
         return self.text.read(text, name, stacklevel=4)
 
@@ -598,7 +598,7 @@ class MotionStream:
     def set_prompt(self, text: str) -> None:
         """Switch the prompt from the next step on (exact: the cache is re-prefilled). Safe
         from another thread than the one reading frames: it waits for the step under way."""
-        self.switch_prompt(self.generator._prompt(text))
+        self.switch_prompt(self.generator.read_prompt(text))
 
     def switch_prompt(self, text: str) -> None:
         """`set_prompt` for a prompt already checked (a schedule's, a server client's)."""
@@ -692,7 +692,7 @@ class MotionStream:
         return (self.decoder.pushed - self.decoder.emitted) * self.generator.down_factor + held
 
 
-def _seed(seed: object) -> int:
+def checked_seed(seed: object) -> int:
     """The caller's seed, checked; None draws a fresh one (kept in Motion.seed)."""
     if seed is None:
         return int(np.random.SeedSequence().generate_state(1)[0])

@@ -101,7 +101,7 @@ def _live(scene, frames: int) -> dict:
 
     scene.mogo.prompt, scene.mogo.live_prompt = "a person walks forward.", "a person jogs."
     bpy.ops.mogo.live(mode="START")
-    session, started, switched = ui._CACHE["live"], time.monotonic(), False
+    session, started, switched = ui.SESSION["live"], time.monotonic(), False
     prompts = session.stream.prompts  # (frame, prompt): the worker appends the switch
     while time.monotonic() - started < 120:
         time.sleep(0.05)
@@ -121,7 +121,7 @@ def _live(scene, frames: int) -> dict:
         keys=_hips_keys(ours.animation_data.action),
         plays=_plays(scene, ours),
         error=str(session.error or ""),
-        running="live" in ui._CACHE,
+        running="live" in ui.SESSION,
     )
 
 

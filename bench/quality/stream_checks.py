@@ -119,7 +119,9 @@ def window_passes(check: WindowCheck, joints: np.ndarray) -> list[bool]:
     windows = [joints[k : k + n] for k in range(0, len(joints) - n + 1, n)]
     if check.action.continuing:
         return [check.continuing(w) for w in windows]
-    return [check.happened(windows[0])] + [S._idle(w, {}, None).passed for w in windows[1:]]
+    return [check.happened(windows[0])] + [
+        S.CHECKS["idle"](w, {}, None).passed for w in windows[1:]
+    ]
 
 
 def reaction_frames(check: WindowCheck, after: np.ndarray, hop: int = 5) -> int | None:

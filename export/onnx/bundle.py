@@ -132,7 +132,7 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
             f"{agreement:.1%}): only a decoder fine-tune of the bundle's VQ fits its "
             "level graphs"
         )
-    out = _new_folder(out)
+    out = new_folder(out)
     manifest = old.manifest
     decoder = LOW_LATENCY_DECODER if low_latency else manifest.vq.decoder.file
     for name in manifest.files:
@@ -175,7 +175,7 @@ def _vq_provenance(state: dict) -> TrainingRun:
     )
 
 
-def _new_folder(out: Path) -> Path:
+def new_folder(out: Path) -> Path:
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out} is not empty; choose a new folder for the bundle")
@@ -205,7 +205,7 @@ def write_bundle(
     the train `captions` (dict train=, val=)."""
     from mogo.export.models.sentence_encoder import SentenceTower
 
-    out = _new_folder(out)
+    out = new_folder(out)
     tower = isinstance(text_encoder, SentenceTower)
     if tower:
         from mogo.export.onnx.text_bundle import sentence_text_side

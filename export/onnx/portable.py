@@ -24,7 +24,7 @@ from onnx import helper, numpy_helper
 from onnx.reference import ReferenceEvaluator
 
 from mogo.bundle import Bundle, write_manifest
-from mogo.export.onnx.bundle import _new_folder, store_weights_fp16
+from mogo.export.onnx.bundle import new_folder, store_weights_fp16
 from mogo.manifest import Fp16Storage, Manifest
 
 OPSET = 15  # the newest Sentis imports (its docs: opsets 7 to 15)
@@ -35,7 +35,7 @@ def export_portable(bundle_dir: Path, out: Path, fp16: bool = True) -> Manifest:
     """The portable bundle of `bundle_dir` in the new folder `out`; returns its manifest."""
     source = Bundle.load(bundle_dir)
     manifest = source.manifest
-    out = _new_folder(out)
+    out = new_folder(out)
     graphs = {graph.file for graph in manifest.graphs()}
     try:
         for name in manifest.files:

@@ -32,7 +32,7 @@ from mogo.export.models.sentence_encoder import (
     sentence_tokenizer,
     variant_rows,
 )
-from mogo.export.onnx.bundle import _new_folder
+from mogo.export.onnx.bundle import new_folder
 from mogo.export.onnx.text_graph import export_sentence_text_graph
 from mogo.manifest import (
     SENTENCE_ENCODER,
@@ -59,7 +59,7 @@ def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     run, best = Path(text_run), load_checkpoint(Path(text_run) / "best.pt")
     captions = np.load(run / CAPTIONS)
     _check_targets(old, captions)
-    out = _new_folder(out)
+    out = new_folder(out)
     kept = {manifest.text.tokenizer: TRAINED_TOKENIZER, manifest.text.encoder.file: TRAINED}
     for name in manifest.files:  # the old text side under new names, every other file as it is
         shutil.copy2(old.path(name), out / kept.get(name, name))

@@ -9,19 +9,19 @@ import bpy
 from . import environment
 from .jobs import Background, UserError, reported
 
-_CACHE: dict = {}  # the loaded MotionGenerator and our rig, per Blender session
+SESSION: dict = {}  # the loaded MotionGenerator and our rig, per Blender session
 RIG_KEY = "mogo_rig"  # our armature's custom property: the rest skeleton it was built for
 
 
 def generator(mogo):
     """The runtime's MotionGenerator for the shipped bundle (loaded once, on first use: a
     worker thread may call this) and our rig."""
-    if "generator" not in _CACHE:
+    if "generator" not in SESSION:
         from .motion_keys import OurRig
 
         loaded = mogo.MotionGenerator.load(threads=2)
-        _CACHE.update(generator=loaded, ours=OurRig.of(loaded.skeleton))
-    return _CACHE["generator"], _CACHE["ours"]
+        SESSION.update(generator=loaded, ours=OurRig.of(loaded.skeleton))
+    return SESSION["generator"], SESSION["ours"]
 
 
 SAMPLING = ("temperature", "top_k", "top_p", "guidance")
@@ -194,11 +194,11 @@ class MOGO_OT_live(bpy.types.Operator):
 
     @reported
     def execute(self, context):
-        session = _CACHE.get("live")
+        session = SESSION.get("live")
         if self.mode == "START":
             if session is not None:
                 raise UserError("live mode is already running: stop it first")
-            _CACHE["live"] = start_live(context)
+            SESSION["live"] = start_live(context)
             if not bpy.app.background and not context.screen.is_animation_playing:
                 bpy.ops.screen.animation_play()
         elif session is None:
@@ -206,7 +206,7 @@ class MOGO_OT_live(bpy.types.Operator):
         elif self.mode == "SWITCH":
             session.switch(context.scene.mogo.live_prompt)
         else:
-            frames = _CACHE.pop("live").stop()
+            frames = SESSION.pop("live").stop()
             self.report({"INFO"}, f"MOGO: live take kept as {session.action.name}: {frames} frames")
         return {"FINISHED"}
 
@@ -258,7 +258,7 @@ class MOGO_PT_panel(bpy.types.Panel):
         box = layout.box()
         box.label(text="Live")
         row = box.row()
-        running = "live" in _CACHE
+        running = "live" in SESSION
         row.operator(
             MOGO_OT_live.bl_idname,
             text="Stop" if running else "Start",

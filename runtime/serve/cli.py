@@ -13,7 +13,7 @@ import socket
 import sys
 from urllib.parse import urlsplit
 
-from mogo.cli import CliError, _load_generator, needs_extra
+from mogo.cli import CliError, load_generator, needs_extra
 from mogo.cli_flags import add_bundle, add_threads
 
 TOKEN_VARIABLE = "MOGO_SERVE_TOKEN"
@@ -80,7 +80,7 @@ def _cmd_serve(args: argparse.Namespace) -> None:
             + ("" if token else "; anyone who reaches it can use it (see --token)"),
             file=sys.stderr,
         )
-    app = server.make_app(_load_generator(args), args.threads or 2, args.max_streams, access=access)
+    app = server.make_app(load_generator(args), args.threads or 2, args.max_streams, access=access)
     asyncio.run(_serve(app, args.host, args.port, _connections(args.max_streams)))
 
 

@@ -26,7 +26,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSCloseCode, WSMsgType, web
 
 from mogo.arguments import PromptWarning, UnknownPromptWarning
-from mogo.generator import MotionGenerator, _seed
+from mogo.generator import MotionGenerator, checked_seed
 from mogo.serve import protocol
 from mogo.serve.engine import Engine, ServedStream
 
@@ -199,7 +199,7 @@ class Server:
             warnings.simplefilter("always", PromptWarning)
             warnings.simplefilter("error", UnknownPromptWarning)
             try:
-                text = self.generator._prompt(prompt, "prompt")
+                text = self.generator.read_prompt(prompt, "prompt")
             except (TypeError, ValueError, UnknownPromptWarning) as error:
                 raise protocol.ProtocolError(str(error)) from None
         notes = [str(w.message) for w in caught if issubclass(w.category, PromptWarning)]
@@ -218,7 +218,7 @@ class Server:
             sampling = self.generator.sampling(None, **start.options)
         except (TypeError, ValueError) as error:
             raise protocol.ProtocolError(str(error)) from None
-        seed = _seed(start.seed)
+        seed = checked_seed(start.seed)
         return self.engine.open(text, seed, sampling, self.clock(), start.plant_feet), notes
 
     def switch(self, stream: ServedStream, prompt: str) -> list[str]:
