@@ -304,7 +304,7 @@ def _cmd_stream(args: argparse.Namespace) -> None:
 
 
 def _cmd_blender_addon(args: argparse.Namespace) -> None:
-    from mogo.addon_zip import write_addon
+    from mogo.blender.addon_zip import write_addon
 
     print(
         f"wrote {shown(write_addon(args.out, overwrite=args.overwrite))} (Blender: Edit > "

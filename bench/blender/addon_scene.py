@@ -69,6 +69,11 @@ def main() -> None:
         keys=len(_hips_keys(first)),
         ours=_heads(scene, ours),
     )  # as Generate left it playing
+    properties = settings.bl_rna.properties
+    result["sampling"] = {
+        name: [properties[name].default, properties[name].hard_min, properties[name].hard_max]
+        for name in ("temperature", "top_k", "top_p", "guidance")
+    }  # the panel's: Sampling's defaults and limits
     settings.custom_sampling, settings.top_k = True, 5
     bpy.ops.mogo.generate()  # a second take, with the panel's own sampling: a new action
     result["actions"] = [first.name, ours.animation_data.action.name]
