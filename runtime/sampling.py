@@ -85,7 +85,7 @@ class Sampling:
     )
 
     def __post_init__(self):
-        for option in fields(self):
+        for option in fields(Sampling):  # its own, not those of a subclass (manifest.Defaults)
             _store_number(self, option.name, type(option.default))
         for name in ("temperature", "top_p", "guidance"):
             if not math.isfinite(getattr(self, name)):
