@@ -571,7 +571,15 @@ class MotionStream:
         self.anchor = (
             None
             if anchoring is None
-            else Anchor(anchoring, self.tokens, generator._embedding, text)
+            else Anchor(
+                anchoring,
+                self.tokens,
+                generator._embedding,
+                text,
+                anchoring.one_off_steps(
+                    generator.defaults.max_seconds, generator.fps / generator.down_factor
+                ),
+            )
         )
 
     def step(self) -> np.ndarray:

@@ -312,7 +312,12 @@ def anchoring_words(generator: MotionGenerator) -> dict:
         one_off=sorted(ONE_OFF),
         counts=counts,
         still=STILL,
-        anchoring=asdict(Anchoring()),
+        anchoring=dict(  # max_one_off in token steps for the port
+            asdict(Anchoring()),
+            max_one_off=Anchoring().one_off_steps(
+                generator.defaults.max_seconds, generator.fps / generator.down_factor
+            ),
+        ),
     )
 
 
