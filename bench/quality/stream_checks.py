@@ -18,8 +18,9 @@ import numpy as np
 
 from mogo.bench.quality import semantic as S
 from mogo.export.data.animator import Segment, animate
+from mogo.motion.skeleton import SMPL_22
 
-FPS = 20
+FPS = round(SMPL_22.fps)  # frames a second, whole: windows are counted in frames
 CONTACT_HEIGHT = 0.05  # metres: a foot joint lower than this is on the floor
 FEET = S.FEET
 
