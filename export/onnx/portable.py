@@ -26,6 +26,7 @@ from onnx.reference import ReferenceEvaluator
 from mogo.bundle import Bundle, write_manifest
 from mogo.export.onnx.bundle import new_folder, store_weights_fp16
 from mogo.manifest import Fp16Storage, Manifest
+from mogo.serve.onnx_graph import consumer_map, producer_map
 
 OPSET = 15  # the newest Sentis imports (its docs: opsets 7 to 15)
 IR_VERSION = 8  # the IR of opset 15
@@ -113,11 +114,7 @@ def _dequantised(graph: onnx.GraphProto, data: str, scale: str, zero_point: str)
 def _float_matmuls(graph: onnx.GraphProto) -> None:
     """DynamicQuantizeLinear(x) -> MatMulInteger(., Wq) -> Cast -> Mul(., scales), the dynamic
     int8 scheme of onnxruntime's quantize_dynamic, -> MatMul(x, W)."""
-    producer = {out: node for node in graph.node for out in node.output}
-    users: dict[str, list[onnx.NodeProto]] = {}
-    for node in graph.node:
-        for name in node.input:
-            users.setdefault(name, []).append(node)
+    producer, users = producer_map(graph), consumer_map(graph)
     replaced: dict[int, onnx.NodeProto | None] = {}
     for node in graph.node:
         if node.op_type != "MatMulInteger":
@@ -148,7 +145,7 @@ def _weight_scale(graph, producer, rescale, cast) -> str:
 
 def _float_gathers(graph: onnx.GraphProto) -> None:
     """Gather(Wq, ids) -> DequantizeLinear(., scale, zero point) -> Gather(W, ids)."""
-    producer = {out: node for node in graph.node for out in node.output}
+    producer = producer_map(graph)
     weights = {w.name for w in graph.initializer}
     replaced: dict[int, onnx.NodeProto | None] = {}
     for node in graph.node:
