@@ -45,6 +45,7 @@ from mogo.clip import Motion
 from mogo.manifest import MAX_GENERATE_SECONDS, io_types
 from mogo.motion.features import JointStream
 from mogo.motion.feet import FootPlanter, planted
+from mogo.motion.untrusted import checked_finite
 from mogo.progress import Progress
 from mogo.repertoire import Familiarity
 from mogo.sampling import Sampling
@@ -431,8 +432,7 @@ class MotionGenerator:
             raise ValueError(
                 f"motion features must be (T, {self.manifest.feature_dim}), got {features.shape}"
             )
-        if not np.all(np.isfinite(features)):
-            raise ValueError("motion features contain NaN or infinite values")
+        checked_finite(features, "motion features")
         usable = len(features) - len(features) % self.down_factor
         if usable < self.down_factor:
             raise ValueError(

@@ -101,11 +101,9 @@ def read_mocap(path: str | os.PathLike, mapping: dict[str, rigs.Source] | None =
 def check_coordinates(path: str | os.PathLike, joints: np.ndarray) -> None:
     """A ValueError naming the file unless joints (metres) are finite and within
     MAX_COORDINATE of the origin."""
-    if not np.all(np.isfinite(joints)):
-        raise ValueError(
-            f"{path}: holds NaN or infinite coordinates (numbers too large, or a "
-            "rotation of all zeros)"
-        )
+    untrusted.checked_finite(
+        joints, str(path), why=" (numbers too large, or a rotation of all zeros)"
+    )
     if np.abs(joints).max() > MAX_COORDINATE:
         raise ValueError(
             f"{path}: coordinates up to {np.abs(joints).max():.3g}; joints are "
