@@ -166,6 +166,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     from mogo.clip import check_take
     from mogo.motion import bvh, rig
 
+    schedule = lines = None
     if args.prompts_file:
         if args.text is not None or args.seconds is not None:
             raise CliError("give either a prompt (with --seconds) or --prompts-file, not both")
@@ -178,33 +179,11 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     folder = check_take(
         args.out, args.name, args.overwrite, what="--name", formats=formats
     )  # before the work
-    seconds = sum(s for _, s in schedule) if args.prompts_file else args.seconds
+    seconds = sum(s for _, s in schedule) if schedule else args.seconds
     long = seconds is not None and seconds >= LONG_TAKE_SECONDS
     generator = load_generator(args)
     rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
-    sampling = _sampling(args, generator)
-    if args.prompts_file:
-        try:
-            motion = generator.play(
-                schedule,
-                seed=args.seed,
-                sampling=sampling,
-                plant_feet=args.plant_feet,
-                progress=long,
-            )
-        except ScheduleError as error:  # named by the file's line
-            where = "" if error.index is None else f":{lines[error.index]}"
-            raise CliError(f"{args.prompts_file}{where}: {error.problem}") from None
-    else:
-        motion = generator.generate(
-            args.text,
-            seconds=args.seconds,
-            seed=args.seed,
-            sampling=sampling,
-            align=_aligner(args, generator),
-            plant_feet=args.plant_feet,
-            progress=long,
-        )
+    motion = _generated(args, generator, schedule, lines, long)
     if motion.alignment is not None:
         print(shown(motion.alignment.describe(), keep="\n"))
         if motion.alignment.note:
@@ -227,16 +206,45 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         naming=args.bvh_names,
         formats=formats,
     )
+    _report_take(motion, folder / name, written)
+
+
+def _generated(args: argparse.Namespace, generator, schedule, lines, long: bool):
+    """The motion of the prompt (with --seconds, --align) or of the prompts file, whose
+    problems are named by its line."""
+    sampling = _sampling(args, generator)
+    if schedule is None:
+        return generator.generate(
+            args.text,
+            seconds=args.seconds,
+            seed=args.seed,
+            sampling=sampling,
+            align=_aligner(args, generator),
+            plant_feet=args.plant_feet,
+            progress=long,
+        )
+    try:
+        return generator.play(
+            schedule, seed=args.seed, sampling=sampling, plant_feet=args.plant_feet, progress=long
+        )
+    except ScheduleError as error:
+        where = "" if error.index is None else f":{lines[error.index]}"
+        raise CliError(f"{args.prompts_file}{where}: {error.problem}") from None
+
+
+def _report_take(motion, asked: Path, written: list[Path]) -> None:
+    """What was made and where it went. The take is written: a stdout that fails (a closed
+    pipe, a full disk) is no error, only a note on stderr."""
     frames = plural(len(motion.joints), "frame")
-    try:  # the take is written: a stdout that fails (a closed pipe, a full disk) is no error
+    try:
         print(
             f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
             f"for: {shown(motion.caption)}"
         )
         taken = written[0].name.removesuffix(written[0].suffix)
-        if taken != name:
+        if taken != asked.name:
             print(
-                f"note: {shown(folder / name)}.* is an earlier take, kept; this one is "
+                f"note: {shown(asked)}.* is an earlier take, kept; this one is "
                 f"{taken} (--overwrite replaces)"
             )
         for path in written:
@@ -320,9 +328,24 @@ def _cmd_info(args: argparse.Namespace) -> None:
     bundle = Bundle.load(args.bundle or DEFAULT_BUNDLE)
     check_text_files(bundle)  # all that generate reads, not only the checksums
     m = bundle.manifest
+    lines = [f"bundle      {bundle.root}", *_model_lines(m), *_text_lines(m.text)]
+    if m.int8 is not None:
+        lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
+    lines += _training_lines(m)
+    lines.append(
+        f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
+        f"{bundle.open_graphs()} graphs open with the manifest's names and types; "
+        "tokenizers and repertoire read"
+    )
+    width = max(map(len, m.files))
+    lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
+    print(shown("\n".join(lines), keep="\n"))  # a bundle's own text may hold escapes
+
+
+def _model_lines(m) -> list[str]:
+    """`mogo info`: the format, motion, transformer, VQ and defaults of manifest `m`."""
     t2m, vq, text, decoder = m.t2m.config, m.vq, m.text, m.vq.decoder
-    lines = [
-        f"bundle      {bundle.root}",
+    return [
         f"format      {m.format} version {m.format_version}",
         f"motion      {m.motion.skeleton.name} skeleton, {m.feature_dim}-dim features, "
         f"{m.fps:g} fps, {len(m.motion.skeleton.joint_names)} joints",
@@ -343,6 +366,11 @@ def _cmd_info(args: argparse.Namespace) -> None:
         ),
         "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),
     ]
+
+
+def _text_lines(text) -> list[str]:
+    """`mogo info`: the pretrained encoder and the repertoire of a bundle's text side."""
+    lines = []
     if text.pretrained is not None:
         lines.append(
             f"encoder     {text.pretrained.name} ({text.pretrained.license}), int8 "
@@ -366,8 +394,12 @@ def _cmd_info(args: argparse.Namespace) -> None:
                 else ""
             )
         )
-    if m.int8 is not None:
-        lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
+    return lines
+
+
+def _training_lines(m) -> list[str]:
+    """`mogo info`: how each model of the bundle was trained, as its trainer recorded it."""
+    lines = []
     for part, run in m.training.items():
         recipe = run.recipe or {}  # the trainer's own record: read as it is, where present
         tuned = (
@@ -381,14 +413,7 @@ def _cmd_info(args: argparse.Namespace) -> None:
             f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
             f"seed {recipe.get('seed')}{tuned}"
         )
-    lines.append(
-        f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
-        f"{bundle.open_graphs()} graphs open with the manifest's names and types; "
-        "tokenizers and repertoire read"
-    )
-    width = max(map(len, m.files))
-    lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
-    print(shown("\n".join(lines), keep="\n"))  # a bundle's own text may hold escapes
+    return lines
 
 
 def _built_path(path: object) -> str:
@@ -463,9 +488,6 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
 
 
 def _add_runtime_commands(commands) -> None:
-    from mogo.clip import ANIMATIONS, FORMATS, TAKE
-    from mogo.motion import bvh  # their option lists
-
     generate = commands.add_parser(
         "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)"
     )
@@ -477,6 +499,42 @@ def _add_runtime_commands(commands) -> None:
         "--prompts-file",
         help="a schedule instead of one prompt: lines 'SECONDS PROMPT', played as one motion",
     )
+    _take_arguments(generate)
+    _align_arguments(generate)
+    _generation_arguments(generate)
+    generate.set_defaults(run=_noting_prompts(_cmd_generate))
+
+    stream = commands.add_parser(
+        "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)"
+    )
+    stream.add_argument("text", help="what the person does")
+    stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
+    stream.add_argument(
+        "--low-latency",
+        action="store_true",
+        help="the bundle's low-latency decoder: frames a few tokens after theirs, "
+        "not 31 (a little less exact; bundles that ship one)",
+    )
+    _generation_arguments(stream)
+    stream.set_defaults(run=_noting_prompts(_cmd_stream))
+
+    addon = commands.add_parser(
+        "blender-addon", help="write the Blender add-on as the zip Blender installs"
+    )
+    add_out(addon, "the zip to write", default="mogo_blender.zip")
+    add_overwrite(addon)
+    addon.set_defaults(run=_cmd_blender_addon)
+
+    info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
+    add_bundle_argument(info)
+    info.set_defaults(run=_cmd_info)
+
+
+def _take_arguments(generate: argparse.ArgumentParser) -> None:
+    """Where `mogo generate` writes its take, and in which files."""
+    from mogo.clip import ANIMATIONS, FORMATS, TAKE
+    from mogo.motion import bvh  # their option lists
+
     add_out(generate, "output folder", default="out")
     generate.add_argument("--name", help="file name without extension (default: from the prompt)")
     add_overwrite(
@@ -514,6 +572,10 @@ def _add_runtime_commands(commands) -> None:
     generate.add_argument(
         "--bvh-units", choices=list(bvh.UNITS), default="m", help="BVH length unit (default m)"
     )
+
+
+def _align_arguments(generate: argparse.ArgumentParser) -> None:
+    """`mogo generate --align`: the prompt rewritten by rules or an LLM server."""
     generate.add_argument(
         "--align",
         choices=["rules", "llm"],
@@ -533,33 +595,6 @@ def _add_runtime_commands(commands) -> None:
         default=10.0,
         help="seconds to wait for the LLM before using the rules (default 10)",
     )
-    _generation_arguments(generate)
-    generate.set_defaults(run=_noting_prompts(_cmd_generate))
-
-    stream = commands.add_parser(
-        "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)"
-    )
-    stream.add_argument("text", help="what the person does")
-    stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
-    stream.add_argument(
-        "--low-latency",
-        action="store_true",
-        help="the bundle's low-latency decoder: frames a few tokens after theirs, "
-        "not 31 (a little less exact; bundles that ship one)",
-    )
-    _generation_arguments(stream)
-    stream.set_defaults(run=_noting_prompts(_cmd_stream))
-
-    addon = commands.add_parser(
-        "blender-addon", help="write the Blender add-on as the zip Blender installs"
-    )
-    add_out(addon, "the zip to write", default="mogo_blender.zip")
-    add_overwrite(addon)
-    addon.set_defaults(run=_cmd_blender_addon)
-
-    info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
-    add_bundle_argument(info)
-    info.set_defaults(run=_cmd_info)
 
 
 class _Parser(argparse.ArgumentParser):
