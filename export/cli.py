@@ -258,6 +258,10 @@ def _add_train(commands) -> None:
         command = train_commands.add_parser(name, help=what)
         add_arguments(command, options)
         command.set_defaults(run=run, finish=_leave_torchrun_worker)
+    _add_train_all(train_commands)
+
+
+def _add_train_all(train_commands) -> None:
     every = train_commands.add_parser(
         "all",
         help="the whole model in one command: corpus, VQ, transformer on a pretrained "
