@@ -36,19 +36,7 @@ TARGET_OFFSET = Vector((1.2, 0.0, 0.0))  # the target stands beside ours
 
 def main() -> None:
     request = json.loads(open(sys.argv[sys.argv.index("--") + 1]).read())
-    bpy.ops.wm.read_factory_settings(use_empty=True)  # no default cube, camera or light
-    bpy.ops.preferences.addon_install(filepath=request["zip"], overwrite=True)
-    addon_utils.enable("mogo_blender", default_set=True, handle_error=_raise)
-    preferences = bpy.context.preferences.addons["mogo_blender"].preferences
-    result = {"python": list(sys.version_info[:2]), "blender": bpy.app.version_string}
-    preferences.site_packages = request["empty"]
-    result["without_runtime"] = _error_of(bpy.ops.mogo.generate)
-    preferences.site_packages, preferences.source = request["installed"], ""  # the default
-    result["install"] = _error_of(bpy.ops.mogo.install_runtime)  # mogo-edge only: no deps
-    site.addsitedir(request["site_packages"])  # numpy, onnxruntime, ...: after the folder
-    from mogo_blender import environment
-
-    result["runtime_file"] = environment.runtime().__file__
+    result = _installed(request)
     scene = bpy.context.scene
     scene.render.fps = 24  # Blender's default: the add-on sets the motion's own
     settings = scene.mogo
@@ -96,6 +84,25 @@ def main() -> None:
     result["long_names"] = _long_names(target)
     with open(request["result"], "w") as file:
         json.dump(result, file)
+
+
+def _installed(request: dict) -> dict:
+    """The add-on installed from the zip as a user does it; Generate without the runtime,
+    then Install with its defaults (the wheel the zip ships): what each said."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)  # no default cube, camera or light
+    bpy.ops.preferences.addon_install(filepath=request["zip"], overwrite=True)
+    addon_utils.enable("mogo_blender", default_set=True, handle_error=_raise)
+    preferences = bpy.context.preferences.addons["mogo_blender"].preferences
+    result = {"python": list(sys.version_info[:2]), "blender": bpy.app.version_string}
+    preferences.site_packages = request["empty"]
+    result["without_runtime"] = _error_of(bpy.ops.mogo.generate)
+    preferences.site_packages, preferences.source = request["installed"], ""  # the default
+    result["install"] = _error_of(bpy.ops.mogo.install_runtime)  # mogo-edge only: no deps
+    site.addsitedir(request["site_packages"])  # numpy, onnxruntime, ...: after the folder
+    from mogo_blender import environment
+
+    result["runtime_file"] = environment.runtime().__file__
+    return result
 
 
 def _live(scene, frames: int) -> dict:
