@@ -87,7 +87,7 @@ def _cmd_long_streams(args: argparse.Namespace) -> None:
 
 OLD_SPELLINGS = [
     OldSpelling("bench", "bench quick", "--quick", drop=True),
-    OldSpelling("bench", "bench latency"),
+    OldSpelling("bench", "bench latency", alone=True),
     OldSpelling("bench-serve", "bench serve"),
     OldSpelling("long-streams", "bench long-streams"),
     OldSpelling("eval", "bench eval"),

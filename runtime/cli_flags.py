@@ -43,13 +43,15 @@ def add_overwrite(parser: argparse.ArgumentParser, help: str = "replace an exist
 @dataclass(frozen=True)
 class OldSpelling:
     """`mogo VERB [FLAG] ...`, now `mogo NEW ...`: the rest of the line is kept (FLAG dropped
-    where `drop`). A VERB that is still a verb (bench, export) matches only without its new
-    subverb: where the next word is a flag, or nothing."""
+    where `drop`). A VERB that is still a verb (bench, export) matches where a flag follows
+    it, and alone only where `alone` (`mogo bench` ran the latency bench); with a subverb it
+    is today's spelling."""
 
     verb: str
     new: str
     flag: str | None = None
     drop: bool = False
+    alone: bool = False
 
     def spelt(self) -> str:
         return " ".join(filter(None, ["mogo", self.verb, self.flag]))
@@ -59,7 +61,8 @@ class OldSpelling:
         rest = argv[1:]
         if argv[:1] != [self.verb] or rest[:1] in (["-h"], ["--help"]):
             return None
-        if self.verb == self.new.split()[0] and rest and not rest[0].startswith("-"):
+        still_a_verb = self.verb == self.new.split()[0]
+        if still_a_verb and not (rest[0].startswith("-") if rest else self.alone):
             return None
         given = [a for a in rest if a == self.flag or a.startswith(f"{self.flag}=")]
         if self.flag is not None and not given:

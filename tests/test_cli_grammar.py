@@ -75,7 +75,13 @@ def test_every_old_spelling_is_tested(capsys):
 
 @pytest.mark.parametrize(
     "argv",
-    [["bench", "--help"], ["bench", "latency", "--smoke"], ["export", "portable"], ["generate"]],
+    [
+        ["bench", "--help"],
+        ["bench", "latency", "--smoke"],
+        ["export"],
+        ["export", "portable"],
+        ["generate"],
+    ],
 )
 def test_todays_spellings_are_left_alone(argv, capsys):
     assert current_spelling(argv, build_parser().old_spellings) == argv
@@ -88,3 +94,8 @@ def test_the_top_help_shows_one_grammar(capsys):
     verbs = capsys.readouterr().out
     assert "bench" in verbs and "export" in verbs
     assert not {"bench-serve", "long-streams", "real-motion", "eval "} & set(verbs.split())
+
+
+def test_bench_alone_still_runs_the_latency_bench_with_a_note(capsys):
+    assert current_spelling(["bench"], build_parser().old_spellings) == ["bench", "latency"]
+    assert "`mogo bench` is now `mogo bench latency`" in capsys.readouterr().err
