@@ -72,16 +72,24 @@ def _cmd_real_motion(args: argparse.Namespace) -> None:
 
 
 def _cmd_long_streams(args: argparse.Namespace) -> None:
-    from mogo.bench.long_streams import MODES, main
+    from mogo.bench.long_streams import MODES, PATHS, main
     from mogo.bench.quality.stream_checks import REPERTOIRE
 
     if not set(args.modes) <= set(MODES):
         raise CliError(f"--modes: choose from {', '.join(MODES)}, got {' '.join(args.modes)}")
+    if not set(args.path) <= set(PATHS):
+        raise CliError(f"--path: choose from {', '.join(PATHS)}, got {' '.join(args.path)}")
     names = [a.name for a in REPERTOIRE]
     if unknown := [a for a in args.actions or () if a not in names]:
         raise CliError(f"--actions: no action {unknown[0]!r}; choose from {', '.join(names)}")
     if args.switches < 0:
         raise CliError(f"--switches must be >= 0 (0: none), got {args.switches}")
+    if args.one_offs < 0:
+        raise CliError(f"--one-offs must be >= 0 (0: none), got {args.one_offs}")
+    if "serve" in args.path and not args.tables_from:
+        from mogo.serve.cli import require_serve_extra
+
+        require_serve_extra()
     main(args)
 
 
@@ -128,7 +136,8 @@ def add_commands(commands) -> list[OldSpelling]:
             _long_streams_arguments,
             _cmd_long_streams,
             "do long streams keep doing what they were asked? every action of the "
-            "repertoire, re-anchoring off and on (no torch)",
+            "repertoire on each path (MotionStream with re-anchoring off and on, generate, "
+            "play, continue_from, serve; no torch)",
         ),
         (
             "eval",
@@ -251,7 +260,24 @@ def _long_streams_arguments(streams: argparse.ArgumentParser) -> None:
         default=["off", "on"],
         help="re-anchoring off (before) and/or on (default both)",
     )
-    streams.add_argument("--jobs", type=int, default=2, help="streams run in parallel")
+    streams.add_argument(
+        "--path",
+        nargs="+",
+        default=["stream"],
+        help="the ways of making motion to run: MotionStream (in each --modes), generate of "
+        "the whole length, play schedules, continue_from a clip, mogo serve over WebSockets "
+        "(default stream)",
+    )
+    streams.add_argument(
+        "--one-offs",
+        type=int,
+        default=2,
+        help="seeds per one-off action played after a 5-s walk (a switch, or continue_from "
+        "a walk clip; 0: none)",
+    )
+    streams.add_argument(
+        "--jobs", type=int, default=2, help="streams run in parallel (served ones: all at once)"
+    )
     streams.add_argument(
         "--actions",
         nargs="+",

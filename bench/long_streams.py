@@ -1,12 +1,16 @@
-"""`mogo long-streams`: do long streams keep doing what they were asked?
+"""`mogo bench long-streams`: do long streams keep doing what they were asked, on every path?
 
 Streams of every action of the repertoire (mogo.bench.quality.stream_checks; or of those
 chosen, e.g. the failing ones while a change is tried), `minutes` long, for several seeds,
-with re-anchoring off (the model runs on from step 0, the behaviour before
-mogo.anchoring) and on: the share of 10-s windows that pass the action's check, how fast a
-prompt switch shows (streams switching between continuing actions every 10 s), the seams of
-re-anchoring (joint speed there against ordinary frames), drift (pelvis height band, feet
-under the floor) and foot sliding in contact against short clips of the same prompts.
+through each path that makes motion (`--path`): `MotionStream` (re-anchoring off, the
+behaviour before mogo.anchoring, and on), `generate` of the whole length, `play` schedules,
+`continue_from` a clip, and `mogo serve` over real WebSocket connections, every stream at once.
+Judged: the share of 10-s windows that pass the action's check, how fast a prompt switch shows
+(streams switching between continuing actions every 10 s), how soon a one-off action (sit,
+jump, bow, turn, kick) is under way after a switch from a walk or a `continue_from` of one, the
+seams of re-anchoring (joint speed there against ordinary frames), drift (pelvis height band,
+feet under the floor), foot sliding in contact against short clips of the same prompts, and
+how far each path's frames are from `MotionStream`'s for the same prompt, seed and switches.
 Markdown tables on stdout and in OUT/long_streams.md, the figures in OUT/long_streams.json,
 the pass share by minute in OUT/long_streams.png.
 """
@@ -14,9 +18,16 @@ the pass share by minute in OUT/long_streams.png.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    wait,
+)
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +49,16 @@ WINDOW = 10 * FPS  # frames of a judged window
 REACTION_WINDOW = 2 * FPS  # frames that show an action under way after a switch
 SWITCH_EVERY = 10 * FPS  # frames between switches
 PROMPT_SECONDS = 1.5  # the target: the new action under way within this
-MODES = {"off": False, "on": True}
+ONE_OFF_WINDOW = 4 * FPS  # frames that hold a whole one-off action (a sit goes down and up)
+ONE_OFF_SECONDS = 2.0  # the target: a one-off action under way within this
+ONE_OFF_LEAD = ("a person walks forward.", 5 * FPS)  # what a one-off action follows
+MODES = {"off": False, "on": True}  # MotionStream's re-anchoring
+PATHS = ("stream", "generate", "play", "continue", "serve")
+KINDS = {  # the paths that can play each kind of schedule
+    "action": ("stream", "generate", "play", "serve"),
+    "switches": ("stream", "play", "continue", "serve"),
+    "one-off": ("stream", "play", "continue", "serve"),
+}
 _generator = None
 
 
@@ -51,116 +71,295 @@ def _worker_generator(bundle: str | None):
     return _generator
 
 
-def _stream(
-    bundle, prompt: str, seed: int, anchoring: bool, frames: int, switches: list[str] = ()
-) -> tuple[np.ndarray, list[int], list[float], int]:
-    """A stream's joints, the frames where it re-anchored, seconds per step by minute and how
-    many of the re-anchors were fresh clips."""
-    stream = _worker_generator(bundle).stream(prompt, seed=seed, anchoring=anchoring)
-    chunks, seams, minute_times, steps, start = [], [], [], 0, time.perf_counter()
-    down = stream.generator.down_factor
-    while sum(map(len, chunks)) < frames:
-        if len(stream.prompts) <= len(switches) and steps * down >= SWITCH_EVERY * len(
-            stream.prompts
-        ):  # by steps drawn: frames lag them by the decoder's lookahead
-            stream.set_prompt(switches[len(stream.prompts) - 1])
+@dataclass(frozen=True)
+class Task:
+    """One motion to make and judge: a kind of schedule through one path (MotionStream's in
+    one re-anchoring mode)."""
+
+    kind: str  # "action" (one prompt for minutes), "switches" or "one-off"
+    path: str
+    mode: str
+    seed: int
+    schedule: tuple[tuple[str, int], ...]  # (prompt, frames) entries
+    action: str = ""  # the judged action (the one-off's, an action's); switches: none
+
+    @property
+    def column(self) -> str:
+        return f"stream, anchoring {self.mode}" if self.path == "stream" else self.path
+
+
+@dataclass
+class Made:
+    """A path's motion for a schedule: its joints, the frames where each switch took effect,
+    and what only a MotionStream tells (seams: frames where it re-anchored; fresh: how many of
+    those were fresh clips)."""
+
+    joints: np.ndarray
+    switches: list[int]
+    seams: list[int] | None = None
+    fresh: int = 0
+    step_seconds: list[float] = field(default_factory=list)  # by minute (or overall)
+
+
+def _stream(bundle, task: Task) -> Made:
+    """A MotionStream through the schedule, switching once the steps drawn reach each entry's
+    first frame (frames lag them by the decoder's lookahead). Path "continue": the first entry
+    is a clip, `generate`d, and the stream goes on from it (`continue_from`)."""
+    g, schedule = _worker_generator(bundle), list(task.schedule)
+    lead = np.zeros((0, g.skeleton.num_joints, 3), np.float32)
+    if task.path == "continue":
+        clip = g.generate(schedule[0][0], seconds=schedule[0][1] / FPS, seed=task.seed)
+        lead, schedule = clip.joints, schedule[1:]
+    stream = g.stream(schedule[0][0], seed=task.seed, anchoring=MODES[task.mode])
+    if task.path == "continue":
+        stream.continue_from(clip)
+    ends = np.cumsum([n for _, n in schedule])  # the stream's frames where each entry ends
+    down, chunks, seams, minutes = g.down_factor, [], [], []
+    steps, start = 0, time.perf_counter()
+    while sum(map(len, chunks)) < ends[-1]:
+        k = len(stream.prompts)
+        if k < len(schedule) and steps * down >= ends[k - 1]:
+            stream.set_prompt(schedule[k][0])
         anchors = stream.anchor.anchors if stream.anchor else 0
         chunks.append(stream.step())
         steps += 1
         if stream.anchor and stream.anchor.anchors > anchors:
-            seams.append(steps * down)
+            seams.append(len(lead) + steps * down)
         if steps % (60 * FPS) == 0:
-            minute_times.append((time.perf_counter() - start) / (60 * FPS))
+            minutes.append((time.perf_counter() - start) / (60 * FPS))
             start = time.perf_counter()
-    fresh = stream.anchor.fresh if stream.anchor else 0
-    return np.concatenate(chunks)[:frames], seams, minute_times, fresh
+    switches = [len(lead)] * (task.path == "continue") + [
+        len(lead) + f for f, _ in stream.prompts[1:]
+    ]
+    joints = np.concatenate([lead, *chunks])[: len(lead) + ends[-1]]
+    return Made(joints, switches, seams, stream.anchor.fresh if stream.anchor else 0, minutes)
 
 
-def run_action(bundle, action: Action, seed: int, mode: str, minutes: float) -> dict:
-    frames = int(minutes * 60 * FPS)
-    joints, seams, times, fresh = _stream(bundle, action.prompt, seed, MODES[mode], frames)
-    short = _worker_generator(bundle).generate(action.prompt, seconds=5, seed=seed).joints
-    speed = joint_speed(joints)
-    seams = [f for f in seams if 1 <= f < len(speed)]
-    return dict(
-        action=action.name,
-        seed=seed,
-        mode=mode,
-        passes=window_passes(WindowCheck(action, WINDOW), joints),
-        drift=drift(joints),
-        short_slide=drift(short)["slide"],
-        seam_speed=[float(speed[f - 1]) for f in seams],
-        fresh=fresh,
-        ordinary_p99=float(np.percentile(speed, 99)),
-        step_seconds=times,
-    )
+def _generated(bundle, task: Task) -> Made:
+    """`generate` of the whole length (one prompt)."""
+    g = _worker_generator(bundle)
+    ((prompt, frames),) = task.schedule
+    start = time.perf_counter()
+    motion = g.generate(prompt, seconds=frames / FPS, seed=task.seed)
+    return Made(motion.joints, [], step_seconds=[_per_step(start, motion, g)])
 
 
-def run_switches(bundle, seed: int, mode: str, switches: int) -> dict:
-    """A stream through `switches` random continuing actions, SWITCH_EVERY frames each."""
+def _played(bundle, task: Task) -> Made:
+    """`play` of the schedule."""
+    g = _worker_generator(bundle)
+    start = time.perf_counter()
+    motion = g.play([(p, n / FPS) for p, n in task.schedule], seed=task.seed)
+    switches = [frame for frame, _ in motion.prompts[1:]]
+    return Made(motion.joints, switches, step_seconds=[_per_step(start, motion, g)])
+
+
+def _per_step(start: float, motion, generator) -> float:
+    return (time.perf_counter() - start) / max(1, len(motion.joints) // generator.down_factor)
+
+
+async def _served(url: str, task: Task) -> Made:
+    """The schedule over one WebSocket of `mogo serve`: a switch sent once the frames received
+    reach its entry's first frame, taking effect at the frame the server names (`switched`)."""
+    import aiohttp
+
+    chunks, switches, received = [], [], 0
+    (prompt, end), later = task.schedule[0], list(task.schedule[1:])
+    async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
+        await ws.send_json({"prompt": prompt, "seed": task.seed, "binary": True})
+        asked = False
+        while later or received < end:
+            message = await ws.receive()
+            if message.type == aiohttp.WSMsgType.BINARY:  # uint32 index, uint32 n, joints
+                index, n = np.frombuffer(message.data[:8], "<u4")
+                if index != received:
+                    raise RuntimeError(f"{task}: frames {received}-{index - 1} were dropped")
+                chunks.append(np.frombuffer(message.data[8:], "<f4").reshape(n, -1, 3))
+                received += int(n)
+            elif message.type != aiohttp.WSMsgType.TEXT:
+                raise RuntimeError(f"{task}: the server closed the stream ({message.type})")
+            elif (body := json.loads(message.data))["type"] == "error":
+                raise RuntimeError(f"{task}: {body['error']}")
+            elif body["type"] == "switched":
+                switches.append(body["index"])
+                end, asked = body["index"] + later.pop(0)[1], False
+            if later and not asked and received >= end:
+                await ws.send_json({"prompt": later[0][0]})
+                asked = True
+    return Made(np.concatenate(chunks)[:end], switches)
+
+
+MAKERS = {"stream": _stream, "continue": _stream, "generate": _generated, "play": _played}
+
+
+def schedules(
+    paths: list[str],
+    modes: list[str],
+    actions,
+    minutes: float,
+    seeds: int,
+    switches: int,
+    one_offs: int,
+) -> list[Task]:
+    """Every task of a run: each action for `minutes`, `switches` switches between random
+    continuing actions and each one-off action after a walk (`one_offs` seeds), through every
+    path that can play them; MotionStream's in each re-anchoring mode."""
+    runs = [(p, m) for p in paths for m in (modes if p == "stream" else ["on"])]
+    tasks = []
+    for path, mode in runs:
+        if path in KINDS["action"]:
+            frames = int(minutes * 60 * FPS)
+            tasks += [
+                Task("action", path, mode, s, ((a.prompt, frames),), a.name)
+                for a in actions
+                for s in range(seeds)
+            ]
+        if switches and path in KINDS["switches"]:
+            tasks += [
+                Task("switches", path, mode, s, _switching(s, switches)) for s in range(seeds)
+            ]
+        if path in KINDS["one-off"]:
+            tasks += [
+                Task("one-off", path, mode, s, (ONE_OFF_LEAD, (a.prompt, SWITCH_EVERY)), a.name)
+                for a in actions
+                if not a.continuing
+                for s in range(one_offs)
+            ]
+    return tasks
+
+
+def _switching(seed: int, switches: int) -> tuple[tuple[str, int], ...]:
+    """`switches` + 1 random continuing actions, each different from the one before."""
     continuing = [a for a in REPERTOIRE if a.continuing]
     rng = np.random.default_rng(seed)
     order = [continuing[0]]
     while len(order) < switches + 1:
-        order.append(
-            continuing[
-                (continuing.index(order[-1]) + 1 + rng.integers(len(continuing) - 1))
-                % len(continuing)
-            ]
-        )
-    joints, *_ = _stream(
-        bundle,
-        order[0].prompt,
-        seed,
-        MODES[mode],
-        SWITCH_EVERY * len(order),
-        [a.prompt for a in order[1:]],
+        step = 1 + rng.integers(len(continuing) - 1)
+        order.append(continuing[(continuing.index(order[-1]) + step) % len(continuing)])
+    return tuple((a.prompt, SWITCH_EVERY) for a in order)
+
+
+def _by_name(name: str) -> Action:
+    return next(a for a in REPERTOIRE if a.name == name)
+
+
+def judge(bundle, task: Task, made: Made) -> dict:
+    """A task's verdicts and figures (JSON-ready)."""
+    row = dict(kind=task.kind, column=task.column, seed=task.seed, action=task.action)
+    joints, starts = made.joints, made.switches
+    if task.kind == "one-off":
+        check = WindowCheck(_by_name(task.action), ONE_OFF_WINDOW)
+        return row | dict(reaction=reaction_frames(check, joints[starts[0] :]))
+    if task.kind == "switches":
+        ends = starts[1:] + [len(joints)]
+        prompts = [p for p, _ in task.schedule[1:]]
+        checks = {p: WindowCheck(_prompted(p), REACTION_WINDOW) for p in set(prompts)}
+        reactions = [
+            reaction_frames(checks[p], joints[a:b])
+            for p, a, b in zip(prompts, starts, ends, strict=True)
+        ]
+        return row | dict(reactions=reactions)
+    action = _by_name(task.action)
+    short = _worker_generator(bundle).generate(action.prompt, seconds=5, seed=task.seed).joints
+    speed = joint_speed(joints)
+    seams = [f for f in made.seams or () if 1 <= f < len(speed)]
+    return row | dict(
+        passes=window_passes(WindowCheck(action, WINDOW), joints),
+        drift=drift(joints),
+        short_slide=drift(short)["slide"],
+        seam_speed=[float(speed[f - 1]) for f in seams] if made.seams is not None else None,
+        fresh=made.fresh,
+        ordinary_p99=float(np.percentile(speed, 99)),
+        step_seconds=made.step_seconds,
     )
-    checks = {a.name: WindowCheck(a, REACTION_WINDOW) for a in set(order[1:])}
-    reactions = [
-        reaction_frames(checks[a.name], joints[k * SWITCH_EVERY : (k + 1) * SWITCH_EVERY])
-        for k, a in enumerate(order)
-        if k
-    ]
-    return dict(mode=mode, seed=seed, reactions=reactions)
 
 
-def measure(
-    bundle: str | None,
-    minutes: float,
-    seeds: int,
-    switches: int,
-    jobs: int,
-    modes: list[str],
-    actions: tuple[Action, ...] = REPERTOIRE,
-) -> dict:
-    with ProcessPoolExecutor(jobs) as pool:
-        streams = [
-            pool.submit(run_action, bundle, a, s, m, minutes)
-            for m in modes
-            for a in actions
-            for s in range(seeds)
-        ]
-        switching = [
-            pool.submit(run_switches, bundle, s, m, switches)
-            for m in modes
-            for s in range(seeds)
-            if switches
-        ]
-        progress = Progress(len(streams) + len(switching), "long streams", unit="streams")
-        for _ in as_completed(streams + switching):
-            progress.update()
-        progress.close()
-        return dict(
-            modes=modes,
-            lengths={m: (minutes, seeds) for m in modes},
-            streams=[f.result() for f in streams],
-            switches=[f.result() for f in switching],
-        )
+def _prompted(prompt: str) -> Action:
+    return next(a for a in REPERTOIRE if a.prompt == prompt)
+
+
+def make_and_judge(bundle, task: Task) -> tuple[dict, Made]:
+    """What a worker process runs for a path other than serve."""
+    made = MAKERS[task.path](bundle, task)
+    return judge(bundle, task, made), made
+
+
+def _judged(bundle, task: Task, made: Made) -> tuple[dict, Made]:
+    return judge(bundle, task, made), made
+
+
+def measure(bundle: str | None, tasks: list[Task], jobs: int) -> dict:
+    """Every task: the served ones all at once on one `mogo serve` (on a thread here, while
+    the others run `jobs` at a time), then judged; each path's frames against MotionStream's
+    for the same schedule and seed."""
+    served = [t for t in tasks if t.path == "serve"]
+    progress = Progress(len(tasks), "long streams", unit="streams")
+    rows, made = [], {}
+    with ProcessPoolExecutor(jobs) as pool, ThreadPoolExecutor(1) as thread:
+        futures = {pool.submit(make_and_judge, bundle, t): t for t in tasks if t.path != "serve"}
+        serving = thread.submit(_serve_all, bundle, served) if served else None
+        pending = set(futures) | {serving} - {None}
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                if future is serving:
+                    for task, motion in zip(served, future.result(), strict=True):
+                        judged = pool.submit(_judged, bundle, task, motion)
+                        futures[judged] = task
+                        pending.add(judged)
+                    continue
+                row, made[futures[future]] = future.result()
+                rows.append(row)
+                progress.update()
+    progress.close()
+    return dict(
+        columns=list(dict.fromkeys(t.column for t in tasks)),
+        rows=sorted(rows, key=lambda r: (r["column"], r["kind"], r["action"], r["seed"])),
+        agreement=_agreement(made),
+    )
+
+
+def _serve_all(bundle: str | None, tasks: list[Task]) -> list[Made]:
+    """The served tasks, every one at once, on a fresh `mogo serve` (the serve extra)."""
+    from mogo.bench.speed.serve import serving
+
+    async def run(url: str) -> list[Made]:
+        return await asyncio.gather(*(_served(url, t) for t in tasks))
+
+    with serving(bundle, len(tasks), threads=2) as (base, _):
+        return asyncio.run(run(base.replace("http", "ws", 1) + "/v1/stream"))
+
+
+def _agreement(made: dict[Task, Made]) -> dict[str, float]:
+    """Per path, the largest joint difference (m) from the re-anchored MotionStream's frames
+    for the same schedule and seed, where its switches took effect at the same frames (a
+    served switch lands where the client's timing puts it; `continue` plays its first entry
+    as a clip, another motion by design)."""
+    reference = {
+        (t.kind, t.seed, t.schedule): m
+        for t, m in made.items()
+        if t.column == "stream, anchoring on"
+    }
+    out: dict[str, float] = {}
+    for task, motion in made.items():
+        ref = reference.get((task.kind, task.seed, task.schedule))
+        if task.path in ("stream", "continue") or ref is None or ref.switches != motion.switches:
+            continue
+        n = min(len(ref.joints), len(motion.joints))
+        gap = float(np.abs(motion.joints[:n] - ref.joints[:n]).max())
+        out[task.column] = max(out.get(task.column, 0.0), gap)
+    return out
 
 
 def _share(flags: list[bool]) -> str:
     return f"{np.mean(flags):.0%}" if flags else "-"
+
+
+def _kind(result: dict, kind: str, column: str) -> list[dict]:
+    return [r for r in result["rows"] if r["kind"] == kind and r["column"] == column]
+
+
+def _columns(result: dict, kind: str) -> list[str]:
+    return [c for c in result["columns"] if _kind(result, kind, c)]
 
 
 def _cell(rows: list[dict], action: Action) -> str:
@@ -172,75 +371,120 @@ def _cell(rows: list[dict], action: Action) -> str:
 
 
 def action_table(result: dict) -> str:
-    """Per action, the share of 10-s windows passing in each mode."""
-    modes, streams = result["modes"], result["streams"]
-    by_mode = {m: [r for r in streams if r["mode"] == m] for m in modes}
-    names = {r["action"] for r in streams}
+    """Per action, the share of 10-s windows passing on each path."""
+    columns = _columns(result, "action")
+    rows = {c: _kind(result, "action", c) for c in columns}
+    names = {r["action"] for c in columns for r in rows[c]}
     lines = [
-        "| action | prompt | " + " | ".join(f"anchoring {m}" for m in modes) + " |",
-        "|---|---|" + "---|" * len(modes),
+        "| action | prompt | " + " | ".join(columns) + " |",
+        "|---|---|" + "---|" * len(columns),
     ]
     for action in (a for a in REPERTOIRE if a.name in names):
         kind = "" if action.continuing else " (one-off: hold)"
-        lines.append(
-            f"| {action.name}{kind} | {action.prompt} | "
-            + " | ".join(_cell(by_mode[m], action) for m in modes)
-            + " |"
-        )
+        cells = " | ".join(_cell(rows[c], action) for c in columns)
+        lines.append(f"| {action.name}{kind} | {action.prompt} | {cells} |")
     for title, continuing in (("all continuing", True), ("all one-off holds", False)):
         cells = [
             _share(
                 [
                     p
-                    for r in by_mode[m]
+                    for r in rows[c]
+                    if _by_name(r["action"]).continuing == continuing
                     for p in (r["passes"] if continuing else r["passes"][1:])
-                    if _action(r).continuing == continuing
                 ]
             )
-            for m in modes
+            for c in columns
         ]
         lines.append(f"| **{title}** | | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def _action(row: dict) -> Action:
-    return next(a for a in REPERTOIRE if a.name == row["action"])
+def one_off_table(result: dict) -> str:
+    """Per one-off action, how often it is under way within ONE_OFF_SECONDS of the switch
+    (or of the clip's end, `continue`), on each path."""
+    columns = _columns(result, "one-off")
+    if not columns:
+        return ""
+    rows = {c: _kind(result, "one-off", c) for c in columns}
+    lines = [
+        "| one-off action after a walk | " + " | ".join(columns) + " |",
+        "|---|" + "---|" * len(columns),
+    ]
+
+    def within(rows: list[dict]) -> str:
+        ok = [r["reaction"] is not None and r["reaction"] <= ONE_OFF_SECONDS * FPS for r in rows]
+        return f"{sum(ok)}/{len(ok)}"
+
+    names = [a.name for a in REPERTOIRE if not a.continuing]
+    for name in (n for n in names if any(r["action"] == n for c in columns for r in rows[c])):
+        cells = [within([r for r in rows[c] if r["action"] == name]) for c in columns]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    shares = [within(rows[c]) for c in columns]
+    medians = [
+        f"{np.median([np.inf if r['reaction'] is None else r['reaction'] / FPS for r in rows[c]]):.2f}"
+        for c in columns
+    ]
+    lines.append(f"| **under way within {ONE_OFF_SECONDS:g} s** | " + " | ".join(shares) + " |")
+    lines.append("| median start (s) | " + " | ".join(medians) + " |")
+    return "\n".join(lines)
 
 
 def figures_table(result: dict) -> str:
-    """Switch reaction, seams, drift, foot sliding and step time, per mode."""
-    lines = [
-        "| figure | " + " | ".join(f"anchoring {m}" for m in result["modes"]) + " |",
-        "|---|" + "---|" * len(result["modes"]),
+    """Switch reaction, seams, drift, foot sliding, step time and frames against
+    MotionStream's, per path."""
+    columns = [
+        c for c in result["columns"] if _kind(result, "action", c) or _kind(result, "switches", c)
     ]
-    rows: dict[str, list[str]] = {}
-    for mode in result["modes"]:
-        streams = [r for r in result["streams"] if r["mode"] == mode]
-        reactions = [r for s in result["switches"] if s["mode"] == mode for r in s["reactions"]]
+    lines = ["| figure | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+    rows: dict[str, dict[str, str]] = {}
+    for c in columns:
+        streams = _kind(result, "action", c)
+        reactions = [r for s in _kind(result, "switches", c) for r in s["reactions"]]
         seconds = np.array([np.inf if r is None else r / FPS for r in reactions])
-        seams = [(s, r["ordinary_p99"]) for r in streams for s in r["seam_speed"]]
-        d = [r["drift"] for r in streams]
-        times = [t for r in streams for t in r["step_seconds"]]
-        firsts = [r["step_seconds"][0] for r in streams if r["step_seconds"]]
-        lasts = [r["step_seconds"][-1] for r in streams if r["step_seconds"]]
-        fresh = sum(r.get("fresh", 0) for r in streams)
-        for name, value in {
-            **_switch_figures(seconds),
-            "seams: joint speed above the stream's 99th percentile": f"{np.mean([s > p for s, p in seams]):.1%} of {len(seams)} ({fresh} fresh "
-            f"clips)"
-            if seams
-            else "none",
-            "pelvis height, 1st-99th percentile, lowest / highest stream (m)": f"{min(x['pelvis_low'] for x in d):.2f} / {max(x['pelvis_high'] for x in d):.2f}",
-            "deepest foot under the floor (cm)": f"{100 * max(x['under_floor'] for x in d):.1f}",
-            "foot sliding in contact, stream / 5-s clips (cm/s)": f"{100 * np.mean([x['slide'] for x in d]):.1f} / "
-            f"{100 * np.mean([r['short_slide'] for r in streams]):.1f}",
-            "ms per step, first / last minute": f"{1000 * np.mean(firsts):.2f} / {1000 * np.mean(lasts):.2f}"
-            if times
-            else "-",
-        }.items():
-            rows.setdefault(name, []).append(value)
-    lines += [f"| {name} | " + " | ".join(values) + " |" for name, values in rows.items()]
+        figures = {**_switch_figures(seconds), **_stream_figures(streams)}
+        gap = result.get("agreement", {}).get(c)
+        figures["largest joint difference from `stream, anchoring on` (mm)"] = (
+            f"{1000 * gap:.3f}" if gap is not None else "-"
+        )
+        for name, value in figures.items():
+            rows.setdefault(name, {})[c] = value
+    lines += [
+        f"| {name} | " + " | ".join(values.get(c, "-") for c in columns) + " |"
+        for name, values in rows.items()
+    ]
     return "\n".join(lines)
+
+
+def _stream_figures(streams: list[dict]) -> dict[str, str]:
+    """The figures of a path's action streams ('-' without any)."""
+    if not streams:
+        return {}
+    seams = [(s, r["ordinary_p99"]) for r in streams for s in r["seam_speed"] or ()]
+    known = any(r["seam_speed"] is not None for r in streams)
+    fresh = sum(r["fresh"] for r in streams)
+    d = [r["drift"] for r in streams]
+    firsts = [r["step_seconds"][0] for r in streams if r["step_seconds"]]
+    lasts = [r["step_seconds"][-1] for r in streams if r["step_seconds"]]
+    return {
+        "seams: joint speed above the stream's 99th percentile": (
+            f"{np.mean([s > p for s, p in seams]):.1%} of {len(seams)} ({fresh} fresh clips)"
+            if seams
+            else "none"
+            if known
+            else "-"
+        ),
+        "pelvis height, 1st-99th percentile, lowest / highest stream (m)": (
+            f"{min(x['pelvis_low'] for x in d):.2f} / {max(x['pelvis_high'] for x in d):.2f}"
+        ),
+        "deepest foot under the floor (cm)": f"{100 * max(x['under_floor'] for x in d):.1f}",
+        "foot sliding in contact, stream / 5-s clips (cm/s)": (
+            f"{100 * np.mean([x['slide'] for x in d]):.1f} / "
+            f"{100 * np.mean([r['short_slide'] for r in streams]):.1f}"
+        ),
+        "ms per step, first / last minute (serve: paced to real time)": (
+            f"{1000 * np.mean(firsts):.2f} / {1000 * np.mean(lasts):.2f}" if firsts else "-"
+        ),
+    }
 
 
 def _switch_figures(seconds: np.ndarray) -> dict[str, str]:
@@ -263,22 +507,22 @@ def _switch_figures(seconds: np.ndarray) -> dict[str, str]:
 def plot(result: dict, path: Path) -> None:
     """Share of windows passing by minute of the stream (a last partial minute too),
     continuing actions and one-off holds (their first window, the action, left out), per
-    mode."""
+    path."""
     per_minute = 60 * FPS // WINDOW
     series = {}
-    for mode in result["modes"]:
+    for c in _columns(result, "action"):
         for title, continuing in (("continuing", True), ("one-off hold", False)):
             rows = [
                 r["passes"] if continuing else [None] + r["passes"][1:]
-                for r in result["streams"]
-                if r["mode"] == mode and _action(r).continuing == continuing
+                for r in _kind(result, "action", c)
+                if _by_name(r["action"]).continuing == continuing
             ]
             minutes = [
                 [p for ps in rows for p in ps[m : m + per_minute] if p is not None]
                 for m in range(0, max(map(len, rows), default=0), per_minute)
             ]
             if any(minutes):
-                series[f"anchoring {mode}: {title}"] = [
+                series[f"{c}: {title}"] = [
                     (m + 1, 100 * float(np.mean(flags))) for m, flags in enumerate(minutes) if flags
                 ]
     log_line_chart(
@@ -292,30 +536,33 @@ def plot(result: dict, path: Path) -> None:
 
 
 def merged(paths: list[str]) -> dict:
-    """Saved runs (long_streams.json) as one result, e.g. a run of each mode."""
+    """Saved runs (long_streams.json) as one result, e.g. a run of each path."""
     runs = [json.loads(Path(path).read_text()) for path in paths]
     return dict(
-        modes=[m for r in runs for m in r["modes"]],
-        lengths={m: r["lengths"][m] for r in runs for m in r["modes"]},
-        streams=[s for r in runs for s in r["streams"]],
-        switches=[s for r in runs for s in r["switches"]],
+        columns=list(dict.fromkeys(c for r in runs for c in r["columns"])),
+        lengths={c: v for r in runs for c, v in r["lengths"].items()},
+        rows=[row for r in runs for row in r["rows"]],
+        agreement={c: v for r in runs for c, v in r["agreement"].items()},
     )
 
 
 def report(result: dict) -> str:
     runs = "; ".join(
-        f"anchoring {m}: {minutes:.3g}-minute streams, {seeds} seed(s) per action"
-        for m, (minutes, seeds) in result["lengths"].items()
+        f"{c}: {minutes:.3g}-minute streams, {seeds} seed(s) per action"
+        for c, (minutes, seeds) in result["lengths"].items()
     )
-    return (
-        f"{runs}; switches every {SWITCH_EVERY // FPS} s between continuing actions\n\n"
-        f"{action_table(result)}\n\n{figures_table(result)}\n"
-    )
+    kinds = {r["kind"] for r in result["rows"]}
+    if "switches" in kinds:
+        runs += f"; switches every {SWITCH_EVERY // FPS} s between continuing actions"
+    if "one-off" in kinds:
+        runs += f"; one-off actions {ONE_OFF_LEAD[1] // FPS} s into '{ONE_OFF_LEAD[0]}'"
+    tables = [action_table(result), one_off_table(result), figures_table(result)]
+    return f"{runs}\n\n" + "\n\n".join(t for t in tables if t) + "\n"
 
 
 def main(args: argparse.Namespace) -> None:
-    minutes, seeds, switches = (
-        (1 / 3, 1, 1) if args.quick else (args.minutes, args.seeds, args.switches)
+    minutes, seeds, switches, one_offs = (
+        (1 / 3, 1, 1, 1) if args.quick else (args.minutes, args.seeds, args.switches, args.one_offs)
     )
     actions = (
         tuple(a for a in REPERTOIRE if a.name in args.actions)
@@ -324,11 +571,12 @@ def main(args: argparse.Namespace) -> None:
         if args.quick
         else REPERTOIRE
     )
-    result = (
-        merged(args.tables_from)
-        if args.tables_from
-        else measure(args.bundle, minutes, seeds, switches, args.jobs, args.modes, actions)
-    )
+    if args.tables_from:
+        result = merged(args.tables_from)
+    else:
+        tasks = schedules(args.path, args.modes, actions, minutes, seeds, switches, one_offs)
+        result = measure(args.bundle, tasks, args.jobs)
+        result["lengths"] = {c: (minutes, seeds) for c in result["columns"]}
     text = report(result)
     print(text)
     out = Path(args.out)

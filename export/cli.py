@@ -244,7 +244,7 @@ def _add_train(commands) -> None:
             "evaluator",
             EvaluatorTrainOptions,
             _cmd_train_evaluator,
-            "train the text-motion evaluator for `mogo eval` (contrastive text and motion "
+            "train the text-motion evaluator for `mogo bench eval` (contrastive text and motion "
             "encoders), exported to RUN/evaluator",
         ),
         (
@@ -252,7 +252,7 @@ def _add_train(commands) -> None:
             TextTrainOptions,
             _cmd_train_text,
             "train the adapter from a pretrained sentence encoder (all-MiniLM-L6-v2) to a "
-            "bundle's prompt space, for `mogo export --text`",
+            "bundle's prompt space, for `mogo export text`",
         ),
     ):
         command = train_commands.add_parser(name, help=what)

@@ -114,13 +114,13 @@ class Anchor:
         self.anchors = 0  # re-anchors and fresh clips so far
         self.fresh = 0  # of which fresh clips
         self.holding = False
-        self._kind(text)
+        self.kind(text)
 
     def switch(self, text: str, embedding: np.ndarray) -> None:
         """A new prompt: a fresh clip under it at once, from the last `switch_keep` steps."""
         self._tokens.set_prompt(embedding)
         self.holding = False
-        self._kind(text)
+        self.kind(text)
         if len(self.recent):
             self._reanchor(self.anchoring.switch_keep)
 
@@ -152,7 +152,9 @@ class Anchor:
             self._reanchor(self.anchoring.still_keep if self.still else None)
         return row
 
-    def _kind(self, text: str) -> None:
+    def kind(self, text: str) -> None:
+        """What `text` asks for: a one-off (then the hold), standing still, and whether the
+        model may end its clips."""
         self.one_off = settles(text)
         self.still = primitive_of(plain_words(text)) == STILL
         self._tokens.allow_end = not self.still
@@ -163,7 +165,7 @@ class Anchor:
         hold = self.anchoring.hold_prompt
         self._tokens.set_prompt(self._embed(hold))
         self.holding = True
-        self._kind(hold)
+        self.kind(hold)
         self._restart()
 
     def _restart(self) -> None:

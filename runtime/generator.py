@@ -44,12 +44,16 @@ from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import MAX_GENERATE_SECONDS, io_types
 from mogo.motion.features import JointStream
+from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.motion.feet import FootPlanter, planted
 from mogo.motion.untrusted import checked_finite
 from mogo.progress import Progress
 from mogo.repertoire import Familiarity
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StreamingDecoder
+from mogo.stream_state import StateError
+from mogo.stream_state import read as read_state
+from mogo.stream_state import write as write_state
 from mogo.text_side import TextSide
 from mogo.token_generator import Stopped, TokenGenerator, TokenStream
 
@@ -488,6 +492,30 @@ class MotionGenerator:
             low_latency,
         )
 
+    def resume(self, state: str) -> MotionStream:
+        """The stream `MotionStream.state()` was taken from, going on from there: the next
+        frames are those the original made after it (on this machine, the same graphs). A
+        state of another bundle, corrupted, truncated, hostile or of a newer format: one
+        ValueError (mogo.stream_state.StateError) naming the problem. Costs a prefill and
+        a step per token step since the stream's clip started or re-anchored (tens of ms)."""
+        resumed = read_state(state, self)
+        if resumed.low_latency and self._low_latency is None:
+            raise StateError(
+                "the state is of a low-latency stream; this bundle has no such decoder"
+            )
+        stream = MotionStream(
+            self,
+            resumed.prompt,
+            resumed.seed,
+            resumed.sampling,
+            resumed.window,
+            resumed.plant_feet,
+            resumed.anchoring,
+            resumed.low_latency,
+        )
+        resumed.restore(stream)
+        return stream
+
     def streaming_decoder(
         self, session: ort.InferenceSession | None = None, low_latency: bool = False
     ) -> StreamingDecoder:
@@ -563,7 +591,7 @@ class MotionStream:
         )
         self.decoder = generator.streaming_decoder(decoder_session, low_latency=low_latency)
         self._joints = JointStream(generator.skeleton)
-        self._feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
+        self.feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
         self.frames_emitted = 0
         self._skip = 0
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
@@ -634,6 +662,14 @@ class MotionStream:
             self._final(self.generator._denormalised(self.decoder.push(tokens)))
             self._skip = self._pending_frames()  # the clip's own last frames: not again
 
+    def state(self) -> str:
+        """Everything that keeps this stream going, as compact text (mogo.stream_state, a
+        few KB): `MotionGenerator.resume(state)` goes on from here, also in another process
+        or on another machine with the same bundle. Its first frame is frame
+        `frames_emitted` (frames decoded but not yet read from frames() come first)."""
+        with self._lock:
+            return write_state(self)
+
     def advance(self, steps: int) -> None:
         """Draw `steps` token steps, keeping everything for `finish()`."""
         steps = checked_int(steps, "steps", 0)
@@ -644,14 +680,20 @@ class MotionStream:
 
     def finish(self) -> Motion:
         """End the stream: the remaining frames and, if the stream was recorded by `advance`,
-        the whole Motion. The stream is cut, not ended: it draws the decoder's lookahead in
-        more steps, not kept, as the right context of its last frames (as `generate` does), so
-        they are the frames the stream would have emitted had it gone on."""
+        the whole Motion. The stream is cut, not ended: it draws more steps, not kept, as the
+        right context of its last frames (the decoder's lookahead, and the feet's before it),
+        so they are the frames the stream would have emitted had it gone on."""
         g = self.generator
+        levels = g.tokens.num_levels
         with self._lock:
-            context = [self._next_tokens() for _ in range(self.decoder.lookahead)]
-            features = self.decoder.flush(np.reshape(context, (-1, g.tokens.num_levels)))
-            self.emit(np.zeros((0, g.tokens.num_levels), np.int64), features, end=True)
+            left = self._pending_frames() - self._skip  # the frames still to come out
+            feet = 0 if self.feet is None else math.ceil(FEET_LOOKAHEAD / g.down_factor)
+            drawn = [self._next_tokens() for _ in range(feet + self.decoder.lookahead)]
+            ahead = np.reshape(drawn, (-1, levels))
+            features = np.concatenate(
+                [self.decoder.push(ahead[:feet]), self.decoder.flush(ahead[feet:])]
+            )
+            self.emit(np.zeros((0, levels), np.int64), features, limit=left)
         empty = (
             np.zeros((0, g.tokens.num_levels), np.int64),
             np.zeros((0, g.manifest.feature_dim), np.float32),
@@ -671,32 +713,31 @@ class MotionStream:
         self.steps += 1
         return row if self.anchor is None else self.anchor.after(row)
 
-    def emit(self, tokens: np.ndarray, normalised: np.ndarray, end: bool = False) -> np.ndarray:
-        features, joints = self._final(self.generator._denormalised(normalised), end)
+    def emit(
+        self, tokens: np.ndarray, normalised: np.ndarray, limit: int | None = None
+    ) -> np.ndarray:
+        """The frames that became final from decoded rows (at most `limit`: `finish`)."""
+        features, joints = self._final(self.generator._denormalised(normalised))
         skip = min(self._skip, len(joints))
         features, joints, self._skip = features[skip:], joints[skip:], self._skip - skip
+        features, joints = features[:limit], joints[:limit]
         self.frames_emitted += len(joints)
         if self._record is not None:
             self._record.append((tokens, features.astype(np.float32), joints))
         return joints
 
-    def _final(self, features: np.ndarray, end: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def _final(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Decoded rows in, the rows now final out with their joints: the feet planted when
-        asked, LOOKAHEAD frames later (all of them at the `end`)."""
+        asked, LOOKAHEAD frames later."""
         joints = self._joints.push(features)
-        if self._feet is None:
+        if self.feet is None:
             return features, joints
-        final = self._feet.push(features, joints)
-        if end:
-            final = tuple(
-                np.concatenate(pair) for pair in zip(final, self._feet.flush(), strict=False)
-            )
-        return final
+        return self.feet.push(features, joints)
 
     def _pending_frames(self) -> int:
         """Frames drawn as tokens but not yet emitted (the decoder's lookahead, and the
         frames the foot planter holds back)."""
-        held = 0 if self._feet is None else self._feet.pending
+        held = 0 if self.feet is None else self.feet.pending
         return (self.decoder.pushed - self.decoder.emitted) * self.generator.down_factor + held
 
 

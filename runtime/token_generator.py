@@ -280,6 +280,7 @@ class TokenStream:
         self.steps = 0  # steps drawn
         self.ended = False
         self._oldest = 1  # with a full window: the slot the next step overwrites
+        self.prefilled = 0  # leading slots the last prefill made (the others: one step each)
 
     def _prefill(self) -> None:
         """Recompute every level's cache for the held slots under the current prompt."""
@@ -299,6 +300,35 @@ class TokenStream:
         )
         self.caches = [present for _, present in outputs]
         self._group = None
+        self.prefilled = len(self.positions)
+
+    def rebuild(self) -> None:
+        """The cache of the held slots made again as it was made (a resumed stream,
+        mogo.stream_state): the prefill of the first `prefilled`, then one step for each slot
+        drawn since, so it holds the same numbers and the next draws are the same. After a
+        full window's overwrites that history is gone: the whole window is prefilled (as at a
+        prompt switch: close, not the same numbers with int8 graphs)."""
+        g, positions, tokens = self.generator, self.positions, self.slot_tokens
+        made = self.prefilled
+        self.positions, self.slot_tokens = positions[:made], tokens[:made]
+        if made:
+            self._prefill()
+        else:
+            self.caches = [g.empty_cache(level, len(self.uncond)) for level in range(g.num_levels)]
+        for k in range(made, len(positions)):
+            self._replay(tokens[k], positions[k : k + 1], positions[:k])
+        self.positions, self.slot_tokens, self._group = positions, tokens, None
+
+    def _replay(self, tokens: np.ndarray, position: np.ndarray, past: np.ndarray) -> None:
+        """One step's graph calls as `_step_group` made them, tokens given, none drawn."""
+        g = self.generator
+        ids = np.repeat(tokens[None, None], len(self.uncond), axis=0)
+        outputs = g.each_level(
+            lambda level: g.run(
+                level, self.prompt, self.uncond, ids, position, past, self.caches[level]
+            )
+        )
+        self.caches = [present for _, present in outputs]
 
     def _overwrite_oldest(self, presents: list[Cache], n: int) -> None:
         """Full window: the new slot (the last of every present) replaces the oldest step slot
@@ -310,6 +340,7 @@ class TokenStream:
         self.positions[slot] = n
         self.slot_tokens[slot] = self.last
         self._oldest = slot % self.window + 1
+        self.prefilled = len(self.positions)  # no longer made by steps from a prefill
 
     def _batch(self, prompt_embedding: np.ndarray) -> np.ndarray:
         """(text_dim,) -> (B, text_dim) float32, one row per guidance branch."""

@@ -8,9 +8,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = ("runtime", "export", "bench", "examples")
 MAX_LINES = 60
-# Rewritten right now on the branches of issues 40 (serve's bench) and 41 (the stream socket's
-# resume and drain): split there, then these lines go. Nothing else may be added here.
-NOT_YET = {"runtime/serve/server.py:stream_socket", "bench/speed/serve.py:run"}
 
 
 def long_functions() -> dict[str, int]:
@@ -28,11 +25,5 @@ def long_functions() -> dict[str, int]:
 
 
 def test_no_function_is_longer_than_60_lines():
-    too_long = {name: n for name, n in long_functions().items() if name not in NOT_YET}
+    too_long = long_functions()
     assert not too_long, f"split these (lines): {too_long}"
-
-
-def test_the_exceptions_are_still_needed():
-    assert NOT_YET <= set(long_functions()), (
-        f"remove from NOT_YET what is short now: {NOT_YET - set(long_functions())}"
-    )

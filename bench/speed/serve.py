@@ -43,6 +43,7 @@ import sys
 import time
 import urllib.request
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +78,25 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+@contextmanager
+def serving(bundle: str | None, max_streams: int, threads: int | None = None):
+    """`mogo serve` in its own process on a free loopback port, for the `with` block: yields
+    its base URL and process id."""
+    port = free_port()
+    command = [sys.executable, "-m", "mogo", "serve", "--port", str(port)]
+    command += ["--max-streams", str(max_streams)]
+    command += ["--threads", str(threads)] if threads else []
+    command += ["--bundle", bundle] if bundle else []
+    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    try:
+        if "mogo serve:" not in server.stderr.readline():
+            raise RuntimeError("mogo serve did not start")
+        yield f"http://127.0.0.1:{port}", server.pid
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
 
 
 def cpu_seconds(pid: int) -> float:
@@ -375,37 +395,19 @@ def run(
     out: Path,
     binary: bool = True,
 ) -> dict:
-    port = free_port()
-    command = [
-        sys.executable,
-        "-m",
-        "mogo",
-        "serve",
-        "--port",
-        str(port),
-        "--max-streams",
-        str(max(*clients, *bursts, WARM_CLIENTS)),
-    ]
-    command += ["--threads", str(threads)] if threads else []
-    command += ["--bundle", bundle] if bundle else []
-    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
-    base = f"http://127.0.0.1:{port}"
-    try:
-        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
-            if "mogo serve:" not in server.stderr.readline():
-                raise RuntimeError("mogo serve did not start")
-            measure(pool, base, server.pid, WARM_CLIENTS, 4.0, 0.0, binary)  # graphs run once
-            bursts_measured = []
-            for size in bursts:
-                bursts_measured.append(burst(pool, base, size, binary))
-                print(burst_table(bursts_measured[-1:]).splitlines()[-1], flush=True)
-            rows = []
-            for n in clients:
-                rows.append(measure(pool, base, server.pid, n, seconds, spread, binary))
-                print(table(rows[-1:]).splitlines()[-1], flush=True)
-    finally:
-        server.terminate()
-        server.wait(timeout=30)
+    with (
+        serving(bundle, max(*clients, *bursts, WARM_CLIENTS), threads) as (base, pid),
+        ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool,
+    ):
+        measure(pool, base, pid, WARM_CLIENTS, 4.0, 0.0, binary)  # graphs run once
+        bursts_measured = []
+        for size in bursts:
+            bursts_measured.append(burst(pool, base, size, binary))
+            print(burst_table(bursts_measured[-1:]).splitlines()[-1], flush=True)
+        rows = []
+        for n in clients:
+            rows.append(measure(pool, base, pid, n, seconds, spread, binary))
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
     held = [r["clients"] for r in rows if r["real_time"]]
     engine = [engine_cost(n, threads or 2) for n in clients]
     result = dict(

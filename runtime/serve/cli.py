@@ -7,14 +7,17 @@ import argparse
 import asyncio
 import importlib.util
 import logging
+import multiprocessing
 import os
 import signal
 import socket
 import sys
+import time
 from urllib.parse import urlsplit
 
 from mogo.cli import CliError, load_generator, needs_extra
 from mogo.cli_flags import add_bundle, add_threads
+from mogo.serve.protocol import STATE_EVERY_SECONDS
 
 TOKEN_VARIABLE = "MOGO_SERVE_TOKEN"
 RESERVED_DESCRIPTORS = 64  # file descriptors kept for the process itself (graphs, logs)
@@ -53,6 +56,22 @@ def add_commands(commands) -> None:
         help="a secret every request must carry ('Authorization: "
         f"Bearer TOKEN' or ?token=TOKEN); env {TOKEN_VARIABLE}",
     )
+    serve.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="server processes on the one port (SO_REUSEPORT; Linux), each with its own "
+        "model and --max-streams; default 1 (docs/deploy.md: what more gave on 2 cores)",
+    )
+    serve.add_argument(
+        "--state-every",
+        type=float,
+        default=STATE_EVERY_SECONDS,
+        metavar="SECONDS",
+        help="send each client its stream's state this often, to resume it on any server "
+        f"with the same bundle (default {STATE_EVERY_SECONDS:g}; 0: on request and after "
+        "switches only)",
+    )
     serve.set_defaults(run=_cmd_serve)
 
 
@@ -80,33 +99,124 @@ def _cmd_serve(args: argparse.Namespace) -> None:
             + ("" if token else "; anyone who reaches it can use it (see --token)"),
             file=sys.stderr,
         )
-    app = server.make_app(load_generator(args), args.threads or 2, args.max_streams, access=access)
-    asyncio.run(_serve(app, args.host, args.port, _connections(args.max_streams)))
+    if not 0 <= args.state_every <= 3600:
+        raise CliError(
+            f"--state-every must be between 0 and 3600 seconds, got {args.state_every:g}"
+        )
+    if args.workers < 1:
+        raise CliError(f"--workers must be at least 1, got {args.workers}")
+    if args.workers == 1:
+        _serve_one(args, access)
+        return
+    if not hasattr(socket, "SO_REUSEPORT") or not hasattr(os, "fork"):
+        raise CliError("--workers needs SO_REUSEPORT and fork (Linux, BSD, macOS)")
+    if args.threads is None:  # the cores shared out, at least one each
+        args.threads = max(1, min(2, (os.cpu_count() or 1) // args.workers))
+    _workers(args, access)
 
 
-async def _serve(app, host: str, port: int, connections: int) -> None:
-    """Listen, then say so; serve until SIGINT, SIGTERM or SIGHUP, then close every socket."""
+def _serve_one(args: argparse.Namespace, access, ready=None) -> None:
+    """One server process; `ready`: a worker's event, set once it listens (the port shared)."""
     from mogo.serve import server
 
-    address = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    app = server.make_app(
+        load_generator(args),
+        args.threads or 2,
+        args.max_streams,
+        access=access,
+        state_every=args.state_every,
+    )
+    asyncio.run(_serve(app, args.host, args.port, _connections(args.max_streams), ready))
+
+
+def _workers(args: argparse.Namespace, access) -> None:
+    """`--workers N`: N forked server processes on one port; this one waits, says when all
+    listen, passes SIGINT, SIGTERM and SIGHUP on (each drains) and exits when they have."""
+    context = multiprocessing.get_context("fork")  # before any model or thread exists here
+    ready = [context.Event() for _ in range(args.workers)]
+    workers = [
+        context.Process(target=_worker, args=(args, access, event), name=f"mogo-serve-{k}")
+        for k, event in enumerate(ready)
+    ]
+    for worker in workers:
+        worker.start()
+    stopping = []
+
+    def stop(number, _frame) -> None:
+        stopping.append(number)
+        for worker in workers:
+            if worker.exitcode is None:
+                os.kill(worker.pid, number)
+
+    for number in _STOP_SIGNALS:
+        signal.signal(number, stop)
+    told = False
+    while any(worker.exitcode is None for worker in workers):
+        if not told and all(event.is_set() for event in ready):
+            told = True
+            _banner(_address(args.host, args.port), f" ({args.workers} workers)")
+        failed = [w.exitcode for w in workers if w.exitcode not in (None, 0)]
+        if failed and not stopping:
+            stop(signal.SIGTERM, None)
+            for worker in workers:
+                worker.join()
+            raise CliError(f"a worker stopped (status {failed[0]}); the others were stopped")
+        time.sleep(0.1)
+
+
+def _worker(args: argparse.Namespace, access, ready) -> None:
     try:
-        runner, listener = await server.listen(app, host, port, connections)
+        _serve_one(args, access, ready)
+    except CliError as error:
+        print(f"mogo: error: {error}", file=sys.stderr, flush=True)
+        sys.exit(2)
+
+
+_STOP_SIGNALS = [
+    number
+    for number in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None))
+    if number is not None
+]
+
+
+def _address(host: str, port: int) -> str:
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
+def _banner(address: str, more: str = "") -> None:
+    print(
+        f"mogo serve: http://{address}/ (viewer), ws://{address}/v1/stream{more}; Ctrl-C stops",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+async def _serve(app, host: str, port: int, connections: int, ready=None) -> None:
+    """Listen, then say so (a worker: sets `ready`); serve until SIGINT, SIGTERM or SIGHUP,
+    then drain: every client gets its stream's state to resume elsewhere (docs/deploy.md),
+    every socket is closed."""
+    from mogo.serve import server
+
+    address = _address(host, port)
+    try:
+        runner, listener = await server.listen(app, host, port, connections, ready is not None)
     except OSError as error:
         raise CliError(f"cannot listen on {address}: {error.strerror or error}") from None
     _quiet_logs(server.QuietLog())
     stopping = asyncio.Event()
-    for number in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+    for number in _STOP_SIGNALS:
         try:
             asyncio.get_running_loop().add_signal_handler(number, stopping.set)
-        except (NotImplementedError, TypeError):  # Windows, or no SIGHUP: Ctrl-C cancels
+        except NotImplementedError:  # Windows: Ctrl-C cancels
             pass
-    print(
-        f"mogo serve: http://{address}/ (viewer), ws://{address}/v1/stream; Ctrl-C stops",
-        file=sys.stderr,
-        flush=True,
-    )
+    if ready is None:
+        _banner(address)
+    else:
+        ready.set()
     try:
         await stopping.wait()
+        listener.close()  # new connections go elsewhere at once (a proxy retries them)
+        await app[server.SERVER].drain()
     finally:
         await server.stop(runner, listener)
 

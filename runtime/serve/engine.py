@@ -31,6 +31,7 @@ from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.serve.interior import interior_session
 from mogo.serve.rowwise import rowwise_graph
 from mogo.stream_decoder import push_many
+from mogo.stream_state import State
 from mogo.token_generator import TokenGenerator, step_together
 
 ALIGN_STEPS = 24  # extra lead a stream may take to join a larger group (1.2 s at most)
@@ -42,8 +43,16 @@ class ServedStream(MotionStream):
     """One client's stream: a MotionStream on the engine's graphs, and its clock."""
 
     def __init__(
-        self, engine: Engine, prompt: str, seed: int, sampling, start_tick: int, plant_feet: bool
+        self,
+        engine: Engine,
+        prompt: str,
+        seed: int,
+        sampling,
+        start_tick: int,
+        plant_feet: bool,
+        resumed: State | None = None,
     ):
+        """`resumed`: a stream state (mogo.stream_state) to go on from, read and checked."""
         g = engine.generator
         # guided: alone on the bundle's own graphs, which quantise its two rows (conditional
         # and not) together, as MotionStream's do; the row-wise graphs would not
@@ -52,14 +61,17 @@ class ServedStream(MotionStream):
             prompt,
             seed,
             sampling,
-            g.defaults.window,
+            resumed.window if resumed else g.defaults.window,
             plant_feet,
-            Anchoring(),
+            resumed.anchoring if resumed else Anchoring(),
             tokens=None if sampling.guided else engine.tokens,
             decoder_session=engine.decoder_session,
         )
+        if resumed is not None:
+            resumed.restore(self)
         self.id = next(engine._ids)
         self.start_tick, self.extra = start_tick, 0
+        self.send_from = 0  # frames before this one are not sent (a resume's client has them)
 
     @property
     def prompt(self) -> str:
@@ -117,6 +129,21 @@ class Engine:
         stream = ServedStream(self, prompt, seed, sampling, self.tick(now), plant_feet)
         self.streams[stream.id] = stream
         return stream
+
+    def restore(self, state: State) -> ServedStream:
+        """A stream going on from `state` (its prompt checked by the caller), its cache made
+        again (tens of ms: on any thread, the engine's goes on stepping); `resume` starts it."""
+        return ServedStream(
+            self, state.prompt, state.seed, state.sampling, 0, state.plant_feet, state
+        )
+
+    def resume(self, stream: ServedStream, now: float, send_from: int) -> None:
+        """Start a restored stream, sending frames from `send_from` on: it catches up at once
+        to where a stream of its steps would be, and past the frames its client has."""
+        ahead = max(0, send_from - stream.frames_emitted) // self.generator.down_factor
+        stream.start_tick = self.tick(now) - stream.steps - ahead
+        stream.send_from = send_from
+        self.streams[stream.id] = stream
 
     def switch(self, stream: ServedStream, prompt: str) -> None:
         stream.switch_prompt(prompt)

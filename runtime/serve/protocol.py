@@ -3,13 +3,23 @@
 Client -> server, JSON text messages:
     {"prompt": "...", "seed": 1, "temperature": .., "top_k": .., "top_p": .., "guidance": ..,
      "binary": false}                        first message: starts the stream (seed optional)
+    {"resume": STATE, "from": i, "binary": false}
+                                             first message instead: goes on with the stream a
+                                             "state" message gave, sending frames from i on
     {"prompt": "..."}                        later: switch the prompt from the next step on
+    {"state": true}                          later: ask for the stream's state now
     {"stop": true}                           later: end the stream (the server closes)
 HTTP POST /v1/generate: one such JSON object (UTF-8), {"prompt", "seconds", "seed", "format"}.
 Server -> client:
-    {"type": "started", "stream": id, "seed": s, "fps": 20, "joints": [names], "parents": [..]}
+    {"type": "started", "stream": id, "seed": s, "fps": 20, "joints": [names], "parents": [..],
+     "frame": i}                             the first frame to come (0, or a resume's)
     {"type": "frames", "index": i, "joints": [[[x, y, z] x 22] x n]}   frames i .. i+n-1, metres
-    {"type": "switched", "prompt": "..."} | {"type": "error", "error": "..."}
+    {"type": "state", "frame": i, "state": STATE}   resume from frame i (mogo.stream_state):
+                                             on request, after a switch, every few seconds
+    {"type": "drain", "frame": i, "state": STATE}   the server stops: resume elsewhere (it
+                                             then closes the socket, 1001 going away)
+    {"type": "switched", "prompt": "...", "index": i}    frames from i on follow the prompt
+    {"type": "error", "error": "..."}
     binary (if asked): one message per burst, little-endian uint32 index, uint32 n, then
     float32 joints (n, 22, 3).
 """
@@ -24,10 +34,15 @@ from typing import Any
 import numpy as np
 
 from mogo.sampling import Sampling
+from mogo.stream_state import MAX_STATE_CHARS
 
 MAX_MESSAGE_CHARS = 4096  # longer messages get an error (a prompt: text.max_length tokens, 128)
+MAX_FIRST_CHARS = MAX_STATE_CHARS + 1024  # a socket's first message: it may resume a state
 START_FIELDS = {"prompt", "seed", "binary", "plant_feet", *Sampling.__dataclass_fields__}
-LATER_FIELDS = {"prompt", "stop"}
+RESUME_FIELDS = {"resume", "from", "binary"}
+LATER_FIELDS = {"prompt", "stop", "state"}
+STATE = "state"  # what `later` returns for a state request
+STATE_EVERY_SECONDS = 5.0  # each client gets its stream's state this often (and after a switch)
 CLIP_FIELDS = {"prompt", "seconds", "seed", "format"}
 CLIP_FORMATS = {
     "bvh": "text/plain",
@@ -62,12 +77,21 @@ class Start:
     plant_feet: bool  # as the API's plant_feet (mogo.motion.feet): on unless turned off
 
 
-def read(text: object) -> dict:
-    """A client message (text) -> its JSON object, or ProtocolError."""
+@dataclass
+class Resume:
+    state: str  # checked by mogo.stream_state
+    first: int | None  # the first frame to send (None: the state's)
+    binary: bool
+
+
+def read(text: object, first: bool = False) -> dict:
+    """A client message (text) -> its JSON object, or ProtocolError. A socket's `first` may
+    be longer if it resumes a state."""
     if not isinstance(text, str):
         raise ProtocolError("messages must be JSON text, not binary")
-    if len(text) > MAX_MESSAGE_CHARS:
-        raise ProtocolError(f"message of {len(text)} characters; at most {MAX_MESSAGE_CHARS}")
+    limit = MAX_FIRST_CHARS if first and '"resume"' in text else MAX_MESSAGE_CHARS
+    if len(text) > limit:
+        raise ProtocolError(f"message of {len(text)} characters; at most {limit}")
     try:
         message = json.loads(text)
     except json.JSONDecodeError as error:
@@ -115,17 +139,35 @@ def start(message: dict) -> Start:
     return Start(_text(prompt), seed, options, binary, plant_feet)
 
 
+def resume(message: dict) -> Resume:
+    """A first message that resumes a stream."""
+    known(message, RESUME_FIELDS)
+    state, first, binary = message["resume"], message.get("from"), message.get("binary", False)
+    if not isinstance(state, str):
+        raise ProtocolError(f'"resume" must be a state (text), got {type(state).__name__}')
+    if first is not None and (isinstance(first, bool) or not isinstance(first, int) or first < 0):
+        raise ProtocolError(f'"from" must be a frame index >= 0, got {first!r}')
+    if not isinstance(binary, bool):
+        raise ProtocolError(f'"binary" must be true or false, got {binary!r}')
+    return Resume(state, first, binary)
+
+
 def later(message: dict) -> str | None:
-    """A message after the first: the new prompt, or None for stop."""
+    """A message after the first: the new prompt, STATE for a state request, None for stop."""
     known(message, LATER_FIELDS)
-    if message.get("stop") is True and "prompt" not in message:
+    if len(message) == 1 and message.get("stop") is True:
         return None
-    if "prompt" not in message or "stop" in message:
-        raise ProtocolError('send {"prompt": "..."} to switch or {"stop": true} to end')
+    if len(message) == 1 and message.get("state") is True:
+        return STATE
+    if len(message) != 1 or "prompt" not in message:
+        raise ProtocolError(
+            'send {"prompt": "..."} to switch, {"state": true} for the state or '
+            '{"stop": true} to end'
+        )
     return _text(message["prompt"])
 
 
-def started(stream_id: int, seed: int, fps: float, joint_names, parents) -> str:
+def started(stream_id: int, seed: int, fps: float, joint_names, parents, frame: int = 0) -> str:
     return json.dumps(
         {
             "type": "started",
@@ -134,8 +176,14 @@ def started(stream_id: int, seed: int, fps: float, joint_names, parents) -> str:
             "fps": fps,
             "joints": [str(name) for name in joint_names],
             "parents": [int(parent) for parent in parents],
+            "frame": frame,
         }
     )
+
+
+def state(frame: int, text: str, drain: bool = False) -> str:
+    """The stream's state, from frame `frame` on; `drain`: the server is stopping."""
+    return json.dumps({"type": "drain" if drain else "state", "frame": frame, "state": text})
 
 
 def frames(index: int, joints: np.ndarray, binary: bool) -> str | bytes:
@@ -155,8 +203,9 @@ def error(text: str) -> str:
     return json.dumps({"type": "error", "error": text})
 
 
-def switched(prompt: str) -> str:
-    return json.dumps({"type": "switched", "prompt": prompt})
+def switched(prompt: str, index: int) -> str:
+    """A switch accepted: frames from `index` on follow `prompt`."""
+    return json.dumps({"type": "switched", "prompt": prompt, "index": index})
 
 
 def note(text: str) -> str:

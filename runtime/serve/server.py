@@ -29,6 +29,8 @@ from mogo.arguments import PromptWarning, UnknownPromptWarning
 from mogo.generator import MotionGenerator, checked_seed
 from mogo.serve import protocol
 from mogo.serve.engine import Engine, ServedStream
+from mogo.stream_state import StateError
+from mogo.stream_state import read as read_state
 
 QUEUED_BURSTS = 8  # per client: ~3 s of motion; beyond, the oldest burst is dropped
 MAX_WIRE_MESSAGE = 1 << 20  # aiohttp closes the socket (1009) past this; smaller ones get
@@ -40,6 +42,8 @@ SHUTDOWN_SECONDS = 2.0  # on SIGINT/SIGTERM, what a request in flight gets to fi
 SPARE_CONNECTIONS = 64  # connections beyond --max-streams (clips, health, the viewer)
 LOG_EVERY_SECONDS = 10.0  # one log line of a kind per this, at most (no log floods)
 LOCAL_NAMES = {"localhost"}  # with every loopback address
+RESUME_AHEAD_SECONDS = 30.0  # a resume's "from" at most this far past its state
+DRAIN_SECONDS = 5.0  # on SIGTERM: what the clients get to read their states and go
 
 
 @dataclass(frozen=True)
@@ -147,12 +151,16 @@ class Server:
         max_streams: int,
         tokens=None,
         access: Access = Access(),
+        state_every: float = protocol.STATE_EVERY_SECONDS,
     ):
         self.generator, self.max_streams, self.access = generator, max_streams, access
+        self.state_every = state_every  # 0: states only on request and after switches
+        self.draining = False
         self.engine = Engine(generator, threads, tokens)
         self.thread = ThreadPoolExecutor(1, "mogo-engine")
         self.clip_workers = threads
         self.clips = ThreadPoolExecutor(threads, "mogo-generate")
+        self.restores = ThreadPoolExecutor(1, "mogo-resume")  # resumed streams' caches
         self.clip_jobs = 0  # running and waiting
         self.wake = asyncio.Event()
         self.queues: dict[int, asyncio.Queue] = {}
@@ -174,10 +182,13 @@ class Server:
                     pass
                 continue
             for stream, first, joints in out:
-                self.deliver(stream.id, first, joints)
+                skip = stream.send_from - first  # a resume's client has these already
+                if skip < len(joints):
+                    self.deliver(stream.id, first + max(0, skip), joints[max(0, skip) :])
 
-    def deliver(self, stream_id: int, first: int, joints) -> None:
-        """Queue a burst for its client; a full queue (a slow client) loses its oldest."""
+    def deliver(self, stream_id: int, first: int | None, joints) -> None:
+        """Queue a burst for its client; a full queue (a slow client) loses its oldest.
+        first=None: `joints` is a message's text (a state), or None: close the socket."""
         queue = self.queues.get(stream_id)
         if queue is not None:
             if queue.full():
@@ -207,12 +218,18 @@ class Server:
             notes.append(known.played_note)
         return text, notes
 
-    def open(self, start: protocol.Start) -> tuple[ServedStream, list[str]]:
+    def admit(self) -> None:
+        """ServerFull for a stream this server does not take now."""
+        if self.draining:
+            raise protocol.ServerFull("the server is stopping: connect again (to another)")
         if len(self.engine.streams) >= self.max_streams:
             raise protocol.ServerFull(
                 f"the server is full: {self.max_streams} streams "
                 "(mogo serve --max-streams); try again later"
             )
+
+    def open(self, start: protocol.Start) -> tuple[ServedStream, list[str]]:
+        self.admit()
         text, notes = self.checked_prompt(start.prompt)
         try:
             sampling = self.generator.sampling(None, **start.options)
@@ -221,10 +238,76 @@ class Server:
         seed = checked_seed(start.seed)
         return self.engine.open(text, seed, sampling, self.clock(), start.plant_feet), notes
 
-    def switch(self, stream: ServedStream, prompt: str) -> list[str]:
+    async def resume(self, resume: protocol.Resume) -> tuple[ServedStream, list[str]]:
+        """A stream going on from a client's state (mogo.stream_state), refused with one
+        error where the state is not one this server goes on from. Its cache is made again
+        on a thread of its own: the engine goes on stepping the others meanwhile."""
+        state, first, notes = await self.call(self._resumable, resume)
+        try:
+            stream = await asyncio.get_running_loop().run_in_executor(
+                self.restores, self.engine.restore, state
+            )
+        except StateError as error:
+            raise protocol.ProtocolError(str(error)) from None
+        await self.call(self._resume, stream, first)
+        return stream, notes
+
+    def _resumable(self, resume: protocol.Resume):
+        """The state read and checked, the first frame to send, the prompt's notes."""
+        self.admit()
+        try:
+            state = read_state(resume.state, self.generator)
+            if state.low_latency:
+                raise StateError("the state is of a low-latency stream; the server's are not")
+            window = self.generator.defaults.window  # what a resume may replay: bounded
+            if state.window is None or state.window > window:
+                raise StateError(f"the state's window is larger than this server's ({window})")
+            _, notes = self.checked_prompt(state.prompt)
+            frame = state.payload["frames"]  # checked by restore, in Engine.restore
+            first = frame if resume.first is None else resume.first
+            if not isinstance(frame, int) or first > frame + RESUME_AHEAD_SECONDS * self.engine.fps:
+                raise StateError(f'"from" is more than {RESUME_AHEAD_SECONDS:g} s past the state')
+        except StateError as error:
+            raise protocol.ProtocolError(str(error)) from None
+        return state, max(first, frame), notes
+
+    def _resume(self, stream: ServedStream, first: int) -> None:
+        self.admit()  # again: other streams may have come while its cache was made
+        self.engine.resume(stream, self.clock(), first)
+
+    def switch(self, stream: ServedStream, prompt: str) -> tuple[int, list[str]]:
+        """The switch played: the first frame that follows it, and the prompt's notes."""
         text, notes = self.checked_prompt(prompt)
         self.engine.switch(stream, text)
-        return notes
+        return stream.prompts[-1][0], notes
+
+    def state(self, stream: ServedStream, drain: bool = False) -> str:
+        """The stream's state message (on the engine's thread, between rounds)."""
+        return protocol.state(stream.frames_emitted, stream.state(), drain)
+
+    async def offer_state(self, stream: ServedStream) -> None:
+        """Queue the stream's state for its client, behind the frames made before it."""
+        self.deliver(stream.id, None, await self.call(self.state, stream))
+
+    async def drain(self, seconds: float = DRAIN_SECONDS) -> None:
+        """Stop taking streams (health says draining, so a load balancer takes this server
+        out), give every client its stream's state and "go elsewhere", close its socket, within
+        `seconds`. Every stream then goes on where its client resumes it."""
+        self.draining = True
+        streams = await self.call(self._stop_all)
+        for stream, message in streams:
+            self.deliver(stream.id, None, message)
+            self.deliver(stream.id, None, None)  # then close
+        deadline = time.monotonic() + seconds
+        while self.sockets and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+
+    def _stop_all(self) -> list[tuple[ServedStream, str]]:
+        """Every stream's drain message, the streams closed: no round steps them after."""
+        out = [(stream, self.state(stream, drain=True)) for stream in self.engine.streams.values()]
+        for stream, _ in out:
+            self.engine.close(stream)
+        return out
 
 
 async def stream_socket(request: web.Request) -> web.WebSocketResponse:
@@ -247,34 +330,26 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
             if message.type not in (WSMsgType.TEXT, WSMsgType.BINARY):  # closing, an error
                 break
             try:
-                body = protocol.read(message.data if message.type == WSMsgType.TEXT else b"")
-                if stream is None:
-                    start = protocol.start(body)
-                    stream, notes = await server.call(server.open, start)
-                    queue = server.queues[stream.id] = asyncio.Queue(QUEUED_BURSTS)
-                    skeleton = server.generator.skeleton
-                    await ws.send_str(
-                        protocol.started(
-                            stream.id,
-                            stream.seed,
-                            server.engine.fps,
-                            skeleton.joint_names,
-                            skeleton.parents,
-                        )
-                    )
-                    sender = asyncio.create_task(_send(ws, queue, start.binary))
-                    server.wake.set()
+                text = message.data if message.type == WSMsgType.TEXT else b""
+                body = protocol.read(text, first=stream is None)
+                if stream is None:  # set first: the finally below closes it whatever follows
+                    stream, notes, start = await _opened(server, body)
+                    sender = await _started(ws, server, stream, start)
                 else:
                     prompt = protocol.later(body)
                     if prompt is None:
                         break
+                    if prompt == protocol.STATE:
+                        await server.offer_state(stream)
+                        continue
                     if not switches.take():
                         raise protocol.ProtocolError(
                             f"too many switches: at most {SWITCHES_PER_SECOND} a second "
                             f"({SWITCH_BURST} at once); this one was not played"
                         )
-                    notes = await server.call(server.switch, stream, prompt)
-                    await ws.send_str(protocol.switched(prompt))
+                    index, notes = await server.call(server.switch, stream, prompt)
+                    await ws.send_str(protocol.switched(prompt, index))
+                    await server.offer_state(stream)  # a resume then knows of the switch
                 for note in notes:
                     await ws.send_str(protocol.note(note))
             except protocol.ProtocolError as error:
@@ -292,10 +367,65 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
     return ws
 
 
-async def _send(ws: web.WebSocketResponse, queue: asyncio.Queue, binary: bool) -> None:
+async def _opened(server: Server, body: dict):
+    """A socket's first message: its stream started or resumed; -> the stream, its notes and
+    the message read."""
+    if "resume" in body:
+        start = protocol.resume(body)
+        stream, notes = await server.resume(start)
+    else:
+        start = protocol.start(body)
+        stream, notes = await server.call(server.open, start)
+    return stream, notes, start
+
+
+async def _started(ws: web.WebSocketResponse, server: Server, stream, start) -> asyncio.Task:
+    """`started` sent and the stream's frames on their way; -> the task sending them."""
+    queue = server.queues[stream.id] = asyncio.Queue(QUEUED_BURSTS)
+    skeleton = server.generator.skeleton
+    await ws.send_str(
+        protocol.started(
+            stream.id,
+            stream.seed,
+            server.engine.fps,
+            skeleton.joint_names,
+            skeleton.parents,
+            stream.send_from,
+        )
+    )
+    sender = asyncio.create_task(_send(ws, queue, start.binary, server, stream))
+    server.wake.set()
+    return sender
+
+
+async def _send(
+    ws: web.WebSocketResponse,
+    queue: asyncio.Queue,
+    binary: bool,
+    server: Server,
+    stream: ServedStream,
+) -> None:
+    """The client's bursts and messages in order, its stream's state every
+    `server.state_every` seconds; after a drain message, the socket closed (1001)."""
+    loop = asyncio.get_running_loop()
+    offered = loop.time()
     try:
         while True:
-            first, joints = await queue.get()
+            if server.state_every and loop.time() - offered >= server.state_every:
+                offered = loop.time()
+                if not server.draining:
+                    await server.offer_state(stream)
+            try:
+                wait = server.state_every or None
+                first, joints = await asyncio.wait_for(queue.get(), wait)
+            except asyncio.TimeoutError:
+                continue
+            if first is None and joints is None:  # after a drain message
+                await ws.close(code=WSCloseCode.GOING_AWAY, message=b"resume elsewhere")
+                return
+            if first is None:
+                await ws.send_str(joints)
+                continue
             data = protocol.frames(first, joints, binary)
             await (ws.send_bytes(data) if binary else ws.send_str(data))
     except ConnectionError:  # the client left: its handler closes the stream
@@ -306,11 +436,12 @@ async def health(request: web.Request) -> web.Response:
     server: Server = request.app[SERVER]
     return web.json_response(
         {
-            "status": "ok",
+            "status": "draining" if server.draining else "ok",
             "streams": len(server.engine.streams),
             "max_streams": server.max_streams,
             "bundle": server.generator.bundle.root.name,
-        }
+        },
+        status=503 if server.draining else 200,  # a load balancer's check takes it out
     )
 
 
@@ -386,10 +517,11 @@ def make_app(
     max_streams: int = 200,
     tokens=None,
     access: Access = Access(),
+    state_every: float = protocol.STATE_EVERY_SECONDS,
 ) -> web.Application:
     """The server's app; `tokens`: level graphs already made row-wise (tests share them)."""
     app = web.Application(client_max_size=64 * 1024, middlewares=[guard])
-    app[SERVER] = server = Server(generator, threads, max_streams, tokens, access)
+    app[SERVER] = server = Server(generator, threads, max_streams, tokens, access, state_every)
     app.router.add_get("/", viewer)
     app.router.add_get("/v1/health", health)
     app.router.add_post("/v1/generate", generate)
@@ -402,6 +534,7 @@ def make_app(
         server.thread.shutdown(wait=False, cancel_futures=True)
         server.engine.shutdown()
         server.clips.shutdown(wait=False, cancel_futures=True)
+        server.restores.shutdown(wait=False, cancel_futures=True)
 
     async def close_sockets(app):
         """On SIGINT/SIGTERM: every client gets a close frame (1001, going away), not a 1006."""
@@ -418,11 +551,12 @@ def make_app(
 
 
 async def listen(
-    app: web.Application, host: str, port: int, max_connections: int
+    app: web.Application, host: str, port: int, max_connections: int, reuse_port: bool = False
 ) -> tuple[web.AppRunner, asyncio.Server]:
     """Serve `app` on host:port (OSError where it cannot listen): a client's disconnect
     cancels its request, idle and half-sent connections are closed, at most
-    `max_connections` are open at once."""
+    `max_connections` are open at once. `reuse_port`: other processes listen on the port
+    too (SO_REUSEPORT: the kernel spreads the connections; `mogo serve --workers`)."""
     runner = web.AppRunner(
         app,
         handle_signals=False,
@@ -435,7 +569,10 @@ async def listen(
     open_ = set()
     try:
         listener = await asyncio.get_running_loop().create_server(
-            lambda: _Guarded(runner.server(), open_, max_connections), host, port
+            lambda: _Guarded(runner.server(), open_, max_connections),
+            host,
+            port,
+            reuse_port=reuse_port or None,
         )
     except BaseException:
         await runner.cleanup()

@@ -1,5 +1,5 @@
-"""`mogo bench long-streams --quick` end to end on the shipped bundle (two actions, both modes), a run
-of chosen actions, and the window checks it rests on, judged against the procedural animator's own performance."""
+"""`mogo bench long-streams --quick` end to end on the shipped bundle (two actions, both modes; every
+path), a run of chosen actions, and the window checks it rests on, judged against the procedural animator's own performance."""
 
 import json
 
@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from mogo.bench.long_streams import KINDS
 from mogo.bench.quality.stream_checks import (
     REPERTOIRE,
     WindowCheck,
@@ -24,10 +25,38 @@ def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
     assert "| walk forward | a person walks forward. |" in printed
     assert "| sit down (one-off: hold) |" in printed and "within 1.5 s" in printed
     result = json.loads((tmp_path / "long_streams.json").read_text())
-    assert {r["mode"] for r in result["streams"]} == {"off", "on"}
-    assert all(len(r["passes"]) == 2 for r in result["streams"])  # 20 s: two 10-s windows
-    assert all(len(s["reactions"]) == 1 for s in result["switches"])
+    assert result["columns"] == ["stream, anchoring off", "stream, anchoring on"]
+    kinds = {k: [r for r in result["rows"] if r["kind"] == k] for k in ("action", "switches")}
+    assert {r["column"] for r in kinds["action"]} == set(result["columns"])
+    assert all(len(r["passes"]) == 2 for r in kinds["action"])  # 20 s: two 10-s windows
+    assert all(len(s["reactions"]) == 1 for s in kinds["switches"])
     assert Image.open(tmp_path / "long_streams.png").size[0] > 0
+
+
+def test_every_path_plays_the_schedules_it_can_with_motionstreams_frames(tmp_path, capsys):
+    """generate, play and served streams (real sockets, a real `mogo serve`) give the frames of
+    the re-anchored MotionStream for the same prompt, seed and switch frames; continue_from and
+    one-off actions after a switch are judged on every path that has them."""
+    pytest.importorskip("aiohttp")
+    paths = ["stream", "generate", "play", "continue", "serve"]
+    argv = ["bench", "long-streams", "--quick", "--path", *paths, "--modes", "on"]
+    argv += ["--out", str(tmp_path)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert (
+        "| one-off action after a walk | stream, anchoring on | play | continue | serve |"
+        in printed
+    )
+    result = json.loads((tmp_path / "long_streams.json").read_text())
+    columns = {k: {r["column"] for r in result["rows"] if r["kind"] == k} for k in KINDS}
+    assert columns == {
+        "action": {"stream, anchoring on", "generate", "play", "serve"},
+        "switches": {"stream, anchoring on", "play", "continue", "serve"},
+        "one-off": {"stream, anchoring on", "play", "continue", "serve"},
+    }
+    assert all(r["reaction"] is not None for r in result["rows"] if r["kind"] == "one-off")
+    gaps = result["agreement"]  # metres; play's last 8 frames are planted without lookahead
+    assert gaps["generate"] < 1e-5 and gaps["serve"] < 1e-4 and gaps["play"] < 5e-3
 
 
 def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
@@ -58,7 +87,7 @@ def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
     assert "| spin | a person spins to the left. |" in printed and "walk" not in printed
     assert "switches:" not in printed and "fresh clips" in printed
     result = json.loads((tmp_path / "long_streams.json").read_text())
-    assert [r["action"] for r in result["streams"]] == ["spin"] and result["switches"] == []
+    assert [(r["kind"], r["action"]) for r in result["rows"]] == [("action", "spin")]
 
 
 @pytest.mark.parametrize(
@@ -66,6 +95,8 @@ def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
     [
         (["--actions", "moonwalk"], "no action 'moonwalk'"),
         (["--switches", "-1"], "--switches must be >= 0"),
+        (["--one-offs", "-1"], "--one-offs must be >= 0"),
+        (["--path", "stream", "teleport"], "--path: choose from stream, generate"),
     ],
 )
 def test_bad_choices_are_one_line_errors(args, message, capsys):

@@ -463,6 +463,9 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path,
     ]
     first = [next(k for k in range(1, 60) if len(stream.step())) for stream in streams]
     assert first == [old.vq.decoder.lookahead + 1, 2]  # frames once their lookahead exists
+    resumed = generator.resume(streams[1].state())  # mogo.stream_state: low latency too
+    for _ in range(20):
+        np.testing.assert_array_equal(resumed.step(), streams[1].step())
 
 
 def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, capsys):

@@ -197,9 +197,9 @@ def test_a_long_stream_holds_a_constant_state(generator, window):
             full = _held_state(stream)
     assert all(shape[2] == 1 + window for shape in full[0])
     ready = steps - decoder.lookahead
-    decoded = stream.frames_emitted + stream._feet.pending  # the feet hold some frames back
+    decoded = stream.frames_emitted + stream.feet.pending  # the feet hold some frames back
     assert ready - STREAM_DECODE_EVERY < decoded <= ready
-    assert stream._feet.pending == min(decoded, FEET_LOOKAHEAD)
+    assert stream.feet.pending == min(decoded, FEET_LOOKAHEAD)
 
 
 @pytest.mark.parametrize(

@@ -118,17 +118,34 @@ def test_the_prompt_embedding_cache_stays_bounded_and_right():
 
 def test_generate_longer_than_a_clip_is_the_stream_cut_to_length(generator):
     """Past the bundle's longest clip (9.8 s) a clip is the re-anchored stream, the same
-    frames and tokens."""
+    frames and tokens: its last frames too, planted with the feet's lookahead as the stream
+    that goes on plants them."""
     seconds = 12.0
     motion = generator.generate("a person jogs forward.", seconds=seconds, seed=2)
     stream = generator.stream("a person jogs forward.", seed=2)
-    stream.advance(round(seconds * generator.fps))
+    stream.advance(round(seconds * generator.fps) // generator.down_factor)
     expected = stream.finish()
     assert stream.anchor.anchors >= 1
     assert len(motion.joints) == round(seconds * generator.fps)
     assert np.array_equal(motion.tokens, expected.tokens)
     np.testing.assert_array_equal(motion.joints, expected.joints)
     assert motion.prompts == [(0, "a person jogs forward.")]
+    going_on = generator.stream("a person jogs forward.", seed=2).frames(len(motion.joints))
+    np.testing.assert_array_equal(motion.joints, np.array(list(going_on)))
+
+
+def test_play_is_the_stream_switched_at_each_entry(generator):
+    """Every frame of a schedule, its last ones included, is the frame of a stream switched
+    at the entries' steps."""
+    schedule = [("a person walks forward", 3), ("a person turns left", 2)]
+    motion = generator.play(schedule, seed=0)
+    stream, chunks = generator.stream(schedule[0][0], seed=0), []
+    for _ in range(round(3 * generator.fps) // generator.down_factor):
+        chunks.append(stream.step())
+    stream.set_prompt(schedule[1][0])
+    while sum(map(len, chunks)) < len(motion.joints):
+        chunks.append(stream.step())
+    np.testing.assert_array_equal(motion.joints, np.concatenate(chunks)[: len(motion.joints)])
 
 
 def test_a_clip_the_model_does_not_end_is_cut_at_the_cap_with_a_note(monkeypatch):

@@ -82,6 +82,32 @@ def test_a_stream_starts_switches_and_stops(generator, engine_parts):
     serving(generator, engine_parts, test)
 
 
+def test_a_switch_names_the_first_frame_of_its_prompt(generator, engine_parts):
+    """`switched` carries the index from which frames follow the new prompt: a MotionStream
+    switched at that frame gives the frames the socket got, before and after it."""
+
+    async def test(url, server):
+        async with ClientSession() as session, session.ws_connect(url + "/v1/stream") as ws:
+            await ws.send_json({"prompt": "a person walks forward", "seed": 6})
+            received = await frames(ws, 30)
+            await ws.send_json({"prompt": "a person jumps"})
+            switch = await next_of(ws, "switched")
+            got = sum(len(b["joints"]) for b in received)
+            assert switch["prompt"] == "a person jumps" and switch["index"] >= got
+            received += await frames(ws, switch["index"] + 60 - got)
+        served = np.concatenate([b["joints"] for b in received])
+        local = generator.stream("a person walks forward", seed=6)
+        assert switch["index"] % generator.down_factor == 0
+        expected = [local.step() for _ in range(switch["index"] // generator.down_factor)]
+        local.set_prompt("a person jumps")
+        while sum(map(len, expected)) < len(served):
+            expected.append(local.step())
+        n = len(served)
+        np.testing.assert_allclose(served, np.concatenate(expected)[:n], atol=2e-4)
+
+    serving(generator, engine_parts, test)
+
+
 def test_bad_messages_get_an_error_on_their_socket_and_the_others_go_on(generator, engine_parts):
     bad = [
         "{not json",
