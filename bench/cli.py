@@ -1,6 +1,6 @@
-"""The `mogo` verbs of the measuring side: bench (latency; torch for the step tables), eval
-(quality; runtime only), real-motion (the VQ on real motion capture; runtime only) and
-long-streams (runtime only). mogo.cli adds them through the "mogo.commands" entry point."""
+"""`mogo bench WHAT`, the measuring side: latency (torch for the step tables), quick, serve,
+long-streams, eval and real-motion (runtime only). mogo.cli adds them through the
+"mogo.commands" entry point; the verbs they were before still run for a release."""
 
 from __future__ import annotations
 
@@ -8,13 +8,22 @@ import argparse
 from pathlib import Path
 
 from mogo.cli import CliError, require_torch
+from mogo.cli_flags import (
+    OldSpelling,
+    add_bundle,
+    add_bundle_argument,
+    add_out,
+    add_threads,
+)
 
 
-def _cmd_bench(args: argparse.Namespace) -> None:
-    if args.quick:  # the runtime alone: no torch
-        from mogo.bench.speed.quick import main
+def _cmd_quick(args: argparse.Namespace) -> None:
+    from mogo.bench.speed.quick import main  # the runtime alone: no torch
 
-        return main(args.bundle, args.threads)
+    main(args.bundle, args.threads)
+
+
+def _cmd_latency(args: argparse.Namespace) -> None:
     require_torch()
     from mogo.bench.speed.latency import main_from_args
 
@@ -24,6 +33,8 @@ def _cmd_bench(args: argparse.Namespace) -> None:
 def _cmd_bench_serve(args: argparse.Namespace) -> None:
     from mogo.serve.cli import require_serve_extra
 
+    if min(args.clients + args.burst) < 1 or args.seconds <= 0 or args.spread < 0:
+        raise CliError("--clients and --burst take numbers >= 1, --seconds > 0, --spread >= 0")
     require_serve_extra()
     from mogo.bench.speed.serve import main_from_args
 
@@ -82,25 +93,83 @@ def _cmd_long_streams(args: argparse.Namespace) -> None:
     main(args)
 
 
-def add_commands(commands) -> None:
-    """Adds bench and eval to the `mogo` parser's subcommands."""
+OLD_SPELLINGS = [
+    OldSpelling("bench", "bench quick", "--quick", drop=True),
+    OldSpelling("bench", "bench latency", alone=True),
+    OldSpelling("bench-serve", "bench serve"),
+    OldSpelling("long-streams", "bench long-streams"),
+    OldSpelling("eval", "bench eval"),
+    OldSpelling("real-motion", "bench real-motion"),
+]
+
+
+def add_commands(commands) -> list[OldSpelling]:
+    """Adds `mogo bench WHAT` to the `mogo` parser's subcommands; returns the old spellings."""
     bench = commands.add_parser(
-        "bench",
-        help="latency: the bundle through the runtime, and one step of the bundle-size "
-        "and paper-size models on onnxruntime fp32/int8 and torch eager",
+        "bench", help="measurements: speed, serving, long streams, quality (docs/performance.md)"
     )
-    bench.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    bench.add_argument(
-        "--out",
-        default="bench_out",
-        help="folder for bench.json and the plots (default bench_out/)",
-    )
+    whats = bench.add_subparsers(dest="bench_command", required=True, metavar="WHAT")
+    for name, arguments, run, what in (
+        (
+            "latency",
+            _latency_arguments,
+            _cmd_latency,
+            "the bundle through the runtime, and one step of the bundle-size and paper-size "
+            "models on onnxruntime fp32/int8 and torch eager",
+        ),
+        (
+            "quick",
+            _quick_arguments,
+            _cmd_quick,
+            "under a minute, no torch: this machine's CPU features, first frame, 9.8-s clip "
+            "and token step beside the README's",
+        ),
+        (
+            "serve",
+            _serve_arguments,
+            _cmd_bench_serve,
+            "how many characters `mogo serve` streams in real time: N WebSocket clients at "
+            "once, frame rate, lateness, CPU",
+        ),
+        (
+            "long-streams",
+            _long_streams_arguments,
+            _cmd_long_streams,
+            "do long streams keep doing what they were asked? every action of the "
+            "repertoire on each path (MotionStream with re-anchoring off and on, generate, "
+            "play, continue_from, serve; no torch)",
+        ),
+        (
+            "eval",
+            _eval_arguments,
+            _cmd_eval,
+            "a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "
+            "MultiModality (no torch)",
+        ),
+        (
+            "real-motion",
+            _real_motion_arguments,
+            _cmd_real_motion,
+            "the bundle's VQ on real human motion: pybullet's 20 DeepMimic clips (its wheel "
+            "fetched by pip into a cache, never installed), MPJPE per clip split into pose "
+            "and trajectory, GIFs and a contact sheet",
+        ),
+    ):
+        command = whats.add_parser(name, help=what)
+        arguments(command)
+        command.set_defaults(run=run)
+    return OLD_SPELLINGS
+
+
+def _latency_arguments(bench: argparse.ArgumentParser) -> None:
+    add_bundle(bench)
+    add_out(bench, "folder for bench.json and the plots", default="bench_out")
     bench.add_argument(
         "--work",
         default=str(Path.home() / ".cache" / "mogo" / "bench"),
         help="where the exported random-weight models are kept between runs",
     )
-    bench.add_argument("--threads", type=int, nargs="+", help="thread counts (default 1 2)")
+    add_threads(bench, "thread counts (default 1 2)", nargs="+")
     bench.add_argument(
         "--lengths",
         type=int,
@@ -114,24 +183,18 @@ def add_commands(commands) -> None:
         help="skip the paper-size model (its first export takes minutes)",
     )
     bench.add_argument(
-        "--quick",
-        action="store_true",
-        help="under a minute, no torch: this machine's CPU features, first "
-        "frame, 9.8-s clip and token step beside the README's (only "
-        "--bundle and --threads apply)",
-    )
-    bench.add_argument(
         "--smoke",
         action="store_true",
         help="a smoke run: tiny model, few lengths and rounds (for tests)",
     )
-    bench.set_defaults(run=_cmd_bench)
 
-    serve = commands.add_parser(
-        "bench-serve",
-        help="how many characters `mogo serve` streams in real time: N "
-        "WebSocket clients at once, frame rate, lateness, CPU",
-    )
+
+def _quick_arguments(quick: argparse.ArgumentParser) -> None:
+    add_bundle(quick)
+    add_threads(quick, "thread counts (default 1 2)", nargs="+")
+
+
+def _serve_arguments(serve: argparse.ArgumentParser) -> None:
     serve.add_argument(
         "--clients",
         type=int,
@@ -156,13 +219,9 @@ def add_commands(commands) -> None:
         default=2.0,
         help="the clients of a count arrive evenly over this many seconds (default 2)",
     )
-    serve.add_argument("--threads", type=int, help="the server's --threads (default its own)")
-    serve.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    serve.add_argument(
-        "--out",
-        default="bench_out",
-        help="folder for serve_bench.json and serve_bench.png (default bench_out/)",
-    )
+    add_threads(serve, "the server's --threads (default its own)")
+    add_bundle(serve)
+    add_out(serve, "folder for serve_bench.json and serve_bench.png", default="bench_out")
     serve.add_argument(
         "--engine-only",
         action="store_true",
@@ -182,20 +241,11 @@ def add_commands(commands) -> None:
         help="no server: where the CPU of a stream step goes, N streams past "
         "warm-up, one thread, cProfile (a table)",
     )
-    serve.set_defaults(run=_cmd_bench_serve)
 
-    streams = commands.add_parser(
-        "long-streams",
-        help="do long streams keep doing what they were asked? every action of "
-        "the repertoire on each path (MotionStream with re-anchoring off and on, generate, "
-        "play, continue_from, serve; no torch)",
-    )
-    streams.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    streams.add_argument(
-        "--out",
-        default="bench_out",
-        help="folder for long_streams.md, .json and .png (default bench_out/)",
-    )
+
+def _long_streams_arguments(streams: argparse.ArgumentParser) -> None:
+    add_bundle(streams)
+    add_out(streams, "folder for long_streams.md, .json and .png", default="bench_out")
     streams.add_argument("--minutes", type=float, default=10.0, help="length of each stream")
     streams.add_argument("--seeds", type=int, default=2, help="streams per action and mode")
     streams.add_argument(
@@ -245,14 +295,10 @@ def add_commands(commands) -> None:
         action="store_true",
         help="a smoke run: two actions, 20-s streams, one seed, one switch",
     )
-    streams.set_defaults(run=_cmd_long_streams)
 
-    evaluation = commands.add_parser(
-        "eval",
-        help="a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "
-        "MultiModality (no torch)",
-    )
-    evaluation.add_argument("bundle", nargs="?", help="bundle folder (default: the shipped one)")
+
+def _eval_arguments(evaluation: argparse.ArgumentParser) -> None:
+    add_bundle_argument(evaluation)
     evaluation.add_argument("--data", required=True, help="dataset folder with test.txt")
     evaluation.add_argument(
         "--evaluator",
@@ -280,25 +326,15 @@ def add_commands(commands) -> None:
         action="store_true",
         help="generate anew in every repeat (the full protocol; repeats x the generation time)",
     )
-    evaluation.add_argument("--threads", type=int, default=1, help="clips generated in parallel")
+    add_threads(evaluation, "clips generated in parallel", default=1)
     evaluation.add_argument("--json", help="also write the numbers to this file")
-    evaluation.set_defaults(run=_cmd_eval)
 
-    real = commands.add_parser(
-        "real-motion",
-        help="the bundle's VQ on real human motion: pybullet's 20 DeepMimic clips "
-        "(its wheel fetched by pip into a cache, never installed), MPJPE per "
-        "clip split into pose and trajectory, GIFs and a contact sheet",
-    )
-    real.add_argument("bundle", nargs="?", help="bundle folder (default: the shipped one)")
-    real.add_argument(
-        "--out",
-        default="real_motion",
-        help="folder for the GIFs, contact sheet and table (default real_motion/)",
-    )
+
+def _real_motion_arguments(real: argparse.ArgumentParser) -> None:
+    add_bundle_argument(real)
+    add_out(real, "folder for the GIFs, contact sheet and table", default="real_motion")
     real.add_argument(
         "--cache",
         default=str(Path.home() / ".cache" / "mogo" / "pybullet"),
         help="where the pybullet wheel is kept between runs",
     )
-    real.set_defaults(run=_cmd_real_motion)

@@ -1,4 +1,4 @@
-"""`mogo long-streams`: do long streams keep doing what they were asked, on every path?
+"""`mogo bench long-streams`: do long streams keep doing what they were asked, on every path?
 
 Streams of every action of the repertoire (mogo.bench.quality.stream_checks; or of those
 chosen, e.g. the failing ones while a change is tried), `minutes` long, for several seeds,

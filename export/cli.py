@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from mogo.cli import CliError, require_torch
+from mogo.cli_flags import OldSpelling, add_bundle, add_out
 from mogo.export.data.animator import CORPORA, DEFAULT_CORPUS
 from mogo.export.train.options import (
     EvaluatorTrainOptions,
@@ -105,56 +106,73 @@ def _cmd_train_all(args: argparse.Namespace) -> None:
     )
 
 
-def _cmd_export(args: argparse.Namespace) -> None:
+def _cmd_export_bundle(args: argparse.Namespace) -> None:
     require_torch()
-    from mogo.export.onnx.bundle import export_bundle, replace_vq_decoder
+    from mogo.export.onnx.bundle import export_bundle
 
-    if args.portable or args.fp32:
-        return _cmd_export_portable(args)
-    if (args.vq is None) == (args.text is None):
-        raise CliError("give --vq (with --t2m or --bundle) or --text (with --bundle)")
-    if args.bundle is not None:
-        if args.int8:
-            raise CliError(
-                "--int8 quantises new level graphs; with --bundle they are copied as they are"
-            )
-        if args.text is not None:
-            from mogo.export.onnx.text_bundle import replace_text_side
+    _wrote(args.out, export_bundle(Path(args.vq), Path(args.t2m), Path(args.out), int8=args.int8))
 
-            manifest = replace_text_side(Path(args.text), Path(args.bundle), Path(args.out))
-        else:
-            manifest = replace_vq_decoder(Path(args.vq), Path(args.bundle), Path(args.out))
-    elif args.text is not None:
-        raise CliError("--text replaces the text side of a bundle: give it with --bundle")
-    else:
-        manifest = export_bundle(Path(args.vq), Path(args.t2m), Path(args.out), int8=args.int8)
-    note = "" if manifest.int8 is None else f"; int8 level graphs {manifest.int8.describe()}"
-    print(
-        f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB{note}"
-    )
+
+def _cmd_export_decoder(args: argparse.Namespace) -> None:
+    require_torch()
+    from mogo.export.onnx.bundle import replace_vq_decoder
+
+    _wrote(args.out, replace_vq_decoder(Path(args.vq), Path(args.bundle), Path(args.out)))
+
+
+def _cmd_export_text(args: argparse.Namespace) -> None:
+    require_torch()
+    from mogo.export.onnx.text_bundle import replace_text_side
+
+    _wrote(args.out, replace_text_side(Path(args.text), Path(args.bundle), Path(args.out)))
 
 
 def _cmd_export_portable(args: argparse.Namespace) -> None:
+    require_torch()
     from mogo.export.onnx.portable import OPSET, export_portable
 
-    if not args.portable:
-        raise CliError("--fp32 is an option of --portable")
-    if args.bundle is None or args.vq is not None or args.text is not None or args.int8:
-        raise CliError("--portable converts a bundle: give --bundle and --out only")
     manifest = export_portable(Path(args.bundle), Path(args.out), fp16=not args.fp32)
-    print(
-        f"wrote {args.out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB; "
-        f"float graphs at opset {OPSET}, weights {'fp32' if args.fp32 else 'fp16'}"
+    _wrote(
+        args.out,
+        manifest,
+        f"float graphs at opset {OPSET}, weights {'fp32' if args.fp32 else 'fp16'}",
     )
 
 
-def add_commands(commands) -> None:
-    """Adds data, train and export to the `mogo` parser's subcommands."""
+def _wrote(out: str, manifest, note: str | None = None) -> None:
+    """The one line every export ends with: the folder, its files and size, what is special."""
+    if note is None and manifest.int8 is not None:
+        note = f"int8 level graphs {manifest.int8.describe()}"
+    print(
+        f"wrote {out}: {len(manifest.files)} files, {manifest.total_bytes / 1e6:.1f} MB"
+        + (f"; {note}" if note else "")
+    )
+
+
+OLD_SPELLINGS = [
+    OldSpelling("export", "export portable", "--portable", drop=True),
+    OldSpelling("export", "export text", "--text"),
+    OldSpelling("export", "export decoder", "--bundle"),
+    OldSpelling("export", "export bundle"),
+]
+VQ_RUN = "the `mogo train vq` run folder"
+
+
+def add_commands(commands) -> list[OldSpelling]:
+    """Adds data, train and export to the `mogo` parser's subcommands; returns the old
+    spellings of export (one job per flag combination before it had subverbs)."""
+    _add_data(commands)
+    _add_train(commands)
+    _add_export(commands)
+    return OLD_SPELLINGS
+
+
+def _add_data(commands) -> None:
     data = commands.add_parser("data", help="make, inspect and convert motion data")
     data_commands = data.add_subparsers(dest="data_command", required=True, metavar="ACTION")
 
     synth = data_commands.add_parser("synth", help="make the procedural text-motion corpus")
-    synth.add_argument("--out", required=True, help="output folder (HumanML3D layout)")
+    add_out(synth, "output folder (HumanML3D layout)")
     synth.add_argument("--clips", type=int, default=20000, help="number of clips before mirroring")
     synth.add_argument("--seed", type=int, default=0)
     synth.add_argument(
@@ -189,11 +207,7 @@ def add_commands(commands) -> None:
         required=True,
         help="folder of .npy joint positions, .bvh files and DeepMimic motions",
     )
-    convert.add_argument(
-        "--out",
-        required=True,
-        help="output folder (HumanML3D layout): new or empty; written whole or not at all",
-    )
+    add_out(convert, "output folder (HumanML3D layout): new or empty; written whole or not at all")
     convert.add_argument("--skeleton", default="humanml3d", choices=["humanml3d", "kit"])
     convert.add_argument(
         "--fps",
@@ -211,6 +225,8 @@ def add_commands(commands) -> None:
     )
     convert.set_defaults(run=_cmd_data_convert)
 
+
+def _add_train(commands) -> None:
     train = commands.add_parser(
         "train", help="train the models (torch; torchrun for several processes)"
     )
@@ -228,7 +244,7 @@ def add_commands(commands) -> None:
             "evaluator",
             EvaluatorTrainOptions,
             _cmd_train_evaluator,
-            "train the text-motion evaluator for `mogo eval` (contrastive text and motion "
+            "train the text-motion evaluator for `mogo bench eval` (contrastive text and motion "
             "encoders), exported to RUN/evaluator",
         ),
         (
@@ -236,12 +252,16 @@ def add_commands(commands) -> None:
             TextTrainOptions,
             _cmd_train_text,
             "train the adapter from a pretrained sentence encoder (all-MiniLM-L6-v2) to a "
-            "bundle's prompt space, for `mogo export --text`",
+            "bundle's prompt space, for `mogo export text`",
         ),
     ):
         command = train_commands.add_parser(name, help=what)
         add_arguments(command, options)
         command.set_defaults(run=run, finish=_leave_torchrun_worker)
+    _add_train_all(train_commands)
+
+
+def _add_train_all(train_commands) -> None:
     every = train_commands.add_parser(
         "all",
         help="the whole model in one command: corpus, VQ, transformer on a pretrained "
@@ -255,7 +275,7 @@ def add_commands(commands) -> None:
         "shipped size in about 15 minutes; h100: VQ + transformer in "
         "about 10 minutes on one H100 (docs/model.md)",
     )
-    every.add_argument("--out", required=True, help="folder of every stage (run again to go on)")
+    add_out(every, "folder of every stage (run again to go on)")
     every.add_argument(
         "--budget",
         type=float,
@@ -285,44 +305,51 @@ def add_commands(commands) -> None:
     every.add_argument("--seed", type=int, default=0)
     every.set_defaults(run=_cmd_train_all)
 
+
+def _add_export(commands) -> None:
     export = commands.add_parser("export", help="trained runs -> a bundle folder for the runtime")
-    export.add_argument("--vq", help="the `mogo train vq` run folder")
-    export.add_argument(
-        "--text",
-        help="instead of --vq, with --bundle: a `mogo train text` run "
-        "(pretrained sentence encoder and adapter) that becomes "
-        "the bundle's text side; every other file is copied",
-    )
-    source = export.add_mutually_exclusive_group(required=True)
-    source.add_argument("--t2m", help="the `mogo train t2m` run folder")
-    source.add_argument(
-        "--bundle",
-        help="instead of --t2m: a bundle whose VQ decoder --vq "
-        "(or text side --text) replaces (a decoder fine-tune "
-        "of that bundle's VQ, "
-        "`mogo train vq --init BUNDLE --tune decoder`); every "
-        "other file is copied",
-    )
-    export.add_argument("--out", required=True, help="new bundle folder")
-    export.add_argument(
+    kinds = export.add_subparsers(dest="export_command", required=True, metavar="KIND")
+    bundle = kinds.add_parser("bundle", help="a new bundle from a VQ run and a transformer run")
+    bundle.add_argument("--vq", required=True, help=VQ_RUN)
+    bundle.add_argument("--t2m", required=True, help="the `mogo train t2m` run folder")
+    bundle.add_argument(
         "--int8",
         action="store_true",
         help="dynamic int8 level graphs, kept only if they pass the token "
         "agreement check against fp32",
     )
-    export.add_argument(
-        "--portable",
-        action="store_true",
-        help="with --bundle: the bundle with float graphs at ONNX opset 15, "
-        "for Unity's inference engine (Sentis) and onnxruntime-web "
-        "(docs/portable.md)",
+    decoder = kinds.add_parser(
+        "decoder",
+        help="a bundle with its VQ decoder replaced by a decoder fine-tune of that bundle's VQ "
+        "(`mogo train vq --init BUNDLE --tune decoder`); every other file is copied",
     )
-    export.add_argument(
+    decoder.add_argument("--vq", required=True, help=VQ_RUN)
+    text = kinds.add_parser(
+        "text",
+        help="a bundle with its text side replaced by a `mogo train text` run (pretrained "
+        "sentence encoder and adapter); every other file is copied",
+    )
+    text.add_argument("--text", required=True, help="the `mogo train text` run folder")
+    portable = kinds.add_parser(
+        "portable",
+        help="a bundle with float graphs at ONNX opset 15, for Unity's inference engine "
+        "(Sentis) and onnxruntime-web (docs/portable.md)",
+    )
+    portable.add_argument(
         "--fp32",
         action="store_true",
-        help="with --portable: weights stored fp32 (default fp16, computed in fp32: half the size)",
+        help="weights stored fp32 (default fp16, computed in fp32: half the size)",
     )
-    export.set_defaults(run=_cmd_export)
+    for kind, run in (
+        (bundle, _cmd_export_bundle),
+        (decoder, _cmd_export_decoder),
+        (text, _cmd_export_text),
+        (portable, _cmd_export_portable),
+    ):
+        if kind is not bundle:
+            add_bundle(kind, help="the bundle it starts from", required=True)
+        add_out(kind, "new bundle folder")
+        kind.set_defaults(run=run)
 
 
 def _leave_torchrun_worker(status: int) -> None:

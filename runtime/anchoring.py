@@ -52,16 +52,16 @@ class Anchoring:
     fresh clip starting with the last `keep` steps (at a prompt switch, `switch_keep`; while
     standing still, `still_keep`: from 10, a slow turn carried on from clip to clip, from 1,
     each re-anchor settled into a fresh pose);
-    `max_one_off` steps at most before a one-off prompt holds (the bundle's longest clip,
-    9.8 s, where the model has not ended it itself); the prompt of the hold. The span is
-    longer than the clips of short actions (a spin's turn: 2 s), so that the model ends them
-    itself before."""
+    `max_one_off` seconds at most before a one-off prompt holds, where the model has not
+    ended it itself (None: the bundle's longest clip, its defaults.max_seconds); the prompt of
+    the hold. The span is longer than the clips of short actions (a spin's turn: 2 s), so
+    that the model ends them itself before."""
 
     span: int = 80
     keep: int = 10
     switch_keep: int = 1
     still_keep: int = 5
-    max_one_off: int = 196
+    max_one_off: float | None = None
     hold_prompt: str = "a person stands still."
 
     def __post_init__(self):
@@ -75,6 +75,13 @@ class Anchoring:
                     f"anchoring needs 1 <= {name} <= keep, got "
                     f"{name}={getattr(self, name)}, keep={self.keep}"
                 )
+        if self.max_one_off is not None and not self.max_one_off > 0:
+            raise ValueError(f"anchoring needs max_one_off > 0 seconds, got {self.max_one_off}")
+
+    def one_off_steps(self, longest: float, steps_per_second: float) -> int:
+        """max_one_off in token steps, `longest` seconds (the bundle's) where it is None."""
+        seconds = longest if self.max_one_off is None else self.max_one_off
+        return max(1, round(seconds * steps_per_second))
 
 
 def settles(text: str) -> bool:
@@ -99,8 +106,10 @@ class Anchor:
         tokens: TokenStream,
         embed: Callable[[str], np.ndarray],
         text: str,
+        one_off_steps: int,
     ):
         self.anchoring, self._tokens, self._embed = anchoring, tokens, embed
+        self.one_off_steps = one_off_steps  # anchoring.one_off_steps for this bundle
         self.recent = np.zeros((0, tokens.generator.num_levels), np.int64)
         self.anchors = 0  # re-anchors and fresh clips so far
         self.fresh = 0  # of which fresh clips
@@ -137,7 +146,7 @@ class Anchor:
             row = self._tokens.step()
         self.recent = np.concatenate([self.recent, row[None]])[-self.anchoring.keep :]
         if self.one_off:
-            if self._tokens.steps >= self.anchoring.max_one_off:
+            if self._tokens.steps >= self.one_off_steps:
                 self._hold()
         elif self._tokens.steps >= self.anchoring.span:
             self._reanchor(self.anchoring.still_keep if self.still else None)

@@ -150,6 +150,4 @@ def read_array(path: Path) -> np.ndarray:
         raise BundleError(f"{path}: holds {array.dtype} values, expected real numbers")
     with np.errstate(over="ignore"):
         array = array.astype(np.float32)
-    if not np.all(np.isfinite(array)):
-        raise BundleError(f"{path}: contains NaN or infinite values (as float32)")
-    return array
+    return untrusted.checked_finite(array, str(path), BundleError, " (as float32)")

@@ -30,6 +30,15 @@ from mogo.arguments import (
     plural,
     shown,
 )
+from mogo.cli_flags import (
+    OldSpelling,
+    add_bundle,
+    add_bundle_argument,
+    add_out,
+    add_overwrite,
+    add_threads,
+    current_spelling,
+)
 from mogo.sampling import Sampling, SamplingError
 
 PLUGIN_GROUP = "mogo.commands"
@@ -54,7 +63,7 @@ def require_torch() -> None:
         raise CliError(needs_extra("training", "train"))
 
 
-def _load_generator(args: argparse.Namespace):
+def load_generator(args: argparse.Namespace):
     from mogo.generator import MotionGenerator
 
     if args.threads is not None and args.threads < 1:
@@ -157,6 +166,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     from mogo.clip import check_take
     from mogo.motion import bvh, rig
 
+    schedule = lines = None
     if args.prompts_file:
         if args.text is not None or args.seconds is not None:
             raise CliError("give either a prompt (with --seconds) or --prompts-file, not both")
@@ -169,33 +179,11 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     folder = check_take(
         args.out, args.name, args.overwrite, what="--name", formats=formats
     )  # before the work
-    seconds = sum(s for _, s in schedule) if args.prompts_file else args.seconds
+    seconds = sum(s for _, s in schedule) if schedule else args.seconds
     long = seconds is not None and seconds >= LONG_TAKE_SECONDS
-    generator = _load_generator(args)
+    generator = load_generator(args)
     rig.check(generator.skeleton)  # the BVH and GLB files pose its rig: refused before the work
-    sampling = _sampling(args, generator)
-    if args.prompts_file:
-        try:
-            motion = generator.play(
-                schedule,
-                seed=args.seed,
-                sampling=sampling,
-                plant_feet=args.plant_feet,
-                progress=long,
-            )
-        except ScheduleError as error:  # named by the file's line
-            where = "" if error.index is None else f":{lines[error.index]}"
-            raise CliError(f"{args.prompts_file}{where}: {error.problem}") from None
-    else:
-        motion = generator.generate(
-            args.text,
-            seconds=args.seconds,
-            seed=args.seed,
-            sampling=sampling,
-            align=_aligner(args, generator),
-            plant_feet=args.plant_feet,
-            progress=long,
-        )
+    motion = _generated(args, generator, schedule, lines, long)
     if motion.alignment is not None:
         print(shown(motion.alignment.describe(), keep="\n"))
         if motion.alignment.note:
@@ -218,16 +206,45 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         naming=args.bvh_names,
         formats=formats,
     )
+    _report_take(motion, folder / name, written)
+
+
+def _generated(args: argparse.Namespace, generator, schedule, lines, long: bool):
+    """The motion of the prompt (with --seconds, --align) or of the prompts file, whose
+    problems are named by its line."""
+    sampling = _sampling(args, generator)
+    if schedule is None:
+        return generator.generate(
+            args.text,
+            seconds=args.seconds,
+            seed=args.seed,
+            sampling=sampling,
+            align=_aligner(args, generator),
+            plant_feet=args.plant_feet,
+            progress=long,
+        )
+    try:
+        return generator.play(
+            schedule, seed=args.seed, sampling=sampling, plant_feet=args.plant_feet, progress=long
+        )
+    except ScheduleError as error:
+        where = "" if error.index is None else f":{lines[error.index]}"
+        raise CliError(f"{args.prompts_file}{where}: {error.problem}") from None
+
+
+def _report_take(motion, asked: Path, written: list[Path]) -> None:
+    """What was made and where it went. The take is written: a stdout that fails (a closed
+    pipe, a full disk) is no error, only a note on stderr."""
     frames = plural(len(motion.joints), "frame")
-    try:  # the take is written: a stdout that fails (a closed pipe, a full disk) is no error
+    try:
         print(
             f"{motion.seconds:.1f} s of motion ({frames}, seed {motion.seed}) "
             f"for: {shown(motion.caption)}"
         )
         taken = written[0].name.removesuffix(written[0].suffix)
-        if taken != name:
+        if taken != asked.name:
             print(
-                f"note: {shown(folder / name)}.* is an earlier take, kept; this one is "
+                f"note: {shown(asked)}.* is an earlier take, kept; this one is "
                 f"{taken} (--overwrite replaces)"
             )
         for path in written:
@@ -267,7 +284,7 @@ def _align_hint(args: argparse.Namespace, far: bool) -> str:
 def _cmd_stream(args: argparse.Namespace) -> None:
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be at least 1, got {args.frames}")
-    generator = _load_generator(args)
+    generator = load_generator(args)
     stream = generator.stream(
         args.text,
         seed=args.seed,
@@ -295,7 +312,7 @@ def _cmd_stream(args: argparse.Namespace) -> None:
 
 
 def _cmd_blender_addon(args: argparse.Namespace) -> None:
-    from mogo.addon_zip import write_addon
+    from mogo.blender.addon_zip import write_addon
 
     print(
         f"wrote {shown(write_addon(args.out, overwrite=args.overwrite))} (Blender: Edit > "
@@ -311,9 +328,24 @@ def _cmd_info(args: argparse.Namespace) -> None:
     bundle = Bundle.load(args.bundle or DEFAULT_BUNDLE)
     check_text_files(bundle)  # all that generate reads, not only the checksums
     m = bundle.manifest
+    lines = [f"bundle      {bundle.root}", *_model_lines(m), *_text_lines(m.text)]
+    if m.int8 is not None:
+        lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
+    lines += _training_lines(m)
+    lines.append(
+        f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
+        f"{bundle.open_graphs()} graphs open with the manifest's names and types; "
+        "tokenizers and repertoire read"
+    )
+    width = max(map(len, m.files))
+    lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
+    print(shown("\n".join(lines), keep="\n"))  # a bundle's own text may hold escapes
+
+
+def _model_lines(m) -> list[str]:
+    """`mogo info`: the format, motion, transformer, VQ and defaults of manifest `m`."""
     t2m, vq, text, decoder = m.t2m.config, m.vq, m.text, m.vq.decoder
-    lines = [
-        f"bundle      {bundle.root}",
+    return [
         f"format      {m.format} version {m.format_version}",
         f"motion      {m.motion.skeleton.name} skeleton, {m.feature_dim}-dim features, "
         f"{m.fps:g} fps, {len(m.motion.skeleton.joint_names)} joints",
@@ -334,6 +366,11 @@ def _cmd_info(args: argparse.Namespace) -> None:
         ),
         "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),
     ]
+
+
+def _text_lines(text) -> list[str]:
+    """`mogo info`: the pretrained encoder and the repertoire of a bundle's text side."""
+    lines = []
     if text.pretrained is not None:
         lines.append(
             f"encoder     {text.pretrained.name} ({text.pretrained.license}), int8 "
@@ -357,8 +394,12 @@ def _cmd_info(args: argparse.Namespace) -> None:
                 else ""
             )
         )
-    if m.int8 is not None:
-        lines.append(f"int8        {m.int8.describe()}, {m.int8.scheme}")
+    return lines
+
+
+def _training_lines(m) -> list[str]:
+    """`mogo info`: how each model of the bundle was trained, as its trainer recorded it."""
+    lines = []
     for part, run in m.training.items():
         recipe = run.recipe or {}  # the trainer's own record: read as it is, where present
         tuned = (
@@ -372,14 +413,7 @@ def _cmd_info(args: argparse.Namespace) -> None:
             f"{recipe.get('batch_size')}, lr {recipe.get('lr')}, "
             f"seed {recipe.get('seed')}{tuned}"
         )
-    lines.append(
-        f"files       {len(m.files)}, {m.total_bytes / 1e6:.1f} MB, sha256 verified; "
-        f"{bundle.open_graphs()} graphs open with the manifest's names and types; "
-        "tokenizers and repertoire read"
-    )
-    width = max(map(len, m.files))
-    lines += [f"  {name:{width}s} {entry.bytes / 1e6:8.2f} MB" for name, entry in m.files.items()]
-    print(shown("\n".join(lines), keep="\n"))  # a bundle's own text may hold escapes
+    return lines
 
 
 def _built_path(path: object) -> str:
@@ -422,7 +456,7 @@ def _noting_prompts(command: Callable[[argparse.Namespace], None]):
 def _generation_arguments(command: argparse.ArgumentParser) -> None:
     """--bundle, --seed, a flag per field of Sampling (--top-k for top_k), --threads and
     --no-plant-feet."""
-    command.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
+    add_bundle(command)
     command.add_argument(
         "--seed", type=int, help="same seed, same motion (default: random, printed)"
     )
@@ -438,10 +472,9 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
         help="refuse a prompt far from what the model was trained on (bundles "
         "with a repertoire; `mogo info` shows its threshold)",
     )
-    command.add_argument(
-        "--threads",
-        type=int,
-        help="cores to use; the same motion for any count (default: 2 where "
+    add_threads(
+        command,
+        "cores to use; the same motion for any count (default: 2 where "
         "there are 2 or more, the fastest measured)",
     )
     command.add_argument(
@@ -455,9 +488,6 @@ def _generation_arguments(command: argparse.ArgumentParser) -> None:
 
 
 def _add_runtime_commands(commands) -> None:
-    from mogo.clip import ANIMATIONS, FORMATS, TAKE
-    from mogo.motion import bvh  # their option lists
-
     generate = commands.add_parser(
         "generate", help="text -> motion files (.bvh, .gif, .npy joints, .json)"
     )
@@ -469,12 +499,47 @@ def _add_runtime_commands(commands) -> None:
         "--prompts-file",
         help="a schedule instead of one prompt: lines 'SECONDS PROMPT', played as one motion",
     )
-    generate.add_argument("--out", default="out", help="output folder (default out/)")
-    generate.add_argument("--name", help="file name without extension (default: from the prompt)")
-    generate.add_argument(
-        "--overwrite",
+    _take_arguments(generate)
+    _align_arguments(generate)
+    _generation_arguments(generate)
+    generate.set_defaults(run=_noting_prompts(_cmd_generate))
+
+    stream = commands.add_parser(
+        "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)"
+    )
+    stream.add_argument("text", help="what the person does")
+    stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
+    stream.add_argument(
+        "--low-latency",
         action="store_true",
-        help="replace an earlier take of the same name (default: keep it, and "
+        help="the bundle's low-latency decoder: frames a few tokens after theirs, "
+        "not 31 (a little less exact; bundles that ship one)",
+    )
+    _generation_arguments(stream)
+    stream.set_defaults(run=_noting_prompts(_cmd_stream))
+
+    addon = commands.add_parser(
+        "blender-addon", help="write the Blender add-on as the zip Blender installs"
+    )
+    add_out(addon, "the zip to write", default="mogo_blender.zip")
+    add_overwrite(addon)
+    addon.set_defaults(run=_cmd_blender_addon)
+
+    info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
+    add_bundle_argument(info)
+    info.set_defaults(run=_cmd_info)
+
+
+def _take_arguments(generate: argparse.ArgumentParser) -> None:
+    """Where `mogo generate` writes its take, and in which files."""
+    from mogo.clip import ANIMATIONS, FORMATS, TAKE
+    from mogo.motion import bvh  # their option lists
+
+    add_out(generate, "output folder", default="out")
+    generate.add_argument("--name", help="file name without extension (default: from the prompt)")
+    add_overwrite(
+        generate,
+        "replace an earlier take of the same name (default: keep it, and "
         "name this one NAME-2, NAME-3, ...: the first free)",
     )
     generate.add_argument(
@@ -507,6 +572,10 @@ def _add_runtime_commands(commands) -> None:
     generate.add_argument(
         "--bvh-units", choices=list(bvh.UNITS), default="m", help="BVH length unit (default m)"
     )
+
+
+def _align_arguments(generate: argparse.ArgumentParser) -> None:
+    """`mogo generate --align`: the prompt rewritten by rules or an LLM server."""
     generate.add_argument(
         "--align",
         choices=["rules", "llm"],
@@ -526,40 +595,14 @@ def _add_runtime_commands(commands) -> None:
         default=10.0,
         help="seconds to wait for the LLM before using the rules (default 10)",
     )
-    _generation_arguments(generate)
-    generate.set_defaults(run=_noting_prompts(_cmd_generate))
-
-    stream = commands.add_parser(
-        "stream", help="stream frames to stdout as JSON lines until stopped (Ctrl-C)"
-    )
-    stream.add_argument("text", help="what the person does")
-    stream.add_argument("--frames", type=int, help="stop after this many frames (default: never)")
-    stream.add_argument(
-        "--low-latency",
-        action="store_true",
-        help="the bundle's low-latency decoder: frames a few tokens after theirs, "
-        "not 31 (a little less exact; bundles that ship one)",
-    )
-    _generation_arguments(stream)
-    stream.set_defaults(run=_noting_prompts(_cmd_stream))
-
-    addon = commands.add_parser(
-        "blender-addon", help="write the Blender add-on as the zip Blender installs"
-    )
-    addon.add_argument(
-        "--out", default="mogo_blender.zip", help="the zip to write (default mogo_blender.zip)"
-    )
-    addon.add_argument("--overwrite", action="store_true", help="replace an existing file")
-    addon.set_defaults(run=_cmd_blender_addon)
-
-    info = commands.add_parser("info", help="describe a bundle (default: the shipped one)")
-    info.add_argument("bundle", nargs="?", help="bundle folder")
-    info.set_defaults(run=_cmd_info)
 
 
 class _Parser(argparse.ArgumentParser):
     """argparse with its errors (unknown flag, 'x' for a number) as the one `mogo: error:`
-    line every bad input gets, instead of a usage block; --help still shows the usage."""
+    line every bad input gets, instead of a usage block; --help still shows the usage. The
+    top parser keeps the old spellings its verbs still take (mogo.cli_flags.OldSpelling)."""
+
+    old_spellings: tuple[OldSpelling, ...] = ()
 
     def error(self, message: str):
         self.exit(2, f"mogo: error: {message} (see {self.prog} --help)\n")
@@ -582,8 +625,9 @@ def build_parser() -> argparse.ArgumentParser:
     # by name: an environment that still has the old `mogo` distribution beside `mogo-edge`
     # lists each verb twice
     plugins = {plugin.name: plugin for plugin in entry_points(group=PLUGIN_GROUP)}
-    for name in sorted(plugins):
-        plugins[name].load()(commands)
+    parser.old_spellings = tuple(
+        old for name in sorted(plugins) for old in plugins[name].load()(commands) or ()
+    )
     return parser
 
 
@@ -592,7 +636,10 @@ def main(argv: list[str] | None = None) -> int:
         with contextlib.suppress(AttributeError, ValueError):
             stream.reconfigure(errors="backslashreplace")
     try:
-        args = build_parser().parse_args(argv)
+        parser = build_parser()
+        args = parser.parse_args(
+            current_spelling(sys.argv[1:] if argv is None else argv, parser.old_spellings)
+        )
     except KeyboardInterrupt:  # Ctrl-C while the verbs load: a quiet stop, as during a run
         return 130
     status = _run(args)

@@ -17,21 +17,31 @@ Every verb, its options and their help, generated from the parsers (do not edit 
 
     python -m mogo.cli_reference > docs/cli.md
 
-Some verbs need an extra: `train`, `export` and `bench` the `train` extra, `serve` and
-`bench-serve` the `serve` extra. Every bad input ends with one `mogo: error: ...` line and
+Some verbs need an extra: `train`, `export` and `bench latency` the `train` extra, `serve`
+and `bench serve` the `serve` extra. Every bad input ends with one `mogo: error: ...` line and
 exit status 2.
 """
 
 
 def reference() -> str:
     """The whole command reference as markdown."""
-    commands = list(_commands(build_parser()))
+    parser = build_parser()
+    commands = list(_commands(parser))
     index = [
         f"- [`{name}`](#{name.replace(' ', '-')})" + (f": {summary}" if summary else "")
         for name, _, summary in commands
     ]
     sections = [_section(*command) for command in commands]
-    return "\n".join([HEADER, *index, "", *sections]).rstrip() + "\n"
+    old = [
+        "## Old spellings",
+        "",
+        "They still run, with a note on stderr, until the next release.",
+        "",
+        "| old | now |",
+        "|---|---|",
+        *(f"| `{o.spelt()}` | `mogo {o.new}` |" for o in parser.old_spellings),
+    ]
+    return "\n".join([HEADER, *index, "", *sections, *old]).rstrip() + "\n"
 
 
 def _commands(parser: argparse.ArgumentParser, summary: str = ""):

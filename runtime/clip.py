@@ -168,8 +168,7 @@ class Motion:
         render.save_gif(self.joints, path, self.caption, self.fps, self.skeleton)
 
     def _write_json(self, path: Path) -> None:
-        if not np.all(np.isfinite(self.joints)):
-            raise ValueError("joints contain NaN or infinite values: not writable as JSON")
+        self.skeleton.checked_joints(self.joints)  # finite: JSON has no NaN
         if not math.isfinite(self.fps) or self.fps <= 0:
             raise ValueError(f"fps must be a positive number, got {self.fps}")
         document = dict(

@@ -46,6 +46,7 @@ from mogo.manifest import MAX_GENERATE_SECONDS, io_types
 from mogo.motion.features import JointStream
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.motion.feet import FootPlanter, planted
+from mogo.motion.untrusted import checked_finite
 from mogo.progress import Progress
 from mogo.repertoire import Familiarity
 from mogo.sampling import Sampling
@@ -198,10 +199,10 @@ class MotionGenerator:
         drawn (minutes, for a long clip)."""
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
-        seed = _seed(seed)
+        seed = checked_seed(seed)
         aligner = self.aligner(align)
         plant_feet = checked_bool(plant_feet, "plant_feet")
-        text = checked_prompt(text) if aligner else self._prompt(text)
+        text = checked_prompt(text) if aligner else self.read_prompt(text)
         return self._generate(
             text,
             seconds,
@@ -276,7 +277,7 @@ class MotionGenerator:
             raise ValueError("no prompt given")
         sampling = self.sampling(sampling, **options)
         seconds = None if seconds is None else self._seconds(seconds)
-        seed = _seed(seed)
+        seed = checked_seed(seed)
         aligner = self.aligner(align)
         plant_feet = checked_bool(plant_feet, "plant_feet")
         for k, text in enumerate(texts):  # not a comprehension: its own frame (Python 3.11)
@@ -284,7 +285,7 @@ class MotionGenerator:
             texts[k] = (
                 checked_prompt(text, f"texts[{k}]")
                 if aligner
-                else self._prompt(text, f"texts[{k}]")
+                else self.read_prompt(text, f"texts[{k}]")
             )
         return [
             self._generate(text, seconds, seed + k, sampling, aligner, plant_feet)
@@ -321,7 +322,7 @@ class MotionGenerator:
         ScheduleError naming it. progress=True: a progress line on stderr while the token
         steps are drawn."""
         sampling = self.sampling(sampling, **options)
-        seed = _seed(seed)
+        seed = checked_seed(seed)
         plant_feet = checked_bool(plant_feet, "plant_feet")
         entries = checked_schedule(schedule)
         lengths = []
@@ -342,7 +343,7 @@ class MotionGenerator:
         prompts = []
         for k, entry in enumerate(entries):
             try:
-                prompts.append(self._prompt(entry[0], "prompt"))
+                prompts.append(self.read_prompt(entry[0], "prompt"))
             except TypeError as error:
                 raise TypeError(f"schedule[{k}]: {error}") from None
             except ValueError as error:
@@ -435,8 +436,7 @@ class MotionGenerator:
             raise ValueError(
                 f"motion features must be (T, {self.manifest.feature_dim}), got {features.shape}"
             )
-        if not np.all(np.isfinite(features)):
-            raise ValueError("motion features contain NaN or infinite values")
+        checked_finite(features, "motion features")
         usable = len(features) - len(features) % self.down_factor
         if usable < self.down_factor:
             raise ValueError(
@@ -465,7 +465,7 @@ class MotionGenerator:
         decode with the bundle's low-latency decoder (its frames wait a few tokens, not the
         centred decoder's 31; a little less exact: docs/model.md), every token."""
         sampling = self.sampling(sampling, **options)
-        seed = _seed(seed)
+        seed = checked_seed(seed)
         window = self.defaults.window if window is None else checked_int(window, "window", 1)
         if anchoring is True:
             anchoring = Anchoring()
@@ -483,7 +483,7 @@ class MotionGenerator:
             )
         return MotionStream(
             self,
-            self._prompt(text),
+            self.read_prompt(text),
             seed,
             sampling,
             window,
@@ -552,7 +552,7 @@ class MotionGenerator:
     def _steps(self, seconds: float) -> int:
         return max(1, math.ceil(round(seconds * self.fps) / self.down_factor))
 
-    def _prompt(self, text: object, name: str = "text") -> str:
+    def read_prompt(self, text: object, name: str = "text") -> str:
         """A prompt checked where it enters the API (see mogo.text_side.TextSide.read)."""
         return self.text.read(text, name, stacklevel=4)
 
@@ -599,7 +599,15 @@ class MotionStream:
         self.anchor = (
             None
             if anchoring is None
-            else Anchor(anchoring, self.tokens, generator._embedding, text)
+            else Anchor(
+                anchoring,
+                self.tokens,
+                generator._embedding,
+                text,
+                anchoring.one_off_steps(
+                    generator.defaults.max_seconds, generator.fps / generator.down_factor
+                ),
+            )
         )
 
     def step(self) -> np.ndarray:
@@ -626,7 +634,7 @@ class MotionStream:
     def set_prompt(self, text: str) -> None:
         """Switch the prompt from the next step on (exact: the cache is re-prefilled). Safe
         from another thread than the one reading frames: it waits for the step under way."""
-        self.switch_prompt(self.generator._prompt(text))
+        self.switch_prompt(self.generator.read_prompt(text))
 
     def switch_prompt(self, text: str) -> None:
         """`set_prompt` for a prompt already checked (a schedule's, a server client's)."""
@@ -733,7 +741,7 @@ class MotionStream:
         return (self.decoder.pushed - self.decoder.emitted) * self.generator.down_factor + held
 
 
-def _seed(seed: object) -> int:
+def checked_seed(seed: object) -> int:
     """The caller's seed, checked; None draws a fresh one (kept in Motion.seed)."""
     if seed is None:
         return int(np.random.SeedSequence().generate_state(1)[0])

@@ -25,7 +25,7 @@ import numpy as np
 from mogo._json_schema import KeyProblem, read, write
 from mogo.motion.features import feature_layout
 from mogo.motion.skeleton import Skeleton
-from mogo.sampling import Sampling
+from mogo.sampling import Sampling, SamplingError
 
 FORMAT = "mogo-bundle"
 FORMAT_VERSION = 2  # 2: skeleton and feature layout under "motion"; no value stored twice
@@ -246,15 +246,12 @@ class VQ:
         return self.config["down_factor"]
 
 
-@dataclass(frozen=True)
-class Defaults:
-    """Sampling defaults (mogo.sampling), the KV window in token steps (None: unbounded) and
-    the longest motion `generate` lets the model end on its own."""
+@dataclass(frozen=True, kw_only=True)
+class Defaults(Sampling):
+    """A bundle's defaults: Sampling's options (its fields and checks, not a copy; flat in the
+    manifest's "defaults", where one left out is Sampling's own), the KV window in token steps
+    (None: unbounded) and the longest motion `generate` lets the model end on its own."""
 
-    temperature: float
-    top_k: int
-    top_p: float
-    guidance: float
     window: int | None
     max_seconds: float
 
@@ -383,6 +380,8 @@ class Manifest:
             manifest._check()
         except KeyProblem as problem:
             raise BundleError(f"{source}: {problem.path}: {problem.what}") from None
+        except SamplingError as error:  # only Defaults is a Sampling
+            raise BundleError(f"{source}: defaults.{error.option}: {error}") from None
         return manifest
 
     def to_json(self) -> dict:
@@ -474,12 +473,7 @@ def io_types(manifest: Manifest, graph: Graph) -> tuple[list[tuple[str, int | No
 
 def _check_ranges(manifest: Manifest) -> None:
     """Numbers the runtime would otherwise trip over later, far from the manifest."""
-    d = manifest.defaults
-    for name, value in vars(d).items():
-        try:  # the sampling defaults: the same rules as the options of a call
-            Sampling.from_defaults({name: value})
-        except (TypeError, ValueError) as error:  # Sampling refuses text or bool as a number
-            raise KeyProblem(f"defaults.{name}", str(error)) from None
+    d = manifest.defaults  # its sampling options were checked by Sampling as it was read
     positive = {
         "motion.fps": (manifest.fps, MAX_FPS),
         "defaults.max_seconds": (d.max_seconds, MAX_GENERATE_SECONDS),

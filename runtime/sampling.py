@@ -54,26 +54,38 @@ class Sampling:
     and the "defaults" of a bundle's manifest all use these fields' names; adding an option
     means a field here and its use in `choose_tokens`."""
 
+    # Each field's metadata: its help, and the limits __post_init__ holds it to (low, high;
+    # None: no limit), which a form such as the Blender panel shows. top_p's low is open, and
+    # a temperature above 0 starts at MIN_TEMPERATURE.
     temperature: float = field(
-        default=1.0, metadata=dict(help="divides the logits; 0 = greedy (the likeliest token)")
+        default=1.0,
+        metadata=dict(
+            help="divides the logits; 0 = greedy (the likeliest token)", low=0.0, high=None
+        ),
     )
-    top_k: int = field(default=0, metadata=dict(help="keep the k likeliest tokens; 0 = off"))
+    top_k: int = field(
+        default=0, metadata=dict(help="keep the k likeliest tokens; 0 = off", low=0, high=None)
+    )
     top_p: float = field(
         default=1.0,
         metadata=dict(
-            help="keep the likeliest tokens that hold this share of the probability; 1 = off"
+            help="keep the likeliest tokens that hold this share of the probability; 1 = off",
+            low=0.0,
+            high=1.0,
         ),
     )
     guidance: float = field(
         default=1.0,
         metadata=dict(
             help="classifier-free guidance scale; 1 = off (conditional logits only), above 1 "
-            "follows the prompt more, below 1 less (0 = the unconditional logits)"
+            "follows the prompt more, below 1 less (0 = the unconditional logits)",
+            low=-MAX_GUIDANCE,
+            high=MAX_GUIDANCE,
         ),
     )
 
     def __post_init__(self):
-        for option in fields(self):
+        for option in fields(Sampling):  # its own, not those of a subclass (manifest.Defaults)
             _store_number(self, option.name, type(option.default))
         for name in ("temperature", "top_p", "guidance"):
             if not math.isfinite(getattr(self, name)):

@@ -261,7 +261,19 @@ def _restore(payload: dict, stream: MotionStream) -> None:
         "has_uint32": has_uint32,
         "uinteger": uinteger,
     }
-    t = _Fields(p.object("tokens"), "tokens.")
+    _restore_tokens(_Fields(p.object("tokens"), "tokens."), tokens, L, codes)
+    _restore_decoder(_Fields(p.object("decoder"), "decoder."), stream.decoder, L, codes)
+    half_angle, *xz = p.list("joints", 3, 3)
+    if not all(isinstance(v, float) for v in (half_angle, *xz)):
+        raise StateError("state field 'joints' must be three numbers")
+    stream._joints.half_angle, stream._joints.xz = half_angle, np.array(xz)
+    if stream.feet is not None:
+        _restore_feet(_Fields(p.object("feet"), "feet."), stream.feet, g)
+    tokens.rebuild()
+
+
+def _restore_tokens(t: _Fields, tokens, L: int, codes: int) -> None:
+    """The token loop's cache rows and their positions, its last row and counts."""
     window = tokens.window
     slots = t.array("slots", "<u2", (L,), MAX_ROWS if window is None else window + 1, codes)
     positions = t.array("positions", "<i8", (), len(slots), MAX_STEPS)
@@ -273,8 +285,10 @@ def _restore(payload: dict, stream: MotionStream) -> None:
     tokens.steps, tokens.ended = steps, t.bool("ended")
     tokens._oldest = t.int("oldest", 1, max(1, window or 1))
     tokens.prefilled = t.int("prefilled", 0, len(slots))
-    d = _Fields(p.object("decoder"), "decoder.")
-    decoder = stream.decoder
+
+
+def _restore_decoder(d: _Fields, decoder, L: int, codes: int) -> None:
+    """The streaming decoder's held token rows and its counts."""
     held = decoder.left_context + decoder.lookahead + decoder.every
     rows = d.array("tokens", "<u2", (L,), held, codes)
     start, pushed, emitted = (d.int(name, 0, MAX_STEPS) for name in ("start", "pushed", "emitted"))
@@ -282,32 +296,26 @@ def _restore(payload: dict, stream: MotionStream) -> None:
         raise StateError("state field 'decoder': its counts and rows do not agree")
     decoder._tokens, decoder._start = rows, start
     decoder.pushed, decoder.emitted = pushed, emitted
-    half_angle, *xz = p.list("joints", 3, 3)
-    if not all(isinstance(v, float) for v in (half_angle, *xz)):
-        raise StateError("state field 'joints' must be three numbers")
-    stream._joints.half_angle, stream._joints.xz = half_angle, np.array(xz)
-    feet = stream.feet
-    if feet is not None:
-        f = _Fields(p.object("feet"), "feet.")
-        contacts = len(feet.contacts)
-        flag, held_, since = (
-            f.list(name, contacts, contacts) for name in ("flag", "held", "since")
-        )
-        if not all(isinstance(v, bool) for v in flag + held_) or not all(
-            _is_int(v, 0, MAX_STEPS) for v in since
-        ):
-            raise StateError("state field 'feet': flags or counts of the wrong type")
-        feet._flag, feet._held, feet._since = np.array(flag), np.array(held_), np.array(since)
-        feet._pin = f.array("pin", "<f8", (3,), contacts, exact=contacts)
-        feet._released = f.array("released", "<f8", (3,), contacts, exact=contacts)
-        feet._shift = f.array("shift", "<f8", (), 3, exact=3)
-        feet._backs = f.array("backs", "<f8", (3,), len(feet._backs), exact=len(feet._backs))
-        feet._features = f.array("features", "<f4", (g.manifest.feature_dim,), LOOKAHEAD)
-        joints = f.array("rows", "<f4", (g.skeleton.num_joints, 3), LOOKAHEAD)
-        if len(joints) != len(feet._features):
-            raise StateError("state field 'feet': as many joint rows as feature rows needed")
-        feet._joints = joints.astype(np.float64)
-    tokens.rebuild()
+
+
+def _restore_feet(f: _Fields, feet, g) -> None:
+    """The foot planter's contacts, pins and the frames it still holds back."""
+    contacts = len(feet.contacts)
+    flag, held_, since = (f.list(name, contacts, contacts) for name in ("flag", "held", "since"))
+    if not all(isinstance(v, bool) for v in flag + held_) or not all(
+        _is_int(v, 0, MAX_STEPS) for v in since
+    ):
+        raise StateError("state field 'feet': flags or counts of the wrong type")
+    feet._flag, feet._held, feet._since = np.array(flag), np.array(held_), np.array(since)
+    feet._pin = f.array("pin", "<f8", (3,), contacts, exact=contacts)
+    feet._released = f.array("released", "<f8", (3,), contacts, exact=contacts)
+    feet._shift = f.array("shift", "<f8", (), 3, exact=3)
+    feet._backs = f.array("backs", "<f8", (3,), len(feet._backs), exact=len(feet._backs))
+    feet._features = f.array("features", "<f4", (g.manifest.feature_dim,), LOOKAHEAD)
+    joints = f.array("rows", "<f4", (g.skeleton.num_joints, 3), LOOKAHEAD)
+    if len(joints) != len(feet._features):
+        raise StateError("state field 'feet': as many joint rows as feature rows needed")
+    feet._joints = joints.astype(np.float64)
 
 
 class _Fields:
@@ -388,9 +396,14 @@ def _is_int(value: object, low: int, high: int) -> bool:
 
 
 def _checked_option(value: object, kind: object, name: str) -> object:
-    """An Anchoring field from a state: an int in range, or the hold prompt's text."""
+    """An Anchoring field from a state: an int in range, max_one_off's seconds (or None: the
+    bundle's), or the hold prompt's text."""
     if kind in (str, "str"):
         if isinstance(value, str) and 0 < len(value) <= MAX_PROMPT_CHARS:
+            return value
+    elif kind in (float | None, "float | None"):  # NaN and infinity fail the comparison
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if value is None or (number and 0 < value <= MAX_ROWS):
             return value
     elif _is_int(value, 1, MAX_ROWS):
         return value

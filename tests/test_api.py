@@ -88,6 +88,7 @@ def private_borrowings() -> set[tuple[str, str]]:
 
 def test_no_new_borrowing_of_a_private_name():
     table = PAGE.split("\n## Private names still borrowed across modules\n", 1)[1]
-    allowed = {name.rsplit(".", 1)[-1] for name in re.findall(r"^\| `([\w.]+)` \|", table, re.M)}
+    listed = {name.rsplit(".", 1)[-1] for name in re.findall(r"^\| `([\w.]+)` \|", table, re.M)}
+    allowed = {name for name in listed if name.startswith("_")}
     new = sorted(f"{path}: {name}" for path, name in private_borrowings() if name not in allowed)
     assert not new, f"name these (or list them in docs/api.md): {', '.join(new)}"

@@ -54,7 +54,7 @@ MAY_IMPORT = {
 }
 
 
-ADDON_DIR = RUNTIME_DIR / "blender_addon"  # package data run by Blender, not a room of mogo
+ADDON_DIR = RUNTIME_DIR / "blender" / "addon"  # package data run by Blender, not a room of mogo
 # The add-on's imports: Blender's modules, numpy, and of mogo its public API and the motion
 # maths (the rig solves the rotations), no second implementation of either.
 ADDON_MAY_IMPORT = {
@@ -149,7 +149,7 @@ def test_the_blender_addon_uses_the_public_api_and_is_not_imported_by_the_runtim
                     f"{path.name} imports {forms[-1]}"
                 )
     for path in (p for folder in CODE_FOLDERS for p in sources(ROOT / folder)):
-        assert not any(within(n, "mogo.blender_addon") for n in imported_modules(path)), path
+        assert not any(within(n, "mogo.blender.addon") for n in imported_modules(path)), path
 
 
 def test_runtime_loads_no_pickle():

@@ -22,9 +22,10 @@ def test_every_verb_has_its_section_the_entry_points_too():
         "info",
         "data convert",
         "train vq",
-        "export",
-        "bench",
-        "eval",
+        "export bundle",
+        "export portable",
+        "bench latency",
+        "bench eval",
         "serve",
     ):
         assert f"\n## mogo {verb}\n" in page, verb

@@ -15,6 +15,8 @@ BUNDLE_SIZE = {  # page -> how it writes the shipped bundle's size in MB
     "README.md": r"`runtime/default_bundle/` \((\d+\.\d) MB\)",
     "docs/model.md": r"\*\*Bundle\*\*: (\d+\.\d) MB",
     "docs/performance.md": r"Size on\s+disk (\d+\.\d) MB",
+    "docs/portable.md": r"\| int8 \(shipped\) \| \d+ \| (\d+\.\d) \|",
+    "docs/text_encoder.md": r"the\s+bundle is (\d+\.\d) MB",
 }
 
 

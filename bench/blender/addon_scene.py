@@ -36,19 +36,7 @@ TARGET_OFFSET = Vector((1.2, 0.0, 0.0))  # the target stands beside ours
 
 def main() -> None:
     request = json.loads(open(sys.argv[sys.argv.index("--") + 1]).read())
-    bpy.ops.wm.read_factory_settings(use_empty=True)  # no default cube, camera or light
-    bpy.ops.preferences.addon_install(filepath=request["zip"], overwrite=True)
-    addon_utils.enable("mogo_blender", default_set=True, handle_error=_raise)
-    preferences = bpy.context.preferences.addons["mogo_blender"].preferences
-    result = {"python": list(sys.version_info[:2]), "blender": bpy.app.version_string}
-    preferences.site_packages = request["empty"]
-    result["without_runtime"] = _error_of(bpy.ops.mogo.generate)
-    preferences.site_packages, preferences.source = request["installed"], ""  # the default
-    result["install"] = _error_of(bpy.ops.mogo.install_runtime)  # mogo-edge only: no deps
-    site.addsitedir(request["site_packages"])  # numpy, onnxruntime, ...: after the folder
-    from mogo_blender import environment
-
-    result["runtime_file"] = environment.runtime().__file__
+    result = _installed(request)
     scene = bpy.context.scene
     scene.render.fps = 24  # Blender's default: the add-on sets the motion's own
     settings = scene.mogo
@@ -69,6 +57,11 @@ def main() -> None:
         keys=len(_hips_keys(first)),
         ours=_heads(scene, ours),
     )  # as Generate left it playing
+    properties = settings.bl_rna.properties
+    result["sampling"] = {
+        name: [properties[name].default, properties[name].hard_min, properties[name].hard_max]
+        for name in ("temperature", "top_k", "top_p", "guidance")
+    }  # the panel's: Sampling's defaults and limits
     settings.custom_sampling, settings.top_k = True, 5
     bpy.ops.mogo.generate()  # a second take, with the panel's own sampling: a new action
     result["actions"] = [first.name, ours.animation_data.action.name]
@@ -93,6 +86,25 @@ def main() -> None:
         json.dump(result, file)
 
 
+def _installed(request: dict) -> dict:
+    """The add-on installed from the zip as a user does it; Generate without the runtime,
+    then Install with its defaults (the wheel the zip ships): what each said."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)  # no default cube, camera or light
+    bpy.ops.preferences.addon_install(filepath=request["zip"], overwrite=True)
+    addon_utils.enable("mogo_blender", default_set=True, handle_error=_raise)
+    preferences = bpy.context.preferences.addons["mogo_blender"].preferences
+    result = {"python": list(sys.version_info[:2]), "blender": bpy.app.version_string}
+    preferences.site_packages = request["empty"]
+    result["without_runtime"] = _error_of(bpy.ops.mogo.generate)
+    preferences.site_packages, preferences.source = request["installed"], ""  # the default
+    result["install"] = _error_of(bpy.ops.mogo.install_runtime)  # mogo-edge only: no deps
+    site.addsitedir(request["site_packages"])  # numpy, onnxruntime, ...: after the folder
+    from mogo_blender import environment
+
+    result["runtime_file"] = environment.runtime().__file__
+    return result
+
+
 def _live(scene, frames: int) -> dict:
     """Live mode as the timeline would drive it: the playhead follows the keys (headless
     Blender runs no timers, so the add-on's timer function is called here), the prompt
@@ -101,7 +113,7 @@ def _live(scene, frames: int) -> dict:
 
     scene.mogo.prompt, scene.mogo.live_prompt = "a person walks forward.", "a person jogs."
     bpy.ops.mogo.live(mode="START")
-    session, started, switched = ui._CACHE["live"], time.monotonic(), False
+    session, started, switched = ui.SESSION["live"], time.monotonic(), False
     prompts = session.stream.prompts  # (frame, prompt): the worker appends the switch
     while time.monotonic() - started < 120:
         time.sleep(0.05)
@@ -121,7 +133,7 @@ def _live(scene, frames: int) -> dict:
         keys=_hips_keys(ours.animation_data.action),
         plays=_plays(scene, ours),
         error=str(session.error or ""),
-        running="live" in ui._CACHE,
+        running="live" in ui.SESSION,
     )
 
 

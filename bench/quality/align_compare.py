@@ -159,25 +159,7 @@ def unknown_fraction(texts: list[str], vocabulary: set[str]) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, required=True, help="the procedural corpus folder")
-    parser.add_argument(
-        "--limit",
-        type=int,
-        default=40,
-        help="programs with a straight walk/jog/run that are generated",
-    )
-    parser.add_argument(
-        "--text-limit",
-        type=int,
-        default=2000,
-        help="programs whose requests are aligned (text measures only)",
-    )
-    parser.add_argument("--seeds", type=int, default=2, help="generations per program")
-    parser.add_argument(
-        "--evaluator", type=Path, help="an evaluator folder: adds R-precision, FID and MM-Dist"
-    )
-    args = parser.parse_args()
+    args = _arguments().parse_args()
     folder = HumanML3DFolder(args.data, splits=("test",))
     programs = []
     for clip in folder.ids("test"):
@@ -198,29 +180,14 @@ def main() -> None:
     after = unknown_fraction([s.prompt for a in alignments for s in a.steps], vocabulary)
 
     start = time.perf_counter()
-    right = {"without": [], "with": []}
-    scored: dict[str, list] = {"caption": [], "real": [], "without": [], "with": []}
     walking = [k for k, p in enumerate(programs) if straight_locomotion(p)][: args.limit]
-    for k in walking:
-        program, text, alignment = programs[k], requests[k], alignments[k]
-        seconds = program["frames"] / program["fps"]
-        scaled = alignment.scaled(seconds)
-        aligned_spans = np.cumsum([0] + [round(s.seconds * generator.fps) for s in scaled.steps])
-        for seed in range(args.seeds):
-            plain = generator.generate(text, seconds=seconds, seed=seed)
-            aligned = generator.generate(text, seconds=seconds, seed=seed, align=rules)
-            scored["caption"].append(program["captions"][0]["text"])
-            scored["real"].append(folder.features(program["id"]))
-            scored["without"].append(plain.features)
-            scored["with"].append(aligned.features)
-            for index in straight_locomotion(program):
-                segment = program["segments"][index]
-                direction = segment["params"]["direction"]
-                span = segment["span"]
-                right["without"].append(went_the_right_way(plain.joints, *span, direction))
-                if matched[k]:
-                    span = aligned_spans[index], aligned_spans[index + 1]
-                right["with"].append(went_the_right_way(aligned.joints, *span, direction))
+    right, scored = _walks(
+        generator,
+        rules,
+        folder,
+        [(programs[k], requests[k], alignments[k], matched[k]) for k in walking],
+        args.seeds,
+    )
     elapsed = time.perf_counter() - start
 
     checks = len(right["without"])
@@ -239,7 +206,61 @@ def main() -> None:
     if args.evaluator is None:
         print("| R-precision / FID / MM-Dist | needs --evaluator | needs --evaluator |")
         return
-    evaluator = OnnxEvaluator(args.evaluator)
+    _print_evaluator_rows(args.evaluator, scored)
+
+
+def _arguments() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, required=True, help="the procedural corpus folder")
+    parser.add_argument(
+        "--limit",
+        type=int,
+        default=40,
+        help="programs with a straight walk/jog/run that are generated",
+    )
+    parser.add_argument(
+        "--text-limit",
+        type=int,
+        default=2000,
+        help="programs whose requests are aligned (text measures only)",
+    )
+    parser.add_argument("--seeds", type=int, default=2, help="generations per program")
+    parser.add_argument(
+        "--evaluator", type=Path, help="an evaluator folder: adds R-precision, FID and MM-Dist"
+    )
+    return parser
+
+
+def _walks(generator, rules, folder, walks: list, seeds: int) -> tuple[dict, dict]:
+    """Each straight walk/jog/run program generated from its request with and without the
+    rules, `seeds` times: whether each segment went the right way, and what the evaluator
+    scores (the caption, the real clip, both generations)."""
+    right = {"without": [], "with": []}
+    scored: dict[str, list] = {"caption": [], "real": [], "without": [], "with": []}
+    for program, text, alignment, matched in walks:
+        seconds = program["frames"] / program["fps"]
+        scaled = alignment.scaled(seconds)
+        aligned_spans = np.cumsum([0] + [round(s.seconds * generator.fps) for s in scaled.steps])
+        for seed in range(seeds):
+            plain = generator.generate(text, seconds=seconds, seed=seed)
+            aligned = generator.generate(text, seconds=seconds, seed=seed, align=rules)
+            scored["caption"].append(program["captions"][0]["text"])
+            scored["real"].append(folder.features(program["id"]))
+            scored["without"].append(plain.features)
+            scored["with"].append(aligned.features)
+            for index in straight_locomotion(program):
+                segment = program["segments"][index]
+                direction = segment["params"]["direction"]
+                span = segment["span"]
+                right["without"].append(went_the_right_way(plain.joints, *span, direction))
+                if matched:
+                    span = aligned_spans[index], aligned_spans[index + 1]
+                right["with"].append(went_the_right_way(aligned.joints, *span, direction))
+    return right, scored
+
+
+def _print_evaluator_rows(evaluator_folder: Path, scored: dict) -> None:
+    evaluator = OnnxEvaluator(evaluator_folder)
     text = evaluator.embed_text(scored["caption"])
     real = evaluator.embed_motion(scored["real"])
     rows = {

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from mogo import MotionGenerator
-from mogo.addon_zip import addon_bytes
+from mogo.blender.addon_zip import addon_bytes
 from mogo.motion import rig
 from mogo.motion.bvh import NAMINGS
 

@@ -1,4 +1,4 @@
-"""`mogo eval BUNDLE --data DIR --evaluator DIR`: a bundle's text-to-motion quality on a test
+"""`mogo bench eval BUNDLE --data DIR --evaluator DIR`: a bundle's text-to-motion quality on a test
 split, by the protocol every paper reports (docs/evaluation.md), without torch.
 
 Items are the test split's caption spans of 40..196 feature rows (cut to the first 196), the
@@ -231,42 +231,53 @@ def evaluate(options: EvalOptions, evaluator: TextMotionEvaluator | None = None)
             generated[key] = evaluator.embed_motion([m.features for m in motions])
         return generated[key]
 
-    per_caption = None
-    if options.mm_captions:
-        chosen = items[:: max(1, len(items) // options.mm_captions)][: options.mm_captions]
-        repeated = [item for item in chosen for _ in range(options.mm_generations)]
-        motions = generate_items(
-            generator, repeated, options.seed + 10**6, options.threads, "multimodality"
-        )
-        per_caption = evaluator.embed_motion([m.features for m in motions]).reshape(
-            len(chosen), options.mm_generations, -1
-        )
+    per_caption = _multimodality(options, generator, evaluator, items)
     rows = {
         "Ground truth": score(text, real, lambda k: real, options.repeats, options.seed),
         "VQ reconstruction": score(text, real, lambda k: vq, options.repeats, options.seed),
         "Bundle": score(text, real, bundle_motions, options.repeats, options.seed, per_caption),
     }
+    return dict(
+        rows=rows,
+        items=len(items),
+        notes=_notes(options, len(items), per_caption),
+        evaluator=str(getattr(evaluator, "folder", type(evaluator).__name__)),
+    )
+
+
+def _multimodality(options: EvalOptions, generator, evaluator, items) -> np.ndarray | None:
+    """Motion embeddings (captions, generations, D) of mm_captions spread over the items,
+    each generated mm_generations times (None where mm_captions is 0)."""
+    if not options.mm_captions:
+        return None
+    chosen = items[:: max(1, len(items) // options.mm_captions)][: options.mm_captions]
+    repeated = [item for item in chosen for _ in range(options.mm_generations)]
+    motions = generate_items(
+        generator, repeated, options.seed + 10**6, options.threads, "multimodality"
+    )
+    return evaluator.embed_motion([m.features for m in motions]).reshape(
+        len(chosen), options.mm_generations, -1
+    )
+
+
+def _notes(options: EvalOptions, items: int, per_caption: np.ndarray | None) -> list[str]:
+    """How the table was made: spans, repeats, pairs."""
     notes = [
-        f"{len(items)} test caption spans, ground-truth lengths, {options.repeats} repeats "
+        f"{items} test caption spans, ground-truth lengths, {options.repeats} repeats "
         f"(mean ± 95% interval)"
         + (
             "; motions regenerated every repeat"
             if options.regenerate
             else "; motions generated once, batches and pairs redrawn every repeat"
         ),
-        f"Diversity over {min(metrics.DIVERSITY_PAIRS, len(items))} pairs",
+        f"Diversity over {min(metrics.DIVERSITY_PAIRS, items)} pairs",
     ]
     if per_caption is not None:
         notes.append(
             f"MultiModality: {len(per_caption)} captions x {options.mm_generations} "
             f"generations, {metrics.MULTIMODALITY_PAIRS} pairs each"
         )
-    return dict(
-        rows=rows,
-        items=len(items),
-        notes=notes,
-        evaluator=str(getattr(evaluator, "folder", type(evaluator).__name__)),
-    )
+    return notes
 
 
 def format_table(result: dict) -> str:

@@ -3,7 +3,7 @@
     python -m mogo.bench.quality.quality_report --data DIR --evaluator RUN/evaluator \
         --out docs/quality.md
 
-the metric table of `mogo eval`, the per-primitive semantic pass rates (mogo.bench.quality.semantic)
+the metric table of `mogo bench eval`, the per-primitive semantic pass rates (mogo.bench.quality.semantic)
 for the real and the generated clips, the foot measures (mogo.bench.quality.feet), and the
 MoSA-VQ ablation table that
 `python -m mogo.bench.training.vq_ablation --runs RUNS` writes to RUNS/ablation.md
@@ -57,17 +57,7 @@ def report(args: argparse.Namespace) -> str:
     semantic = semantic_report(generator, args.data, args.per_primitive, args.seed, args.threads)
     feet = format_feet(feet_rows(generator, args.data))
     seconds = time.perf_counter() - start
-    manifest = json.loads((Path(args.evaluator) / "evaluator.json").read_text())
-    trained = manifest.get("training", {})
-    val = trained.get("val", {})
-    evaluator_line = (
-        f"`{args.evaluator}`: step {trained.get('step')}, validation R-precision "
-        f"top-1/2/3 {val.get('r1', float('nan')):.3f} / "
-        f"{val.get('r2', float('nan')):.3f} / {val.get('r3', float('nan')):.3f} "
-        f"(batches of 32)"
-        if val
-        else f"`{args.evaluator}`"
-    )
+    evaluator_line = _evaluator_line(Path(args.evaluator))
     command = "python -m mogo.bench.quality.quality_report " + " ".join(
         map(shlex.quote, sys.argv[1:])
     )
@@ -91,30 +81,53 @@ def report(args: argparse.Namespace) -> str:
             "",
             format_table(metrics),
             "",
-            "## Does the motion do what the caption says?",
-            "",
-            f"Captions that describe one program segment, checked on joint positions "
-            f"(mogo.bench.quality.semantic). Real clips: every such caption of the test split. "
-            f"Generated: {args.per_primitive} captions per primitive, generated with the real "
-            f"length. The "
-            f"last column runs the same checks on the real clip of another primitive: how often a "
-            f"check passes what it should not.",
-            "",
-            format_semantic(semantic),
-            "",
-            "## Feet",
-            "",
-            f"Foot sliding, floor and leg bones of {len(LOCOMOTION) * SEEDS} generated locomotion "
-            f"clips of {SECONDS:g} s, as decoded and with the runtime's foot planting (the default), "
-            f"and of the real test clips (mogo.bench.quality.feet; docs/feet.md).",
-            "",
-            feet,
-            "",
+            *_check_sections(args, semantic, feet),
             "## MoSA-VQ ablation",
             "",
             ablation_section(args.ablation),
             "",
         ]
+    )
+
+
+def _check_sections(args: argparse.Namespace, semantic, feet: str) -> list[str]:
+    """The report's checks on joint positions: does the motion do what the caption says, and
+    the feet."""
+    return [
+        "## Does the motion do what the caption says?",
+        "",
+        f"Captions that describe one program segment, checked on joint positions "
+        f"(mogo.bench.quality.semantic). Real clips: every such caption of the test split. "
+        f"Generated: {args.per_primitive} captions per primitive, generated with the real "
+        f"length. The "
+        f"last column runs the same checks on the real clip of another primitive: how often a "
+        f"check passes what it should not.",
+        "",
+        format_semantic(semantic),
+        "",
+        "## Feet",
+        "",
+        f"Foot sliding, floor and leg bones of {len(LOCOMOTION) * SEEDS} generated locomotion "
+        f"clips of {SECONDS:g} s, as decoded and with the runtime's foot planting (the default), "
+        f"and of the real test clips (mogo.bench.quality.feet; docs/feet.md).",
+        "",
+        feet,
+        "",
+    ]
+
+
+def _evaluator_line(folder: Path) -> str:
+    """The evaluator folder, with its step and validation R-precision where it records them."""
+    manifest = json.loads((folder / "evaluator.json").read_text())
+    trained = manifest.get("training", {})
+    val = trained.get("val", {})
+    if not val:
+        return f"`{folder}`"
+    return (
+        f"`{folder}`: step {trained.get('step')}, validation R-precision "
+        f"top-1/2/3 {val.get('r1', float('nan')):.3f} / "
+        f"{val.get('r2', float('nan')):.3f} / {val.get('r3', float('nan')):.3f} "
+        f"(batches of 32)"
     )
 
 

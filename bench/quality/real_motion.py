@@ -1,4 +1,4 @@
-"""The bundle's VQ on real human motion: `mogo real-motion [--out DIR] [--bundle B] [--cache C]`.
+"""The bundle's VQ on real human motion: `mogo bench real-motion [--out DIR] [--bundle B] [--cache C]`.
 
 Real motion capture that a package registry ships: the 20 DeepMimic clips in pybullet's wheel
 (zlib licence; humanoid3d_*.txt and walker/*.txt, about 40 s in all). The wheel is fetched on

@@ -256,7 +256,7 @@ def main() -> None:
         "--cache",
         type=Path,
         default=Path.home() / ".cache" / "mogo",
-        help="where pybullet's wheel is fetched to (as mogo real-motion)",
+        help="where pybullet's wheel is fetched to (as mogo bench real-motion)",
     )
     parser.add_argument("--out", type=Path, default=Path("realism"))
     parser.add_argument(

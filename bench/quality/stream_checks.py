@@ -18,8 +18,9 @@ import numpy as np
 
 from mogo.bench.quality import semantic as S
 from mogo.export.data.animator import Segment, animate
+from mogo.motion.skeleton import SMPL_22
 
-FPS = 20
+FPS = round(SMPL_22.fps)  # frames a second, whole: windows are counted in frames
 CONTACT_HEIGHT = 0.05  # metres: a foot joint lower than this is on the floor
 FEET = S.FEET
 
@@ -119,7 +120,9 @@ def window_passes(check: WindowCheck, joints: np.ndarray) -> list[bool]:
     windows = [joints[k : k + n] for k in range(0, len(joints) - n + 1, n)]
     if check.action.continuing:
         return [check.continuing(w) for w in windows]
-    return [check.happened(windows[0])] + [S._idle(w, {}, None).passed for w in windows[1:]]
+    return [check.happened(windows[0])] + [
+        S.CHECKS["idle"](w, {}, None).passed for w in windows[1:]
+    ]
 
 
 def reaction_frames(check: WindowCheck, after: np.ndarray, hop: int = 5) -> int | None:

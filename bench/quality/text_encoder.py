@@ -124,24 +124,7 @@ def encoder_ms(generator: MotionGenerator, prompts: list[str]) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, required=True, help="the procedural corpus")
-    parser.add_argument("--before", type=Path, required=True, help="the bundle compared with")
-    parser.add_argument("--after", type=Path, default=DEFAULT_BUNDLE)
-    parser.add_argument("--per-primitive", type=int, default=6)
-    parser.add_argument(
-        "--seeds",
-        type=int,
-        default=1,
-        help="generations per item (seeds k, n + k, ...): less noise, more time",
-    )
-    parser.add_argument(
-        "--guidance",
-        type=float,
-        default=None,
-        help="classifier-free guidance scale (default: each bundle's own)",
-    )
-    parser.add_argument("--threads", type=int, default=2)
+    parser = _arguments()
     args = parser.parse_args()
     if args.seeds < 1:
         parser.error(f"--seeds must be at least 1, got {args.seeds}")
@@ -162,6 +145,44 @@ def main() -> None:
         f"each{f', guidance {args.guidance:g}' if sampling else ''}; key words seen in "
         f"training captions: {', '.join(seen) or 'none'}.\n"
     )
+    _pass_rates(generators, items, books, captions, real, args.seeds, sampling)
+    known = known_captions(program_items(args.data, folder.ids("train")))
+    _played_table(generators, items, books, captions, known)
+    _repertoire_table(generators["after"], folder, books)
+    print("\n| bundle | text encoder ms per prompt (median) | bundle MB |\n|---|---|---|")
+    probe = [f"{p} ({k})" for k, p in enumerate(books[HELD_OUT.name][:60])]  # nothing cached
+    for name, generator in generators.items():
+        print(
+            f"| {name} | {encoder_ms(generator, probe):.1f} | "
+            f"{generator.manifest.total_bytes / 1e6:.1f} |"
+        )
+
+
+def _arguments() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, required=True, help="the procedural corpus")
+    parser.add_argument("--before", type=Path, required=True, help="the bundle compared with")
+    parser.add_argument("--after", type=Path, default=DEFAULT_BUNDLE)
+    parser.add_argument("--per-primitive", type=int, default=6)
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=1,
+        help="generations per item (seeds k, n + k, ...): less noise, more time",
+    )
+    parser.add_argument(
+        "--guidance",
+        type=float,
+        default=None,
+        help="classifier-free guidance scale (default: each bundle's own)",
+    )
+    parser.add_argument("--threads", type=int, default=2)
+    return parser
+
+
+def _pass_rates(generators, items, books, captions, real, seeds: int, sampling: dict) -> None:
+    """The semantic checks' pass rate of each bundle on each phrasebook, with and without
+    --align rules, and on the own captions; then per primitive."""
     print(
         "| bundle | "
         + " | ".join(f"{b} | {b}, --align rules" for b in books)
@@ -174,11 +195,11 @@ def main() -> None:
         cells = []
         for book, prompts in books.items():
             plain, detail[name, book] = pass_rate(
-                generator, items, prompts, real, False, args.seeds, **sampling
+                generator, items, prompts, real, False, seeds, **sampling
             )
-            aligned, _ = pass_rate(generator, items, prompts, real, True, args.seeds, **sampling)
+            aligned, _ = pass_rate(generator, items, prompts, real, True, seeds, **sampling)
             cells += [f"{plain:.1%}", f"{aligned:.1%}"]
-        own, _ = pass_rate(generator, items, captions, real, False, args.seeds, **sampling)
+        own, _ = pass_rate(generator, items, captions, real, False, seeds, **sampling)
         print(f"| {name} ({generator.manifest.text.kind}) | {' | '.join(cells)} | {own:.1%} |")
     print(
         "\n| primitive | "
@@ -189,7 +210,11 @@ def main() -> None:
     for primitive in detail["after", HELD_OUT.name]:
         cells = " | ".join(f"{d[primitive][0]}/{d[primitive][1]}" for d in detail.values())
         print(f"| {primitive} | {cells} |")
-    known = known_captions(program_items(args.data, folder.ids("train")))
+
+
+def _played_table(generators, items, books, captions, known) -> None:
+    """Where a bundle plays a prompt as a known caption: how often that caption does the
+    prompt's action (and says what it says)."""
     print(
         "\nCaption played (where a bundle plays a prompt as a known caption): share of its "
         "own action / of its action and the "
@@ -210,14 +235,6 @@ def main() -> None:
             f"| {name} | "
             + " | ".join(f"{action:.0%} / {both:.0%} (n {n})" for n, action, both in cells)
             + " |"
-        )
-    _repertoire_table(generators["after"], folder, books)
-    print("\n| bundle | text encoder ms per prompt (median) | bundle MB |\n|---|---|---|")
-    probe = [f"{p} ({k})" for k, p in enumerate(books[HELD_OUT.name][:60])]  # nothing cached
-    for name, generator in generators.items():
-        print(
-            f"| {name} | {encoder_ms(generator, probe):.1f} | "
-            f"{generator.manifest.total_bytes / 1e6:.1f} |"
         )
 
 

@@ -3,7 +3,7 @@
 [--low-latency]` (`--low-latency`: a second row per bundle, its low-latency decoder's).
 
 What the VQ issue's target is measured on: every clip of the split encoded and decoded whole
-by the bundle's ONNX encoder and decoder (as `mogo eval`'s reconstruction row), joints
+by the bundle's ONNX encoder and decoder (as `mogo bench eval`'s reconstruction row), joints
 recovered as the runtime recovers them, MPJPE in mm with the root trajectory included, a mean
 over clips. Two parts split it: the error with the clip's true root features (feature 0..3:
 the poses alone) and with all features true but the root's (the trajectory alone, integrated

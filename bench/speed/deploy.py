@@ -4,7 +4,7 @@ its number of server processes (`--workers`), and what resuming a stream costs.
     python -m mogo.bench.speed.deploy [--workers 1 2] [--clients 4 8 12 16 24] [--seconds 10]
 
 - processes: for each worker count W, `mogo serve --workers W` in its own process and the
-  clients in another, measured as `mogo bench-serve` measures a count (mogo.bench.speed.serve:
+  clients in another, measured as `mogo bench serve` measures a count (mogo.bench.speed.serve:
   N clients arriving over `spread` seconds, each with one switch; real time = every client
   >= 97% of the frame rate and p99 lateness within a frame); the CPU is that of the server and
   its workers together.

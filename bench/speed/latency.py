@@ -1,4 +1,4 @@
-"""`mogo bench`: how fast MOGO generates on this machine, against the torch reference, the
+"""`mogo bench latency`: how fast MOGO generates on this machine, against the torch reference, the
 public prototype's method and the hardware floor. Markdown tables on stdout; bench.json and
 PNG plots in --out.
 

@@ -1,4 +1,4 @@
-"""`python -m mogo.bench.speed.portable`: the portable bundle (`mogo export --portable`) measured
+"""`python -m mogo.bench.speed.portable`: the portable bundle (`mogo export portable`) measured
 for docs/portable.md, as markdown: its size, every graph's opset and ops, token agreement with
 the int8 bundle, and how fast a 5-s clip comes out of it in our runtime, in the JavaScript port
 under Node and in headless Chromium (those two skipped where absent).
@@ -28,6 +28,7 @@ import mogo
 from mogo import MotionGenerator, Sampling
 from mogo.bench.speed.timing import interleaved, log
 from mogo.generator import DEFAULT_BUNDLE
+from mogo.motion.skeleton import SMPL_22
 
 WEB = Path(mogo.__file__).parent / "web"
 CHROMIUM = "/usr/bin/chromium"
@@ -221,7 +222,7 @@ def _runtime_speed(generators: dict[str, MotionGenerator]) -> str:
     }
     log("timing our runtime")
     seconds = interleaved(calls, rounds=7, budget_s=60.0)
-    frames = round(SECONDS * 20)
+    frames = round(SECONDS * SMPL_22.fps)
     base = seconds["int8 (shipped)"]
     rows = ["| bundle | s per 5-s clip | frames/s | time vs int8 |", "|---|---|---|---|"]
     rows += [
@@ -305,7 +306,7 @@ def _node(bundle: Path, generator: MotionGenerator) -> str:
         f"The JavaScript port under Node {_version(['node', '--version'])} "
         f"(onnxruntime-web, WebAssembly, 1 thread): a 5-s clip (131 token steps, the decode "
         f"and the feet, the embedding given) in {s:.2f} s, "
-        f"{round(SECONDS * 20) / s:.0f} frames/s (median of 3). Largest logit difference "
+        f"{round(SECONDS * SMPL_22.fps) / s:.0f} frames/s (median of 3). Largest logit difference "
         f"from our runtime over the 6 levels after 40 teacher-forced positions: "
         f"{largest:.1e}.\n"
     )
@@ -323,7 +324,7 @@ def _browser(bundle: Path) -> str:
     return (
         f"The page in headless Chromium {_version([CHROMIUM, '--version'])}: the bundle "
         f"loaded in {load:.1f} s, then a 5-s clip from prompt text (tokenizer, trained "
-        f"encoder, 131 token steps, decode, feet) in {s:.2f} s, {round(SECONDS * 20) / s:.0f} "
+        f"encoder, 131 token steps, decode, feet) in {s:.2f} s, {round(SECONDS * SMPL_22.fps) / s:.0f} "
         "frames/s (median of 3 page loads).\n"
     )
 

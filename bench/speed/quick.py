@@ -1,10 +1,10 @@
-"""`mogo bench --quick`: what to expect on this machine, in under a minute, with the base install
+"""`mogo bench quick`: what to expect on this machine, in under a minute, with the base install
 (no torch). The CPU and the instruction sets that pick onnxruntime's kernels (the bundle's level
 graphs are int8: VNNI does their multiply-adds in one instruction, plain AVX2 in several), then
 the shipped bundle's time to first frame, a 9.8-s clip and one token step (the six level graphs
 at batch 1 and the sampler), at 1 and 2 threads, beside the README's figures.
 
-    mogo bench --quick [--bundle DIR] [--threads 1 2]
+    mogo bench quick [--bundle DIR] [--threads 1 2]
 """
 
 from __future__ import annotations

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from mogo.bench.speed.plot import log_line_chart
+from mogo.motion.skeleton import SMPL_22
 
 PROMPTS = [
     "a person walks forward",
@@ -62,7 +63,7 @@ PROMPTS = [
     "a person runs forward",
     "a person bows",
 ]
-FPS = 20.0
+FPS = SMPL_22.fps  # the shipped bundle's: the server's clock ticks at it
 WARM_CLIENTS = 4
 PARTS = {  # the parts of a served stream step (--profile): the function whose time is each
     "level graphs (onnxruntime)": ("token_generator.py", "run"),

@@ -1,4 +1,4 @@
-"""`mogo bench` part 2, the step: one whole time step (every level, sampling included) of a
+"""`mogo bench latency` part 2, the step: one whole time step (every level, sampling included) of a
 model size against the KV cache length, on onnxruntime fp32 and int8, torch eager with the KV
 cache and torch eager recomputing the prefix, each row with its floor (bytes over bandwidth or
 FLOPs over peak, whichever is larger). Random weights: the cost does not depend on them."""
@@ -23,6 +23,7 @@ from mogo.export.onnx.t2m_graphs import export_level
 from mogo.manifest import Graph
 from mogo.motion.skeleton import MAX_FRAMES
 from mogo.sampling import choose_token
+from mogo.serve.onnx_graph import consumer_map
 from mogo.token_generator import TokenGenerator
 
 CLIP_FRAMES = MAX_FRAMES  # HumanML3D's longest clip: 9.8 s at 20 fps
@@ -166,12 +167,9 @@ def touched_weight_bytes(paths: list[Path]) -> int:
     total = 0
     for path in paths:
         graph = onnx.load(path, load_external_data=False).graph
-        readers: dict[str, set[str]] = {}
-        for node in graph.node:
-            for name in node.input:
-                readers.setdefault(name, set()).add(node.op_type)
+        readers = consumer_map(graph)
         for weight in graph.initializer:
-            if readers.get(weight.name, set()) - {"Gather"}:
+            if {node.op_type for node in readers.get(weight.name, [])} - {"Gather"}:
                 total += onnx.numpy_helper.to_array(weight).nbytes
     return total
 

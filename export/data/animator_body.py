@@ -273,7 +273,14 @@ def pose_joints(track: Track, body: Body) -> np.ndarray:
     pitch = qfrom_axis_angle(X_AXIS, track.foot_pitch)
     joints[:, [10, 11]] = ankles + qrot(qmul(foot_frame, pitch), ball)
 
-    # Arms: collar and shoulder ride on the chest; the wrist goes where the angles point.
+    _pose_arms(joints, track, body, chest)
+    return joints
+
+
+def _pose_arms(joints: np.ndarray, track: Track, body: Body, chest: np.ndarray) -> None:
+    """Arms into `joints`: collar and shoulder ride on the chest; the wrist goes where the
+    angles point, the elbow solved between."""
+    o = body.offsets
     chest2 = chest[:, None]
     joints[:, [13, 14]] = joints[:, 9:10] + qrot(chest2, o[[13, 14]])
     shoulders = joints[:, [13, 14]] + qrot(chest2, o[[16, 17]])
@@ -289,4 +296,3 @@ def pose_joints(track: Track, body: Body) -> np.ndarray:
     joints[:, [18, 19]], joints[:, [20, 21]] = two_bone_ik(
         shoulders, wrist, elbow_pole, body.length(18), body.length(20)
     )
-    return joints

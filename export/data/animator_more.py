@@ -108,25 +108,12 @@ def crawl(params: dict, body: Body, rng: np.random.Generator) -> list:
     crawling cycles forward (each knee in turn, the opposite hand reaching), back up over the
     feet where the crawl ended."""
     reach = rng.uniform(0.2, 0.28) * body.energy  # metres per crawling cycle
-    low, shin = -0.42, body.length(7) + 0.02
 
-    def on_all_fours(
-        at: float, knees: tuple[float, float], lifts=(0.0, 0.0), hands=(0.0, 0.0)
-    ) -> np.ndarray:
-        feet = np.array([[0.0, lifts[s], knees[s]] for s in range(2)])  # ankles behind knees
-        arms = np.array([arm(80 * DEG + hands[s], 12 * DEG, 0.95, 0.2) for s in range(2)])
-        return pose(
-            body, pelvis=(0.0, low, at + shin), torso=(84 * DEG, 0.0, 0.0), arms=arms, feet=feet
-        )
+    def on_all_fours(at, knees, lifts=(0.0, 0.0), hands=(0.0, 0.0)) -> np.ndarray:
+        return _on_all_fours(body, at, knees, lifts, hands)
 
     def kneeling(at: float) -> np.ndarray:
-        return pose(
-            body,
-            pelvis=(0.0, low + 0.02, at + shin),
-            torso=(0.35, 0.0, 0.0),
-            arms=both(arm(50 * DEG, 15 * DEG, 0.9)),
-            feet=both((0.0, 0.0, at)),
-        )
+        return _kneeling(body, at)
 
     keys = [
         (
@@ -166,6 +153,36 @@ def crawl(params: dict, body: Body, rng: np.random.Generator) -> list:
         ),
         (0.55, pose(body, pelvis=(0.0, 0.0, end), feet=both((0.0, 0.0, end)))),
     ]
+
+
+_CRAWL_LOW = -0.42  # the pelvis on hands and knees, from standing height
+
+
+def _on_all_fours(
+    body: Body, at: float, knees: tuple[float, float], lifts=(0.0, 0.0), hands=(0.0, 0.0)
+) -> np.ndarray:
+    """A crawl's pose: the hips `at` metres forward, the knees where given, ankles behind."""
+    shin = body.length(7) + 0.02
+    feet = np.array([[0.0, lifts[s], knees[s]] for s in range(2)])  # ankles behind knees
+    arms = np.array([arm(80 * DEG + hands[s], 12 * DEG, 0.95, 0.2) for s in range(2)])
+    return pose(
+        body,
+        pelvis=(0.0, _CRAWL_LOW, at + shin),
+        torso=(84 * DEG, 0.0, 0.0),
+        arms=arms,
+        feet=feet,
+    )
+
+
+def _kneeling(body: Body, at: float) -> np.ndarray:
+    """Kneeling upright over feet `at` metres forward: into and out of a crawl."""
+    return pose(
+        body,
+        pelvis=(0.0, _CRAWL_LOW + 0.02, at + (body.length(7) + 0.02)),
+        torso=(0.35, 0.0, 0.0),
+        arms=both(arm(50 * DEG, 15 * DEG, 0.9)),
+        feet=both((0.0, 0.0, at)),
+    )
 
 
 def lie_down(params: dict, body: Body, rng: np.random.Generator) -> list:

@@ -225,7 +225,22 @@ def _step_track(
         lean -= SIDES[hurt] * LIMP_LEAN * in_air[:, 1 - hurt]
     pelvis = np.stack([root[:, 0], smooth(height, 1), root[:, 1]], -1)
     torso = np.stack([body.posture + gait.lean * moving, lean, -TWIST_GAIN * ahead], -1)
-    arms = np.empty((len(t), 2, 4))
+    feet = np.stack([xz[..., 0], lift, xz[..., 1]], -1)
+    return Track(
+        pelvis=pelvis,
+        yaw=body_yaw,
+        torso=torso,
+        arms=_swinging_arms(body, gait, moving, ahead),
+        feet=feet,
+        foot_yaw=yaw,
+        foot_pitch=pitch + gait.tiptoe * moving[:, None],
+    )
+
+
+def _swinging_arms(body: Body, gait: Gait, moving: np.ndarray, ahead: np.ndarray) -> np.ndarray:
+    """Arm angles (T, 2, 4) of a stepping move: each arm swings against its leg (`ahead`: the
+    right foot's lead), the gait's carriage blended in while `moving`."""
+    arms = np.empty((len(moving), 2, 4))
     arms[:, :, 0] = (
         body.arm_rest[0]
         + gait.arm_forward * moving[:, None]
@@ -236,16 +251,7 @@ def _step_track(
         arms[:, :, 1] += (gait.arm_spread - body.arm_rest[1]) * moving[:, None]
     arms[:, :, 2] = body.arm_rest[2] + (gait.arm_reach - body.arm_rest[2]) * moving[:, None]
     arms[:, :, 3] = body.arm_rest[3]
-    feet = np.stack([xz[..., 0], lift, xz[..., 1]], -1)
-    return Track(
-        pelvis=pelvis,
-        yaw=body_yaw,
-        torso=torso,
-        arms=arms,
-        feet=feet,
-        foot_yaw=yaw,
-        foot_pitch=pitch + gait.tiptoe * moving[:, None],
-    )
+    return arms
 
 
 def _alternating(lead: int, count: int) -> list[int]:

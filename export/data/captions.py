@@ -130,25 +130,7 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
     if "turn" in params:
         slots["path"] = _path(params["turn"])
     if "speed" in params:
-        speed = params["speed"]
-        slots["speed"] = {
-            "slow": ["slowly", "at a slow pace", "leisurely"],
-            "normal": ["", "at a normal pace", "at a steady pace"],
-            "fast": ["quickly", "at a fast pace", "briskly"],
-        }[speed]
-        slots["speed_adv"] = {
-            "slow": ["slowly"],
-            "normal": ["", "steadily"],
-            "fast": ["quickly", "rapidly"],
-        }[speed]
-        slots["speed_adj"] = {
-            "slow": ["slow", "gentle"],
-            "normal": ["steady", "normal"],
-            "fast": ["fast", "quick"],
-        }[speed]
-        slots["step_adj"] = {"slow": ["small", "slow"], "normal": [""], "fast": ["quick", "big"]}[
-            speed
-        ]
+        slots.update(_speed_slots(params["speed"]))
     if "direction" in params and primitive != "spin":
         direction = params["direction"]
         slots["dir"] = {
@@ -160,11 +142,7 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
         if direction in ("left", "right"):
             slots["lateral"] = [f"to the {direction}", direction]
     if "angle" in params:
-        amounts, fractions = _turn_size(params["angle"])
-        slots["turn_amount"] = amounts
-        slots["turn_fraction"] = fractions
-        slots["side"] = [_side(params["angle"])]
-        slots["rot"] = ["counterclockwise" if params["angle"] > 0 else "clockwise"]
+        slots.update(_angle_slots(params["angle"]))
     if primitive == "spin":
         slots["side"] = [params["direction"]]
         slots["rot"] = ["counterclockwise" if params["direction"] == "left" else "clockwise"]
@@ -179,17 +157,7 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
             ["forward", "forwards", "ahead"] if params["forward"] else ["in place", "on the spot"]
         )
     if "hand" in params:
-        hand = params["hand"]
-        if hand == "both":
-            slots["hand"] = ["both hands", f"both of {possessive} hands"]
-            slots["arm"] = ["both arms", f"both of {possessive} arms", f"{possessive} arms"]
-        else:
-            slots["hand"] = [f"the {hand} hand", f"{possessive} {hand} hand"]
-            slots["arm"] = [f"the {hand} arm", f"{possessive} {hand} arm"]
-            slots["fist"] = [f"the {hand} fist", f"{possessive} {hand} fist", f"the {hand} hand"]
-            slots["side"] = [hand]
-            if "count" in params:
-                slots["side_reps"] = [count_noun(params["count"], f"{hand} punch")]
+        slots.update(_hand_slots(params, possessive))
     if "at" in params:
         slots["point_at"] = {
             "forward": ["forward", "ahead", "straight ahead"],
@@ -208,6 +176,58 @@ def _slots(primitive: str, params: dict, possessive: str) -> dict[str, list[str]
             if seconds <= 1
             else [f"{words} seconds", f"about {words} seconds"]
         )
+    return slots
+
+
+def _angle_slots(angle: float) -> dict[str, list[str]]:
+    """The slots a turn's angle fills: how far, to which side, which way round."""
+    amounts, fractions = _turn_size(angle)
+    return dict(
+        turn_amount=amounts,
+        turn_fraction=fractions,
+        side=[_side(angle)],
+        rot=["counterclockwise" if angle > 0 else "clockwise"],
+    )
+
+
+def _speed_slots(speed: str) -> dict[str, list[str]]:
+    """The slots a pace fills: as an adverb, an adjective, a step's size."""
+    return dict(
+        speed={
+            "slow": ["slowly", "at a slow pace", "leisurely"],
+            "normal": ["", "at a normal pace", "at a steady pace"],
+            "fast": ["quickly", "at a fast pace", "briskly"],
+        }[speed],
+        speed_adv={
+            "slow": ["slowly"],
+            "normal": ["", "steadily"],
+            "fast": ["quickly", "rapidly"],
+        }[speed],
+        speed_adj={
+            "slow": ["slow", "gentle"],
+            "normal": ["steady", "normal"],
+            "fast": ["fast", "quick"],
+        }[speed],
+        step_adj={"slow": ["small", "slow"], "normal": [""], "fast": ["quick", "big"]}[speed],
+    )
+
+
+def _hand_slots(params: dict, possessive: str) -> dict[str, list[str]]:
+    """The slots a hand fills (both, or one: its arm, fist, side and counted punches)."""
+    hand = params["hand"]
+    if hand == "both":
+        return dict(
+            hand=["both hands", f"both of {possessive} hands"],
+            arm=["both arms", f"both of {possessive} arms", f"{possessive} arms"],
+        )
+    slots = dict(
+        hand=[f"the {hand} hand", f"{possessive} {hand} hand"],
+        arm=[f"the {hand} arm", f"{possessive} {hand} arm"],
+        fist=[f"the {hand} fist", f"{possessive} {hand} fist", f"the {hand} hand"],
+        side=[hand],
+    )
+    if "count" in params:
+        slots["side_reps"] = [count_noun(params["count"], f"{hand} punch")]
     return slots
 
 

@@ -243,25 +243,7 @@ def synthesize_corpus(
     np.save(out / "Std.npy", std)
     for name, ids in splits.items():
         (out / f"{name}.txt").write_text("".join(f"{i}\n" for i in ids))
-    summary = {
-        "generator_version": GENERATOR_VERSION,
-        "corpus": corpus,
-        "seed": seed,
-        "clips": num_clips,
-        "primitives": len(CORPORA[corpus]),
-        "ids_per_split": {name: len(ids) for name, ids in splits.items()},
-        "fps": FPS,
-        "frames": [MIN_FRAMES, MAX_FRAMES],
-        "program_draws_per_clip": round(attempts / num_clips, 3),
-        "heldout_pairs": [list(p) for p in sorted(plan.heldout_pairs)],
-        "heldout_templates": sorted(
-            {t.id for name in CORPORA[corpus] for t in TEMPLATES[name] if t.heldout}
-        )
-        + [j.id for j in JOINERS if j.heldout],
-        "heldout_caption_share_of_test": HELDOUT_CAPTION_SHARE,
-        "std_floor": STD_FLOOR,
-        "statistics_from": "train" if splits["train"] else "test",
-    }
+    summary = _summary(plan, num_clips, splits, attempts)
     (out / "corpus.json").write_text(json.dumps(summary, indent=1) + "\n")
     if progress:
         counts = ", ".join(f"{len(ids)} {name}" for name, ids in splits.items())
@@ -269,6 +251,29 @@ def synthesize_corpus(
             f"wrote {num_clips} clips and their mirrors to {out} ({counts} IDs) in {elapsed:.0f}s"
         )
     return summary
+
+
+def _summary(plan: Plan, num_clips: int, splits: dict[str, list[str]], attempts: int) -> dict:
+    """corpus.json: how the corpus was made, its splits and what is held out of training."""
+    return {
+        "generator_version": GENERATOR_VERSION,
+        "corpus": plan.corpus,
+        "seed": plan.seed,
+        "clips": num_clips,
+        "primitives": len(CORPORA[plan.corpus]),
+        "ids_per_split": {name: len(ids) for name, ids in splits.items()},
+        "fps": FPS,
+        "frames": [MIN_FRAMES, MAX_FRAMES],
+        "program_draws_per_clip": round(attempts / num_clips, 3),
+        "heldout_pairs": [list(p) for p in sorted(plan.heldout_pairs)],
+        "heldout_templates": sorted(
+            {t.id for name in CORPORA[plan.corpus] for t in TEMPLATES[name] if t.heldout}
+        )
+        + [j.id for j in JOINERS if j.heldout],
+        "heldout_caption_share_of_test": HELDOUT_CAPTION_SHARE,
+        "std_floor": STD_FLOOR,
+        "statistics_from": "train" if splits["train"] else "test",
+    }
 
 
 class _InProcess:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from mogo.motion.skeleton import Skeleton, skeleton_for_feature_dim
+from mogo.motion.untrusted import checked_finite
 
 SPLITS = ("train", "val", "test")
 
@@ -255,6 +256,4 @@ def _load_array(path: Path) -> np.ndarray:
         raise DatasetError(f"{path}: not a readable .npy array ({error})") from None
     if not np.issubdtype(array.dtype, np.number):
         raise DatasetError(f"{path}: expected numbers, got dtype {array.dtype}")
-    if not np.all(np.isfinite(array)):
-        raise DatasetError(f"{path}: contains NaN or infinite values")
-    return array.astype(np.float32)
+    return checked_finite(array, str(path), DatasetError).astype(np.float32)

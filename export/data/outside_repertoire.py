@@ -1,7 +1,7 @@
 """Prompts outside the procedural corpus's repertoire (motions its animator has no primitive
 for, text that asks for no motion at all), and INSIDE: its own actions in free words of other
 people (none of the held-out paraphrases' key words, mogo.bench.quality.paraphrases).
-`mogo export --text` sets the repertoire threshold on the val captions and INSIDE against
+`mogo export text` sets the repertoire threshold on the val captions and INSIDE against
 CALIBRATION; the bench (mogo.bench.quality.text_encoder) measures its error rates on TEST and
 the held-out paraphrases, which no threshold ever saw."""
 

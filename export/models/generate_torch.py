@@ -78,11 +78,17 @@ def generate(
         if use_cache:
             cache_positions = positions if step == 0 else torch.cat([cache_positions, positions])
             if window is not None and len(cache_positions) > 1 + window:
-                P = len(cache_positions)
-                slots = torch.cat([torch.zeros(1, dtype=torch.long), torch.arange(P - window, P)])
-                cache_positions = cache_positions[slots]
-                caches = [[(k[:, :, slots], v[:, :, slots]) for k, v in c] for c in caches]
+                cache_positions, caches = _slid(cache_positions, caches, window)
     return ids
+
+
+def _slid(cache_positions: torch.Tensor, caches: list, window: int) -> tuple[torch.Tensor, list]:
+    """The KV caches cut to their first slot (the prompt) and their last `window` steps."""
+    P = len(cache_positions)
+    slots = torch.cat([torch.zeros(1, dtype=torch.long), torch.arange(P - window, P)])
+    return cache_positions[slots], [
+        [(k[:, :, slots], v[:, :, slots]) for k, v in c] for c in caches
+    ]
 
 
 def step_inputs(ids: np.ndarray, positions: torch.Tensor, batch: int) -> torch.Tensor:

@@ -3,7 +3,7 @@ sentence embeddings into the prompt space of a bundle's level graphs.
 
 The BERT forward is written out here (six post-norm layers, GELU, masked mean pooling, unit
 length), not taken from a model library: it is the fp32 reference the int8 ONNX graph of the
-bundle is checked against (`mogo export --text`), and nothing else of it is trained.
+bundle is checked against (`mogo export text`), and nothing else of it is trained.
 """
 
 from __future__ import annotations

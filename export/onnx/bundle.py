@@ -104,35 +104,19 @@ LOW_LATENCY_DECODER = "vq_decoder_low_latency.onnx"
 
 
 def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
-    """`mogo export --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of RUN, for a
-    decoder fine-tune of OLD's own VQ (`mogo train vq --init OLD --tune decoder`), which needs
+    """`mogo export decoder --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of
+    RUN, for a decoder fine-tune of OLD's own VQ (`mogo train vq --init OLD --tune decoder`), which needs
     none of OLD's training runs. A decoder of a shorter lookahead (`--decoder-lookahead`) goes
     beside OLD's as its low-latency decoder (replacing any OLD had); else it replaces OLD's.
     Every other file is copied byte for byte, so RUN's encoder must give OLD's tokens
     (checked through OLD's encoder graph) and RUN must share OLD's normalisation: that is what
     OLD's level graphs were trained on. Returns the manifest."""
     from mogo.export.models.runs import load_checkpoint, load_vq, vq_checkpoint
-    from mogo.export.models.vq import VQConfig
-    from mogo.export.onnx.vq_graphs import MIN_TOKEN_AGREEMENT, token_agreement
 
     old = Bundle.load(bundle_dir)
     vq = load_vq(vq_run)
-    centred = VQConfig(**old.manifest.vq.config)
-    low_latency = vq.config.decoder_lookahead != centred.decoder_lookahead
-    if replace(vq.config, decoder_lookahead=centred.decoder_lookahead) != centred:
-        raise ValueError(f"{vq_run} is another VQ model than {bundle_dir}'s (its config differs)")
-    if not (np.array_equal(vq.mean.numpy(), old.mean) and np.array_equal(vq.std.numpy(), old.std)):
-        raise ValueError(
-            f"{vq_run} normalises with other statistics than {bundle_dir} (trained on other data?)"
-        )
-    agreement = token_agreement(vq, old)
-    if agreement < MIN_TOKEN_AGREEMENT:
-        raise ValueError(
-            f"{vq_run}'s encoder gives other tokens than {bundle_dir}'s (agreement "
-            f"{agreement:.1%}): only a decoder fine-tune of the bundle's VQ fits its "
-            "level graphs"
-        )
-    out = _new_folder(out)
+    low_latency, agreement = _decoder_fits(vq, old, vq_run, bundle_dir)
+    out = new_folder(out)
     manifest = old.manifest
     decoder = LOW_LATENCY_DECODER if low_latency else manifest.vq.decoder.file
     for name in manifest.files:
@@ -166,6 +150,29 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     )
 
 
+def _decoder_fits(vq, old: Bundle, vq_run: Path, bundle_dir: Path) -> tuple[bool, float]:
+    """Whether RUN's decoder is a low-latency one, and its encoder's token agreement with
+    OLD's; a ValueError where RUN is not a decoder fine-tune of OLD's VQ."""
+    from mogo.export.models.vq import VQConfig
+    from mogo.export.onnx.vq_graphs import MIN_TOKEN_AGREEMENT, token_agreement
+
+    centred = VQConfig(**old.manifest.vq.config)
+    if replace(vq.config, decoder_lookahead=centred.decoder_lookahead) != centred:
+        raise ValueError(f"{vq_run} is another VQ model than {bundle_dir}'s (its config differs)")
+    if not (np.array_equal(vq.mean.numpy(), old.mean) and np.array_equal(vq.std.numpy(), old.std)):
+        raise ValueError(
+            f"{vq_run} normalises with other statistics than {bundle_dir} (trained on other data?)"
+        )
+    agreement = token_agreement(vq, old)
+    if agreement < MIN_TOKEN_AGREEMENT:
+        raise ValueError(
+            f"{vq_run}'s encoder gives other tokens than {bundle_dir}'s (agreement "
+            f"{agreement:.1%}): only a decoder fine-tune of the bundle's VQ fits its "
+            "level graphs"
+        )
+    return vq.config.decoder_lookahead != centred.decoder_lookahead, agreement
+
+
 def _vq_provenance(state: dict) -> TrainingRun:
     return TrainingRun(
         step=state["step"],
@@ -175,7 +182,7 @@ def _vq_provenance(state: dict) -> TrainingRun:
     )
 
 
-def _new_folder(out: Path) -> Path:
+def new_folder(out: Path) -> Path:
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out} is not empty; choose a new folder for the bundle")
@@ -205,23 +212,9 @@ def write_bundle(
     the train `captions` (dict train=, val=)."""
     from mogo.export.models.sentence_encoder import SentenceTower
 
-    out = _new_folder(out)
+    out = new_folder(out)
     tower = isinstance(text_encoder, SentenceTower)
-    if tower:
-        from mogo.export.onnx.text_bundle import sentence_text_side
-
-        if not captions:
-            raise ValueError("a sentence-encoder bundle needs the training captions")
-        text = sentence_text_side(out, text_encoder, captions["train"], captions["val"])
-    else:
-        tokenizer.save(str(out / "tokenizer.json"))
-        max_length = tokenizer.truncation["max_length"]
-        text = Text(
-            tokenizer="tokenizer.json",
-            max_length=max_length,
-            kind=type(text_encoder).__name__,
-            encoder=export_text_encoder(text_encoder, out / "text_encoder.onnx", max_length),
-        )
+    text = _text_side(out, text_encoder, tokenizer, (captions or {}) if tower else None)
     levels = tuple(
         export_level(t2m, level, out / f"level_{level}.onnx")
         for level in range(t2m.config.num_levels)
@@ -248,6 +241,25 @@ def write_bundle(
         manifest = replace(manifest, int8=check)
     storage = _store_graphs_fp16(out, vq, tokenizer, check_prompts, text=not tower)
     return write_manifest(out, replace(manifest, fp16_storage=storage))
+
+
+def _text_side(out: Path, text_encoder, tokenizer: Tokenizer, captions: dict | None) -> Text:
+    """The text side's files in `out`: a sentence tower's (`captions` given: its repertoire),
+    or the small encoder's graph and tokenizer."""
+    if captions is not None:
+        from mogo.export.onnx.text_bundle import sentence_text_side
+
+        if not captions:
+            raise ValueError("a sentence-encoder bundle needs the training captions")
+        return sentence_text_side(out, text_encoder, captions["train"], captions["val"])
+    tokenizer.save(str(out / "tokenizer.json"))
+    max_length = tokenizer.truncation["max_length"]
+    return Text(
+        tokenizer="tokenizer.json",
+        max_length=max_length,
+        kind=type(text_encoder).__name__,
+        encoder=export_text_encoder(text_encoder, out / "text_encoder.onnx", max_length),
+    )
 
 
 FP16_MIN_ELEMENTS = 1024  # smaller tensors (biases, norms) stay fp32

@@ -175,29 +175,19 @@ def _generate_case(
     level's logits caught on their way to the sampler to measure the margins."""
     sampling = generator.sampling(**options)
     tokens_gen = generator.tokens.with_level_workers(1)
-    caught: list[np.ndarray] = []
-    run = tokens_gen.run
-
-    def catching(level, *args):
-        logits, presents = run(level, *args)
-        caught.append(logits)
-        return logits, presents
-
-    tokens_gen.run = catching
+    caught = _catching(tokens_gen)
     entries = [
         dict(prompt=prompt, prompt_embedding=generator.embed([prompt])[0].tolist(), steps=steps)
         for prompt, steps in schedule
     ]
     frames = sum(steps for _, steps in schedule) * generator.down_factor
-    window = generator.defaults.window if window is None else window
-    lookahead = generator.manifest.vq.decoder.lookahead
     case = dict(
         name=name,
         schedule=entries,
         seed=seed,
         sampling=vars(sampling),
-        window=window,
-        steps=frames // generator.down_factor + lookahead,
+        window=generator.defaults.window if window is None else window,
+        steps=frames // generator.down_factor + generator.manifest.vq.decoder.lookahead,
         frames=frames,
     )
     uniforms = make_rng(seed).random((case["steps"], tokens_gen.num_levels))
@@ -220,22 +210,44 @@ def _generate_case(
         return row
 
     tokens = run_tokens(tokens_gen, case, measured)
-    prompts, start = [], 0  # the frame each prompt starts at: the token loop switched there
-    for prompt, steps in schedule:
-        prompts.append((start, prompt))
-        start += steps * generator.down_factor
-    motion = generator.decode(tokens, prompts, frames, seed, plant_feet=False)
-    if name in PLANTED:
-        planted = generator.decode(tokens, prompts, frames, seed).joints
-        case["joints_planted"] = _rounded(planted)
+    joints, planted = _joints(generator, schedule, tokens, frames, seed, planted=name in PLANTED)
+    if planted is not None:
+        case["joints_planted"] = planted
     return dict(
         case,
         uniforms=uniforms.tolist(),
         tokens=tokens.tolist(),
         margins=[[float(f"{m:.3g}") for m, _ in row] for row in case_margins],
         gaps=[[float(f"{g:.3g}") for _, g in row] for row in case_margins],
-        joints=_rounded(motion.joints),
+        joints=joints,
     )
+
+
+def _joints(generator, schedule, tokens: np.ndarray, frames: int, seed: int, planted: bool):
+    """A case's joints from its tokens, rounded: the feet not planted, and planted where
+    asked (None otherwise). Each prompt starts at the frame the token loop switched to it."""
+    prompts, start = [], 0
+    for prompt, steps in schedule:
+        prompts.append((start, prompt))
+        start += steps * generator.down_factor
+    motion = generator.decode(tokens, prompts, frames, seed, plant_feet=False)
+    if not planted:
+        return _rounded(motion.joints), None
+    return _rounded(motion.joints), _rounded(generator.decode(tokens, prompts, frames, seed).joints)
+
+
+def _catching(tokens_gen) -> list[np.ndarray]:
+    """The list that every level's logits are appended to on their way to the sampler."""
+    caught: list[np.ndarray] = []
+    run = tokens_gen.run
+
+    def catching(level, *args):
+        logits, presents = run(level, *args)
+        caught.append(logits)
+        return logits, presents
+
+    tokens_gen.run = catching
+    return caught
 
 
 def _rounded(joints: np.ndarray) -> list:
@@ -312,7 +324,12 @@ def anchoring_words(generator: MotionGenerator) -> dict:
         one_off=sorted(ONE_OFF),
         counts=counts,
         still=STILL,
-        anchoring=asdict(Anchoring()),
+        anchoring=dict(  # max_one_off in token steps for the port
+            asdict(Anchoring()),
+            max_one_off=Anchoring().one_off_steps(
+                generator.defaults.max_seconds, generator.fps / generator.down_factor
+            ),
+        ),
     )
 
 

@@ -1,4 +1,4 @@
-"""`mogo export --portable --bundle IN --out OUT`: a bundle whose graphs run where Python does
+"""`mogo export portable --bundle IN --out OUT`: a bundle whose graphs run where Python does
 not: Unity's inference engine (Sentis: ONNX opsets 7 to 15) and onnxruntime-web.
 
 Every graph of IN is rewritten, nothing retrained: the int8 level graphs' quantised MatMuls
@@ -24,8 +24,9 @@ from onnx import helper, numpy_helper
 from onnx.reference import ReferenceEvaluator
 
 from mogo.bundle import Bundle, write_manifest
-from mogo.export.onnx.bundle import _new_folder, store_weights_fp16
+from mogo.export.onnx.bundle import new_folder, store_weights_fp16
 from mogo.manifest import Fp16Storage, Manifest
+from mogo.serve.onnx_graph import consumer_map, producer_map
 
 OPSET = 15  # the newest Sentis imports (its docs: opsets 7 to 15)
 IR_VERSION = 8  # the IR of opset 15
@@ -35,7 +36,7 @@ def export_portable(bundle_dir: Path, out: Path, fp16: bool = True) -> Manifest:
     """The portable bundle of `bundle_dir` in the new folder `out`; returns its manifest."""
     source = Bundle.load(bundle_dir)
     manifest = source.manifest
-    out = _new_folder(out)
+    out = new_folder(out)
     graphs = {graph.file for graph in manifest.graphs()}
     try:
         for name in manifest.files:
@@ -113,11 +114,7 @@ def _dequantised(graph: onnx.GraphProto, data: str, scale: str, zero_point: str)
 def _float_matmuls(graph: onnx.GraphProto) -> None:
     """DynamicQuantizeLinear(x) -> MatMulInteger(., Wq) -> Cast -> Mul(., scales), the dynamic
     int8 scheme of onnxruntime's quantize_dynamic, -> MatMul(x, W)."""
-    producer = {out: node for node in graph.node for out in node.output}
-    users: dict[str, list[onnx.NodeProto]] = {}
-    for node in graph.node:
-        for name in node.input:
-            users.setdefault(name, []).append(node)
+    producer, users = producer_map(graph), consumer_map(graph)
     replaced: dict[int, onnx.NodeProto | None] = {}
     for node in graph.node:
         if node.op_type != "MatMulInteger":
@@ -148,7 +145,7 @@ def _weight_scale(graph, producer, rescale, cast) -> str:
 
 def _float_gathers(graph: onnx.GraphProto) -> None:
     """Gather(Wq, ids) -> DequantizeLinear(., scale, zero point) -> Gather(W, ids)."""
-    producer = {out: node for node in graph.node for out in node.output}
+    producer = producer_map(graph)
     weights = {w.name for w in graph.initializer}
     replaced: dict[int, onnx.NodeProto | None] = {}
     for node in graph.node:

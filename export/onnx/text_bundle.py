@@ -1,4 +1,4 @@
-"""`mogo export --text RUN --bundle OLD --out NEW`: OLD with a pretrained sentence encoder as
+"""`mogo export text --text RUN --bundle OLD --out NEW`: OLD with a pretrained sentence encoder as
 its text side (a `mogo train text` run: all-MiniLM-L6-v2 and the adapter onto OLD's prompt
 space), and the repertoire it reports prompts against. OLD's own text encoder and tokenizer
 stay, renamed (`text.trained`): the runtime reads with them the prompts whose every word they
@@ -32,10 +32,11 @@ from mogo.export.models.sentence_encoder import (
     sentence_tokenizer,
     variant_rows,
 )
-from mogo.export.onnx.bundle import _new_folder
+from mogo.export.onnx.bundle import new_folder
 from mogo.export.onnx.text_graph import export_sentence_text_graph
 from mogo.manifest import (
     SENTENCE_ENCODER,
+    Graph,
     Manifest,
     Pretrained,
     Repertoire,
@@ -59,24 +60,13 @@ def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     run, best = Path(text_run), load_checkpoint(Path(text_run) / "best.pt")
     captions = np.load(run / CAPTIONS)
     _check_targets(old, captions)
-    out = _new_folder(out)
+    out = new_folder(out)
     kept = {manifest.text.tokenizer: TRAINED_TOKENIZER, manifest.text.encoder.file: TRAINED}
     for name in manifest.files:  # the old text side under new names, every other file as it is
         shutil.copy2(old.path(name), out / kept.get(name, name))
     sentence_tokenizer(run / ENCODER).save(str(out / "tokenizer.json"))
     config = best["config"]
-    adapter = Adapter(config["in_dim"], config["out_dim"], config["recipe"]["hidden"])
-    adapter.load_state_dict(best["model"])
-    graph = export_sentence_text_graph(
-        run / ENCODER / "model.onnx", adapter.eval(), out / "text_encoder.onnx"
-    )
-    provenance = json.loads((run / ENCODER / "provenance.json").read_text())
-    pretrained = Pretrained(
-        **provenance,
-        reference_min_cosine=_reference_cosine(
-            run / ENCODER, out, [str(t) for t in captions["val_text"][:CHECK_CAPTIONS]]
-        ),
-    )
+    graph, pretrained = _sentence_graph(run, best, out, captions)
     texts, sentences = own_captions(captions, "train")
     targets = captions["train_target"][~variant_rows(captions, "train")]
     repertoire = write_repertoire(
@@ -115,6 +105,24 @@ def replace_text_side(text_run: Path, bundle_dir: Path, out: Path) -> Manifest:
             text=text,
             fp16_storage=storage,
             training={**manifest.training, "text": trained},
+        ),
+    )
+
+
+def _sentence_graph(run: Path, best: dict, out: Path, captions) -> tuple[Graph, Pretrained]:
+    """The run's encoder and adapter joined into out/text_encoder.onnx, and what the manifest
+    says of the pretrained encoder (its provenance, the int8 graph's cosine to fp32)."""
+    config = best["config"]
+    adapter = Adapter(config["in_dim"], config["out_dim"], config["recipe"]["hidden"])
+    adapter.load_state_dict(best["model"])
+    graph = export_sentence_text_graph(
+        run / ENCODER / "model.onnx", adapter.eval(), out / "text_encoder.onnx"
+    )
+    provenance = json.loads((run / ENCODER / "provenance.json").read_text())
+    return graph, Pretrained(
+        **provenance,
+        reference_min_cosine=_reference_cosine(
+            run / ENCODER, out, [str(t) for t in captions["val_text"][:CHECK_CAPTIONS]]
         ),
     )
 

@@ -44,7 +44,7 @@ from mogo.bundle import Bundle
 from mogo.export.models.vq import MoSAVQ, VQConfig, decoder_receptive_field
 from mogo.export.onnx.t2m_graphs import export_module
 from mogo.manifest import DecoderGraph, Graph
-from mogo.serve.onnx_graph import consumer_map
+from mogo.serve.onnx_graph import consumer_map, producer_map
 
 IMPORT_MAX_DIFFERENCE = 1e-4  # decoded features, torch against the bundle's decoder graph
 MIN_TOKEN_AGREEMENT = 0.99  # ids, torch against the bundle's encoder graph
@@ -144,7 +144,7 @@ def _dequantisation(graph: onnx.GraphProto) -> dict[str, Tensor]:
     takes (its divisor is W). The exporter folds small constants under other names (the
     codebooks of a small model become one (L*K, C) table), so names cannot be relied on."""
     constants = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
-    producers = {output: node for node in graph.node for output in node.output}
+    producers = producer_map(graph)
     consumers = consumer_map(graph)
 
     def value(name: str) -> np.ndarray:  # a constant, through the Casts and Reshapes on it

@@ -16,7 +16,7 @@ from mogo.export.data.humanml3d import DatasetError, HumanML3DFolder
 from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 
 
-class _EpochSeeded(Dataset):
+class EpochSeeded(Dataset):
     """Random window starts that depend only on (seed, epoch, index): the same batches on every
     run and with any number of DataLoader workers. One generator draws every item's start for
     an epoch at once (a generator per item cost more than the rest of a VQ batch). Call
@@ -40,7 +40,7 @@ class _EpochSeeded(Dataset):
         return int(self._starts[index])
 
 
-class MotionCropDataset(_EpochSeeded):
+class MotionCropDataset(EpochSeeded):
     """One random window of `crop_frames` normalised frames per clip and epoch, for the VQ.
 
     Item: (crop_frames, D) float32 tensor. Clips shorter than the crop are skipped;
@@ -144,7 +144,7 @@ class _Span:
     caption: str
 
 
-class TextMotionDataset(_EpochSeeded):
+class TextMotionDataset(EpochSeeded):
     """One item per (clip, caption): the caption's span of the clip, normalised.
 
     Spans shorter than `min_frames` are skipped (as are clips without a caption file);

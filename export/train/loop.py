@@ -120,13 +120,7 @@ def train_loop(trainer: Trainer, run: Run) -> nn.Module:
     model = trainer.build()
     ddp = wrap_model(model, run.process)
     optimizer = trainer.optimizer(model)
-    step, best = 0, trainer.worst
-    if run.state is not None:
-        model.load_state_dict(run.state["model"])
-        if run.state["optimizer"] is not None:
-            optimizer.load_state_dict(run.state["optimizer"])
-        step, best = run.state["step"], run.state[trainer.best_name]
-    trainer.restored(model, run.state)
+    step, best = _restored(trainer, run, model, optimizer)
     items, batch_size, collate = trainer.data()
     per_epoch = steps_per_epoch(items, batch_size, run.process)
     epoch, done = divmod(step, max(per_epoch, 1))  # batches() refuses a split under one batch
@@ -162,15 +156,7 @@ def train_loop(trainer: Trainer, run: Run) -> nn.Module:
         if _due(step, run.options.val_every, steps) or out_of_time:
             best = _validate(trainer, model, run, log, step, best)
         if run.process.is_main and (_due(step, run.options.checkpoint_every, steps) or out_of_time):
-            save_checkpoint(
-                run.out / "checkpoint.pt",
-                model,
-                optimizer,
-                step,
-                run.config,
-                **{trainer.best_name: best},
-                **trainer.checkpoint_extras(None),
-            )
+            _checkpoint(trainer, run, model, optimizer, step, best)
         if out_of_time:
             if run.process.is_main:
                 print(
@@ -180,6 +166,31 @@ def train_loop(trainer: Trainer, run: Run) -> nn.Module:
                 )
             break
     return model
+
+
+def _restored(trainer: Trainer, run: Run, model: nn.Module, optimizer) -> tuple[int, float]:
+    """The step and best validation figure to go on from: the resumed run's (its model and
+    optimizer loaded), or a fresh start's."""
+    step, best = 0, trainer.worst
+    if run.state is not None:
+        model.load_state_dict(run.state["model"])
+        if run.state["optimizer"] is not None:
+            optimizer.load_state_dict(run.state["optimizer"])
+        step, best = run.state["step"], run.state[trainer.best_name]
+    trainer.restored(model, run.state)
+    return step, best
+
+
+def _checkpoint(trainer: Trainer, run: Run, model: nn.Module, optimizer, step: int, best) -> None:
+    save_checkpoint(
+        run.out / "checkpoint.pt",
+        model,
+        optimizer,
+        step,
+        run.config,
+        **{trainer.best_name: best},
+        **trainer.checkpoint_extras(None),
+    )
 
 
 def _past_budget(started: float, run: Run) -> bool:

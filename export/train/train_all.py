@@ -270,6 +270,14 @@ def train_all(
         ["--vq", str(out / "vq"), "--text-encoder", "sentence", "--sentence-encoder", str(encoder)],
     )
     stage("evaluator", EvaluatorTrainOptions, [])
+    bundle = _bundle(out, recipe)
+    _report(out, data, bundle, recipe)
+    print(f"trained {bundle}; its report: {out / 'quality.md'}", flush=True)
+    return bundle
+
+
+def _bundle(out: Path, recipe: Recipe) -> Path:
+    """out/bundle, exported from the runs unless a finished one is there."""
     bundle = out / "bundle"
     if not (bundle / "manifest.json").is_file():
         from mogo.export.onnx.bundle import export_bundle
@@ -279,6 +287,11 @@ def train_all(
         shutil.rmtree(partial, ignore_errors=True)
         export_bundle(out / "vq", out / "t2m", partial, int8=recipe.int8)
         partial.rename(bundle)
+    return bundle
+
+
+def _report(out: Path, data: Path, bundle: Path, recipe: Recipe) -> None:
+    """out/quality.md, by the quality report in its own process."""
     print("== quality report", flush=True)
     report = subprocess.run(
         [
@@ -301,8 +314,6 @@ def train_all(
             "the quality report failed (its error is above); the bundle is done: "
             "run the same command again to retry the report"
         )
-    print(f"trained {bundle}; its report: {out / 'quality.md'}", flush=True)
-    return bundle
 
 
 def _corpus(recipe: Recipe, data: Path, seed: int) -> None:

@@ -97,22 +97,27 @@ def train_evaluator(options: EvaluatorTrainOptions) -> None:
             Run(out, options, recipe, config, state, process),
         )
         if process.is_main:
-            best = load_checkpoint(out / "best.pt")
-            model.load_state_dict(best["model"])
-            export_evaluator(
-                model.eval(),
-                tokenizer,
-                folder.mean,
-                folder.std,
-                out / "evaluator",
-                training=dict(
-                    step=best["step"], data=config["data"], recipe=recipe, val=best["val"]
-                ),
-            )
-            print(f"wrote {out / 'evaluator'} (best.pt of step {best['step']})", flush=True)
+            _export_best(model, tokenizer, folder, out, config)
         finish_together(process)
     finally:
         end_process(process)
+
+
+def _export_best(model, tokenizer: Tokenizer, folder: HumanML3DFolder, out: Path, config) -> None:
+    """The run's best.pt as the evaluator `mogo bench eval` reads, in RUN/evaluator."""
+    best = load_checkpoint(out / "best.pt")
+    model.load_state_dict(best["model"])
+    export_evaluator(
+        model.eval(),
+        tokenizer,
+        folder.mean,
+        folder.std,
+        out / "evaluator",
+        training=dict(
+            step=best["step"], data=config["data"], recipe=config["recipe"], val=best["val"]
+        ),
+    )
+    print(f"wrote {out / 'evaluator'} (best.pt of step {best['step']})", flush=True)
 
 
 class EvaluatorTrainer(Trainer):

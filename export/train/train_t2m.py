@@ -38,7 +38,7 @@ from mogo.export.models.sentence_encoder import ENCODER_FILES
 from mogo.export.models.t2m import T2MConfig, TextToMotion
 from mogo.export.models.text_encoder import TEXT_ENCODERS, encode_captions
 from mogo.export.models.vq import MoSAVQ, VQConfig
-from mogo.export.train.datasets import TextMotionDataset, _EpochSeeded
+from mogo.export.train.datasets import EpochSeeded, TextMotionDataset
 from mogo.export.train.loop import Run, Trainer, train_loop
 from mogo.export.train.options import T2MTrainOptions
 from mogo.export.train.training import (
@@ -120,7 +120,7 @@ def _write_tokens(path: Path, arrays: dict[str, np.ndarray]) -> None:
     os.replace(partial, path)
 
 
-class TokenSpans(_EpochSeeded):
+class TokenSpans(EpochSeeded):
     """One item per caption span of a token cache; spans longer than `max_tokens` give a random
     window of `max_tokens` each epoch (TextMotionDataset's rule, in token units).
     Item: dict(caption=str, tokens=(T, L) int64 tensor)."""

@@ -17,7 +17,7 @@ RUN/ holds
                      captions (the targets; a variant's is its caption's)
     checkpoint.pt, best.pt (lowest validation error), metrics.jsonl
 
-`mogo export --text RUN --bundle OLD --out NEW` then writes the bundle. `TextTrainer` plugs
+`mogo export text --text RUN --bundle OLD --out NEW` then writes the bundle. `TextTrainer` plugs
 into the training loop (mogo.export.train.loop).
 """
 

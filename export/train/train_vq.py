@@ -104,6 +104,22 @@ def train_vq(options: VQTrainOptions) -> None:
         if init is not None
         else vq_config(recipe, folder.feature_dim)
     )
+    _check_fit(config, recipe, init, options, folder)
+    process = start_process(options.device)
+    try:
+        if state is None and init is not None:
+            state = _fine_tuning_state(init, folder)
+        train_loop(
+            VQTrainer(folder, config, recipe, options.val_clips, process),
+            Run(out, options, recipe, asdict(config), state, process),
+        )
+        finish_together(process)
+    finally:
+        end_process(process)
+
+
+def _check_fit(config: VQConfig, recipe: dict, init, options, folder: HumanML3DFolder) -> None:
+    """A ValueError where the model, the data, --tune, --init and the crops do not fit."""
     if config.feature_dim != folder.feature_dim:
         raise ValueError(
             f"{options.init}: a VQ of {config.feature_dim} features; "
@@ -123,17 +139,6 @@ def train_vq(options: VQTrainOptions) -> None:
             f"--crop-frames {recipe['crop_frames']} is not a multiple of the "
             f"down factor {config.down_factor}"
         )
-    process = start_process(options.device)
-    try:
-        if state is None and init is not None:
-            state = _fine_tuning_state(init, folder)
-        train_loop(
-            VQTrainer(folder, config, recipe, options.val_clips, process),
-            Run(out, options, recipe, asdict(config), state, process),
-        )
-        finish_together(process)
-    finally:
-        end_process(process)
 
 
 def read_init(path: Path) -> tuple[dict, Path]:

@@ -30,7 +30,7 @@ import numpy as np
 
 from mogo.motion.quaternion import qnormalize, qto_matrix
 from mogo.motion.skeleton import SMPL_22
-from mogo.motion.untrusted import parse_json
+from mogo.motion.untrusted import checked_finite, parse_json
 
 VALUES_PER_FRAME = 44
 # the humanoid's joints: parent and offset in the parent's frame (metres), parents first
@@ -107,8 +107,7 @@ def read_deepmimic(text: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
             f"least 2 rows of {VALUES_PER_FRAME} numbers (humanoid3d)"
         )
     frames = np.array([[_finite_or_inf(v) for v in row] for row in rows], dtype=np.float64)
-    if not np.all(np.isfinite(frames)):
-        raise ValueError(f"{path}: holds NaN or infinite values")
+    checked_finite(frames, str(path))
     durations = frames[:-1, 0]  # the last frame's duration is often 0: nothing follows it
     if np.any(durations <= 0):
         raise ValueError(f"{path}: frame durations must be positive, got {durations.min():g} s")

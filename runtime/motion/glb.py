@@ -66,13 +66,25 @@ def save_glb(
     flips = np.sign(np.sum(quaternions[1:] * quaternions[:-1], axis=-1))  # (T-1, J)
     quaternions[1:] *= np.cumprod(np.where(flips == 0, 1.0, flips), axis=0)[..., None]
     gltf = _Builder()
-    mesh = _mannequin(skeleton, offsets, rest)
     times = np.arange(len(joints), dtype=np.float32) / np.float32(fps)
     document = dict(
         asset=dict(version="2.0", generator="mogo"),
         scene=0,
         scenes=[dict(nodes=[0, skeleton.num_joints])],
         nodes=_nodes(skeleton, offsets, names),
+        **_mannequin_parts(gltf, skeleton, offsets, rest),
+        animations=[_animation(gltf, times, quaternions, joints[:, 0])],
+        accessors=gltf.accessors,
+        bufferViews=gltf.views,
+        buffers=[dict(byteLength=len(gltf.blob))],
+    )
+    Path(path).write_bytes(_glb(document, bytes(gltf.blob)))
+
+
+def _mannequin_parts(gltf: _Builder, skeleton: Skeleton, offsets, rest) -> dict:
+    """The document's mesh, its material and its skin: the mannequin, skinned to the rig."""
+    mesh = _mannequin(skeleton, offsets, rest)
+    return dict(
         meshes=[
             dict(
                 name="mannequin",
@@ -106,12 +118,7 @@ def save_glb(
                 inverseBindMatrices=gltf.add(_inverse_binds(rest), "MAT4"),
             )
         ],
-        animations=[_animation(gltf, times, quaternions, joints[:, 0])],
-        accessors=gltf.accessors,
-        bufferViews=gltf.views,
-        buffers=[dict(byteLength=len(gltf.blob))],
     )
-    Path(path).write_bytes(_glb(document, bytes(gltf.blob)))
 
 
 class _Builder:

@@ -101,11 +101,9 @@ def read_mocap(path: str | os.PathLike, mapping: dict[str, rigs.Source] | None =
 def check_coordinates(path: str | os.PathLike, joints: np.ndarray) -> None:
     """A ValueError naming the file unless joints (metres) are finite and within
     MAX_COORDINATE of the origin."""
-    if not np.all(np.isfinite(joints)):
-        raise ValueError(
-            f"{path}: holds NaN or infinite coordinates (numbers too large, or a "
-            "rotation of all zeros)"
-        )
+    untrusted.checked_finite(
+        joints, str(path), why=" (numbers too large, or a rotation of all zeros)"
+    )
     if np.abs(joints).max() > MAX_COORDINATE:
         raise ValueError(
             f"{path}: coordinates up to {np.abs(joints).max():.3g}; joints are "
@@ -267,24 +265,9 @@ def _hierarchy(tokens: list[str]):
     while tokens[i] != "MOTION":
         word = tokens[i]
         inside = stack[-1] if stack else None
-        if word in ("ROOT", "JOINT"):  # a name may hold spaces ("Bip01 L Thigh"): up to {
-            if inside == _END_SITE or (word == "JOINT") != (inside is not None):
-                raise _Unreadable(
-                    f"{word} {tokens[i + 1]} "
-                    + (
-                        "inside an End Site"
-                        if inside == _END_SITE
-                        else "outside any joint"
-                        if word == "JOINT"
-                        else "inside a joint"
-                    )
-                )
-            brace = i + 1
-            while tokens[brace] not in ("{", "}", "MOTION"):
-                brace += 1
-            if tokens[brace] != "{" or brace == i + 1:
-                raise _Unreadable(f"{word} without a name and a '{{'")
-            names.append(" ".join(tokens[i + 1 : brace]))
+        if word in ("ROOT", "JOINT"):
+            name, brace = _joint_name(tokens, i, inside)
+            names.append(name)
             parents.append(-1 if inside is None else inside)
             offsets.append([0.0, 0.0, 0.0])
             channels.append([])
@@ -318,17 +301,8 @@ def _hierarchy(tokens: list[str]):
                 )
             if channels[inside]:
                 raise _Unreadable(f"two CHANNELS lines in joint {names[inside]}")
-            count = _count(tokens[i + 1], "CHANNELS")
-            joint_channels = tokens[i + 2 : i + 2 + count]
-            if not 1 <= count <= len(_CHANNEL_NAMES) or len(set(joint_channels)) != count:
-                raise _Unreadable(
-                    f"CHANNELS {count} in joint {names[inside]}: from 1 to "
-                    f"{len(_CHANNEL_NAMES)} different channels"
-                )
-            if not set(joint_channels) <= _CHANNEL_NAMES:
-                raise _Unreadable(f"unknown channel in {' '.join(joint_channels)}")
-            channels[inside] = joint_channels
-            i += 2 + count
+            channels[inside] = _joint_channels(tokens, i, names[inside])
+            i += 2 + len(channels[inside])
         else:
             raise _Unreadable(f"unexpected word {word[:40]!r} in the hierarchy")
     if not names:
@@ -336,6 +310,42 @@ def _hierarchy(tokens: list[str]):
     if stack:
         raise _Unreadable("a joint's '{' is never closed")
     return names, parents, offsets, channels, i
+
+
+def _joint_name(tokens: list[str], i: int, inside: int | None) -> tuple[str, int]:
+    """The name of the ROOT or JOINT at tokens[i] (it may hold spaces, "Bip01 L Thigh": all up
+    to its "{"), and the index of that "{"."""
+    word = tokens[i]
+    if inside == _END_SITE or (word == "JOINT") != (inside is not None):
+        raise _Unreadable(
+            f"{word} {tokens[i + 1]} "
+            + (
+                "inside an End Site"
+                if inside == _END_SITE
+                else "outside any joint"
+                if word == "JOINT"
+                else "inside a joint"
+            )
+        )
+    brace = i + 1
+    while tokens[brace] not in ("{", "}", "MOTION"):
+        brace += 1
+    if tokens[brace] != "{" or brace == i + 1:
+        raise _Unreadable(f"{word} without a name and a '{{'")
+    return " ".join(tokens[i + 1 : brace]), brace
+
+
+def _joint_channels(tokens: list[str], i: int, joint: str) -> list[str]:
+    """The channels the CHANNELS line at tokens[i] gives `joint`: 1 to 6 known, different."""
+    count = _count(tokens[i + 1], "CHANNELS")
+    joint_channels = tokens[i + 2 : i + 2 + count]
+    if not 1 <= count <= len(_CHANNEL_NAMES) or len(set(joint_channels)) != count:
+        raise _Unreadable(
+            f"CHANNELS {count} in joint {joint}: from 1 to {len(_CHANNEL_NAMES)} different channels"
+        )
+    if not set(joint_channels) <= _CHANNEL_NAMES:
+        raise _Unreadable(f"unknown channel in {' '.join(joint_channels)}")
+    return joint_channels
 
 
 _END_SITE = -2

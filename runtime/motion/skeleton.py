@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mogo.motion.untrusted import checked_finite
+
 
 @dataclass(frozen=True)
 class Skeleton:
@@ -60,9 +62,7 @@ class Skeleton:
                 f"a clip needs at least {min_frames} frame"
                 f"{'s' if min_frames > 1 else ''}, got {len(joints)}"
             )
-        if not np.all(np.isfinite(joints)):
-            raise ValueError("joints contain NaN or infinite values")
-        return joints
+        return checked_finite(joints, "joints")
 
     def mirror_permutation(self) -> np.ndarray:
         """Joint index of each joint's left/right twin (itself for centre joints)."""

@@ -15,6 +15,16 @@ import numpy as np
 MAX_TEXT_BYTES = 256 * 2**20  # a JSON, BVH or prompts file read whole: larger is refused
 
 
+def checked_finite(
+    array: np.ndarray, where: str, error: type[Exception] = ValueError, why: str = ""
+) -> np.ndarray:
+    """`array`, or `error` saying that `where` (a file, or what the array is) holds NaN or
+    infinite values: the one check, in one wording, of every array read or written."""
+    if not np.all(np.isfinite(array)):
+        raise error(f"{where}: holds NaN or infinite values{why}")
+    return array
+
+
 def read_text(path: str | os.PathLike, what: str = "file", max_bytes: int = MAX_TEXT_BYTES) -> str:
     """A text file read whole (undecodable bytes replaced), refused past `max_bytes` before it
     is all read (a device such as /dev/zero or a FIFO, that may never end, is refused)."""

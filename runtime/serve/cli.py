@@ -15,7 +15,8 @@ import sys
 import time
 from urllib.parse import urlsplit
 
-from mogo.cli import CliError, _load_generator, needs_extra
+from mogo.cli import CliError, load_generator, needs_extra
+from mogo.cli_flags import add_bundle, add_threads
 from mogo.serve.protocol import STATE_EVERY_SECONDS
 
 TOKEN_VARIABLE = "MOGO_SERVE_TOKEN"
@@ -34,12 +35,8 @@ def add_commands(commands) -> None:
         help="address to listen on (default 127.0.0.1: this machine only)",
     )
     serve.add_argument("--port", type=int, default=8765, help="port (default 8765)")
-    serve.add_argument("--bundle", help="bundle folder (default: the model shipped with mogo)")
-    serve.add_argument(
-        "--threads",
-        type=int,
-        help="cores for the level graphs (default 2 where there are 2 or more)",
-    )
+    add_bundle(serve)
+    add_threads(serve, "cores for the level graphs (default 2 where there are 2 or more)")
     serve.add_argument(
         "--max-streams",
         type=int,
@@ -123,7 +120,7 @@ def _serve_one(args: argparse.Namespace, access, ready=None) -> None:
     from mogo.serve import server
 
     app = server.make_app(
-        _load_generator(args),
+        load_generator(args),
         args.threads or 2,
         args.max_streams,
         access=access,

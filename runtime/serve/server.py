@@ -26,7 +26,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSCloseCode, WSMsgType, web
 
 from mogo.arguments import PromptWarning, UnknownPromptWarning
-from mogo.generator import MotionGenerator, _seed
+from mogo.generator import MotionGenerator, checked_seed
 from mogo.serve import protocol
 from mogo.serve.engine import Engine, ServedStream
 from mogo.stream_state import StateError
@@ -210,7 +210,7 @@ class Server:
             warnings.simplefilter("always", PromptWarning)
             warnings.simplefilter("error", UnknownPromptWarning)
             try:
-                text = self.generator._prompt(prompt, "prompt")
+                text = self.generator.read_prompt(prompt, "prompt")
             except (TypeError, ValueError, UnknownPromptWarning) as error:
                 raise protocol.ProtocolError(str(error)) from None
         notes = [str(w.message) for w in caught if issubclass(w.category, PromptWarning)]
@@ -235,7 +235,7 @@ class Server:
             sampling = self.generator.sampling(None, **start.options)
         except (TypeError, ValueError) as error:
             raise protocol.ProtocolError(str(error)) from None
-        seed = _seed(start.seed)
+        seed = checked_seed(start.seed)
         return self.engine.open(text, seed, sampling, self.clock(), start.plant_feet), notes
 
     async def resume(self, resume: protocol.Resume) -> tuple[ServedStream, list[str]]:
@@ -332,27 +332,9 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
             try:
                 text = message.data if message.type == WSMsgType.TEXT else b""
                 body = protocol.read(text, first=stream is None)
-                if stream is None:
-                    if "resume" in body:
-                        start = protocol.resume(body)
-                        stream, notes = await server.resume(start)
-                    else:
-                        start = protocol.start(body)
-                        stream, notes = await server.call(server.open, start)
-                    queue = server.queues[stream.id] = asyncio.Queue(QUEUED_BURSTS)
-                    skeleton = server.generator.skeleton
-                    await ws.send_str(
-                        protocol.started(
-                            stream.id,
-                            stream.seed,
-                            server.engine.fps,
-                            skeleton.joint_names,
-                            skeleton.parents,
-                            stream.send_from,
-                        )
-                    )
-                    sender = asyncio.create_task(_send(ws, queue, start.binary, server, stream))
-                    server.wake.set()
+                if stream is None:  # set first: the finally below closes it whatever follows
+                    stream, notes, start = await _opened(server, body)
+                    sender = await _started(ws, server, stream, start)
                 else:
                     prompt = protocol.later(body)
                     if prompt is None:
@@ -383,6 +365,37 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
             sender.cancel()
         await ws.close()
     return ws
+
+
+async def _opened(server: Server, body: dict):
+    """A socket's first message: its stream started or resumed; -> the stream, its notes and
+    the message read."""
+    if "resume" in body:
+        start = protocol.resume(body)
+        stream, notes = await server.resume(start)
+    else:
+        start = protocol.start(body)
+        stream, notes = await server.call(server.open, start)
+    return stream, notes, start
+
+
+async def _started(ws: web.WebSocketResponse, server: Server, stream, start) -> asyncio.Task:
+    """`started` sent and the stream's frames on their way; -> the task sending them."""
+    queue = server.queues[stream.id] = asyncio.Queue(QUEUED_BURSTS)
+    skeleton = server.generator.skeleton
+    await ws.send_str(
+        protocol.started(
+            stream.id,
+            stream.seed,
+            server.engine.fps,
+            skeleton.joint_names,
+            skeleton.parents,
+            stream.send_from,
+        )
+    )
+    sender = asyncio.create_task(_send(ws, queue, start.binary, server, stream))
+    server.wake.set()
+    return sender
 
 
 async def _send(

@@ -1,5 +1,5 @@
 // The reference port of mogo's `generate`, `play` and streams (docs/spec.md) on
-// onnxruntime-web: a portable bundle (`mogo export --portable`) in, joint positions out, in a
+// onnxruntime-web: a portable bundle (`mogo export portable`) in, joint positions out, in a
 // browser or Node, the feet planted, streams re-anchored (mogo.anchoring's words from
 // words.json). Not ported: the sentence encoder for prompts in other words (spec §11). The
 // caller passes the onnxruntime module (`ort`) and a `read(name)` that returns a bundle

@@ -1,4 +1,4 @@
-"""`mogo bench`: a quick run end to end on the shipped bundle and a tiny model, and the pieces
+"""`mogo bench latency`: a quick run end to end on the shipped bundle and a tiny model, and the pieces
 its figures rest on (FLOP count, bytes read, clip interpolation, interleaving, plots)."""
 
 import json
@@ -115,7 +115,7 @@ def test_quick_run_writes_tables_json_and_plots(tmp_path, capsys):
 
 
 def test_bad_options_are_refused(capsys):
-    assert main(["bench", "--smoke", "--long-steps", "10"]) == 2
+    assert main(["bench", "latency", "--smoke", "--long-steps", "10"]) == 2
     assert "--long-steps must be at least" in capsys.readouterr().err
-    assert main(["bench", "--smoke", "--threads", "0"]) == 2
+    assert main(["bench", "latency", "--smoke", "--threads", "0"]) == 2
     assert ">= 1" in capsys.readouterr().err

@@ -2,12 +2,14 @@
 (skipped without one) and the `bpy` module from PyPI under the Python that MOGO_BPY_PYTHON names
 (Blender 4.x/5.x, which distributions do not package; skipped when unset)."""
 
+import dataclasses
 import os
 import shutil
 
 import pytest
 
 from mogo.bench.quality.blender_addon import PythonMismatch, as_module, background, run, table
+from mogo.sampling import Sampling
 
 BLENDER = shutil.which("blender")
 BPY_PYTHON = os.environ.get("MOGO_BPY_PYTHON")  # e.g. a venv with `pip install bpy==4.4.0`
@@ -60,6 +62,10 @@ def test_the_addon_generates_retargets_and_streams_in_blender(tmp_path, launcher
     assert scene["second_take_plays"]  # each take animates the armature (4.4+: its slot bound)
     assert figures.rig_max < 1e-4  # our armature = the runtime's rig
     assert figures.joints_mean < 0.015  # the rigid-skeleton error (docs/bvh.md)
+    for option in dataclasses.fields(Sampling):  # the panel's limits are Sampling's
+        default, low, high = scene["sampling"][option.name]
+        assert default == option.default and low == option.metadata["low"]
+        assert high == option.metadata["high"] or option.metadata["high"] is None
     assert scene["mapped"] == 22  # the Mixamo preset through the "mixamorig:" prefix
     for label, error in figures.follow.items():  # feet, hands, hips: ours x its proportions
         assert error < 1e-3, label

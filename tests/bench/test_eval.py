@@ -1,4 +1,4 @@
-"""mogo eval, the semantic checks and the quality report on a small procedural corpus whose
+"""mogo bench eval, the semantic checks and the quality report on a small procedural corpus whose
 every clip is listed as test, with an untrained tiny evaluator and the shipped bundle."""
 
 import json
@@ -56,7 +56,7 @@ def test_eval_prints_the_table_without_torch(corpus, evaluator_folder, tmp_path)
     result = tmp_path / "eval.json"
     script = (
         "import sys\nfrom mogo.cli import main\n"
-        f"code = main(['eval', '--data', {str(corpus)!r}, '--evaluator', "
+        f"code = main(['bench', 'eval', '--data', {str(corpus)!r}, '--evaluator', "
         f"{str(evaluator_folder)!r}, '--limit', '32', '--repeats', '2', "
         f"{', '.join(map(repr, MM_ARGS))}, '--json', {str(result)!r}])\n"
         "assert code == 0 and 'torch' not in sys.modules, (code, 'torch' in sys.modules)\n"
@@ -144,7 +144,7 @@ def test_bad_inputs_give_one_line_errors(case, message, corpus, evaluator_folder
     else:
         data = tmp_path / "data"
         data.mkdir()
-    assert main(["eval", "--data", str(data), "--evaluator", str(evaluator), *extra]) == 2
+    assert main(["bench", "eval", "--data", str(data), "--evaluator", str(evaluator), *extra]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and error.startswith("mogo: error:") and message in error
 

@@ -1,4 +1,4 @@
-"""`mogo long-streams --quick` end to end on the shipped bundle (two actions, both modes; every
+"""`mogo bench long-streams --quick` end to end on the shipped bundle (two actions, both modes; every
 path), a run of chosen actions, and the window checks it rests on, judged against the procedural animator's own performance."""
 
 import json
@@ -20,7 +20,7 @@ from mogo.cli import main
 
 
 def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
-    assert main(["long-streams", "--quick", "--jobs", "1", "--out", str(tmp_path)]) == 0
+    assert main(["bench", "long-streams", "--quick", "--jobs", "1", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     assert "| walk forward | a person walks forward. |" in printed
     assert "| sit down (one-off: hold) |" in printed and "within 1.5 s" in printed
@@ -39,7 +39,8 @@ def test_every_path_plays_the_schedules_it_can_with_motionstreams_frames(tmp_pat
     one-off actions after a switch are judged on every path that has them."""
     pytest.importorskip("aiohttp")
     paths = ["stream", "generate", "play", "continue", "serve"]
-    argv = ["long-streams", "--quick", "--path", *paths, "--modes", "on", "--out", str(tmp_path)]
+    argv = ["bench", "long-streams", "--quick", "--path", *paths, "--modes", "on"]
+    argv += ["--out", str(tmp_path)]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert (
@@ -62,6 +63,7 @@ def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
     assert (
         main(
             [
+                "bench",
                 "long-streams",
                 "--modes",
                 "on",
@@ -98,7 +100,7 @@ def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
     ],
 )
 def test_bad_choices_are_one_line_errors(args, message, capsys):
-    assert main(["long-streams", *args]) == 2
+    assert main(["bench", "long-streams", *args]) == 2
     assert message in capsys.readouterr().err
 
 

@@ -1,4 +1,4 @@
-"""`mogo bench --quick`: this machine's figures beside the README's, with the runtime alone."""
+"""`mogo bench quick`: this machine's figures beside the README's, with the runtime alone."""
 
 import re
 from pathlib import Path
@@ -10,7 +10,7 @@ README = Path(__file__).resolve().parents[2] / "README.md"
 
 def test_it_runs_without_torch_and_prints_both_columns(run_without_torch):
     done = run_without_torch(
-        "from mogo.cli import main\nassert main(['bench', '--quick', '--threads', '1']) == 0\n",
+        "from mogo.cli import main\nassert main(['bench', 'quick', '--threads', '1']) == 0\n",
         block_export=False,
     )  # the parser lists export's verbs
     assert done.returncode == 0, done.stderr

@@ -1,4 +1,4 @@
-"""`mogo real-motion` on a stand-in for pybullet's wheel: a zip in the cache folder holding two
+"""`mogo bench real-motion` on a stand-in for pybullet's wheel: a zip in the cache folder holding two
 small DeepMimic clips where the wheel keeps its motions (no download, no pybullet)."""
 
 import json
@@ -50,7 +50,9 @@ def test_the_error_splits_into_pose_and_trajectory():
 def test_real_motion_writes_the_table_gifs_and_sheet(tmp_path, capsys):
     _fake_wheel(tmp_path / "cache")
     out = tmp_path / "out"
-    assert main(["real-motion", "--out", str(out), "--cache", str(tmp_path / "cache")]) == 0
+    assert (
+        main(["bench", "real-motion", "--out", str(out), "--cache", str(tmp_path / "cache")]) == 0
+    )
     printed = capsys.readouterr().out
     assert "| walk | 1.3 |" in printed and "| **median** of 2 |" in printed
     assert (out / "real_motion.md").read_text().startswith("| clip | seconds | MPJPE (mm) |")

@@ -1,4 +1,4 @@
-"""`mogo bench-serve --profile`: a served stream step split into its parts (torch-free)."""
+"""`mogo bench serve --profile`: a served stream step split into its parts (torch-free)."""
 
 from mogo.bench.speed.serve import PARTS, engine_profile, profile_table
 from mogo.cli import main
@@ -14,6 +14,6 @@ def test_the_parts_and_the_rest_add_up_to_the_step():
 
 
 def test_the_command_prints_the_table(capsys):
-    assert main(["bench-serve", "--profile", "1"]) == 0
+    assert main(["bench", "serve", "--profile", "1"]) == 0
     out = capsys.readouterr().out
     assert "| level graphs (onnxruntime) |" in out and "| a stream step |" in out

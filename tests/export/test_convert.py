@@ -85,8 +85,8 @@ def _with_glitch(value):
             "e+30; joints are metres, within 10000 m of the origin",
         ),
         (lambda p: np.save(p, _with_glitch(1e30)), "coordinates up to 1e+30"),
-        (lambda p: np.save(p, _with_glitch(np.nan)), "holds NaN or infinite coordinates"),
-        (lambda p: np.save(p, _with_glitch(-np.inf)), "holds NaN or infinite coordinates"),
+        (lambda p: np.save(p, _with_glitch(np.nan)), "holds NaN or infinite values"),
+        (lambda p: np.save(p, _with_glitch(-np.inf)), "holds NaN or infinite values"),
         (
             lambda p: np.save(p, _clip()[:, :21]),
             "shape (50, 21, 3), expected (T, 22, 3) for the humanml3d skeleton (--skeleton)",

@@ -218,7 +218,7 @@ def test_broken_clips_and_texts_name_the_file(tiny_humanml3d):
         f.write("a person jumps#a/DET person/NOUN#0.0\n")
     (tiny_humanml3d / "val.txt").write_text("")
     folder = HumanML3DFolder(tiny_humanml3d)
-    with pytest.raises(DatasetError, match=r"000002\.npy: contains NaN or infinite values"):
+    with pytest.raises(DatasetError, match=r"000002\.npy: holds NaN or infinite values"):
         MotionCropDataset(folder, "train", crop_frames=40)
     with pytest.raises(DatasetError, match=r"000009\.npy: expected \(T, 263\) features"):
         folder.features("000009")

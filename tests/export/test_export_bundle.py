@@ -72,6 +72,7 @@ def runs(tmp_path_factory):
             main(
                 [
                     "export",
+                    "bundle",
                     "--vq",
                     str(root / "vq"),
                     "--t2m",
@@ -178,6 +179,7 @@ def test_export_refuses_a_used_folder_and_mismatched_runs(runs, capsys):
         main(
             [
                 "export",
+                "bundle",
                 "--vq",
                 str(runs / "vq"),
                 "--t2m",
@@ -193,6 +195,7 @@ def test_export_refuses_a_used_folder_and_mismatched_runs(runs, capsys):
         main(
             [
                 "export",
+                "bundle",
                 "--vq",
                 str(runs / "t2m"),
                 "--t2m",
@@ -208,6 +211,7 @@ def test_export_refuses_a_used_folder_and_mismatched_runs(runs, capsys):
         main(
             [
                 "export",
+                "bundle",
                 "--vq",
                 str(runs / "vq"),
                 "--t2m",
@@ -248,6 +252,7 @@ def test_export_takes_a_decoder_fine_tune_of_the_t2ms_vq_only(runs, tmp_path, ca
         main(
             [
                 "export",
+                "bundle",
                 "--vq",
                 str(tmp_path / "decoder"),
                 "--t2m",
@@ -263,6 +268,7 @@ def test_export_takes_a_decoder_fine_tune_of_the_t2ms_vq_only(runs, tmp_path, ca
         main(
             [
                 "export",
+                "bundle",
                 "--vq",
                 str(tmp_path / "all"),
                 "--t2m",
@@ -351,7 +357,10 @@ def test_a_bundles_decoder_is_fine_tuned_and_replaced_without_its_runs(runs, tmp
     assert recipe["init"] == str(bundle.resolve()) and recipe["whole_clips"]
     assert recipe["tokens_sha256"] == manifest.files["vq_encoder.onnx"].sha256
     new = tmp_path / "new"
-    assert main(["export", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)]) == 0
+    assert (
+        main(["export", "decoder", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)])
+        == 0
+    )
     written = read_manifest(new)
     changed = {name for name, entry in written.files.items() if entry != manifest.files[name]}
     assert changed == {"vq_decoder.onnx"} and written.files.keys() == manifest.files.keys()
@@ -431,7 +440,10 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path,
         == 2
     )  # the encoder would change
     assert "differs from None of --init" in capsys.readouterr().err
-    assert main(["export", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)]) == 0
+    assert (
+        main(["export", "decoder", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)])
+        == 0
+    )
     old, written = read_manifest(bundle), read_manifest(new)
     assert written.files.keys() - old.files.keys() == {"vq_decoder_low_latency.onnx"}
     assert all(written.files[name] == entry for name, entry in old.files.items())
@@ -483,6 +495,7 @@ def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, c
             main(
                 [
                     "export",
+                    "decoder",
                     "--vq",
                     str(tmp_path / run),
                     "--bundle",
@@ -494,22 +507,11 @@ def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, c
             == 2
         )
         assert message in capsys.readouterr().err
-    assert (
-        main(
-            [
-                "export",
-                "--vq",
-                str(runs / "vq"),
-                "--bundle",
-                str(bundle),
-                "--int8",
-                "--out",
-                str(tmp_path / "new"),
-            ]
-        )
-        == 2
-    )
-    assert "with --bundle they are copied" in capsys.readouterr().err
+    new = ["--vq", str(runs / "vq"), "--bundle", str(bundle), "--out", str(tmp_path / "new")]
+    with pytest.raises(SystemExit) as refused:  # a decoder's bundle keeps its level graphs
+        main(["export", "decoder", *new, "--int8"])
+    assert refused.value.code == 2
+    assert "unrecognized arguments: --int8" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
 
 
@@ -557,6 +559,7 @@ def test_a_bundle_of_two_frames_per_token_runs_through_the_generator(tmp_path):
         main(
             [
                 "export",
+                "bundle",
                 "--vq",
                 str(tmp_path / "vq"),
                 "--t2m",

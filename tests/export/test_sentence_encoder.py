@@ -1,4 +1,4 @@
-"""The sentence-encoder text side of `mogo export --text`, on a tiny stand-in for MiniLM's
+"""The sentence-encoder text side of `mogo export text`, on a tiny stand-in for MiniLM's
 graph (the real one comes from PyPI and is not in the repository): the joined graph gives the
 torch pooling and adapter's outputs, padding does not count, and the repertoire's threshold
 and medoids do what they say. The WordNet table is the generator's output."""

@@ -169,6 +169,7 @@ def runs(tmp_path_factory):
             main(
                 [
                     "export",
+                    "bundle",
                     "--vq",
                     str(root / "vq"),
                     "--t2m",

@@ -1,4 +1,4 @@
-"""`mogo export --portable`: every op and opset against the lists of the engines it targets,
+"""`mogo export portable`: every op and opset against the lists of the engines it targets,
 and our runtime generating through it."""
 
 import subprocess
@@ -225,9 +225,7 @@ def test_the_command_refuses_a_portable_export_without_a_bundle(tmp_path):
             "-m",
             "mogo",
             "export",
-            "--portable",
-            "--t2m",
-            "x",
+            "portable",
             "--out",
             str(tmp_path / "out"),
         ],
@@ -236,6 +234,7 @@ def test_the_command_refuses_a_portable_export_without_a_bundle(tmp_path):
     )
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
-        "mogo: error: --portable converts a bundle: give --bundle and --out only"
+        "mogo: error: the following arguments are required: --bundle "
+        "(see mogo export portable --help)"
     ]
     assert not (tmp_path / "out").exists()

@@ -2,13 +2,17 @@
 this runtime's wheel for the add-on's Install (never PyPI's unrelated `mogo`)."""
 
 import ast
+import dataclasses
 import io
 import subprocess
 import sys
 import zipfile
 
-from mogo.addon_zip import FOLDER, SOURCE, addon_bytes, runtime_wheel
+import pytest
+
+from mogo.blender.addon_zip import FOLDER, GENERATED, SOURCE, addon_bytes, runtime_wheel
 from mogo.cli import main
+from mogo.sampling import Sampling, SamplingError
 
 
 def test_the_zip_holds_the_addon_folder_and_is_the_same_on_every_build():
@@ -16,8 +20,10 @@ def test_the_zip_holds_the_addon_folder_and_is_the_same_on_every_build():
     assert data == addon_bytes()
     names = zipfile.ZipFile(io.BytesIO(data)).namelist()
     wheel, _ = runtime_wheel()
+    assert not (SOURCE / GENERATED).exists()  # written into the zip only
     assert sorted(names) == sorted(
-        [f"{FOLDER}/{p.name}" for p in SOURCE.glob("*.py")] + [f"{FOLDER}/{wheel}"]
+        [f"{FOLDER}/{p.name}" for p in SOURCE.glob("*.py")]
+        + [f"{FOLDER}/{GENERATED}", f"{FOLDER}/{wheel}"]
     )
     init = ast.parse((SOURCE / "__init__.py").read_text())
     info = next(n for n in init.body if isinstance(n, ast.Assign) and n.targets[0].id == "bl_info")
@@ -84,3 +90,32 @@ def test_the_shipped_wheel_is_this_runtime_and_pip_installs_it(tmp_path):
         timeout=60,
     )
     assert done.returncode == 0 and done.stdout.startswith(str(target)), done.stderr
+
+
+def test_the_panels_sampling_options_are_samplings_own():
+    """The zip's sampling.py (the panel's options, their defaults and limits) is Sampling's, and
+    each limit is where Sampling starts refusing: the panel offers no value the runtime refuses
+    but top_p = 0, the open end it cannot show."""
+    written = zipfile.ZipFile(io.BytesIO(addon_bytes())).read(f"{FOLDER}/{GENERATED}").decode()
+    options = {}
+    exec(compile(written, GENERATED, "exec"), options)  # our own generated source
+    fields = {f.name: f for f in dataclasses.fields(Sampling)}
+    assert [option[0] for option in options["OPTIONS"]] == list(fields)
+    for name, kind, default, low, high, help in options["OPTIONS"]:
+        assert (kind, default, help) == (
+            type(fields[name].default).__name__,
+            fields[name].default,
+            fields[name].metadata["help"],
+        )
+        step = 1 if kind == "int" else 1e-3
+        with pytest.raises(SamplingError):
+            Sampling(**{name: low - step})
+        if name == "top_p":
+            with pytest.raises(SamplingError):
+                Sampling(top_p=low)
+        else:
+            Sampling(**{name: low})
+        if high is not None:
+            Sampling(**{name: high})
+            with pytest.raises(SamplingError):
+                Sampling(**{name: high + step})

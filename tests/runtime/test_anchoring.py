@@ -11,7 +11,7 @@ from mogo.anchoring import settles
 from mogo.motion.features import facing_directions
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 
-SMALL = Anchoring(span=20, keep=5, max_one_off=60)
+SMALL = Anchoring(span=20, keep=5, max_one_off=3.0)  # 60 steps
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +90,7 @@ def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
 def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator):
     stream = generator.stream("a person bows.", seed=0, anchoring=SMALL)
     assert stream.anchor.one_off and stream.tokens.allow_end and not stream.anchor.holding
-    stream.advance(SMALL.max_one_off + 1)
+    stream.advance(stream.anchor.one_off_steps + 1)
     assert stream.anchor.holding and not stream.anchor.one_off and stream.anchor.fresh == 1
     assert not stream.tokens.allow_end  # the hold stands still: the model does not end it
     assert stream.tokens.steps <= SMALL.span

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mogo import DEFAULT_BUNDLE
-from mogo.addon_zip import SOURCE
+from mogo.blender.addon_zip import SOURCE
 from mogo.bundle import Bundle
 from mogo.motion.quaternion import qnormalize, qto_matrix
 from mogo.motion.skeleton import SMPL_22

@@ -364,7 +364,7 @@ def test_info_says_what_it_checked(capsys):
             lambda p: np.save(p, np.full(263, "a")),
             "mean.npy: holds <U1 values, expected real numbers",
         ),
-        (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: contains NaN or infinite values"),
+        (lambda p: np.save(p, np.full(263, 1e300)), "mean.npy: holds NaN or infinite values"),
     ],
 )
 def test_a_bad_normalisation_array_is_one_line_naming_it(bundle, write, message):
@@ -461,9 +461,9 @@ def test_every_file_the_runtime_reads_must_be_listed_with_its_sha256(bundle, nam
         ("std.npy", np.ones(264), "std.npy: shape (264,), expected (263,)"),
         ("mean.npy", np.zeros((263, 1)), "mean.npy: shape (263, 1), expected (263,)"),
         ("std.npy", np.ones((1, 263)), "std.npy: shape (1, 263), expected (263,)"),
-        ("mean.npy", np.r_[np.zeros(262), np.nan], "mean.npy: contains NaN or infinite values"),
-        ("std.npy", np.r_[np.ones(262), np.inf], "std.npy: contains NaN or infinite values"),
-        ("std.npy", np.r_[np.ones(262), np.nan], "std.npy: contains NaN or infinite values"),
+        ("mean.npy", np.r_[np.zeros(262), np.nan], "mean.npy: holds NaN or infinite values"),
+        ("std.npy", np.r_[np.ones(262), np.inf], "std.npy: holds NaN or infinite values"),
+        ("std.npy", np.r_[np.ones(262), np.nan], "std.npy: holds NaN or infinite values"),
         ("std.npy", np.r_[np.ones(262), -1.0], "std.npy: has values <= 0"),
     ],
 )

@@ -146,7 +146,10 @@ def deepmimic(path, frames=3, duration=0.05, **changes):
     "write, message",
     [
         (lambda p: deepmimic(p, duration=1e9), r"3 frames at 1e-09 fps"),
-        (lambda p: deepmimic(p, Frames=[[0.1] + [0.0] * 43] * 2), "NaN or infinite coordinates"),
+        (
+            lambda p: deepmimic(p, Frames=[[0.1] + [0.0] * 43] * 2),
+            r"NaN or infinite values \(numbers too large",
+        ),
         (
             lambda p: p.write_text('{"Frames": ' + "[" * 100_000 + "]" * 100_000 + "}"),
             "JSON nested too deeply",

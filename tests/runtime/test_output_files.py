@@ -20,7 +20,7 @@ from PIL import Image
 
 from helpers import travelling_clip
 from mogo import Motion, files
-from mogo.addon_zip import write_addon
+from mogo.blender.addon_zip import write_addon
 from mogo.cli import main
 from mogo.motion.bvh import NAMINGS
 from mogo.motion.mocap import read_bvh
@@ -222,7 +222,7 @@ def test_ctrl_c_during_the_renames_waits_until_they_are_done(tmp_path, monkeypat
 def test_bad_names_and_folders_are_refused_before_generating(
     tmp_path, monkeypatch, capsys, name, message
 ):
-    monkeypatch.setattr("mogo.cli._load_generator", lambda args: pytest.fail("generated"))
+    monkeypatch.setattr("mogo.cli.load_generator", lambda args: pytest.fail("generated"))
     out = tmp_path / "deep" / "out"
     assert main(["generate", "a person walks.", "--out", str(out), "--name", name]) == 2
     error = capsys.readouterr().err
@@ -233,7 +233,7 @@ def test_bad_names_and_folders_are_refused_before_generating(
 def test_an_output_folder_that_is_a_file_or_blocked_fails_before_generating(
     tmp_path, monkeypatch, capsys
 ):
-    monkeypatch.setattr("mogo.cli._load_generator", lambda args: pytest.fail("generated"))
+    monkeypatch.setattr("mogo.cli.load_generator", lambda args: pytest.fail("generated"))
     (tmp_path / "file").write_text("x")
     assert main(["generate", "a person walks.", "--out", str(tmp_path / "file")]) == 2
     assert capsys.readouterr().err == f"mogo: error: {tmp_path / 'file'}: not a folder\n"
@@ -484,7 +484,7 @@ def test_a_device_fifo_socket_or_link_is_refused_never_replaced(tmp_path):
 
 def test_the_commands_refuse_a_special_file_before_the_work(tmp_path, capsys, monkeypatch):
     special_nodes(tmp_path)
-    monkeypatch.setattr("mogo.cli._load_generator", lambda args: pytest.fail("generated"))
+    monkeypatch.setattr("mogo.cli.load_generator", lambda args: pytest.fail("generated"))
     assert (
         main(
             ["generate", "a person walks.", "--out", str(tmp_path), "--name", "fifo", "--overwrite"]
@@ -621,7 +621,7 @@ def _is_take(folder, seed):
 def test_odd_output_folders_are_refused_before_generating(tmp_path, monkeypatch, capsys):
     """Old: a link loop, a link to nowhere and a folder name too long for the file system
     were found only when the take was written, after the work."""
-    monkeypatch.setattr("mogo.cli._load_generator", lambda args: pytest.fail("generated"))
+    monkeypatch.setattr("mogo.cli.load_generator", lambda args: pytest.fail("generated"))
     os.symlink("loop", tmp_path / "loop")
     os.symlink(tmp_path / "missing" / "x", tmp_path / "nowhere")
     nowhere = "a symbolic link that leads nowhere (a loop or a missing target)"

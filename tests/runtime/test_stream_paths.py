@@ -29,16 +29,18 @@ def test_streams_re_anchor_with_the_shipped_defaults(generator):
         shipped.still_keep,
         shipped.max_one_off,
         shipped.hold_prompt,
-    ) == (80, 10, 1, 5, 196, "a person stands still.")
-    assert shipped.max_one_off == round(generator.defaults.max_seconds * generator.fps)
+    ) == (80, 10, 1, 5, None, "a person stands still.")
+    stream = generator.stream("a person walks forward.", seed=0)
+    assert stream.anchor.one_off_steps == 196  # the bundle's longest clip: 9.8 s of 20 steps
     assert generator.stream("a person walks forward.", seed=0).anchor.anchoring == shipped
 
 
 def test_a_one_off_the_model_never_ends_holds_at_max_one_off(generator):
-    """Capped after exactly max_one_off steps (the model ends no bow within 8)."""
-    cap = Anchoring(span=20, keep=5, max_one_off=8)
+    """Capped after exactly max_one_off seconds (the model ends no bow within 8 steps)."""
+    cap = Anchoring(span=20, keep=5, max_one_off=0.4)
     stream = generator.stream("a person bows.", seed=0, anchoring=cap)
-    for n in range(1, cap.max_one_off):
+    assert stream.anchor.one_off_steps == 8
+    for n in range(1, 8):
         stream.step()
         assert stream.tokens.steps == n and not stream.anchor.holding
     stream.step()

@@ -10,7 +10,7 @@ import warnings
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mogo.generator import _seed
+from mogo.generator import checked_seed
 from mogo.serve import protocol
 
 EXAMPLES = settings(
@@ -63,7 +63,7 @@ def test_a_websocket_message_gives_a_result_or_a_protocol_error(generator, messa
     assert isinstance(start.prompt, str) and isinstance(start.binary, bool)
     try:  # what Server.open checks next, before the engine
         generator.sampling(None, **start.options)
-        _seed(start.seed)
+        checked_seed(start.seed)
     except (TypeError, ValueError) as error:
         assert str(error)
 
@@ -87,10 +87,10 @@ def test_an_http_body_gives_a_clip_request_or_a_protocol_error(generator, data, 
     try:  # what the generator checks next (MotionGenerator.generate's arguments)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # notes on the prompt: not errors
-            generator._prompt(clip.prompt, "prompt")
+            generator.read_prompt(clip.prompt, "prompt")
         if clip.seconds is not None:
             generator._seconds(clip.seconds)
         if clip.seed is not None:
-            _seed(clip.seed)
+            checked_seed(clip.seed)
     except (TypeError, ValueError) as error:
         assert str(error)

@@ -9,7 +9,7 @@ import numpy as np
 
 from . import motion_keys
 from .motion_keys import BONE_NAMES, OurRig
-from .ui import RIG_KEY
+from .names import RIG_KEY
 
 ARMATURE = "MOGO"  # our armature object's name
 SLOTTED = bpy.app.version >= (4, 4, 0)  # actions animate through slots (channel bags)

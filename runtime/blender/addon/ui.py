@@ -8,23 +8,24 @@ import bpy
 
 from . import environment
 from .jobs import Background, UserError, reported
+from .names import RIG_KEY
+from .sampling import OPTIONS
 
-_CACHE: dict = {}  # the loaded MotionGenerator and our rig, per Blender session
-RIG_KEY = "mogo_rig"  # our armature's custom property: the rest skeleton it was built for
+SESSION: dict = {}  # the loaded MotionGenerator and our rig, per Blender session
 
 
 def generator(mogo):
     """The runtime's MotionGenerator for the shipped bundle (loaded once, on first use: a
     worker thread may call this) and our rig."""
-    if "generator" not in _CACHE:
+    if "generator" not in SESSION:
         from .motion_keys import OurRig
 
         loaded = mogo.MotionGenerator.load(threads=2)
-        _CACHE.update(generator=loaded, ours=OurRig.of(loaded.skeleton))
-    return _CACHE["generator"], _CACHE["ours"]
+        SESSION.update(generator=loaded, ours=OurRig.of(loaded.skeleton))
+    return SESSION["generator"], SESSION["ours"]
 
 
-SAMPLING = ("temperature", "top_k", "top_p", "guidance")
+SAMPLING = tuple(name for name, *_ in OPTIONS)
 
 
 def request(settings) -> dict:
@@ -57,10 +58,6 @@ class MOGO_PG_settings(bpy.types.PropertyGroup):
         name="Seed", default=0, min=-1, description="Same seed, same motion; -1 draws a fresh one"
     )
     custom_sampling: bpy.props.BoolProperty(name="Custom sampling", default=False)
-    temperature: bpy.props.FloatProperty(name="Temperature", default=1.0, min=0.01, max=5.0)
-    top_k: bpy.props.IntProperty(name="Top k", default=0, min=0)
-    top_p: bpy.props.FloatProperty(name="Top p", default=1.0, min=0.01, max=1.0)
-    guidance: bpy.props.FloatProperty(name="Guidance", default=1.0, min=0.0, max=10.0)
     match_scene: bpy.props.BoolProperty(
         name="Set scene rate and range",
         default=True,
@@ -75,6 +72,21 @@ class MOGO_PG_settings(bpy.types.PropertyGroup):
     mapping: bpy.props.CollectionProperty(type=MOGO_PG_bone)
     mapping_index: bpy.props.IntProperty()
     live_prompt: bpy.props.StringProperty(name="Switch to", default="a person jogs forward")
+
+
+def _sampling_property(name, kind, default, low, high, help):
+    """One of Sampling's options as a panel setting: its default, limits and help are
+    Sampling's own (sampling.py is written from mogo.sampling by `mogo blender-addon`)."""
+    limits = {key: value for key, value in (("min", low), ("max", high)) if value is not None}
+    made = bpy.props.IntProperty if kind == "int" else bpy.props.FloatProperty
+    return made(
+        name=name.replace("_", " ").capitalize(), default=default, description=help, **limits
+    )
+
+
+MOGO_PG_settings.__annotations__.update(
+    {option[0]: _sampling_property(*option) for option in OPTIONS}
+)
 
 
 class MOGO_OT_generate(Background, bpy.types.Operator):
@@ -194,11 +206,11 @@ class MOGO_OT_live(bpy.types.Operator):
 
     @reported
     def execute(self, context):
-        session = _CACHE.get("live")
+        session = SESSION.get("live")
         if self.mode == "START":
             if session is not None:
                 raise UserError("live mode is already running: stop it first")
-            _CACHE["live"] = start_live(context)
+            SESSION["live"] = start_live(context)
             if not bpy.app.background and not context.screen.is_animation_playing:
                 bpy.ops.screen.animation_play()
         elif session is None:
@@ -206,7 +218,7 @@ class MOGO_OT_live(bpy.types.Operator):
         elif self.mode == "SWITCH":
             session.switch(context.scene.mogo.live_prompt)
         else:
-            frames = _CACHE.pop("live").stop()
+            frames = SESSION.pop("live").stop()
             self.report({"INFO"}, f"MOGO: live take kept as {session.action.name}: {frames} frames")
         return {"FINISHED"}
 
@@ -252,13 +264,13 @@ class MOGO_PT_panel(bpy.types.Panel):
         for name in ("prompt", "seconds", "seed", "match_scene", "custom_sampling"):
             layout.prop(settings, name)
         if settings.custom_sampling:
-            for name in ("temperature", "top_k", "top_p", "guidance"):
+            for name in SAMPLING:
                 layout.prop(settings, name)
         layout.operator(MOGO_OT_generate.bl_idname, icon="ARMATURE_DATA")
         box = layout.box()
         box.label(text="Live")
         row = box.row()
-        running = "live" in _CACHE
+        running = "live" in SESSION
         row.operator(
             MOGO_OT_live.bl_idname,
             text="Stop" if running else "Start",

@@ -27,7 +27,7 @@ def register():
 
 
 def unregister():
-    session = ui._CACHE.pop("live", None)
+    session = ui.SESSION.pop("live", None)
     if session is not None:
         session.stop()
     del bpy.types.Scene.mogo

@@ -1,6 +1,7 @@
-"""`mogo blender-addon`: the Blender add-on shipped in this package (runtime/blender_addon, package
-data that the runtime itself never imports) as the zip Blender installs (Preferences > Add-ons >
-Install), its files under the add-on's folder name, byte-identical for the same sources.
+"""`mogo blender-addon`: the Blender add-on shipped in this package (runtime/blender/addon,
+package data that the runtime itself never imports) as the zip Blender installs (Preferences >
+Add-ons > Install), its files under the add-on's folder name, byte-identical for the same
+sources.
 
 The zip carries this runtime as a wheel, which the add-on's Install hands to pip: a user gets
 this project, never PyPI's unrelated `mogo`, and needs no source tree. The wheel is written
@@ -15,23 +16,26 @@ import hashlib
 import io
 import os
 import zipfile
+from dataclasses import fields
 from importlib.metadata import requires, version
 from pathlib import Path
 
 from mogo import files
 from mogo.cli import DISTRIBUTION
+from mogo.sampling import Sampling
 
-PACKAGE = Path(__file__).resolve().parent  # the runtime, `mogo`
-SOURCE = PACKAGE / "blender_addon"
+PACKAGE = Path(__file__).resolve().parents[1]  # the runtime, `mogo`
+SOURCE = Path(__file__).resolve().parent / "addon"
 FOLDER = "mogo_blender"  # the add-on's module name inside Blender
+GENERATED = "sampling.py"  # the add-on module this writes into the zip (sampling_module)
 # not the Python runtime: mogo.export and mogo.bench (torch's side), the JavaScript port (web)
 NOT_RUNTIME = {"export", "bench", "web", "__pycache__"}
 _EPOCH = (1980, 1, 1, 0, 0, 0)  # zip's earliest date: the same bytes on every build
 
 
 def addon_bytes() -> bytes:
-    """The zip's bytes: every .py of the add-on, sorted, and the runtime's wheel, with a
-    fixed date."""
+    """The zip's bytes: every .py of the add-on, sorted, its sampling.py (written here from
+    Sampling) and the runtime's wheel, with a fixed date."""
     sources = sorted(SOURCE.glob("*.py"))
     if not sources:
         raise FileNotFoundError(
@@ -40,7 +44,23 @@ def addon_bytes() -> bytes:
     wheel_name, wheel = runtime_wheel()
     return _zip(
         [(f"{FOLDER}/{path.name}", path.read_bytes()) for path in sources]
-        + [(f"{FOLDER}/{wheel_name}", wheel)]
+        + [(f"{FOLDER}/{GENERATED}", sampling_module().encode()), (f"{FOLDER}/{wheel_name}", wheel)]
+    )
+
+
+def sampling_module() -> str:
+    """The add-on's sampling.py: each option of mogo.sampling.Sampling with its type, default,
+    limits and help. The panel registers before the runtime is installed, so it cannot import
+    Sampling; this is Sampling written out, never a copy kept by hand."""
+    options = [
+        (f.name, type(f.default).__name__, f.default, f.metadata["low"], f.metadata["high"])
+        + (f.metadata["help"],)
+        for f in fields(Sampling)
+    ]
+    rows = "".join(f"    {option!r},\n" for option in options)
+    return (
+        '"""Written by `mogo blender-addon` from mogo.sampling.Sampling: (name, type, default, '
+        'low, high, help)\nof each sampling option."""\n\nOPTIONS = (\n' + rows + ")\n"
     )
 
 
