@@ -329,24 +329,36 @@ def _serve_all(bundle: str | None, tasks: list[Task]) -> list[Made]:
         return asyncio.run(run(base.replace("http", "ws", 1) + "/v1/stream"))
 
 
-def _agreement(made: dict[Task, Made]) -> dict[str, float]:
-    """Per path, the largest joint difference (m) from the re-anchored MotionStream's frames
-    for the same schedule and seed, where its switches took effect at the same frames (a
-    served switch lands where the client's timing puts it; `continue` plays its first entry
-    as a clip, another motion by design)."""
+AGREE = 1e-3  # metres: frames this close to MotionStream's are the same frames
+
+
+def _agreement(made: dict[Task, Made]) -> dict[str, dict]:
+    """Per path, how its frames compare with the re-anchored MotionStream's for the same
+    schedule and seed, where its switches took effect at the same frames (a served switch
+    lands where the client's timing puts it; `continue` plays its first entry as a clip,
+    another motion by design): the motions compared, those within AGREE to the end, the
+    largest difference among those (m), and the earliest frame where another one leaves it
+    (a token drawn otherwise at a near tie: the motion goes its own way from there)."""
     reference = {
         (t.kind, t.seed, t.schedule): m
         for t, m in made.items()
         if t.column == "stream, anchoring on"
     }
-    out: dict[str, float] = {}
+    out: dict[str, dict] = {}
     for task, motion in made.items():
         ref = reference.get((task.kind, task.seed, task.schedule))
         if task.path in ("stream", "continue") or ref is None or ref.switches != motion.switches:
             continue
         n = min(len(ref.joints), len(motion.joints))
-        gap = float(np.abs(motion.joints[:n] - ref.joints[:n]).max())
-        out[task.column] = max(out.get(task.column, 0.0), gap)
+        gaps = np.abs(motion.joints[:n] - ref.joints[:n]).max(axis=(1, 2))
+        row = out.setdefault(task.column, dict(motions=0, agree=0, largest=0.0, leaves=None))
+        row["motions"] += 1
+        if gaps.max() <= AGREE:
+            row["agree"] += 1
+            row["largest"] = max(row["largest"], float(gaps.max()))
+        else:
+            leaves = int(np.argmax(gaps > AGREE))
+            row["leaves"] = leaves if row["leaves"] is None else min(row["leaves"], leaves)
     return out
 
 
@@ -442,9 +454,8 @@ def figures_table(result: dict) -> str:
         reactions = [r for s in _kind(result, "switches", c) for r in s["reactions"]]
         seconds = np.array([np.inf if r is None else r / FPS for r in reactions])
         figures = {**_switch_figures(seconds), **_stream_figures(streams)}
-        gap = result.get("agreement", {}).get(c)
-        figures["largest joint difference from `stream, anchoring on` (mm)"] = (
-            f"{1000 * gap:.3f}" if gap is not None else "-"
+        figures[f"frames as `stream, anchoring on`'s (within {1000 * AGREE:g} mm)"] = _agreed(
+            result.get("agreement", {}).get(c)
         )
         for name, value in figures.items():
             rows.setdefault(name, {})[c] = value
@@ -453,6 +464,15 @@ def figures_table(result: dict) -> str:
         for name, values in rows.items()
     ]
     return "\n".join(lines)
+
+
+def _agreed(row: dict | None) -> str:
+    if row is None:
+        return "-"
+    text = f"{row['agree']} of {row['motions']} (largest {1000 * row['largest']:.3f} mm)"
+    if row["leaves"] is not None:
+        text += f"; the others leave it at {row['leaves'] / FPS:.1f} s at the earliest"
+    return text
 
 
 def _stream_figures(streams: list[dict]) -> dict[str, str]:
