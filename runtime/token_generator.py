@@ -242,13 +242,26 @@ class TokenStream:
     def _drawn(self, logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray | None:
         """The step's tokens, sampled from this stream's logits (rows, L, C); None (the stream
         ended) where level 0 drew the end token."""
-        g = self.generator
-        forbid = [None if self.allow_end and self.steps > 0 else g.end_token]
-        forbid += [None] * (g.num_levels - 1)
         row = choose_tokens(
-            logits[0], logits[1] if self.sampling.guided else None, uniforms, self.sampling, forbid
+            logits[0],
+            logits[1] if self.sampling.guided else None,
+            uniforms,
+            self.sampling,
+            self._forbid(),
         )
-        if row[0] == g.end_token:
+        return self._ends(row)
+
+    def _forbid(self) -> list[int | None]:
+        """Per level, the token the step may not draw: the end token before the second step,
+        or always where the caller sets the length."""
+        g = self.generator
+        return [None if self.allow_end and self.steps > 0 else g.end_token] + [None] * (
+            g.num_levels - 1
+        )
+
+    def _ends(self, row: np.ndarray) -> np.ndarray | None:
+        """`row`, or None (the stream ended) where level 0 drew the end token."""
+        if row[0] == self.generator.end_token:
             self.ended = True
             return None
         return row
@@ -430,16 +443,40 @@ def _step_pooled(members: list[TokenStream]) -> list[np.ndarray | None]:
         group = [members[k] for k in ks]
         uniforms = [step_uniforms(s.rng, g.num_levels) for s in group]
         outputs = _pooled_call(g, group, bucket, rows)
-        logits = _level_logits(g, outputs)
+        rows = _sampled_together(group, _level_logits(g, outputs), uniforms)
         took, slots = [], []
-        for i, (k, s, u) in enumerate(zip(ks, group, uniforms, strict=True)):
-            drawn[k] = s._drawn(logits[i : i + 1], u)
+        for i, (k, s, row) in enumerate(zip(ks, group, rows, strict=True)):
+            drawn[k] = s._ends(row)
             if drawn[k] is not None:
                 took.append(i)
                 slots.append(s._took(drawn[k]))
         new = [[present[took] for present in presents] for _, presents in outputs]
         pool.write([group[i] for i in took], slots, new)
     return drawn
+
+
+def _sampled_together(
+    group: list[TokenStream], logits: np.ndarray, uniforms: list[np.ndarray]
+) -> list[np.ndarray]:
+    """Each stream's tokens (L,) from its logits (row i of (rows, L, C)): the streams of one
+    Sampling in one choose_tokens call, which treats each row alone (the same tokens as one
+    call per stream, in a few numpy calls for all)."""
+    levels = logits.shape[1]
+    rows: list[np.ndarray] = [None] * len(group)  # type: ignore[list-item]
+    by_sampling: dict[Sampling, list[int]] = {}
+    for i, s in enumerate(group):
+        by_sampling.setdefault(s.sampling, []).append(i)
+    for sampling, members in by_sampling.items():
+        drawn = choose_tokens(
+            logits[members].reshape(len(members) * levels, -1),
+            None,
+            np.concatenate([uniforms[i] for i in members]),
+            sampling,
+            [token for i in members for token in group[i]._forbid()],
+        ).reshape(len(members), levels)
+        for i, row in zip(members, drawn, strict=True):
+            rows[i] = row
+    return rows
 
 
 def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:

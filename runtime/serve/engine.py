@@ -41,8 +41,11 @@ class ServedStream(MotionStream):
         g = engine.generator
         # guided: alone on the bundle's own graphs, which quantise its two rows (conditional
         # and not) together, as MotionStream's do; the row-wise graphs would not. The others
-        # go to the shard with fewer streams.
-        self.shard = None if sampling.guided else min(engine.shards, key=lambda t: len(t.pool))
+        # go to the first shard while a round runs whole (one call per bucket, not two), then
+        # to the shard with fewer streams.
+        few = len(engine.streams) < SHARD_FROM
+        shards = engine.shards[:1] if few else engine.shards
+        self.shard = None if sampling.guided else min(shards, key=lambda t: len(t.pool))
         super().__init__(
             g,
             prompt,
