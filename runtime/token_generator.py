@@ -35,6 +35,7 @@ from mogo.progress import Progress
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 
 LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"]  # then the pasts
+SHORT = 0.75  # pooled calls read a bucket's first slots alone where they use less than this
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
 
 
@@ -415,7 +416,11 @@ def _pooled_call(g: TokenGenerator, group: list[TokenStream], bucket, rows) -> l
     token_ids = np.stack([s.last for s in group])[:, None]
     query = np.array([[s.steps] for s in group], np.int64)
     slots = np.array([[len(s.positions)] for s in group], np.int64)
-    keys = bucket.positions[rows].copy()
+    # the call copies the slots it reads (in the graph): where the group uses less than
+    # SHORT of its bucket (new streams, fresh clips), a copy of just those slots costs less
+    used = int(slots.max()) + 1
+    cut = slice(None) if used > SHORT * bucket.capacity else slice(0, used)
+    keys = bucket.positions[rows, cut].copy()
     keys[np.arange(len(group)), slots[:, 0]] = query[:, 0]
     return g.each_level(
         lambda level: g.run(
@@ -425,7 +430,7 @@ def _pooled_call(g: TokenGenerator, group: list[TokenStream], bucket, rows) -> l
             token_ids,
             query,
             keys,
-            [held[rows] for held in bucket.arrays[level]],
+            [np.ascontiguousarray(held[rows, :, cut]) for held in bucket.arrays[level]],
             slots,
         )
     )
