@@ -21,6 +21,7 @@ def served(engine, prompts: dict[int, str], seed: int, steps: int) -> np.ndarray
             engine.switch(stream, prompts[stream.steps])
         frames += [joints for _, _, joints in engine.round([stream])]
     engine.close(stream)
+    assert not any(len(shard.pool) for shard in engine.shards)  # its cache's row freed
     return np.concatenate(frames)
 
 
