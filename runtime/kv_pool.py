@@ -5,7 +5,7 @@ only the new slots. A pool keeps every stream's cache as one row of preallocated
 slots in the order the stream's own cache would hold them (TokenStream.positions); the slots
 past them hold MASKED positions, which the graphs mask out. A call reads the rows where they
 lie (a contiguous run of rows is passed without a copy) and each stream's new slot is written
-into its row in place: no call copies the caches, as the exported graphs' Concat did.
+into its row in place (the graphs still copy, inside, the slots a call reads: see there).
 
 Rows are kept in buckets by capacity (SLOTS, 2 SLOTS, ...): a call reads all the slots of its
 bucket, so a stream 5 steps into a clip does not pay for another's 80. A stream whose cache
