@@ -28,12 +28,14 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from mogo._session import graph_session
+from mogo.kv_pool import KVPool
 from mogo.manifest import BundleError, Graph
 from mogo.motion.skeleton import MAX_FRAMES
 from mogo.progress import Progress
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 
 LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"]  # then the pasts
+SHORT = 0.75  # pooled calls read a bucket's first slots alone where they use less than this
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
 
 
@@ -51,13 +53,13 @@ class TokenGenerator:
         end_token: int,
         intra_op_threads: int = 1,
         level_workers: int = 1,
-        rows_apart: bool = False,
+        pooled: bool = False,
     ):
         """graphs[l]: the input and output names of level l (protocol order).
         level_workers > 1 runs the levels of a step in that many groups at once, balanced by
-        layer count (each session then keeps `intra_op_threads`, best 1). rows_apart: batch
-        rows never mix inside the graphs (mogo.serve.rowwise), so streams may share a call
-        (`step_together`); an int8 graph as exported quantises its whole batch at once."""
+        layer count (each session then keeps `intra_op_threads`, best 1). pooled: the graphs
+        of mogo.serve.pooled (rows never mix, each row its own positions, new slots out): the
+        streams keep their caches in one KVPool and share calls (`step_together`)."""
         if level_workers < 1:
             raise ValueError(f"level_workers must be >= 1, got {level_workers}")
         if len(level_paths) != len(graphs):
@@ -68,13 +70,13 @@ class TokenGenerator:
         ]
         self.graphs = list(graphs)
         self.cache_shapes = [
-            _cache_shape(session, path)
+            _cache_shape(session, path, pooled)
             for session, path in zip(self.sessions, level_paths, strict=False)
         ]
         self.end_token = end_token
         self.num_levels = len(graphs)
         self.num_classes = end_token + 1  # level 0's logits: every code and the end token
-        self.rows_apart = rows_apart
+        self.pool = KVPool(self.cache_shapes) if pooled else None
         self._spread_levels(level_workers)
 
     def with_level_workers(self, level_workers: int) -> TokenGenerator:
@@ -84,6 +86,13 @@ class TokenGenerator:
             raise ValueError(f"level_workers must be >= 1, got {level_workers}")
         twin = copy.copy(self)
         twin._spread_levels(level_workers)
+        return twin
+
+    def with_own_pool(self) -> TokenGenerator:
+        """The same sessions with a KVPool of its own (the server's shards: rows of one call
+        lie in one pool)."""
+        twin = copy.copy(self)
+        twin.pool = KVPool(self.cache_shapes)
         return twin
 
     def _spread_levels(self, level_workers: int) -> None:
@@ -146,16 +155,31 @@ class TokenGenerator:
         positions: np.ndarray,
         past_positions: np.ndarray,
         past: Cache,
+        slots: np.ndarray | None = None,
     ) -> tuple[np.ndarray, Cache]:
-        """One call of a level graph -> logits of the last position (batch, K[+1]), presents."""
+        """One call of a level graph -> logits of the last position (batch, K[+1]), presents.
+        Pooled graphs (mogo.serve.pooled) return the new slots only; their `positions` are
+        (batch, seq), `past_positions` (batch, slots) hold the new slots' positions at `slots`
+        (batch, seq) and MASKED where unused. Called as for the exported graphs (one vector of
+        positions, `slots` None), the new slots follow the past."""
         graph = self.graphs[level]
-        feed = dict(
-            zip(
-                graph.inputs,
-                [prompt, uncond, token_ids, positions, past_positions, *past],
-                strict=True,
-            )
-        )  # one array per input, no more
+        values = [prompt, uncond, token_ids, positions, past_positions, *past]
+        if self.pool is not None:
+            if slots is None:
+                batch, held, new = len(prompt), len(past_positions), len(positions)
+                slots = np.broadcast_to(np.arange(held, held + new), (batch, new))
+                past_positions = np.broadcast_to(
+                    np.concatenate([past_positions, positions]), (batch, held + new)
+                )
+                positions = np.broadcast_to(positions, (batch, new))
+                past = [
+                    np.concatenate(
+                        [cache, np.zeros((*cache.shape[:2], new, cache.shape[3]))], 2
+                    ).astype(np.float32)
+                    for cache in past
+                ]
+            values = [prompt, uncond, token_ids, positions, past_positions, *past, slots]
+        feed = dict(zip(graph.inputs, values, strict=True))  # one array per input, no more
         logits, *presents = self.sessions[level].run(list(graph.outputs), feed)
         return logits, presents
 
@@ -202,6 +226,8 @@ class TokenStream:
     ):
         if window is not None and window < 1:
             raise ValueError(f"window must be >= 1 steps, got {window}")
+        if generator.pool is not None and sampling.guided:
+            raise ValueError("guided streams need the bundle's own level graphs, not pooled ones")
         self.generator, self.sampling = generator, sampling
         self.window, self.allow_end = window, allow_end
         self.rng = make_rng(seed)
@@ -214,33 +240,48 @@ class TokenStream:
         The first step is the prefill: the prompt prefix at position 0 predicts step 0."""
         return step_together([self])[0]
 
-    @property
-    def layout(self) -> tuple:
-        """Streams with equal layouts query at one position over slots at the same positions,
-        so they can share a call of each level graph (`step_together`)."""
-        return self.steps, self.positions.tobytes()
-
-    def _drawn(
-        self, logits: np.ndarray, presents: list[Cache], uniforms: np.ndarray
-    ) -> np.ndarray | None:
-        """The step after its graph calls: tokens sampled from this stream's logits
-        (rows, L, C), its cache moved on by `presents`."""
-        g, n = self.generator, self.steps
-        forbid = [None if self.allow_end and n > 0 else g.end_token] + [None] * (g.num_levels - 1)
+    def _drawn(self, logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray | None:
+        """The step's tokens, sampled from this stream's logits (rows, L, C); None (the stream
+        ended) where level 0 drew the end token."""
         row = choose_tokens(
-            logits[0], logits[1] if self.sampling.guided else None, uniforms, self.sampling, forbid
+            logits[0],
+            logits[1] if self.sampling.guided else None,
+            uniforms,
+            self.sampling,
+            self._forbid(),
         )
-        if row[0] == g.end_token:
+        return self._ends(row)
+
+    def _forbid(self) -> list[int | None]:
+        """Per level, the token the step may not draw: the end token before the second step,
+        or always where the caller sets the length."""
+        g = self.generator
+        return [None if self.allow_end and self.steps > 0 else g.end_token] + [None] * (
+            g.num_levels - 1
+        )
+
+    def _ends(self, row: np.ndarray) -> np.ndarray | None:
+        """`row`, or None (the stream ended) where level 0 drew the end token."""
+        if row[0] == self.generator.end_token:
             self.ended = True
             return None
+        return row
+
+    def _took(self, row: np.ndarray) -> int:
+        """The step drew `row`: the cache slot its call filled (at position `steps`, holding
+        the previous step's tokens), appended or, with a full window, the oldest step's."""
+        n = self.steps
         if self.window is not None and len(self.positions) == 1 + self.window:
-            self._overwrite_oldest(presents, n)
+            slot = self._oldest  # the prefix, slot 0, stays; slots are then in ring order
+            self._oldest = slot % self.window + 1
+            self.positions[slot], self.slot_tokens[slot] = n, self.last
+            self.prefilled = len(self.positions)  # no longer made by steps from a prefill
         else:
-            self.caches = presents
+            slot = len(self.positions)
             self.positions = np.append(self.positions, n)
             self.slot_tokens = np.concatenate([self.slot_tokens, self.last[None]])
         self.last, self.steps = row, n + 1
-        return row
+        return slot
 
     def set_prompt(self, prompt_embedding: np.ndarray) -> None:
         """Condition the following steps on a new prompt: one prefill of every cache slot, the
@@ -271,9 +312,7 @@ class TokenStream:
     def restart(self) -> None:
         """Forget every step drawn (not the random state): the next step is step 0 of a fresh
         clip under the prompt."""
-        g, L = self.generator, self.generator.num_levels
-        self.caches = [g.empty_cache(level, len(self.uncond)) for level in range(L)]
-        self._group = None  # see _step_group
+        L = self.generator.num_levels
         self.positions = np.zeros(0, np.int64)  # (P,) position of every cache slot
         self.slot_tokens = np.zeros((0, L), np.int64)  # (P, L) the tokens each slot holds
         self.last = np.zeros(L, np.int64)  # tokens of the latest step (none yet: any valid id)
@@ -281,9 +320,33 @@ class TokenStream:
         self.ended = False
         self._oldest = 1  # with a full window: the slot the next step overwrites
         self.prefilled = 0  # leading slots the last prefill made (the others: one step each)
+        self._keep(None)
+
+    def _keep(self, caches: list[Cache] | None) -> None:
+        """Hold `caches` (per level, the slots at `positions`; None: none) as the cache: the
+        stream's own, or its row of the generator's pool."""
+        g = self.generator
+        if g.pool is not None:
+            g.pool.store(self, caches)
+        else:
+            rows = len(self.uncond)
+            self.caches = caches or [g.empty_cache(level, rows) for level in range(g.num_levels)]
+
+    def move_to(self, generator: TokenGenerator) -> None:
+        """Go on in `generator`'s pool (the same graphs): the cache moved from this stream's
+        pool (a resumed served stream's, made off the server's thread) into it."""
+        caches = self.generator.pool.caches(self)
+        self.generator.pool.remove(self)
+        self.generator = generator
+        self._keep(caches)
 
     def _prefill(self) -> None:
         """Recompute every level's cache for the held slots under the current prompt."""
+        self._keep(self._prefilled())
+        self.prefilled = len(self.positions)
+
+    def _prefilled(self) -> list[Cache]:
+        """Every level's cache for the held slots under the current prompt, computed."""
         g = self.generator
         token_ids = np.repeat(self.slot_tokens[None], len(self.uncond), axis=0)
         none = np.zeros(0, np.int64)
@@ -298,9 +361,7 @@ class TokenStream:
                 g.empty_cache(level, len(self.uncond)),
             )
         )
-        self.caches = [present for _, present in outputs]
-        self._group = None
-        self.prefilled = len(self.positions)
+        return [present for _, present in outputs]
 
     def rebuild(self) -> None:
         """The cache of the held slots made again as it was made (a resumed stream,
@@ -311,36 +372,33 @@ class TokenStream:
         g, positions, tokens = self.generator, self.positions, self.slot_tokens
         made = self.prefilled
         self.positions, self.slot_tokens = positions[:made], tokens[:made]
-        if made:
-            self._prefill()
-        else:
-            self.caches = [g.empty_cache(level, len(self.uncond)) for level in range(g.num_levels)]
+        rows = len(self.uncond)
+        caches = (
+            self._prefilled()
+            if made
+            else [g.empty_cache(level, rows) for level in range(g.num_levels)]
+        )
         for k in range(made, len(positions)):
-            self._replay(tokens[k], positions[k : k + 1], positions[:k])
-        self.positions, self.slot_tokens, self._group = positions, tokens, None
+            caches = self._replayed(caches, tokens[k], positions[k : k + 1], positions[:k])
+        self.positions, self.slot_tokens = positions, tokens
+        self._keep(caches)
 
-    def _replay(self, tokens: np.ndarray, position: np.ndarray, past: np.ndarray) -> None:
-        """One step's graph calls as `_step_group` made them, tokens given, none drawn."""
+    def _replayed(
+        self, caches: list[Cache], tokens: np.ndarray, position: np.ndarray, past: np.ndarray
+    ) -> list[Cache]:
+        """`caches` after one step's graph calls as the step made them, its tokens given, none
+        drawn (pooled graphs return the new slot alone, which follows the past)."""
         g = self.generator
         ids = np.repeat(tokens[None, None], len(self.uncond), axis=0)
         outputs = g.each_level(
-            lambda level: g.run(
-                level, self.prompt, self.uncond, ids, position, past, self.caches[level]
-            )
+            lambda level: g.run(level, self.prompt, self.uncond, ids, position, past, caches[level])
         )
-        self.caches = [present for _, present in outputs]
-
-    def _overwrite_oldest(self, presents: list[Cache], n: int) -> None:
-        """Full window: the new slot (the last of every present) replaces the oldest step slot
-        in place; the prefix slot 0 stays. Slots are then in ring order, oldest at _oldest."""
-        slot = self._oldest
-        for cache, present in zip(self.caches, presents, strict=False):
-            for held, new in zip(cache, present, strict=False):
-                held[:, :, slot] = new[:, :, -1]
-        self.positions[slot] = n
-        self.slot_tokens[slot] = self.last
-        self._oldest = slot % self.window + 1
-        self.prefilled = len(self.positions)  # no longer made by steps from a prefill
+        if g.pool is None:
+            return [present for _, present in outputs]
+        return [
+            [np.concatenate([held, new], 2) for held, new in zip(cache, present, strict=True)]
+            for cache, (_, present) in zip(caches, outputs, strict=True)
+        ]
 
     def _batch(self, prompt_embedding: np.ndarray) -> np.ndarray:
         """(text_dim,) -> (B, text_dim) float32, one row per guidance branch."""
@@ -349,60 +407,133 @@ class TokenStream:
 
 
 def step_together(streams: Sequence[TokenStream]) -> list[np.ndarray | None]:
-    """One step of each stream (its tokens (L,), or None where it has ended): the streams of
-    one layout share one call of each level graph, their rows stacked. The one token loop:
-    TokenStream.step is this for one stream. Streams share a call only on graphs whose rows
-    never mix (TokenGenerator.rows_apart), so a stream's tokens never depend on the others."""
-    groups: dict[tuple, list[int]] = {}
-    for k, stream in enumerate(streams):
-        if not stream.ended:
-            shared = stream.generator.rows_apart
-            key = (id(stream.generator), stream.layout) if shared else id(stream)
-            groups.setdefault(key, []).append(k)
+    """One step of each stream (its tokens (L,), or None where it has ended). The one token
+    loop: TokenStream.step is this for one stream. Streams on pooled graphs (the server's) share
+    one call of each level graph per bucket of their pool (mogo.kv_pool), at any step of their
+    clips; the rows never mix there, so a stream's tokens never depend on the others. Any other
+    stream steps alone on its own cache."""
     drawn: list[np.ndarray | None] = [None] * len(streams)
-    for ks in groups.values():
-        for k, row in zip(ks, _step_group([streams[k] for k in ks]), strict=False):
+    pooled: dict[int, list[int]] = {}
+    for k, stream in enumerate(streams):
+        if stream.ended:
+            continue
+        if stream.generator.pool is None:
+            drawn[k] = _step_alone(stream)
+        else:
+            pooled.setdefault(id(stream.generator), []).append(k)
+    for ks in pooled.values():
+        for k, row in zip(ks, _step_pooled([streams[k] for k in ks]), strict=True):
             drawn[k] = row
     return drawn
 
 
-def _step_group(members: list[TokenStream]) -> list[np.ndarray | None]:
-    g, first = members[0].generator, members[0]
-    uniforms = [step_uniforms(s.rng, g.num_levels) for s in members]
-    rows = np.cumsum([0] + [len(s.uncond) for s in members])
-
-    def stacked(parts: list[np.ndarray]) -> np.ndarray:
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
-
-    prompt = stacked([s.prompt for s in members])
-    uncond = stacked([s.uncond for s in members])
-    token_ids = stacked([np.repeat(s.last[None, None], len(s.uncond), axis=0) for s in members])
-    last = first._group  # the members of the last call and its presents, which hold the caches
-    if last is not None and last[0] == members and all(s._group is last for s in members):
-        caches = last[1]  # the same streams in the same order: their caches as they lie, no copy
-    else:
-        caches = [
-            [stacked(parts) for parts in zip(*(s.caches[level] for s in members), strict=False)]
-            for level in range(g.num_levels)
-        ]
-    position, past = np.array([first.steps], np.int64), first.positions
-    outputs = g.each_level(
-        lambda level: g.run(level, prompt, uncond, token_ids, position, past, caches[level])
-    )
-    logits = np.full((len(uncond), g.num_levels, g.num_classes), -np.inf, np.float32)
+def _level_logits(g: TokenGenerator, outputs: list[tuple]) -> np.ndarray:
+    """Every level's logits in one (rows, L, C) array, -inf past a level's classes."""
+    rows = len(outputs[0][0])
+    logits = np.full((rows, g.num_levels, g.num_classes), -np.inf, np.float32)
     for level, (level_logits, _) in enumerate(outputs):
         logits[:, level, : level_logits.shape[1]] = level_logits
-    drawn = [
-        s._drawn(logits[a:b], [[held[a:b] for held in present] for _, present in outputs], u)
-        for s, a, b, u in zip(members, rows[:-1], rows[1:], uniforms, strict=False)
-    ]
-    group = (members, [present for _, present in outputs])
-    for stream, row in zip(
-        members, drawn, strict=False
-    ):  # the presents are their caches (not a full window)
-        took = row is not None and len(stream.positions) > len(past)
-        stream._group = group if took and len(members) > 1 else None
+    return logits
+
+
+def _step_alone(s: TokenStream) -> np.ndarray | None:
+    g = s.generator
+    uniforms = step_uniforms(s.rng, g.num_levels)
+    token_ids = np.repeat(s.last[None, None], len(s.uncond), axis=0)
+    position = np.array([s.steps], np.int64)
+    outputs = g.each_level(
+        lambda level: g.run(
+            level, s.prompt, s.uncond, token_ids, position, s.positions, s.caches[level]
+        )
+    )
+    row = s._drawn(_level_logits(g, outputs), uniforms)
+    if row is not None:
+        held = len(s.positions)
+        slot = s._took(row)
+        presents = [present for _, present in outputs]
+        if len(s.positions) > held:
+            s.caches = presents  # the past and the new slot, as the graph returns them
+        else:  # a full window: the new slot replaces the oldest step's in place
+            for cache, present in zip(s.caches, presents, strict=True):
+                for held, new in zip(cache, present, strict=True):
+                    held[:, :, slot] = new[:, :, -1]
+    return row
+
+
+def _pooled_call(g: TokenGenerator, group: list[TokenStream], bucket, rows) -> list[tuple]:
+    """Every level graph once for `group`, whose caches lie at `rows` of `bucket`: each
+    stream's new slot follows its slots in the call, as in its own cache."""
+    prompt = np.concatenate([s.prompt for s in group])
+    uncond = np.zeros(len(group), bool)
+    token_ids = np.stack([s.last for s in group])[:, None]
+    query = np.array([[s.steps] for s in group], np.int64)
+    slots = np.array([[len(s.positions)] for s in group], np.int64)
+    # the call copies the slots it reads (in the graph): where the group uses less than
+    # SHORT of its bucket (new streams, fresh clips), a copy of just those slots costs less
+    used = int(slots.max()) + 1
+    cut = slice(None) if used > SHORT * bucket.capacity else slice(0, used)
+    keys = bucket.positions[rows, cut].copy()
+    keys[np.arange(len(group)), slots[:, 0]] = query[:, 0]
+    return g.each_level(
+        lambda level: g.run(
+            level,
+            prompt,
+            uncond,
+            token_ids,
+            query,
+            keys,
+            [np.ascontiguousarray(held[rows, :, cut]) for held in bucket.arrays[level]],
+            slots,
+        )
+    )
+
+
+def _step_pooled(members: list[TokenStream]) -> list[np.ndarray | None]:
+    """One call of each level graph per pool bucket: the rows where they lie in the pool, each
+    with its own positions; each stream samples its row, and its new slot goes into the pool."""
+    g = members[0].generator
+    pool = g.pool
+    drawn: list[np.ndarray | None] = [None] * len(members)
+    for s in members:
+        pool.reserve(s, len(s.positions) + 1)
+    for bucket, ks, rows in pool.groups(members):
+        group = [members[k] for k in ks]
+        uniforms = [step_uniforms(s.rng, g.num_levels) for s in group]
+        outputs = _pooled_call(g, group, bucket, rows)
+        rows = _sampled_together(group, _level_logits(g, outputs), uniforms)
+        took, slots = [], []
+        for i, (k, s, row) in enumerate(zip(ks, group, rows, strict=True)):
+            drawn[k] = s._ends(row)
+            if drawn[k] is not None:
+                took.append(i)
+                slots.append(s._took(drawn[k]))
+        new = [[present[took] for present in presents] for _, presents in outputs]
+        pool.write([group[i] for i in took], slots, new)
     return drawn
+
+
+def _sampled_together(
+    group: list[TokenStream], logits: np.ndarray, uniforms: list[np.ndarray]
+) -> list[np.ndarray]:
+    """Each stream's tokens (L,) from its logits (row i of (rows, L, C)): the streams of one
+    Sampling in one choose_tokens call, which treats each row alone (the same tokens as one
+    call per stream, in a few numpy calls for all)."""
+    levels = logits.shape[1]
+    rows: list[np.ndarray] = [None] * len(group)  # type: ignore[list-item]
+    by_sampling: dict[Sampling, list[int]] = {}
+    for i, s in enumerate(group):
+        by_sampling.setdefault(s.sampling, []).append(i)
+    for sampling, members in by_sampling.items():
+        drawn = choose_tokens(
+            logits[members].reshape(len(members) * levels, -1),
+            None,
+            np.concatenate([uniforms[i] for i in members]),
+            sampling,
+            [token for i in members for token in group[i]._forbid()],
+        ).reshape(len(members), levels)
+        for i, row in zip(members, drawn, strict=True):
+            rows[i] = row
+    return rows
 
 
 def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:
@@ -416,10 +547,11 @@ def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:
     return sorted((sorted(members) for _, members in loads if members), key=lambda m: m[0])
 
 
-def _cache_shape(session, path) -> tuple[int, int, int]:
+def _cache_shape(session, path, pooled: bool = False) -> tuple[int, int, int]:
     """(layers, heads, head_dim) of a level graph: its past inputs, key and value per layer,
-    are (batch, heads, past, head_dim) with heads and head_dim fixed."""
-    pasts = session.get_inputs()[len(LEVEL_INPUTS) :]
+    are (batch, heads, past, head_dim) with heads and head_dim fixed (pooled: `slots` last)."""
+    inputs = session.get_inputs()
+    pasts = inputs[len(LEVEL_INPUTS) : len(inputs) - pooled]
     shape = pasts[0].shape if pasts else []
     if (
         not pasts

@@ -1,25 +1,20 @@
 """The server's streams on one clock: who steps when, and the frames that come out.
 
 A served stream is a MotionStream (re-anchored, mogo.anchoring), the same stream as
-`mogo stream`'s: its level graphs are only made row-wise (mogo.serve.rowwise) so that streams
-can share a call without their numbers mixing. Every stream is paced to real time on a shared
-tick (one token step per frame, `fps` ticks a second), LEAD steps ahead so that its frames
-leave before they are due. A new stream catches up at once (its first frame comes after the
-decoder's lookahead), then steps on the shared ticks with all the others. Streams whose caches
-have one layout share one call of each level graph (mogo.token_generator.step_together): a
-re-anchored cache is the prefix and the steps since its clip started, so that is streams at
-the same step of their clips. A stream on its clock takes a step more to join a larger group
-a little ahead, or waits a tick for one behind (its lead between LEAD and LEAD +
-ALIGN_STEPS): fresh clips and holds start at the model's own times and scatter the streams
-again and again. The windows due are decoded in one call
-(mogo.stream_decoder.push_many). Not thread-safe: the server calls it from one thread.
+`mogo stream`'s: its level graphs are only rewritten (mogo.serve.pooled) so that streams at any
+step of their clips share a call without their numbers mixing, their caches rows of one pool
+(mogo.kv_pool). Every stream is paced to real time on a shared tick (one token step per frame,
+`fps` ticks a second), `lead` steps ahead so that its frames leave before they are due. A new
+stream catches up at once (its first frame comes after the decoder's lookahead), in rounds
+shared with every other new stream, its first round with the running streams too. The windows
+due are decoded in one call (mogo.stream_decoder.push_many). Not thread-safe: the server calls
+it from one thread.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -29,14 +24,13 @@ from mogo.anchoring import Anchoring
 from mogo.generator import MotionGenerator, MotionStream
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.serve.interior import interior_session
-from mogo.serve.rowwise import rowwise_graph
+from mogo.serve.pooled import pooled_graph, pooled_levels
 from mogo.stream_decoder import push_many
 from mogo.stream_state import State
 from mogo.token_generator import TokenGenerator, step_together
 
-ALIGN_STEPS = 24  # extra lead a stream may take to join a larger group (1.2 s at most)
-SHARD_FROM = 16  # due streams from which a round runs as two shards: a second call of each
-# level graph costs ~2 ms of CPU more a round, and below this one core keeps real time easily
+SHARD_FROM = 16  # due streams from which a round runs its two shards on two threads: a
+# thread hand-off costs more than it gains for a few streams
 
 
 class ServedStream(MotionStream):
@@ -55,7 +49,12 @@ class ServedStream(MotionStream):
         """`resumed`: a stream state (mogo.stream_state) to go on from, read and checked."""
         g = engine.generator
         # guided: alone on the bundle's own graphs, which quantise its two rows (conditional
-        # and not) together, as MotionStream's do; the row-wise graphs would not
+        # and not) together, as MotionStream's do; the row-wise graphs would not. The others
+        # go to the first shard while a round runs whole (one call per bucket, not two), then
+        # to the shard with fewer streams.
+        few = len(engine.streams) < SHARD_FROM
+        shards = engine.shards[:1] if few else engine.shards
+        self.shard = None if sampling.guided else min(shards, key=lambda t: len(t.pool))
         super().__init__(
             g,
             prompt,
@@ -64,13 +63,17 @@ class ServedStream(MotionStream):
             resumed.window if resumed else g.defaults.window,
             plant_feet,
             resumed.anchoring if resumed else Anchoring(),
-            tokens=None if sampling.guided else engine.tokens,
+            # a restored cache is made in a pool of its own, off the engine's thread; `resume`
+            # moves it into the shard's on that thread
+            tokens=self.shard
+            if resumed is None or self.shard is None
+            else self.shard.with_own_pool(),
             decoder_session=engine.decoder_session,
         )
         if resumed is not None:
             resumed.restore(self)
         self.id = next(engine._ids)
-        self.start_tick, self.extra = start_tick, 0
+        self.start_tick = start_tick
         self.send_from = 0  # frames before this one are not sent (a resume's client has them)
 
     @property
@@ -85,20 +88,21 @@ class Engine:
     def __init__(
         self, generator: MotionGenerator, threads: int = 1, tokens: TokenGenerator | None = None
     ):
-        """`tokens`: the bundle's level graphs made row-wise (mogo.serve.rowwise); None makes
-        them."""
+        """`tokens`: the bundle's level graphs pooled (mogo.serve.pooled); None makes them.
+        Each shard (two with `threads` > 1) has its own pool over the same sessions."""
         self.generator = generator
         manifest = generator.manifest
         levels = manifest.t2m.levels
         if tokens is None:
             tokens = TokenGenerator(
-                [rowwise_graph(generator.bundle.path(g.file)) for g in levels],
-                levels,
+                [pooled_graph(generator.bundle.path(g.file)) for g in levels],
+                pooled_levels(levels),
                 manifest.end_token,
                 intra_op_threads=1,  # the shards run in parallel
-                rows_apart=True,
+                pooled=True,
             )
         self.tokens = tokens
+        self.shards = [tokens.with_own_pool() for _ in range(2 if threads > 1 else 1)]
         self.fps = generator.fps
         decoder = manifest.vq.decoder
         # one thread a call: the shards fill the cores, and a second intra-op thread measured
@@ -143,44 +147,25 @@ class Engine:
         ahead = max(0, send_from - stream.frames_emitted) // self.generator.down_factor
         stream.start_tick = self.tick(now) - stream.steps - ahead
         stream.send_from = send_from
+        if stream.shard is not None:
+            stream.tokens.move_to(stream.shard)
         self.streams[stream.id] = stream
 
     def switch(self, stream: ServedStream, prompt: str) -> None:
         stream.switch_prompt(prompt)
 
     def close(self, stream: ServedStream) -> None:
-        self.streams.pop(stream.id, None)
+        if self.streams.pop(stream.id, None) is not None and stream.shard is not None:
+            stream.shard.pool.remove(stream.tokens)
 
     def due(self, now: float) -> list[ServedStream]:
-        """The streams behind their target at `now`, and those that take an extra step to
-        share the calls of more streams (`_joins`)."""
+        """The streams behind their target at `now`."""
         tick = self.tick(now)
-        steps = Counter(s.tokens.steps for s in self.streams.values())
-        due = []
-        for stream in self.streams.values():
-            target = self.lead + stream.extra + tick - stream.start_tick
-            if stream.steps >= target - 1:  # on its clock: it may move towards a group
-                move = self._move(stream, steps, stream.steps >= target)
-                stream.extra += move
-                target += move
-            if stream.steps < target:
-                due.append(stream)
-        return due
-
-    def _move(self, stream: ServedStream, steps: Counter, idle: bool) -> int:
-        """+1: a step beyond the clock (when `idle`) towards a larger group ahead in their
-        clips; -1: a tick's wait (when due) for a larger group behind; 0: neither. The lead
-        stays between `lead` and `lead` + ALIGN_STEPS: clips restart at the model's own
-        times, so a stream moves again and again."""
-        n = stream.tokens.steps
-        if idle:
-            room = range(n + 1, n + 1 + ALIGN_STEPS - stream.extra)
-        else:
-            room = range(n - stream.extra, n)
-        larger = [count for m, count in steps.items() if m in room]
-        if not larger or max(larger) < steps[n] + (0 if idle else 1):
-            return 0
-        return 1 if idle else -1
+        return [
+            stream
+            for stream in self.streams.values()
+            if stream.steps < self.lead + tick - stream.start_tick
+        ]
 
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         """One step of each stream in `due`: (stream, index of its first new frame, joints
@@ -190,9 +175,9 @@ class Engine:
         # two shards, each its own calls, sampling and decoding, on two threads: onnxruntime
         # releases the GIL, so one shard's graphs run beside the other's Python. A stream's
         # numbers do not depend on its shard (rows never mix).
-        half = len(due) // 2
-        other = self._pool.submit(self._step, due[half:])
-        return self._step(due[:half]) + other.result()
+        second = self.shards[1]
+        other = self._pool.submit(self._step, [s for s in due if s.shard is second])
+        return self._step([s for s in due if s.shard is not second]) + other.result()
 
     def _step(self, due: list[ServedStream]) -> list[tuple]:
         """MotionStream.step for many streams: the token rows of one layout drawn in one call,

@@ -1,8 +1,6 @@
 """Served streams on the engine's clock: the tokens of `mogo stream` for the same prompt, seed
 and switches, whatever else runs; a switch changes what a stream does, a burst of new streams
-all start, streams at one step of their clips share one call of each level graph."""
-
-from collections import Counter
+all start, streams at any step of their clips share one call of each level graph."""
 
 import numpy as np
 import pytest
@@ -10,7 +8,7 @@ import pytest
 pytest.importorskip("onnx")
 
 from mogo.serve import engine as engine_module
-from mogo.serve.engine import ALIGN_STEPS, Engine
+from mogo.serve.engine import Engine
 from mogo.token_generator import TokenGenerator, step_together
 
 
@@ -23,6 +21,7 @@ def served(engine, prompts: dict[int, str], seed: int, steps: int) -> np.ndarray
             engine.switch(stream, prompts[stream.steps])
         frames += [joints for _, _, joints in engine.round([stream])]
     engine.close(stream)
+    assert not any(len(shard.pool) for shard in engine.shards)  # its cache's row freed
     return np.concatenate(frames)
 
 
@@ -148,24 +147,27 @@ def test_a_served_stream_gives_mogo_streams_frames_feet_planted_or_not(generator
         np.testing.assert_allclose(served, expected, atol=1e-5)
 
 
-def test_streams_at_one_step_share_one_call_of_each_level_graph(
+def test_streams_at_any_step_share_one_call_of_each_level_graph(
     generator, engine_parts, monkeypatch
 ):
-    """Each round draws its rows with one call of each level graph for each step of their
-    clips the due streams are at. Four streams start together; one 0.3 s later takes extra
-    steps to join them."""
-    calls: list[int] = []
+    """Each round draws its rows with one call of each level graph per pool bucket
+    (mogo.kv_pool) its streams are in, whatever steps of their clips they are at. Four
+    streams start together; one 0.3 s later catches up in calls of its own, then steps in
+    theirs at another step of its clip."""
+    calls: list[tuple[int, tuple]] = []
     run = TokenGenerator.run
 
-    def counted(self, level, prompt, *args):
-        calls.append(len(prompt))
-        return run(self, level, prompt, *args)
+    def counted(self, level, prompt, uncond, token_ids, positions, *args):
+        if positions.ndim == 2:  # a step (a prefill has one vector of positions)
+            calls.append((level, tuple(positions[:, 0])))
+        return run(self, level, prompt, uncond, token_ids, positions, *args)
 
     def drawn_counted(streams):
         calls.clear()
-        groups = Counter(s.layout for s in streams)  # token streams
+        steps = [s.steps for s in streams]
         drawn = step_together(streams)
-        rounds.append((groups, list(calls)))
+        buckets = {s.generator.pool.place[id(s)][0].capacity for s in streams}
+        rounds.append((steps, buckets, list(calls)))
         return drawn
 
     monkeypatch.setattr(TokenGenerator, "run", counted)
@@ -182,7 +184,33 @@ def test_streams_at_one_step_share_one_call_of_each_level_graph(
             engine.round(due)
         now = round(now + (0 if due else 0.05), 6)
     levels = generator.tokens.num_levels
-    for groups, made in rounds:
-        assert sorted(made) == sorted(n for n in groups.values() for _ in range(levels))
-    assert 0 < streams[-1].extra <= ALIGN_STEPS
-    assert sum(made == [5] * levels for _, made in rounds) > 10  # the late stream joined
+    for steps, buckets, made in rounds:
+        for level in range(levels):
+            at = [a for lv, a in made if lv == level]
+            assert len(at) <= len(buckets)  # one call per bucket (a fresh clip's own step
+            assert sorted(sum(at, ())) == sorted(steps)  # comes after the round)
+    together = [at for _, _, made in rounds for _, at in made if len(at) == 5]
+    assert any(len(set(at)) > 1 for at in together)  # five streams at other steps, one call
+
+
+@pytest.mark.parametrize("window", [8, None], ids=["ring-window", "no-window"])
+def test_a_pooled_stream_draws_what_it_draws_on_its_own_cache(generator, engine_parts, window):
+    """The pool (mogo.kv_pool) against the bundle's own graphs: a full window's ring of slots,
+    rows moving to larger buckets and back after a restart, a re-prefill at a switch, other
+    streams in the same calls at other steps."""
+    sampling = generator.sampling(None)
+    walk, wave = generator.embed(["a person walks forward.", "a person waves."])
+    tokens = engine_parts.with_own_pool()
+    pooled = tokens.start(walk, 7, sampling, window, allow_end=False)
+    others = [tokens.start(wave, seed, sampling, None, allow_end=False) for seed in range(2)]
+    own = generator.tokens.start(walk, 7, sampling, window, allow_end=False)
+    for n in range(75):
+        if n == 30:
+            pooled.set_prompt(wave)
+            own.set_prompt(wave)
+        if n == 50:
+            pooled.restart()
+            own.restart()
+        rows = step_together([pooled, *others[: n % 3]])
+        assert np.array_equal(rows[0], own.step()), f"step {n}"
+    assert len(tokens.pool.buckets) >= 2  # rows moved to a larger bucket
