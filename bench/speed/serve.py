@@ -1,4 +1,4 @@
-"""`mogo bench-serve`: how many characters `mogo serve` streams in real time on this machine.
+"""`mogo bench serve`: how many characters `mogo serve` streams in real time on this machine.
 
 Starts `mogo serve` in its own process and the clients in another (so the server's event loop
 and the clients' never share a process), warms the server, then:

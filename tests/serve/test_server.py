@@ -270,7 +270,7 @@ def test_a_stream_gives_the_same_frames_alone_and_among_others(
 def test_the_benchmark_client_counts_every_frame_in_either_encoding(
     generator, engine_parts, binary
 ):
-    """`mogo bench-serve`'s client (mogo.bench.speed.serve.client): one arrival time per frame,
+    """`mogo bench serve`'s client (mogo.bench.speed.serve.client): one arrival time per frame,
     from JSON bursts or binary ones, whatever their size."""
     from mogo.bench.speed.serve import client
 
