@@ -42,7 +42,7 @@ from mogo.bench.quality.stream_checks import (
     reaction_frames,
     window_passes,
 )
-from mogo.bench.speed.plot import log_line_chart
+from mogo.bench.speed.plot import bar_chart, log_line_chart
 from mogo.progress import Progress
 
 WINDOW = 10 * FPS  # frames of a judged window
@@ -396,19 +396,51 @@ def action_table(result: dict) -> str:
         cells = " | ".join(_cell(rows[c], action) for c in columns)
         lines.append(f"| {action.name}{kind} | {action.prompt} | {cells} |")
     for title, continuing in (("all continuing", True), ("all one-off holds", False)):
-        cells = [
-            _share(
-                [
-                    p
-                    for r in rows[c]
-                    if _by_name(r["action"]).continuing == continuing
-                    for p in (r["passes"] if continuing else r["passes"][1:])
-                ]
-            )
-            for c in columns
-        ]
+        cells = [_share(_window_verdicts(rows[c], continuing)) for c in columns]
         lines.append(f"| **{title}** | | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _window_verdicts(rows: list[dict], continuing: bool) -> list[bool]:
+    """The verdicts of the windows of the action streams `rows` of continuing actions, or of
+    one-off actions' holds (their first window, the action, left out)."""
+    return [
+        p
+        for r in rows
+        if _by_name(r["action"]).continuing == continuing
+        for p in (r["passes"] if continuing else r["passes"][1:])
+    ]
+
+
+def _one_offs_under_way(rows: list[dict]) -> list[bool]:
+    return [r["reaction"] is not None and r["reaction"] <= ONE_OFF_SECONDS * FPS for r in rows]
+
+
+def _switches_under_way(rows: list[dict]) -> list[bool]:
+    return [r is not None and r <= PROMPT_SECONDS * FPS for s in rows for r in s["reactions"]]
+
+
+def paths_plot(result: dict, path: Path) -> None:
+    """The headline shares side by side per path (bars): continuing actions' windows passing,
+    one-off holds' windows, one-off actions under way within ONE_OFF_SECONDS, switches within
+    PROMPT_SECONDS."""
+    measures = {
+        "continuing: windows passing": lambda c: _window_verdicts(_kind(result, "action", c), True),
+        "one-off holds: windows passing": lambda c: _window_verdicts(
+            _kind(result, "action", c), False
+        ),
+        f"one-off under way within {ONE_OFF_SECONDS:g} s": lambda c: _one_offs_under_way(
+            _kind(result, "one-off", c)
+        ),
+        f"switch under way within {PROMPT_SECONDS:g} s": lambda c: _switches_under_way(
+            _kind(result, "switches", c)
+        ),
+    }
+    groups = {
+        c: {name: 100 * float(np.mean(flags)) for name, f in measures.items() if (flags := f(c))}
+        for c in result["columns"]
+    }
+    bar_chart(path, "long streams on every path", "% passing", groups)
 
 
 def one_off_table(result: dict) -> str:
@@ -424,7 +456,7 @@ def one_off_table(result: dict) -> str:
     ]
 
     def within(rows: list[dict]) -> str:
-        ok = [r["reaction"] is not None and r["reaction"] <= ONE_OFF_SECONDS * FPS for r in rows]
+        ok = _one_offs_under_way(rows)
         return f"{sum(ok)}/{len(ok)}"
 
     names = [a.name for a in REPERTOIRE if not a.continuing]
@@ -556,12 +588,17 @@ def plot(result: dict, path: Path) -> None:
 
 
 def merged(paths: list[str]) -> dict:
-    """Saved runs (long_streams.json) as one result, e.g. a run of each path."""
+    """Saved runs (long_streams.json) as one result, e.g. a run of each path. A motion in
+    several runs (the same path, kind, action and seed: the reference stream beside each) is
+    counted once."""
     runs = [json.loads(Path(path).read_text()) for path in paths]
+    rows: dict[tuple, dict] = {}
+    for row in (row for r in runs for row in r["rows"]):
+        rows.setdefault((row["column"], row["kind"], row["action"], row["seed"]), row)
     return dict(
         columns=list(dict.fromkeys(c for r in runs for c in r["columns"])),
         lengths={c: v for r in runs for c, v in r["lengths"].items()},
-        rows=[row for r in runs for row in r["rows"]],
+        rows=list(rows.values()),
         agreement={c: v for r in runs for c, v in r["agreement"].items()},
     )
 
@@ -604,4 +641,8 @@ def main(args: argparse.Namespace) -> None:
     (out / "long_streams.md").write_text(text)
     (out / "long_streams.json").write_text(json.dumps(result, indent=1))
     plot(result, out / "long_streams.png")
-    print(f"wrote {out}/long_streams.md, .json and .png")
+    written = "long_streams.md, .json and .png"
+    if len(result["columns"]) > 1:
+        paths_plot(result, out / "long_streams_paths.png")
+        written += ", long_streams_paths.png"
+    print(f"wrote {written} in {out}")

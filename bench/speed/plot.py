@@ -1,6 +1,6 @@
-"""A small line chart as a PNG with pillow alone (no plotting library to install): log-log
-axes (or linear ones), one coloured line per series, a legend. Enough to see how step time
-grows with the cache."""
+"""Small charts as PNGs with pillow alone (no plotting library to install): a line chart on
+log-log axes (or linear ones), one coloured line per series, a legend (enough to see how step
+time grows with the cache); grouped bars (the same measures side by side per path)."""
 
 from __future__ import annotations
 
@@ -83,6 +83,47 @@ def log_line_chart(
             [(WIDTH - RIGHT + 15, legend_y + 6), (WIDTH - RIGHT + 35, legend_y + 6)],
             fill=colour,
             width=3,
+        )
+        draw.text((WIDTH - RIGHT + 40, legend_y - 1), name, fill="black", font=FONT)
+    image.save(path, optimize=True)
+
+
+def bar_chart(path: Path, title: str, y_label: str, groups: dict[str, dict[str, float]]) -> None:
+    """Grouped bars on a linear axis from 0: groups[group][series] = value (>= 0), one colour
+    per series (the legend), each value written above its bar."""
+    names = list(dict.fromkeys(name for bars in groups.values() for name in bars))
+    values = [v for bars in groups.values() for v in bars.values()]
+    if not values:
+        raise ValueError("nothing to plot")
+    low, high, unit = _linear(0.0, 1.08 * max(values))  # room for the values over the bars
+    image = Image.new("RGB", (WIDTH, HEIGHT), "white")
+    draw = ImageDraw.Draw(image)
+    plot_w, plot_h = WIDTH - LEFT - RIGHT, HEIGHT - TOP - BOTTOM
+    for tick in np.arange(low, high + unit / 2, unit):
+        py = TOP + (1 - tick / high) * plot_h
+        draw.line([(LEFT, py), (LEFT + plot_w, py)], fill="#dddddd")
+        draw.text((8, py - 7), _label(tick), fill="black", font=FONT)
+    group_w = plot_w / len(groups)
+    bar_w = 0.8 * group_w / len(names)
+    for g, (group, bars) in enumerate(groups.items()):
+        left = LEFT + g * group_w + 0.1 * group_w
+        for k, name in enumerate(names):
+            if name not in bars:
+                continue
+            x0, py = left + k * bar_w, TOP + (1 - bars[name] / high) * plot_h
+            draw.rectangle([x0, py, x0 + bar_w - 2, TOP + plot_h], fill=COLOURS[k % len(COLOURS)])
+            text = f"{bars[name]:.0f}"
+            draw.text((x0 + (bar_w - FONT.getlength(text)) / 2, py - 13), text, "black", FONT)
+        for row, line in enumerate(group.split(", ")):  # a long name on lines of its own
+            draw.text((left, TOP + plot_h + 6 + 13 * row), line, fill="black", font=FONT)
+    draw.rectangle([LEFT, TOP, LEFT + plot_w, TOP + plot_h], outline="black")
+    draw.text((LEFT, 2), title, fill="black", font=FONT)
+    draw.text((8, TOP - 19), y_label, fill="black", font=FONT)
+    for k, name in enumerate(names):
+        legend_y = TOP + 16 * k
+        colour = COLOURS[k % len(COLOURS)]
+        draw.rectangle(
+            [WIDTH - RIGHT + 15, legend_y + 1, WIDTH - RIGHT + 35, legend_y + 11], fill=colour
         )
         draw.text((WIDTH - RIGHT + 40, legend_y - 1), name, fill="black", font=FONT)
     image.save(path, optimize=True)

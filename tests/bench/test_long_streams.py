@@ -55,6 +55,7 @@ def test_every_path_plays_the_schedules_it_can_with_motionstreams_frames(tmp_pat
         "one-off": {"stream, anchoring on", "play", "continue", "serve"},
     }
     assert all(r["reaction"] is not None for r in result["rows"] if r["kind"] == "one-off")
+    assert Image.open(tmp_path / "long_streams_paths.png").size[0] > 0
     agreement = result["agreement"]  # every motion compared keeps MotionStream's frames
     assert {c: (a["motions"], a["agree"]) for c, a in agreement.items()} == {
         "generate": (2, 2),
