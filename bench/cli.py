@@ -1,5 +1,5 @@
 """`mogo bench WHAT`, the measuring side: latency (torch for the step tables), quick, serve,
-long-streams, eval and real-motion (runtime only). mogo.cli adds them through the
+deploy, long-streams, eval and real-motion (runtime only). mogo.cli adds them through the
 "mogo.commands" entry point; the verbs they were before still run for a release."""
 
 from __future__ import annotations
@@ -37,6 +37,17 @@ def _cmd_bench_serve(args: argparse.Namespace) -> None:
         raise CliError("--clients and --burst take numbers >= 1, --seconds > 0, --spread >= 0")
     require_serve_extra()
     from mogo.bench.speed.serve import main_from_args
+
+    main_from_args(args)
+
+
+def _cmd_deploy(args: argparse.Namespace) -> None:
+    from mogo.serve.cli import require_serve_extra
+
+    if min(args.clients + args.workers) < 1 or args.seconds <= 0:
+        raise CliError("--clients and --workers take numbers >= 1, --seconds > 0")
+    require_serve_extra()
+    from mogo.bench.speed.deploy import main_from_args
 
     main_from_args(args)
 
@@ -130,6 +141,13 @@ def add_commands(commands) -> list[OldSpelling]:
             _cmd_bench_serve,
             "how many characters `mogo serve` streams in real time: N WebSocket clients at "
             "once, frame rate, lateness, CPU",
+        ),
+        (
+            "deploy",
+            _deploy_arguments,
+            _cmd_deploy,
+            "the cost of resuming a stream (docs/deploy.md), and characters in real time "
+            "against `mogo serve --workers`",
         ),
         (
             "long-streams",
@@ -241,6 +259,23 @@ def _serve_arguments(serve: argparse.ArgumentParser) -> None:
         help="no server: where the CPU of a stream step goes, N streams past "
         "warm-up, one thread, cProfile (a table)",
     )
+
+
+def _deploy_arguments(deploy: argparse.ArgumentParser) -> None:
+    deploy.add_argument(
+        "--workers", type=int, nargs="+", default=[1, 2], help="worker counts (default 1 2)"
+    )
+    deploy.add_argument(
+        "--clients",
+        type=int,
+        nargs="+",
+        default=[4, 8, 12, 16, 24],
+        help="client counts for each worker count (default 4 8 12 16 24)",
+    )
+    deploy.add_argument(
+        "--seconds", type=float, default=10.0, help="how long each count streams (default 10)"
+    )
+    add_out(deploy, "folder for deploy_bench.json", default="bench_out")
 
 
 def _long_streams_arguments(streams: argparse.ArgumentParser) -> None:

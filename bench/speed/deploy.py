@@ -1,7 +1,5 @@
-"""Beyond one process (docs/deploy.md): characters `mogo serve` streams in real time against
+"""`mogo bench deploy` (docs/deploy.md): characters `mogo serve` streams in real time against
 its number of server processes (`--workers`), and what resuming a stream costs.
-
-    python -m mogo.bench.speed.deploy [--workers 1 2] [--clients 4 8 12 16 24] [--seconds 10]
 
 - processes: for each worker count W, `mogo serve --workers W` in its own process and the
   clients in another, measured as `mogo bench serve` measures a count (mogo.bench.speed.serve:
@@ -16,61 +14,31 @@ its number of server processes (`--workers`), and what resuming a stream costs.
 
 from __future__ import annotations
 
-import argparse
 import json
 import multiprocessing
-import os
-import signal
-import subprocess
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from mogo.bench.speed.serve import PROMPTS, WARM_CLIENTS, free_port, measure
+from mogo.bench.speed.serve import PROMPTS, WARM_CLIENTS, measure, serving
 
 SPREAD = 2.0  # seconds the clients of a count arrive over
 
 
-def tree_cpu(pid: int) -> float:
-    """User + system CPU seconds of a process and its children (Linux /proc)."""
-    total = 0.0
-    for task in [pid, *_children(pid)]:
-        fields = Path(f"/proc/{task}/stat").read_text().rsplit(")", 1)[1].split()
-        total += int(fields[11]) + int(fields[12])
-    return total / os.sysconf("SC_CLK_TCK")
-
-
-def _children(pid: int) -> list[int]:
-    path = Path(f"/proc/{pid}/task/{pid}/children")
-    return [int(p) for p in path.read_text().split()] if path.exists() else []
-
-
 def processes(workers: int, clients: list[int], seconds: float) -> list[dict]:
     """One row per client count, for `mogo serve --workers workers`."""
-    port = free_port()
-    command = [sys.executable, "-m", "mogo", "serve", "--port", str(port), "--workers"]
-    command += [str(workers), "--max-streams", str(max(clients))]
-    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
-    base = f"http://127.0.0.1:{port}"
     rows = []
-    try:
-        if "mogo serve:" not in server.stderr.readline():
-            raise RuntimeError("mogo serve did not start")
-        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
-            measure(pool, base, server.pid, WARM_CLIENTS * workers, 4.0, 0.0)  # warm each
-            for n in clients:
-                cpu, wall = tree_cpu(server.pid), time.monotonic()
-                row = measure(pool, base, server.pid, n, seconds, SPREAD)
-                row["cpu_cores"] = (tree_cpu(server.pid) - cpu) / (time.monotonic() - wall)
-                rows.append(dict(row, workers=workers))
-                print(table(rows[-1:]).splitlines()[-1], flush=True)
-                time.sleep(1.0)  # health asks one worker: let the others free their streams
-    finally:
-        server.send_signal(signal.SIGTERM)
-        server.wait(timeout=60)
+    with (
+        serving(None, max(*clients, WARM_CLIENTS * workers), workers=workers) as (base, pid),
+        ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool,
+    ):
+        measure(pool, base, pid, WARM_CLIENTS * workers, 4.0, 0.0)  # warm each worker
+        for n in clients:
+            rows.append(dict(measure(pool, base, pid, n, seconds, SPREAD), workers=workers))
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
+            time.sleep(1.0)  # health asks one worker: let the others free their streams
     return rows
 
 
@@ -140,13 +108,7 @@ def resume_table(r: dict) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(prog="python -m mogo.bench.speed.deploy")
-    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    parser.add_argument("--clients", type=int, nargs="+", default=[4, 8, 12, 16, 24])
-    parser.add_argument("--seconds", type=float, default=10.0)
-    parser.add_argument("--out", default="bench/results/deploy")
-    args = parser.parse_args()
+def main_from_args(args) -> None:
     resume = resume_cost()
     print(resume_table(resume), flush=True)
     rows = [row for w in args.workers for row in processes(w, args.clients, args.seconds)]
@@ -161,7 +123,3 @@ def main() -> None:
     )
     print(table(rows))
     print("largest count in real time, by workers:", largest)
-
-
-if __name__ == "__main__":
-    main()

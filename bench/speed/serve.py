@@ -81,12 +81,12 @@ def free_port() -> int:
 
 
 @contextmanager
-def serving(bundle: str | None, max_streams: int, threads: int | None = None):
+def serving(bundle: str | None, max_streams: int, threads: int | None = None, workers: int = 1):
     """`mogo serve` in its own process on a free loopback port, for the `with` block: yields
-    its base URL and process id."""
+    its base URL and process id (with `workers` > 1, the parent of its workers)."""
     port = free_port()
     command = [sys.executable, "-m", "mogo", "serve", "--port", str(port)]
-    command += ["--max-streams", str(max_streams)]
+    command += ["--max-streams", str(max_streams), "--workers", str(workers)]
     command += ["--threads", str(threads)] if threads else []
     command += ["--bundle", bundle] if bundle else []
     server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
@@ -100,9 +100,14 @@ def serving(bundle: str | None, max_streams: int, threads: int | None = None):
 
 
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process so far (Linux /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """User + system CPU seconds so far of a process and its children (`mogo serve --workers`:
+    the workers; Linux /proc)."""
+    children = Path(f"/proc/{pid}/task/{pid}/children")
+    total = 0
+    for task in [pid, *(map(int, children.read_text().split()) if children.exists() else [])]:
+        fields = Path(f"/proc/{task}/stat").read_text().rsplit(")", 1)[1].split()
+        total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
 
 
 async def client(
