@@ -120,59 +120,7 @@ def add_commands(commands) -> list[OldSpelling]:
         "bench", help="measurements: speed, serving, long streams, quality (docs/performance.md)"
     )
     whats = bench.add_subparsers(dest="bench_command", required=True, metavar="WHAT")
-    for name, arguments, run, what in (
-        (
-            "latency",
-            _latency_arguments,
-            _cmd_latency,
-            "the bundle through the runtime, and one step of the bundle-size and paper-size "
-            "models on onnxruntime fp32/int8 and torch eager",
-        ),
-        (
-            "quick",
-            _quick_arguments,
-            _cmd_quick,
-            "under a minute, no torch: this machine's CPU features, first frame, 9.8-s clip "
-            "and token step beside the README's",
-        ),
-        (
-            "serve",
-            _serve_arguments,
-            _cmd_bench_serve,
-            "how many characters `mogo serve` streams in real time: N WebSocket clients at "
-            "once, frame rate, lateness, CPU",
-        ),
-        (
-            "deploy",
-            _deploy_arguments,
-            _cmd_deploy,
-            "the cost of resuming a stream (docs/deploy.md), and characters in real time "
-            "against `mogo serve --workers`",
-        ),
-        (
-            "long-streams",
-            _long_streams_arguments,
-            _cmd_long_streams,
-            "do long streams keep doing what they were asked? every action of the "
-            "repertoire on each path (MotionStream with re-anchoring off and on, generate, "
-            "play, continue_from, serve; no torch)",
-        ),
-        (
-            "eval",
-            _eval_arguments,
-            _cmd_eval,
-            "a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "
-            "MultiModality (no torch)",
-        ),
-        (
-            "real-motion",
-            _real_motion_arguments,
-            _cmd_real_motion,
-            "the bundle's VQ on real human motion: pybullet's 20 DeepMimic clips (its wheel "
-            "fetched by pip into a cache, never installed), MPJPE per clip split into pose "
-            "and trajectory, GIFs and a contact sheet",
-        ),
-    ):
+    for name, arguments, run, what in WHATS:
         command = whats.add_parser(name, help=what)
         arguments(command)
         command.set_defaults(run=run)
@@ -373,3 +321,58 @@ def _real_motion_arguments(real: argparse.ArgumentParser) -> None:
         default=str(Path.home() / ".cache" / "mogo" / "pybullet"),
         help="where the pybullet wheel is kept between runs",
     )
+
+
+WHATS = (  # name, its arguments, what runs it, its help line
+    (
+        "latency",
+        _latency_arguments,
+        _cmd_latency,
+        "the bundle through the runtime, and one step of the bundle-size and paper-size "
+        "models on onnxruntime fp32/int8 and torch eager",
+    ),
+    (
+        "quick",
+        _quick_arguments,
+        _cmd_quick,
+        "under a minute, no torch: this machine's CPU features, first frame, 9.8-s clip "
+        "and token step beside the README's",
+    ),
+    (
+        "serve",
+        _serve_arguments,
+        _cmd_bench_serve,
+        "how many characters `mogo serve` streams in real time: N WebSocket clients at "
+        "once, frame rate, lateness, CPU",
+    ),
+    (
+        "deploy",
+        _deploy_arguments,
+        _cmd_deploy,
+        "the cost of resuming a stream (docs/deploy.md), and characters in real time "
+        "against `mogo serve --workers`",
+    ),
+    (
+        "long-streams",
+        _long_streams_arguments,
+        _cmd_long_streams,
+        "do long streams keep doing what they were asked? every action of the "
+        "repertoire on each path (MotionStream with re-anchoring off and on, generate, "
+        "play, continue_from, serve; no torch)",
+    ),
+    (
+        "eval",
+        _eval_arguments,
+        _cmd_eval,
+        "a bundle's quality on a test split: R-precision, FID, MM-Dist, Diversity, "
+        "MultiModality (no torch)",
+    ),
+    (
+        "real-motion",
+        _real_motion_arguments,
+        _cmd_real_motion,
+        "the bundle's VQ on real human motion: pybullet's 20 DeepMimic clips (its wheel "
+        "fetched by pip into a cache, never installed), MPJPE per clip split into pose "
+        "and trajectory, GIFs and a contact sheet",
+    ),
+)
