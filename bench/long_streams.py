@@ -337,8 +337,8 @@ def _agreement(made: dict[Task, Made]) -> dict[str, dict]:
     schedule and seed, where its switches took effect at the same frames (a served switch
     lands where the client's timing puts it; `continue` plays its first entry as a clip,
     another motion by design): the motions compared, those within AGREE to the end, the
-    largest difference among those (m), and the earliest frame where another one leaves it
-    (a token drawn otherwise at a near tie: the motion goes its own way from there)."""
+    largest difference among those (m), and the frame where each other one leaves it (a
+    token drawn otherwise at a near tie: the motion goes its own way from there)."""
     reference = {
         (t.kind, t.seed, t.schedule): m
         for t, m in made.items()
@@ -351,14 +351,13 @@ def _agreement(made: dict[Task, Made]) -> dict[str, dict]:
             continue
         n = min(len(ref.joints), len(motion.joints))
         gaps = np.abs(motion.joints[:n] - ref.joints[:n]).max(axis=(1, 2))
-        row = out.setdefault(task.column, dict(motions=0, agree=0, largest=0.0, leaves=None))
+        row = out.setdefault(task.column, dict(motions=0, agree=0, largest=0.0, leaves=[]))
         row["motions"] += 1
         if gaps.max() <= AGREE:
             row["agree"] += 1
             row["largest"] = max(row["largest"], float(gaps.max()))
         else:
-            leaves = int(np.argmax(gaps > AGREE))
-            row["leaves"] = leaves if row["leaves"] is None else min(row["leaves"], leaves)
+            row["leaves"].append(int(np.argmax(gaps > AGREE)))
     return out
 
 
@@ -502,8 +501,9 @@ def _agreed(row: dict | None) -> str:
     if row is None:
         return "-"
     text = f"{row['agree']} of {row['motions']} (largest {1000 * row['largest']:.3f} mm)"
-    if row["leaves"] is not None:
-        text += f"; the others leave it at {row['leaves'] / FPS:.1f} s at the earliest"
+    if row["leaves"]:
+        leaves = np.array(row["leaves"]) / FPS
+        text += f"; the others leave it at {leaves.min():.1f} s (median {np.median(leaves):.0f} s)"
     return text
 
 
