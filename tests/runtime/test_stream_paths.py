@@ -67,7 +67,21 @@ def test_continue_from_on_a_re_anchored_stream_starts_a_fresh_clip_from_the_clip
         stream.continue_from(clip)
 
 
-@pytest.mark.parametrize("prompt", ["a person jumps.", "a person turns left."])
+ONE_OFFS = ["a person jumps.", "a person turns left."]
+
+
+def done_within_two_seconds(generator, prompt: str, joints: np.ndarray) -> bool:
+    """The jump (the pelvis well above where it stands) or the turn (over 45 degrees) in the
+    first 2 s of `joints`."""
+    joints = joints[: round(2 * generator.fps)]
+    if "jumps" in prompt:
+        return np.ptp(joints[:, 0, 1]) > 0.15
+    facing = facing_directions(joints, generator.skeleton, facing_sigma=0)
+    angle = np.degrees(np.unwrap(np.arctan2(facing[:, 0], facing[:, 2])))
+    return angle[-1] - angle[0] > 45
+
+
+@pytest.mark.parametrize("prompt", ONE_OFFS)
 def test_a_one_off_after_continue_from_happens_within_two_seconds(generator, prompt):
     """Kept whole, the end of the walk made the model end the one-off at once, and stand."""
     for seed in range(3):
@@ -75,13 +89,21 @@ def test_a_one_off_after_continue_from_happens_within_two_seconds(generator, pro
         stream = generator.stream(prompt, seed=seed)
         stream.continue_from(walk)
         joints = np.array(list(stream.frames(round(2 * generator.fps))))
-        if "jumps" in prompt:  # the pelvis well above where it stands
-            done = np.ptp(joints[:, 0, 1]) > 0.15
-        else:
-            facing = facing_directions(joints, generator.skeleton, facing_sigma=0)
-            angle = np.degrees(np.unwrap(np.arctan2(facing[:, 0], facing[:, 2])))
-            done = angle[-1] - angle[0] > 45
-        assert done, f"seed {seed}: no {prompt!r} within 2 s"
+        assert done_within_two_seconds(generator, prompt, joints), f"seed {seed}: {prompt!r}"
+
+
+@pytest.mark.parametrize("prompt", ONE_OFFS)
+def test_a_one_off_after_a_switch_happens_within_two_seconds(generator, prompt):
+    """From the switch's own frame on (`prompts`: where the new prompt takes over): the switch
+    plays the new prompt, not the old one re-anchored."""
+    for seed in range(3):
+        stream = generator.stream("a person walks forward.", seed=seed)
+        stream.advance(round(4 * generator.fps) // generator.down_factor)
+        stream.set_prompt(prompt)
+        stream.advance(round(3 * generator.fps) // generator.down_factor)
+        motion = stream.finish()
+        after = motion.joints[motion.prompts[1][0] :]
+        assert done_within_two_seconds(generator, prompt, after), f"seed {seed}: {prompt!r}"
 
 
 def test_a_step_after_frames_read_in_part_gives_the_unread_frames_first(generator):
