@@ -171,11 +171,11 @@ def test_a_stream_emits_the_offline_result_of_its_own_frames(generator):
     recorded.advance(100)
     motion = recorded.finish()
     raw = generator.stream("a person walks in a circle.", seed=3, plant_feet=False)
-    raw.advance(100)
+    raw.advance(100 + LOOKAHEAD)  # a cut's last frames are planted with the feet's lookahead
     raw = raw.finish()
-    assert np.array_equal(raw.tokens, motion.tokens)
-    assert np.array_equal(raw.features, motion.features)
-    offline = planted(raw.features, raw.joints, generator.skeleton)
+    assert np.array_equal(raw.tokens[:100], motion.tokens)
+    assert np.array_equal(raw.features[:100], motion.features)
+    offline = planted(raw.features, raw.joints, generator.skeleton)[:100]
     assert np.array_equal(motion.joints, offline)
     assert np.array_equal(streamed, offline[: len(streamed)])
 

@@ -3,7 +3,7 @@
 one backend is killed (SIGKILL) mid-stream, then another drained (SIGTERM), and every client
 reconnects through the proxy and resumes: no frame lost or twice, every frame that of an
 uninterrupted stream of the same seed and switch, no seam (the joint speed across the resume
-within the stream's own range)."""
+that of the uninterrupted stream there)."""
 
 import asyncio
 import json
@@ -240,7 +240,9 @@ def test_clients_resume_through_the_proxy_when_a_backend_is_killed(
         assert sorted(client.frames) == list(range(client.next))  # none lost, none twice
         expected = reference(generator, engine_parts, client, len(got))
         np.testing.assert_allclose(got, expected, atol=1e-5)
+        # no seam: the joint speed across each resume is the uninterrupted stream's there (a
+        # bound by the stream's own range failed where a resume fell on its fastest frame)
         speed = np.linalg.norm(np.diff(got, axis=0), axis=-1).mean(-1) * fps  # m/s, (n - 1,)
+        usual = np.linalg.norm(np.diff(expected, axis=0), axis=-1).mean(-1) * fps
         for seam in client.seams:
-            others = np.delete(speed, seam - 1)
-            assert others.min() <= speed[seam - 1] <= others.max(), (seam, speed[seam - 1])
+            assert abs(speed[seam - 1] - usual[seam - 1]) < 1e-3, (seam, speed[seam - 1])
