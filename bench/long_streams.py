@@ -279,8 +279,7 @@ def _prompted(prompt: str) -> Action:
 
 def make_and_judge(bundle, task: Task) -> tuple[dict, Made]:
     """What a worker process runs for a path other than serve."""
-    made = MAKERS[task.path](bundle, task)
-    return judge(bundle, task, made), made
+    return _judged(bundle, task, MAKERS[task.path](bundle, task))
 
 
 def _judged(bundle, task: Task, made: Made) -> tuple[dict, Made]:

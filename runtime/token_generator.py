@@ -388,17 +388,24 @@ class TokenStream:
     ) -> list[Cache]:
         """`caches` after one step's graph calls as the step made them, its tokens given, none
         drawn (pooled graphs return the new slot alone, which follows the past)."""
-        g = self.generator
-        ids = np.repeat(tokens[None, None], len(self.uncond), axis=0)
-        outputs = g.each_level(
-            lambda level: g.run(level, self.prompt, self.uncond, ids, position, past, caches[level])
-        )
-        if g.pool is None:
+        outputs = self._call_levels(tokens, position, past, caches)
+        if self.generator.pool is None:
             return [present for _, present in outputs]
         return [
             [np.concatenate([held, new], 2) for held, new in zip(cache, present, strict=True)]
             for cache, (_, present) in zip(caches, outputs, strict=True)
         ]
+
+    def _call_levels(
+        self, tokens: np.ndarray, position: np.ndarray, past: np.ndarray, caches: list[Cache]
+    ) -> list[tuple]:
+        """Every level graph once for this stream alone: the step at `position` fed `tokens`
+        (L,), over the slots at `past` held in `caches` -> (logits, presents) per level."""
+        g = self.generator
+        ids = np.repeat(tokens[None, None], len(self.uncond), axis=0)
+        return g.each_level(
+            lambda level: g.run(level, self.prompt, self.uncond, ids, position, past, caches[level])
+        )
 
     def _batch(self, prompt_embedding: np.ndarray) -> np.ndarray:
         """(text_dim,) -> (B, text_dim) float32, one row per guidance branch."""
@@ -439,13 +446,7 @@ def _level_logits(g: TokenGenerator, outputs: list[tuple]) -> np.ndarray:
 def _step_alone(s: TokenStream) -> np.ndarray | None:
     g = s.generator
     uniforms = step_uniforms(s.rng, g.num_levels)
-    token_ids = np.repeat(s.last[None, None], len(s.uncond), axis=0)
-    position = np.array([s.steps], np.int64)
-    outputs = g.each_level(
-        lambda level: g.run(
-            level, s.prompt, s.uncond, token_ids, position, s.positions, s.caches[level]
-        )
-    )
+    outputs = s._call_levels(s.last, np.array([s.steps], np.int64), s.positions, s.caches)
     row = s._drawn(_level_logits(g, outputs), uniforms)
     if row is not None:
         held = len(s.positions)
