@@ -687,7 +687,7 @@ class MotionStream:
         levels = g.tokens.num_levels
         with self._lock:
             left = self._pending_frames() - self._skip  # the frames still to come out
-            feet = 0 if self.feet is None else math.ceil(FEET_LOOKAHEAD / g.down_factor)
+            feet = self.feet_steps
             drawn = [self._next_tokens() for _ in range(feet + self.decoder.lookahead)]
             ahead = np.reshape(drawn, (-1, levels))
             features = np.concatenate(
@@ -703,6 +703,14 @@ class MotionStream:
             np.concatenate(column) for column in zip(empty, *(self._record or []), strict=False)
         )
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
+
+    @property
+    def feet_steps(self) -> int:
+        """Token steps the foot planter reads ahead of a frame it releases (0: feet as
+        decoded); the server paces a stream by it and the decoder's lookahead."""
+        if self.feet is None:
+            return 0
+        return math.ceil(FEET_LOOKAHEAD / self.generator.down_factor)
 
     def _next_tokens(self) -> np.ndarray:
         return self.drawn(self.tokens.step())
