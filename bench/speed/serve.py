@@ -262,8 +262,8 @@ def measure(
         decoder=DECODERS[low_latency],
         fps=float(np.mean(rates)),
         fps_min=float(np.min(rates)),
-        p50_ms=float(np.percentile(late, 50) * 1e3),
-        p99_ms=float(np.percentile(late, 99) * 1e3),
+        p50_ms=float(np.percentile(late, 50, method="higher") * 1e3),
+        p99_ms=float(np.percentile(late, 99, method="higher") * 1e3),
         cpu_cores=cpu / wall,
         first_frame_ms=percentiles_ms([first for first, _ in results]),
     )
@@ -503,8 +503,16 @@ def run(
 
 
 def _charts(out: Path, rows: list[dict], bursts: list[dict], spread: float) -> None:
-    """serve_bench.png (the counts) and serve_bursts.png, a line per decoder measured."""
+    """serve_bench.png (the counts) and serve_bursts.png, a line per decoder measured; a
+    value that is not finite (no client of a count got two frames) is left out."""
     names = sorted({r["decoder"] for r in rows + bursts})
+
+    def line(measured: list[dict], x: str, value, floor: float, name: str) -> list:
+        return [
+            (r[x], max(value(r), floor))
+            for r in measured
+            if r["decoder"] == name and math.isfinite(value(r))
+        ]
 
     def named(series: str, name: str) -> str:
         return series if len(names) == 1 else f"{series}, {name}"
@@ -515,9 +523,7 @@ def _charts(out: Path, rows: list[dict], bursts: list[dict], spread: float) -> N
         "clients",
         "see legend",
         {
-            named(series, name): [
-                (r["clients"], max(value(r), floor)) for r in rows if r["decoder"] == name
-            ]
+            named(series, name): line(rows, "clients", value, floor, name)
             for name in names
             for series, value, floor in (
                 ("frames/s per client", lambda r: r["fps"], 0.1),
@@ -532,11 +538,7 @@ def _charts(out: Path, rows: list[dict], bursts: list[dict], spread: float) -> N
         "clients arriving at once",
         "first frame, ms",
         {
-            named(p, name): [
-                (r["burst"], max(r["first_frame_ms"][p], 1.0))
-                for r in bursts
-                if r["decoder"] == name
-            ]
+            named(p, name): line(bursts, "burst", lambda r, p=p: r["first_frame_ms"][p], 1.0, name)
             for name in names
             for p in ("p50", "p99", "max")
         },
