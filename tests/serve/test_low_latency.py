@@ -32,12 +32,12 @@ def local_frames(generator, seed: int, count: int, switch: int | None, low_laten
 
 
 def test_low_latency_and_centred_streams_share_rounds_and_keep_their_frames(
-    low_latency_generator, engine_parts
+    generator, engine_parts
 ):
     """One engine, both decoders in the same rounds (a switch on the low-latency stream): each
     stream's frames are its local MotionStream's, and the low-latency one's come after its
     own decoder's lookahead (and the feet's), the centred one's after the centred decoder's."""
-    g = low_latency_generator
+    g = generator
     engine = Engine(g, 1, tokens=engine_parts)
     low = engine.open(WALK, 7, g.sampling(None), 0.0, low_latency=True)
     centred = engine.open(WALK, 7, g.sampling(None), 0.0)
@@ -65,12 +65,10 @@ def test_low_latency_and_centred_streams_share_rounds_and_keep_their_frames(
     engine.shutdown()
 
 
-def test_a_low_latency_client_gets_the_local_streams_frames_and_switches(
-    low_latency_generator, engine_parts
-):
+def test_a_low_latency_client_gets_the_local_streams_frames_and_switches(generator, engine_parts):
     """Through a socket (binary frames): the local stream's frames, the switch at the frame
     `switched` names."""
-    g, got = low_latency_generator, {}
+    g, got = generator, {}
 
     async def test(url, server):
         async with ClientSession() as session:
@@ -89,7 +87,7 @@ def test_a_low_latency_client_gets_the_local_streams_frames_and_switches(
     np.testing.assert_allclose(got["frames"], expected, atol=1e-5)
 
 
-def test_a_low_latency_stream_resumes_on_another_server(low_latency_generator, engine_parts):
+def test_a_low_latency_stream_resumes_on_another_server(generator, engine_parts):
     async def test(a, b, _):
         async with ClientSession() as session:
             original = Client(await session.ws_connect(a + "/v1/stream"))
@@ -110,11 +108,11 @@ def test_a_low_latency_stream_resumes_on_another_server(low_latency_generator, e
             for index in both:
                 np.testing.assert_array_equal(resumed.frames[index], original.frames[index])
 
-    two_servers(low_latency_generator, engine_parts, test)
+    two_servers(generator, engine_parts, test)
 
 
 def test_low_latency_is_refused_in_one_line_without_its_decoder_or_as_no_bool(
-    centred_generator, low_latency_generator, engine_parts
+    centred_generator, engine_parts
 ):
     """A server whose bundle has no low-latency decoder refuses a stream or a state that asks
     for one; any server refuses a "low_latency" that is not true or false; the socket stays
