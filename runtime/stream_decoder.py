@@ -95,13 +95,13 @@ class StreamingDecoder:
         self._ready = ready
         return self._tokens
 
-    def take(self, features: np.ndarray, cut: tuple[int, int] = (0, 0)) -> np.ndarray:
+    def take(self, features: np.ndarray, cut: int = 0) -> np.ndarray:
         """`push` after the decode: the frames (frames, D) that became final, from the decode
-        (frames, D) of the window `feed` returned, less `cut` tokens at its start and its end
-        (see `push_many`)."""
+        (frames, D) of the window `feed` returned, less `cut` tokens at each end (see
+        `push_many`)."""
         ready = self._ready
-        frames_per_token = len(features) // (len(self._tokens) - sum(cut))
-        first = (self.emitted - self._start - cut[0]) * frames_per_token
+        frames_per_token = len(features) // (len(self._tokens) - 2 * cut)
+        first = (self.emitted - self._start - cut) * frames_per_token
         frames = features[first : first + (ready - self.emitted) * frames_per_token]
         self.emitted = ready
         keep_from = max(0, ready - self.left_context)
@@ -144,16 +144,13 @@ class StreamingDecoder:
         return self._decode_windows(ids[None])[0]
 
     def _decode_windows(
-        self,
-        windows: np.ndarray,
-        session: ort.InferenceSession | None = None,
-        cut: tuple[int, int] = (0, 0),
+        self, windows: np.ndarray, session: ort.InferenceSession | None = None, cut: int = 0
     ) -> np.ndarray:
         """Windows (B, tokens, L) -> features (B, frames, D), one call; `session` decodes the
-        windows less `cut` tokens at their start and their end (see `push_many`)."""
+        windows less `cut` tokens at each end (see `push_many`)."""
         session = session or self.session
         (features,) = session.run([self.features_name], {self.ids_name: windows})
-        tokens = windows.shape[1] - sum(cut)
+        tokens = windows.shape[1] - 2 * cut
         if features.shape[1] % tokens:
             raise ValueError(
                 f"the decoder made {features.shape[1]} frames from {tokens} "
@@ -177,23 +174,22 @@ class StreamingDecoder:
 def push_many(
     decoders: Sequence[StreamingDecoder],
     ids: Sequence[np.ndarray],
-    interior: tuple[ort.InferenceSession, tuple[int, int]] | None = None,
+    interior: tuple[ort.InferenceSession, int] | None = None,
 ) -> list[np.ndarray]:
     """[decoder.push(i) for each decoder and its ids], the windows due decoded in one call per
     window length (decoders of one session): the decoder's convolutions keep batch rows
     apart, so each gets the frames of its own push. Streams in step share their window length
     (left context, `every` new tokens, lookahead). `interior`: (a session of the decoder
-    graph that decodes a window less `cut` = (left, right) tokens at its start and its end,
-    cut) (mogo.serve.interior), for the windows whose new tokens lie that far from both ends:
-    every window of a stream past its first left context (the same frames to a float
-    rounding)."""
+    graph that decodes a window less `cut` tokens at each end, cut) (mogo.serve.interior),
+    for the windows whose new tokens lie `cut` tokens or more from both ends: every window of
+    a stream past its first left context (the same frames to a float rounding)."""
     windows = [decoder.feed(i) for decoder, i in zip(decoders, ids, strict=False)]
-    groups: dict[tuple[int, tuple[int, int]], list[int]] = {}
+    groups: dict[tuple[int, int], list[int]] = {}
     for k, (decoder, window) in enumerate(zip(decoders, windows, strict=False)):
         if window is not None:
-            cut = (0, 0) if interior is None else interior[1]
-            if decoder.emitted - decoder._start < cut[0] or decoder.lookahead < cut[1]:
-                cut = (0, 0)
+            cut = 0 if interior is None else interior[1]
+            if decoder.emitted - decoder._start < cut or decoder.lookahead < cut:
+                cut = 0
             groups.setdefault((len(window), cut), []).append(k)
     frames = [decoder._none() for decoder in decoders]
     for (_, cut), ks in groups.items():
@@ -201,7 +197,7 @@ def push_many(
         if any(decoders[k].session is not first.session for k in ks):
             raise ValueError("push_many needs decoders that share one session")
         decoded = first._decode_windows(
-            np.stack([windows[k] for k in ks]), interior[0] if any(cut) else None, cut
+            np.stack([windows[k] for k in ks]), interior[0] if cut else None, cut
         )
         for k, features in zip(ks, decoded, strict=False):
             frames[k] = decoders[k].take(features, cut)

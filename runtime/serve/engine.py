@@ -119,15 +119,10 @@ class Engine:
         self._centred = graph_session(path, decoder, 1)
         # full windows unpadded: ~half the CPU (None: a decoder it cannot cut, whole windows)
         self.interior = interior_session(path, decoder, self._centred, generator.codebook_size)
-        low = manifest.vq.low_latency_decoder  # its own sessions, only if the bundle has one
-        self._low_latency = self.low_latency_interior = None
-        if low is not None:
-            path = generator.bundle.path(low.file)
-            self._low_latency = graph_session(path, low, 1)
-            # a window a token: unpadded, that token's frames alone
-            self.low_latency_interior = interior_session(
-                path, low, self._low_latency, generator.codebook_size
-            )
+        low = manifest.vq.low_latency_decoder  # its own session, only if the bundle has one
+        self._low_latency = (
+            None if low is None else graph_session(generator.bundle.path(low.file), low, 1)
+        )
         self.streams: dict[int, ServedStream] = {}
         self._pool = ThreadPoolExecutor(1, "mogo-shard") if threads > 1 else None
         self._ids = itertools.count(1)
@@ -232,7 +227,7 @@ class Engine:
             )
         ]
         decoded = [None] * len(due)
-        for low_latency, interior in ((False, self.interior), (True, self.low_latency_interior)):
+        for low_latency, interior in ((False, self.interior), (True, None)):
             ks = [k for k, stream in enumerate(due) if stream.low_latency is low_latency]
             frames = push_many([due[k].decoder for k in ks], [rows[k][None] for k in ks], interior)
             for k, features in zip(ks, frames, strict=True):

@@ -69,7 +69,7 @@ def test_a_decoder_the_rewrite_cannot_cut_or_gets_wrong_decodes_whole_windows(
         raise ValueError("an upsampling on the time path")
 
     def wrong(data):  # the padded graph: the wrong length for a cut of 31
-        return data, (31, 31)
+        return data, 31
 
     for rewrite in (refused, wrong):
         monkeypatch.setattr(interior, "interior_graph", rewrite)

@@ -48,9 +48,6 @@ def test_low_latency_and_centred_streams_share_rounds_and_keep_their_frames(
         for stream, _, joints in engine.round([low, centred]):
             firsts.setdefault(stream.id, stream.steps)
             got[stream.id].append(joints)
-    # past its first left context, a low-latency window decodes through the cut graph
-    assert engine.low_latency_interior[1] == (low.decoder.left_context, low.decoder.lookahead)
-    assert low.decoder.emitted > 2 * low.decoder.left_context
     lookahead = {s.id: s.decoder.lookahead + s.feet_steps + 1 for s in (low, centred)}
     assert firsts == lookahead
     assert g.manifest.vq.low_latency_decoder.lookahead == low.decoder.lookahead
