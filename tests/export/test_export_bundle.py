@@ -22,6 +22,7 @@ from mogo.generator import MotionGenerator
 from mogo.manifest import SkeletonSpec
 from mogo.motion.skeleton import SMPL_22
 from mogo.sampling import Sampling
+from mogo.stream_decoder import StepDecoder, StreamingDecoder
 
 PROMPT = "a person walks forward."
 
@@ -445,7 +446,10 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path,
         == 0
     )
     old, written = read_manifest(bundle), read_manifest(new)
-    assert written.files.keys() - old.files.keys() == {"vq_decoder_low_latency.onnx"}
+    assert written.files.keys() - old.files.keys() == {
+        "vq_decoder_low_latency.onnx",
+        "vq_decoder_low_latency_step.onnx",
+    }
     assert all(written.files[name] == entry for name, entry in old.files.items())
     low = written.vq.low_latency_decoder
     assert (low.file, low.lookahead) == ("vq_decoder_low_latency.onnx", 1)
@@ -466,6 +470,12 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path,
     resumed = generator.resume(streams[1].state())  # mogo.stream_state: low latency too
     for _ in range(20):
         np.testing.assert_array_equal(resumed.step(), streams[1].step())
+    assert written.vq.low_latency_step.lookahead == 1
+    ids = np.random.default_rng(0).integers(0, written.vq.codebook_size, (50, written.vq.levels))
+    stepped = generator.streaming_decoder(low_latency=True)  # the step graph, a token a call
+    window = StreamingDecoder(new / low.file, low.left_context, 1, written.vq.codebook_size)
+    assert isinstance(stepped, StepDecoder)
+    np.testing.assert_allclose(stepped.push(ids), window.decode_offline(ids)[:49], atol=1e-4)
 
 
 def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, capsys):
