@@ -7,9 +7,9 @@ step of their clips share a call without their numbers mixing, their caches rows
 `fps` ticks a second), its `lead` steps ahead so that its frames leave before they are due. A
 new stream catches up at once (its first frame comes after the decoder's lookahead and the
 feet's), in rounds shared with every other new stream, its first round with the running
-streams too. The windows due are decoded in one call per decoder (mogo.stream_decoder.push_many):
-the centred one's, and the low-latency one's for streams that ask for it. Not thread-safe: the
-server calls it from one thread.
+streams too. What is due is decoded in one call per decoder (mogo.stream_decoder.push_many):
+the centred one's windows, and the low-latency one's tokens (its step graph) for streams that
+ask for it. Not thread-safe: the server calls it from one thread.
 """
 
 from __future__ import annotations
@@ -119,7 +119,9 @@ class Engine:
         self._centred = graph_session(path, decoder, 1)
         # full windows unpadded: ~half the CPU (None: a decoder it cannot cut, whole windows)
         self.interior = interior_session(path, decoder, self._centred, generator.codebook_size)
-        low = manifest.vq.low_latency_decoder  # its own session, only if the bundle has one
+        # its own session, only if the bundle has one: the graph MotionGenerator steps
+        # low-latency streams with (a token a call where the bundle has it, else windows)
+        low = generator._low_latency
         self._low_latency = (
             None if low is None else graph_session(generator.bundle.path(low.file), low, 1)
         )

@@ -32,15 +32,16 @@ def centred_generator(tmp_path_factory):
     root = tmp_path_factory.mktemp("centred") / "bundle"
     shutil.copytree(DEFAULT_BUNDLE, root)
     manifest = read_manifest(root)
-    (root / manifest.vq.low_latency_decoder.file).unlink()
+    vq = manifest.vq
+    dropped = {vq.low_latency_decoder.file, vq.low_latency_step.file}
+    for name in dropped:
+        (root / name).unlink()
     training = {k: v for k, v in manifest.training.items() if k != "vq_low_latency_decoder"}
     fp16 = replace(
         manifest.fp16_storage,
-        files=tuple(
-            f for f in manifest.fp16_storage.files if f != manifest.vq.low_latency_decoder.file
-        ),
+        files=tuple(f for f in manifest.fp16_storage.files if f not in dropped),
         vq_low_latency_decoder_feature_max_abs_difference=None,
     )
-    vq = replace(manifest.vq, low_latency_decoder=None)
+    vq = replace(vq, low_latency_decoder=None, low_latency_step=None)
     write_manifest(root, replace(manifest, vq=vq, training=training, fp16_storage=fp16))
     return MotionGenerator.load(root, threads=1)

@@ -16,6 +16,7 @@ from test_resume import Client, kind, reseal, two_servers  # noqa: E402
 from test_server import frames, next_of, serving  # noqa: E402
 
 from mogo.serve.engine import Engine  # noqa: E402
+from mogo.stream_decoder import StepDecoder  # noqa: E402
 
 WALK, JUMP = "a person walks forward", "a person jumps on the spot"
 
@@ -52,6 +53,9 @@ def test_low_latency_and_centred_streams_share_rounds_and_keep_their_frames(
     assert firsts == lookahead
     assert g.manifest.vq.low_latency_decoder.lookahead == low.decoder.lookahead
     assert low.decoder.lookahead < centred.decoder.lookahead
+    # the shipped bundle's step graph: a token a call, on the engine's own session of it
+    assert isinstance(low.decoder, StepDecoder) and g.manifest.vq.low_latency_step is not None
+    assert low.decoder.session is not g.streaming_decoder(low_latency=True).session
     served = {k: np.concatenate(v) for k, v in got.items()}
     expected = {
         low.id: local_frames(g, 7, len(served[low.id]), 30),
