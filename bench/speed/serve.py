@@ -71,12 +71,16 @@ PROMPTS = [
 FPS = SMPL_22.fps  # the shipped bundle's: the server's clock ticks at it
 DECODERS = {False: "centred", True: "low latency"}  # a stream's "low_latency" -> its name
 WARM_CLIENTS = 4
-PARTS = {  # the parts of a served stream step (--profile): the function whose time is each
-    "level graphs (onnxruntime)": ("token_generator.py", "run"),
-    "sampling": ("sampling.py", "choose_tokens"),
-    "VQ decoder (onnxruntime)": ("stream_decoder.py", "_decode_windows"),
-    "joints from features": ("motion/features.py", "push"),
-    "foot planting": ("motion/feet.py", "push"),
+PARTS = {  # the parts of a served stream step (--profile): the functions whose time is each
+    "level graphs (onnxruntime)": {("token_generator.py", "run")},
+    "sampling": {("sampling.py", "choose_tokens")},
+    # windows (the centred decoder), or a token a call (a low-latency decoder's step graph)
+    "VQ decoder (onnxruntime)": {
+        ("stream_decoder.py", "_decode_windows"),
+        ("stream_decoder.py", "_step_many"),
+    },
+    "joints from features": {("motion/features.py", "push")},
+    "foot planting": {("motion/feet.py", "push")},
 }
 
 
@@ -346,10 +350,10 @@ def _split(profile: cProfile.Profile, per: int, whole_name: str) -> list[tuple[s
             sum(
                 entry[3]
                 for (file, _, name), entry in stats.items()
-                if file.endswith(module) and name == function
+                if any(file.endswith(module) and name == f for module, f in functions)
             ),
         )
-        for part, (module, function) in PARTS.items()
+        for part, functions in PARTS.items()
     ]
     parts.append(("the rest: the engine's and streams' Python", whole - sum(s for _, s in parts)))
     return [(part, seconds * 1e3 / per) for part, seconds in parts + [(whole_name, whole)]]
