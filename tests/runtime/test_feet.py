@@ -13,8 +13,10 @@ from mogo.motion.feet import (
     BODY_FRAMES,
     BODY_STEP,
     LOOKAHEAD,
-    PIN_FRAMES,
+    SHORT,
+    WINDOW,
     FootPlanter,
+    Window,
     leg_joints,
     planted,
     two_bone_ik,
@@ -101,7 +103,7 @@ def test_a_foot_is_held_still_through_its_contact_and_eased_in_and_out_without_a
     held = slice(15, 36)  # the contact's frames and the one after (still from t to t+1)
     assert np.ptp(ankle[held], axis=0).max() < 1e-6 and np.ptp(toe[held], axis=0).max() < 1e-6
     steps = np.linalg.norm(np.diff(out[:, LEGS.reshape(-1)], axis=0), axis=-1)
-    released = 0.005 * (35 - (15 + PIN_FRAMES / 2 - 0.5))  # offset from the decoded foot
+    released = 0.005 * (35 - (15 + WINDOW.pin_frames / 2 - 0.5))  # offset from the decoded foot
     assert steps.max() < 0.005 + 1.5 * released / (BLEND_OUT + 1) + 1e-3  # smoothstep, no jump
     far = slice(0, 15 - 3)  # before the foot eases onto its pin: feet where they were decoded
     np.testing.assert_allclose(out[far, CONTACT_JOINTS], joints[far, CONTACT_JOINTS], atol=1e-6)
@@ -142,21 +144,24 @@ def test_a_flagged_foot_stepping_fast_moves_the_body_back_by_the_excess_smoothly
     assert np.abs(np.diff(steps)).max() < excess / BODY_FRAMES + 1e-6  # eased in and out
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_any_chunking_gives_the_offline_result(seed):
+@pytest.mark.parametrize(
+    "seed,window",
+    [(0, WINDOW), (1, WINDOW), (2, WINDOW), (0, SHORT), (1, SHORT), (2, Window(1, 2))],
+)
+def test_any_chunking_gives_the_offline_result(seed, window):
     rng = np.random.default_rng(seed)
     joints = _standing(90)  # feet stepping 0-16 cm a frame: some held, some moving the body
     joints[:, CONTACT_JOINTS, 2] += np.cumsum(rng.uniform(0, 0.16, (90, 1)), 0)
     features = _features(joints, rng.uniform(0, 1, (90, 4)) > 0.4)  # contacts on and off often
-    offline = planted(features, joints, SMPL_22, body_step=BODY_STEP)
-    planter, rows, pieces, at = FootPlanter(SMPL_22, body_step=BODY_STEP), [], [], 0
+    offline = planted(features, joints, SMPL_22, body_step=BODY_STEP, window=window)
+    planter, rows, pieces, at = FootPlanter(SMPL_22, body_step=BODY_STEP, window=window), [], [], 0
     while at < len(joints):
         size = int(rng.integers(0, 12))
         out = planter.push(features[at : at + size], joints[at : at + size])
         rows.append(out[0])
         pieces.append(out[1])
         at += size
-        assert planter.pending == min(at, LOOKAHEAD)  # frames held back for their lookahead
+        assert planter.pending == min(at, window.lookahead)  # held back for their lookahead
     rest = planter.flush()
     assert np.array_equal(np.concatenate(rows + [rest[0]]), features)  # rows kept in step
     assert np.array_equal(np.concatenate(pieces + [rest[1]]), offline)
