@@ -562,7 +562,7 @@ class MotionStream:
     STREAM_DECODE_EVERY). Memory and step time stay constant: the KV cache slides over the
     last `window` steps, or, re-anchored (`anchoring`, mogo.anchoring), holds at most its span.
     Planting the feet holds each frame back until the frames of its lookahead are decoded
-    (mogo.motion.feet: 8 frames; 4 for a low-latency stream, whose decoder waits a few tokens,
+    (mogo.motion.feet: 8 frames; 2 for a low-latency stream, whose decoder waits a few tokens,
     not 31)."""
 
     def __init__(

@@ -30,7 +30,7 @@ asked, moves the body):
 
 It reads blend_in + pin_frames - 1 frames ahead (Window.lookahead), so a stream emits a frame
 that many frames after it is decoded: 8 with the default WINDOW (one burst of the centred
-decoder), 4 with SHORT, the low-latency streams' (docs/feet.md). Any chunking of `push` (then
+decoder), 2 with SHORT, the low-latency streams' (docs/feet.md). Any chunking of `push` (then
 `flush`) gives the output of one push of the whole clip.
 """
 
@@ -68,7 +68,7 @@ class Window:
 
 
 WINDOW = Window(blend_in=3, pin_frames=6)  # 8 frames ahead, one burst of the centred decoder
-SHORT = Window(blend_in=2, pin_frames=3)  # 4 frames ahead: low-latency streams (docs/feet.md)
+SHORT = Window(blend_in=2, pin_frames=1)  # 2 frames ahead: low-latency streams (docs/feet.md)
 LOOKAHEAD = WINDOW.lookahead
 MAX_REACH = 0.9995  # share of thigh + shin the IK may stretch a leg to
 KNEE_FORWARD = 0.1  # metres the knee's bend plane leans forward: a straight leg bends forward

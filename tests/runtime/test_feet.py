@@ -146,7 +146,15 @@ def test_a_flagged_foot_stepping_fast_moves_the_body_back_by_the_excess_smoothly
 
 @pytest.mark.parametrize(
     "seed,window",
-    [(0, WINDOW), (1, WINDOW), (2, WINDOW), (0, SHORT), (1, SHORT), (2, Window(1, 2))],
+    [
+        (0, WINDOW),
+        (1, WINDOW),
+        (2, WINDOW),
+        (0, SHORT),
+        (1, SHORT),
+        (2, Window(2, 4)),
+        (3, Window(1, 2)),
+    ],
 )
 def test_any_chunking_gives_the_offline_result(seed, window):
     rng = np.random.default_rng(seed)
