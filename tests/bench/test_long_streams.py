@@ -30,6 +30,8 @@ def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
     assert {r["column"] for r in kinds["action"]} == set(result["columns"])
     assert all(len(r["passes"]) == 2 for r in kinds["action"])  # 20 s: two 10-s windows
     assert all(len(s["reactions"]) == 1 for s in kinds["switches"])
+    assert all(len(s["visible"]) == 1 for s in kinds["switches"])  # as the caller received it
+    assert "| switch visible in the received frames |" in printed
     assert Image.open(tmp_path / "long_streams.png").size[0] > 0
 
 
@@ -126,3 +128,8 @@ def test_a_still_figure_holds_and_does_not_walk():
     assert window_passes(WindowCheck(walk, 200), still) == [False, False]
     figures = drift(still)
     assert figures["slide"] == 0 and figures["pelvis_low"] == figures["pelvis_high"]
+
+
+def test_low_latency_needs_a_bundle_with_that_decoder(capsys):
+    assert main(["bench", "long-streams", "--quick", "--low-latency"]) == 2
+    assert "this bundle has no low-latency decoder" in capsys.readouterr().err

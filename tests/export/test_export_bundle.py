@@ -453,7 +453,7 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(
 
 
 def test_a_low_latency_stream_plants_its_feet_with_the_short_window(low_latency_bundle):
-    """Its frames wait the decoder's token and SHORT's 4 frames, not 8; however they are read
+    """Its frames wait the decoder's token and SHORT's 2 frames, not 8; however they are read
     (step by step, frames() in uneven chunks, finish() of a cut) they are the one-pass
     planting of its own decoded frames, and a resumed stream goes on with the same bytes."""
     generator = MotionGenerator.load(low_latency_bundle)
@@ -630,3 +630,22 @@ def test_a_bundle_of_two_frames_per_token_runs_through_the_generator(tmp_path):
     going_on.continue_from(motion)
     going_on.advance(6)
     assert going_on.finish().joints.shape == (12, 22, 3)
+
+
+def test_the_long_stream_bench_counts_a_switch_from_the_frames_received(
+    low_latency_bundle, monkeypatch
+):
+    """`mogo bench long-streams --low-latency`'s streams: at each set_prompt the caller has
+    every frame drawn but those the stream's decoder and feet still hold (and a burst)."""
+    from mogo.bench import long_streams
+
+    monkeypatch.setattr(long_streams, "_generator", None)  # the worker's, of this bundle
+    generator = MotionGenerator.load(low_latency_bundle)
+    schedule = ((PROMPT, 60), ("a person jumps.", 40), (PROMPT, 40))
+    for low in (False, True):
+        task = long_streams.Task("switches", "stream", "on", 0, schedule, low_latency=low)
+        made = long_streams._stream(str(low_latency_bundle), task)
+        stream = generator.stream(PROMPT, low_latency=low)
+        held = stream.lookahead_steps * generator.down_factor  # frames drawn, not yet out
+        lags = [start - got for start, got in zip(made.switches, made.received, strict=True)]
+        assert len(lags) == 2 and all(held <= lag < held + stream.decoder.every for lag in lags)
