@@ -513,7 +513,7 @@ def _add_runtime_commands(commands) -> None:
         "--low-latency",
         action="store_true",
         help="the bundle's low-latency decoder: frames a few tokens after theirs, "
-        "not 31 (a little less exact; bundles that ship one)",
+        "not 31 (the default bundle's waits 2; a bundle without one refuses)",
     )
     _generation_arguments(stream)
     stream.set_defaults(run=_noting_prompts(_cmd_stream))

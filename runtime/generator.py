@@ -462,7 +462,7 @@ class MotionGenerator:
         prompt says, one-off prompts settle into a hold), an Anchoring tunes it, False
         lets the model run on from step 0 (it drifts after a few seconds). `low_latency`:
         decode with the bundle's low-latency decoder (its frames wait a few tokens, not the
-        centred decoder's 31; a little less exact: docs/model.md), every token."""
+        centred decoder's 31: docs/model.md), every token."""
         sampling = self.sampling(sampling, **options)
         seed = checked_seed(seed)
         window = self.defaults.window if window is None else checked_int(window, "window", 1)

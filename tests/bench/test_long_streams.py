@@ -2,6 +2,8 @@
 path), a run of chosen actions, and the window checks it rests on, judged against the procedural animator's own performance."""
 
 import json
+import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,7 +18,9 @@ from mogo.bench.quality.stream_checks import (
     reference,
     window_passes,
 )
+from mogo.bundle import read_manifest, write_manifest
 from mogo.cli import main
+from mogo.generator import DEFAULT_BUNDLE
 
 
 def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
@@ -130,6 +134,15 @@ def test_a_still_figure_holds_and_does_not_walk():
     assert figures["slide"] == 0 and figures["pelvis_low"] == figures["pelvis_high"]
 
 
-def test_low_latency_needs_a_bundle_with_that_decoder(capsys):
-    assert main(["bench", "long-streams", "--quick", "--low-latency"]) == 2
+def test_low_latency_needs_the_stream_path_and_a_bundle_with_that_decoder(tmp_path, capsys):
+    argv = ["bench", "long-streams", "--quick", "--low-latency", "--out", str(tmp_path / "out")]
+    assert main([*argv, "--path", "generate"]) == 2
+    assert "--low-latency runs the stream path again" in capsys.readouterr().err
+    bundle = tmp_path / "centred"  # the shipped bundle without its low-latency decoder
+    shutil.copytree(DEFAULT_BUNDLE, bundle)
+    (bundle / read_manifest(bundle).vq.low_latency_decoder.file).unlink()
+    manifest = read_manifest(bundle)
+    write_manifest(bundle, replace(manifest, vq=replace(manifest.vq, low_latency_decoder=None)))
+    assert main([*argv, "--bundle", str(bundle)]) == 2
     assert "this bundle has no low-latency decoder" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
