@@ -69,7 +69,7 @@ class Window:
 
 WINDOW = Window(blend_in=3, pin_frames=6)  # 8 frames ahead, one burst of the centred decoder
 SHORT = Window(blend_in=2, pin_frames=1)  # 2 frames ahead: low-latency streams (docs/feet.md)
-LOOKAHEAD = WINDOW.lookahead
+LOOKAHEAD = WINDOW.lookahead  # the default planter's: generate, centred streams, the serve engine
 MAX_REACH = 0.9995  # share of thigh + shin the IK may stretch a leg to
 KNEE_FORWARD = 0.1  # metres the knee's bend plane leans forward: a straight leg bends forward
 
