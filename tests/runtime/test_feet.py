@@ -193,6 +193,24 @@ def test_a_stream_emits_the_offline_result_of_its_own_frames(generator):
     assert np.array_equal(streamed, offline[: len(streamed)])
 
 
+def test_a_low_latency_stream_plants_its_own_frames_two_frames_behind(generator):
+    """The shipped low-latency decoder: its stream's frames are the one-pass planting (SHORT)
+    of its own decoded frames, each out once SHORT's frames after it are decoded."""
+    stream = generator.stream("a person walks in a circle.", seed=3, low_latency=True)
+    counts = [len(stream.step()) for _ in range(60)]
+    wait = generator.manifest.vq.low_latency_decoder.lookahead + SHORT.lookahead
+    assert counts == [0] * wait + [1] * (60 - wait) and stream.lookahead_steps == wait
+    raw = generator.stream(
+        "a person walks in a circle.", seed=3, low_latency=True, plant_feet=False
+    )
+    raw.advance(60)
+    raw = raw.finish()
+    streamed = generator.stream("a person walks in a circle.", seed=3, low_latency=True)
+    streamed.advance(60)
+    offline = planted(raw.features, raw.joints, generator.skeleton, window=SHORT)
+    assert np.array_equal(streamed.finish().joints, offline)
+
+
 def test_planted_feet_add_their_lookahead_to_the_first_frame(generator):
     stream = generator.stream("a person walks forward.", seed=0)
     first = next(step for step in range(1, 100) if len(stream.step()))
