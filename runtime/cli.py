@@ -362,6 +362,11 @@ def _model_lines(m) -> list[str]:
             else [
                 f"            low-latency decoder: context {vq.low_latency_decoder.left_context} "
                 f"back / {vq.low_latency_decoder.lookahead} ahead (tokens)"
+                + (
+                    ""
+                    if vq.low_latency_step is None
+                    else f", stepped a token a call (state {vq.low_latency_step.state_size} floats)"
+                )
             ]
         ),
         "defaults    " + ", ".join(f"{k} {v}" for k, v in vars(m.defaults).items()),

@@ -42,14 +42,14 @@ from mogo.arguments import (
 )
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
-from mogo.manifest import MAX_GENERATE_SECONDS, io_types
+from mogo.manifest import MAX_GENERATE_SECONDS, StepDecoderGraph, io_types
 from mogo.motion.features import JointStream
 from mogo.motion.feet import SHORT, WINDOW, FootPlanter, planted
 from mogo.motion.untrusted import checked_finite
 from mogo.progress import Progress
 from mogo.repertoire import Familiarity
 from mogo.sampling import Sampling
-from mogo.stream_decoder import StreamingDecoder
+from mogo.stream_decoder import StepDecoder, StreamingDecoder
 from mogo.stream_state import StateError
 from mogo.stream_state import read as read_state
 from mogo.stream_state import write as write_state
@@ -98,14 +98,15 @@ class MotionGenerator:
             threads,
             io_types(manifest, self._decoder),
         )
-        self._low_latency = manifest.vq.low_latency_decoder  # None: the bundle has none
+        # what low-latency streams decode with: the step graph, else the window graph; None: none
+        self._low_latency = manifest.vq.low_latency_step or manifest.vq.low_latency_decoder
         self._low_latency_session = (
             None
             if self._low_latency is None
             else graph_session(
                 bundle.path(self._low_latency.file),
                 self._low_latency,
-                threads,
+                1 if manifest.vq.low_latency_step else threads,  # a column a layer: too small
                 io_types(manifest, self._low_latency),
             )
         )
@@ -519,7 +520,16 @@ class MotionGenerator:
         self, session: ort.InferenceSession | None = None, low_latency: bool = False
     ) -> StreamingDecoder:
         """`session`: another session of the bundle's decoder graph (None: this generator's);
-        `low_latency`: the low-latency decoder's, decoding every token."""
+        `low_latency`: the low-latency decoder's, decoding every token (a token a call where
+        the bundle has its step graph)."""
+        if low_latency and isinstance(self._low_latency, StepDecoderGraph):
+            window = self.manifest.vq.low_latency_decoder
+            return StepDecoder(
+                session or self._low_latency_session,
+                self._low_latency,
+                window.left_context,
+                self.codebook_size,
+            )
         d, own = (
             (self._low_latency, self._low_latency_session)
             if low_latency

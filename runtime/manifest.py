@@ -60,6 +60,16 @@ class DecoderGraph(Graph):
 
 
 @dataclass(frozen=True)
+class StepDecoderGraph(Graph):
+    """The low-latency decoder one token a call, its convolutions' context in a state vector
+    (mogo.export.onnx.vq_step_graph): ids, position, state -> the frame of token position -
+    lookahead, the next state."""
+
+    lookahead: int
+    state_size: int
+
+
+@dataclass(frozen=True)
 class Normalization:
     """.npy files (feature_dim,) float32: the graphs see (features - mean) / std."""
 
@@ -225,12 +235,14 @@ class T2M:
 @dataclass(frozen=True)
 class VQ:
     """`low_latency_decoder`: optional, a decoder of the same tokens with a shorter lookahead,
-    for streams that ask for low latency (the frames come sooner, a little less exact)."""
+    for streams that ask for low latency (the frames come sooner); `low_latency_step`: the
+    same decoder one token a call, which such streams step with where the bundle has it."""
 
     config: dict
     encoder: Graph
     decoder: DecoderGraph
     low_latency_decoder: DecoderGraph | None = None
+    low_latency_step: StepDecoderGraph | None = None
 
     @property
     def levels(self) -> int:
@@ -333,7 +345,9 @@ class Manifest:
 
     def graphs(self) -> list[Graph]:
         trained = () if self.text.trained is None else (self.text.trained.encoder,)
-        low_latency = () if self.vq.low_latency_decoder is None else (self.vq.low_latency_decoder,)
+        low_latency = tuple(
+            g for g in (self.vq.low_latency_decoder, self.vq.low_latency_step) if g is not None
+        )
         return [
             self.text.encoder,
             *trained,
@@ -420,6 +434,7 @@ class Manifest:
                 f"{self.t2m.num_levels} graphs for {self.vq.levels} VQ levels (vq.config.levels)",
             )
         _check_ranges(self)
+        _check_step(self.vq)
         _check_text(self.text)
         _check_skeleton(self.motion.skeleton)
         skeleton = self.skeleton()
@@ -456,6 +471,12 @@ def io_types(manifest: Manifest, graph: Graph) -> tuple[list[tuple[str, int | No
         return [("tensor(float)", manifest.feature_dim)], [("tensor(int64)", levels)]
     if graph is manifest.vq.decoder or graph is manifest.vq.low_latency_decoder:
         return [("tensor(int64)", levels)], [("tensor(float)", manifest.feature_dim)]
+    if graph is manifest.vq.low_latency_step:
+        state = ("tensor(float)", graph.state_size)
+        return (
+            [("tensor(int64)", levels), ("tensor(int64)", None), state],
+            [("tensor(float)", manifest.feature_dim), state],
+        )
     level = next(k for k, g in enumerate(manifest.t2m.levels) if g is graph)
     classes = manifest.vq.codebook_size + (1 if level == 0 else 0)  # level 0: and the end
     inputs = [
@@ -500,6 +521,26 @@ def _check_ranges(manifest: Manifest) -> None:
             raise KeyProblem(path, f"{value!r}, must be >= 0")
         if value > MAX_DECODER_CONTEXT:
             raise KeyProblem(path, f"{value!r} token steps, must be at most {MAX_DECODER_CONTEXT}")
+
+
+def _check_step(vq: VQ) -> None:
+    """The step decoder is the low-latency decoder's: it needs one, and waits as long."""
+    step, window = vq.low_latency_step, vq.low_latency_decoder
+    if step is None:
+        return
+    if window is None:
+        raise KeyProblem(
+            "vq.low_latency_step", "needs vq.low_latency_decoder, whose steps it takes"
+        )
+    if step.lookahead != window.lookahead:
+        raise KeyProblem(
+            "vq.low_latency_step.lookahead",
+            f"{step.lookahead!r}, the low-latency decoder's is {window.lookahead}",
+        )
+    if not 1 <= step.state_size <= MAX_SIZE:
+        raise KeyProblem(
+            "vq.low_latency_step.state_size", f"{step.state_size!r}, must be 1 to {MAX_SIZE}"
+        )
 
 
 def _check_text(text: Text) -> None:

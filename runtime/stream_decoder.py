@@ -24,6 +24,7 @@ import numpy as np
 import onnxruntime as ort
 
 from mogo._session import cpu_session
+from mogo.manifest import StepDecoderGraph
 
 
 class StreamingDecoder:
@@ -171,6 +172,90 @@ class StreamingDecoder:
         return ids.astype(np.int64)
 
 
+class StepDecoder(StreamingDecoder):
+    """The low-latency decoder a token a call (mogo.export.onnx.vq_step_graph, the manifest's
+    vq.low_latency_step): each token runs one column of every layer against a state that holds
+    the layers' past inputs, about a twentieth of a window decode's work, and gives the window
+    decoder's frames to a float rounding. Token rows are kept as StreamingDecoder keeps them (the
+    last left_context + lookahead), so a stream restored from them (mogo.stream_state) rebuilds
+    the state by replaying them, one token a call as they first ran: the same frames, bit for
+    bit."""
+
+    def __init__(
+        self,
+        session: ort.InferenceSession,
+        graph: StepDecoderGraph,
+        left_context: int,
+        codebook_size: int,
+    ):
+        self.graph = graph
+        super().__init__(
+            session,
+            left_context,
+            graph.lookahead,
+            codebook_size,
+            ids_name=graph.inputs[0],
+            features_name=graph.outputs[0],
+        )
+
+    def reset(self) -> None:
+        super().reset()
+        self._state = np.zeros((1, self.graph.state_size), np.float32)
+        self._stepped = 0  # tokens the state has run (fewer than `pushed` after a restore)
+
+    def push(self, ids: np.ndarray) -> np.ndarray:
+        return _step_many([self], [ids])[0]
+
+    def flush(self, context: np.ndarray | None = None) -> np.ndarray:
+        """End the stream: its remaining frames, `context` (at least `lookahead` token rows that
+        follow the end) being their right context; a step decoder has no end padding."""
+        context = self._checked(
+            np.zeros((0, self.levels), np.int64) if context is None else context
+        )
+        if self.pushed - self.emitted and len(context) < self.lookahead:
+            raise ValueError(
+                f"a step decoder ends with {self.lookahead} token rows of context, "
+                f"got {len(context)}"
+            )
+        due = self.pushed - self.emitted
+        frames = self.push(context)[:due]
+        self.reset()
+        return frames
+
+    def _step(self, row: np.ndarray) -> np.ndarray:
+        """One token row (L,) through the graph: the frame of token `_stepped` - lookahead."""
+        names = self.graph.inputs
+        feed = {
+            names[0]: row[None, None],
+            names[1]: np.array([self._stepped]),
+            names[2]: self._state,
+        }
+        features, self._state = self.session.run(None, feed)
+        self._stepped += 1
+        return features[0]
+
+    def _catch_up(self) -> None:
+        """After a restore: run the kept token rows, as the stream first ran them."""
+        if self._stepped == self.pushed:
+            return
+        self._state = np.zeros_like(self._state)
+        self._stepped = self._start
+        for row in self._tokens:
+            self._step(row)
+
+    def _taken(self, ids: np.ndarray, outputs: list[np.ndarray]) -> np.ndarray:
+        """Account for `ids` pushed, their steps' `outputs`: the frames that became final."""
+        first = self.pushed - self.lookahead  # the frame of the first of these steps
+        self.pushed += len(ids)
+        self._tokens = np.concatenate([self._tokens, ids])
+        frames = [f for k, f in enumerate(outputs) if first + k >= self.emitted]
+        self.emitted = max(self.emitted, self.pushed - self.lookahead)
+        keep_from = max(0, self.emitted - self.left_context)
+        self._tokens = self._tokens[keep_from - self._start :]
+        self._start = keep_from
+        return np.concatenate(frames) if frames else self._none()
+
+
 def push_many(
     decoders: Sequence[StreamingDecoder],
     ids: Sequence[np.ndarray],
@@ -183,7 +268,13 @@ def push_many(
     graph that decodes a window less `cut` tokens at each end, cut) (mogo.serve.interior),
     for the windows whose new tokens lie `cut` tokens or more from both ends: every window of
     a stream past its first left context (the same frames to a float rounding)."""
-    windows = [decoder.feed(i) for decoder, i in zip(decoders, ids, strict=False)]
+    steps = [k for k, decoder in enumerate(decoders) if isinstance(decoder, StepDecoder)]
+    stepped = _step_many([decoders[k] for k in steps], [ids[k] for k in steps])
+    stepped = dict(zip(steps, stepped, strict=True))
+    windows = [
+        None if k in stepped else decoder.feed(i)
+        for k, (decoder, i) in enumerate(zip(decoders, ids, strict=False))
+    ]
     groups: dict[tuple[int, int], list[int]] = {}
     for k, (decoder, window) in enumerate(zip(decoders, windows, strict=False)):
         if window is not None:
@@ -191,7 +282,7 @@ def push_many(
             if decoder.emitted - decoder._start < cut or decoder.lookahead < cut:
                 cut = 0
             groups.setdefault((len(window), cut), []).append(k)
-    frames = [decoder._none() for decoder in decoders]
+    frames = [stepped.get(k, decoder._none()) for k, decoder in enumerate(decoders)]
     for (_, cut), ks in groups.items():
         first = decoders[ks[0]]
         if any(decoders[k].session is not first.session for k in ks):
@@ -202,6 +293,31 @@ def push_many(
         for k, features in zip(ks, decoded, strict=False):
             frames[k] = decoders[k].take(features, cut)
     return frames
+
+
+def _step_many(decoders: list[StepDecoder], ids: list[np.ndarray]) -> list[np.ndarray]:
+    """`push` for step decoders of one session: their rows stepped together, one call per row
+    (each stream's state a row of the call's)."""
+    ids = [d._checked(i) for d, i in zip(decoders, ids, strict=True)]
+    if any(d.session is not decoders[0].session for d in decoders):
+        raise ValueError("push_many needs step decoders that share one session")
+    for d in decoders:
+        d._catch_up()
+    outputs: list[list[np.ndarray]] = [[] for _ in decoders]
+    for depth in range(max(map(len, ids), default=0)):
+        ks = [k for k, i in enumerate(ids) if depth < len(i)]
+        group = [decoders[k] for k in ks]
+        names = group[0].graph.inputs
+        feed = {
+            names[0]: np.stack([ids[k][depth] for k in ks])[:, None],
+            names[1]: np.array([d._stepped for d in group]),
+            names[2]: np.concatenate([d._state for d in group]),
+        }
+        features, states = group[0].session.run(None, feed)
+        for row, (k, d) in enumerate(zip(ks, group, strict=True)):
+            d._state, d._stepped = states[row : row + 1], d._stepped + 1
+            outputs[k].append(features[row])
+    return [d._taken(i, out) for d, i, out in zip(decoders, ids, outputs, strict=True)]
 
 
 def _static_last_dim(args: list[ort.NodeArg], name: str) -> int:

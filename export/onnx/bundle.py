@@ -22,6 +22,7 @@ from mogo.bundle import Bundle, write_manifest
 from mogo.export.models.t2m import T2M as T2MModel
 from mogo.export.onnx.t2m_graphs import export_level, export_text_encoder
 from mogo.export.onnx.vq_graphs import export_vq_decoder, export_vq_encoder, random_ids
+from mogo.export.onnx.vq_step_graph import export_vq_step_decoder
 from mogo.manifest import (
     T2M,
     VQ,
@@ -101,13 +102,15 @@ def export_bundle(vq_run: Path, t2m_run: Path, out: Path, int8: bool = False) ->
 
 
 LOW_LATENCY_DECODER = "vq_decoder_low_latency.onnx"
+LOW_LATENCY_STEP = "vq_decoder_low_latency_step.onnx"  # the same decoder, a token a call
 
 
 def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     """`mogo export decoder --vq RUN --bundle OLD`: a new bundle, OLD with the VQ decoder of
     RUN, for a decoder fine-tune of OLD's own VQ (`mogo train vq --init OLD --tune decoder`), which needs
     none of OLD's training runs. A decoder of a shorter lookahead (`--decoder-lookahead`) goes
-    beside OLD's as its low-latency decoder (replacing any OLD had); else it replaces OLD's.
+    beside OLD's as its low-latency decoder (replacing any OLD had), with its step graph
+    (mogo.export.onnx.vq_step_graph); else it replaces OLD's.
     Every other file is copied byte for byte, so RUN's encoder must give OLD's tokens
     (checked through OLD's encoder graph) and RUN must share OLD's normalisation: that is what
     OLD's level graphs were trained on. Returns the manifest."""
@@ -119,17 +122,21 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
     out = new_folder(out)
     manifest = old.manifest
     decoder = LOW_LATENCY_DECODER if low_latency else manifest.vq.decoder.file
+    written = {decoder, LOW_LATENCY_STEP} if low_latency else {decoder}
     for name in manifest.files:
-        if name != decoder:
+        if name not in written:
             shutil.copy2(old.path(name), out / name)
     graph = export_vq_decoder(vq, out / decoder)
+    step = export_vq_step_decoder(vq, out / LOW_LATENCY_STEP) if low_latency else None
+    if step is not None:
+        store_weights_fp16(out / LOW_LATENCY_STEP)
     codes = _check_codes(vq)
     before, after = _outputs_before_and_after_fp16(out / decoder, {"ids": codes.numpy()})
     difference = float(np.abs(before - after).max())
     storage = manifest.fp16_storage or Fp16Storage(files=())
     storage = replace(
         storage,
-        files=tuple(sorted(set(storage.files) | {decoder})),
+        files=tuple(sorted(set(storage.files) | written)),
         **{
             f"{'vq_low_latency' if low_latency else 'vq'}_decoder_feature_max_abs_difference": difference
         },
@@ -143,7 +150,9 @@ def replace_vq_decoder(vq_run: Path, bundle_dir: Path, out: Path) -> Manifest:
         out,
         replace(
             manifest,
-            vq=replace(manifest.vq, **{role: graph}),
+            vq=replace(
+                manifest.vq, **{role: graph}, **({"low_latency_step": step} if step else {})
+            ),
             fp16_storage=storage,
             training={**manifest.training, "vq_" + role if low_latency else "vq": trained},
         ),

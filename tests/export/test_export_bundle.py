@@ -23,6 +23,7 @@ from mogo.manifest import SkeletonSpec
 from mogo.motion.feet import LOOKAHEAD, SHORT, planted
 from mogo.motion.skeleton import SMPL_22
 from mogo.sampling import Sampling
+from mogo.stream_decoder import StepDecoder, StreamingDecoder
 
 PROMPT = "a person walks forward."
 
@@ -429,7 +430,10 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(
     )  # the encoder would change
     assert "differs from None of --init" in capsys.readouterr().err
     old, written = read_manifest(bundle), read_manifest(new)
-    assert written.files.keys() - old.files.keys() == {"vq_decoder_low_latency.onnx"}
+    assert written.files.keys() - old.files.keys() == {
+        "vq_decoder_low_latency.onnx",
+        "vq_decoder_low_latency_step.onnx",
+    }
     assert all(written.files[name] == entry for name, entry in old.files.items())
     low = written.vq.low_latency_decoder
     assert (low.file, low.lookahead) == ("vq_decoder_low_latency.onnx", 1)
@@ -450,6 +454,12 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(
     resumed = generator.resume(streams[1].state())  # mogo.stream_state: low latency too
     for _ in range(20):
         np.testing.assert_array_equal(resumed.step(), streams[1].step())
+    assert written.vq.low_latency_step.lookahead == 1
+    ids = np.random.default_rng(0).integers(0, written.vq.codebook_size, (50, written.vq.levels))
+    stepped = generator.streaming_decoder(low_latency=True)  # the step graph, a token a call
+    window = StreamingDecoder(new / low.file, low.left_context, 1, written.vq.codebook_size)
+    assert isinstance(stepped, StepDecoder)
+    np.testing.assert_allclose(stepped.push(ids), window.decode_offline(ids)[:49], atol=1e-4)
 
 
 def test_a_low_latency_stream_plants_its_feet_with_the_short_window(low_latency_bundle):

@@ -65,7 +65,6 @@ def test_bad_values_to_generate_name_their_flag_on_one_line(flags, message, tmp_
     SAMPLING_FLAGS
     + [
         (["--frames", "x"], "argument --frames: invalid int value: 'x' (see mogo stream --help)"),
-        (["--low-latency"], "this bundle has no low-latency decoder"),  # the shipped bundle
     ],
 )
 def test_bad_values_to_stream_name_their_flag_on_one_line(flags, message, capsys):

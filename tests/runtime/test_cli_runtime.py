@@ -99,9 +99,11 @@ def test_a_prompts_file_plays_one_motion(tmp_path, capsys):
     assert "a person walks forward., then a person jumps." in capsys.readouterr().out
 
 
-def test_stream_prints_json_lines():
+@pytest.mark.parametrize("low_latency", [[], ["--low-latency"]])
+def test_stream_prints_json_lines(low_latency):
     result = subprocess.run(
-        [sys.executable, "-m", "mogo", "stream", "a person jogs.", "--frames", "5", "--seed", "2"],
+        [sys.executable, "-m", "mogo", "stream", "a person jogs.", "--frames", "5", "--seed", "2"]
+        + low_latency,
         capture_output=True,
         text=True,
     )

@@ -277,7 +277,7 @@ def test_info_says_what_it_verified():
     status, printed, error = info(DEFAULT_BUNDLE)
     assert status == 0, error
     assert (
-        "sha256 verified; 11 graphs open with the manifest's names and types; tokenizers and "
+        "sha256 verified; 12 graphs open with the manifest's names and types; tokenizers and "
         "repertoire read"
     ) in printed
 
