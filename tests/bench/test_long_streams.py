@@ -140,9 +140,11 @@ def test_low_latency_needs_the_stream_path_and_a_bundle_with_that_decoder(tmp_pa
     assert "--low-latency runs the stream path again" in capsys.readouterr().err
     bundle = tmp_path / "centred"  # the shipped bundle without its low-latency decoder
     shutil.copytree(DEFAULT_BUNDLE, bundle)
-    (bundle / read_manifest(bundle).vq.low_latency_decoder.file).unlink()
-    manifest = read_manifest(bundle)
-    write_manifest(bundle, replace(manifest, vq=replace(manifest.vq, low_latency_decoder=None)))
+    vq = read_manifest(bundle).vq
+    for graph in (vq.low_latency_decoder, vq.low_latency_step):
+        (bundle / graph.file).unlink()
+    vq = replace(vq, low_latency_decoder=None, low_latency_step=None)
+    write_manifest(bundle, replace(read_manifest(bundle), vq=vq))
     assert main([*argv, "--bundle", str(bundle)]) == 2
     assert "this bundle has no low-latency decoder" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
