@@ -101,7 +101,23 @@ def _cmd_long_streams(args: argparse.Namespace) -> None:
         from mogo.serve.cli import require_serve_extra
 
         require_serve_extra()
+    if args.low_latency and not args.tables_from:
+        _require_low_latency(args)
     main(args)
+
+
+def _require_low_latency(args: argparse.Namespace) -> None:
+    """--low-latency runs MotionStream's tasks again with the bundle's low-latency decoder."""
+    from mogo.bundle import read_manifest
+    from mogo.generator import DEFAULT_BUNDLE
+
+    if "stream" not in args.path:
+        raise CliError("--low-latency runs the stream path again: add --path stream")
+    if read_manifest(Path(args.bundle or DEFAULT_BUNDLE)).vq.low_latency_decoder is None:
+        raise CliError(
+            "--low-latency: this bundle has no low-latency decoder (manifest "
+            "vq.low_latency_decoder; `mogo export decoder` adds one)"
+        )
 
 
 OLD_SPELLINGS = [
@@ -284,6 +300,12 @@ def _long_streams_arguments(streams: argparse.ArgumentParser) -> None:
         "--quick",
         action="store_true",
         help="a smoke run: two actions, 20-s streams, one seed, one switch",
+    )
+    streams.add_argument(
+        "--low-latency",
+        action="store_true",
+        help="the stream path again with the bundle's low-latency decoder: a column of its "
+        "own, and the switch as received beside the centred decoder's",
     )
 
 

@@ -10,7 +10,8 @@ Judged: the share of 10-s windows that pass the action's check, how fast a promp
 jump, bow, turn, kick) is under way after a switch from a walk or a `continue_from` of one, the
 seams of re-anchoring (joint speed there against ordinary frames), drift (pelvis height band,
 feet under the floor), foot sliding in contact against short clips of the same prompts, and
-how far each path's frames are from `MotionStream`'s for the same prompt, seed and switches.
+how far each path's frames are from `MotionStream`'s for the same prompt, seed and switches,
+and how late a switch shows in the frames received (mogo.bench.quality.received_switch).
 Markdown tables on stdout and in OUT/long_streams.md, the figures in OUT/long_streams.json,
 the pass share by minute in OUT/long_streams.png.
 """
@@ -27,11 +28,12 @@ from concurrent.futures import (
     ThreadPoolExecutor,
     wait,
 )
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from mogo.bench.quality.received_switch import received_table, visible
 from mogo.bench.quality.stream_checks import (
     FPS,
     REPERTOIRE,
@@ -82,10 +84,13 @@ class Task:
     seed: int
     schedule: tuple[tuple[str, int], ...]  # (prompt, frames) entries
     action: str = ""  # the judged action (the one-off's, an action's); switches: none
+    low_latency: bool = False  # path "stream": the bundle's low-latency decoder
 
     @property
     def column(self) -> str:
-        return f"stream, anchoring {self.mode}" if self.path == "stream" else self.path
+        if self.path != "stream":
+            return self.path
+        return f"stream, anchoring {self.mode}" + ", low-latency decoder" * self.low_latency
 
 
 @dataclass
@@ -99,6 +104,7 @@ class Made:
     seams: list[int] | None = None
     fresh: int = 0
     step_seconds: list[float] = field(default_factory=list)  # by minute (or overall)
+    received: list[int] | None = None  # MotionStream's: frames the caller had at each switch
 
 
 def _stream(bundle, task: Task) -> Made:
@@ -110,16 +116,20 @@ def _stream(bundle, task: Task) -> Made:
     if task.path == "continue":
         clip = g.generate(schedule[0][0], seconds=schedule[0][1] / FPS, seed=task.seed)
         lead, schedule = clip.joints, schedule[1:]
-    stream = g.stream(schedule[0][0], seed=task.seed, anchoring=MODES[task.mode])
+    stream = g.stream(
+        schedule[0][0], seed=task.seed, anchoring=MODES[task.mode], low_latency=task.low_latency
+    )
     if task.path == "continue":
         stream.continue_from(clip)
     ends = np.cumsum([n for _, n in schedule])  # the stream's frames where each entry ends
     down, chunks, seams, minutes = g.down_factor, [], [], []
+    received = [len(lead)] * (task.path == "continue")  # frames the caller had at each switch
     steps, start = 0, time.perf_counter()
     while sum(map(len, chunks)) < ends[-1]:
         k = len(stream.prompts)
         if k < len(schedule) and steps * down >= ends[k - 1]:
             stream.set_prompt(schedule[k][0])
+            received.append(len(lead) + sum(map(len, chunks)))
         anchors = stream.anchor.anchors if stream.anchor else 0
         chunks.append(stream.step())
         steps += 1
@@ -132,7 +142,8 @@ def _stream(bundle, task: Task) -> Made:
         len(lead) + f for f, _ in stream.prompts[1:]
     ]
     joints = np.concatenate([lead, *chunks])[: len(lead) + ends[-1]]
-    return Made(joints, switches, seams, stream.anchor.fresh if stream.anchor else 0, minutes)
+    fresh = stream.anchor.fresh if stream.anchor else 0
+    return Made(joints, switches, seams, fresh, minutes, received)
 
 
 def _generated(bundle, task: Task) -> Made:
@@ -257,7 +268,8 @@ def judge(bundle, task: Task, made: Made) -> dict:
             reaction_frames(checks[p], joints[a:b])
             for p, a, b in zip(prompts, starts, ends, strict=True)
         ]
-        return row | dict(reactions=reactions)
+        seen = None if made.received is None else visible(starts, reactions, made.received)
+        return row | dict(reactions=reactions, visible=seen)
     action = _by_name(task.action)
     short = _worker_generator(bundle).generate(action.prompt, seconds=5, seed=task.seed).joints
     speed = joint_speed(joints)
@@ -613,6 +625,7 @@ def report(result: dict) -> str:
     if "one-off" in kinds:
         runs += f"; one-off actions {ONE_OFF_LEAD[1] // FPS} s into '{ONE_OFF_LEAD[0]}'"
     tables = [action_table(result), one_off_table(result), figures_table(result)]
+    tables.append(received_table(result))
     return f"{runs}\n\n" + "\n\n".join(t for t in tables if t) + "\n"
 
 
@@ -631,6 +644,8 @@ def main(args: argparse.Namespace) -> None:
         result = merged(args.tables_from)
     else:
         tasks = schedules(args.path, args.modes, actions, minutes, seeds, switches, one_offs)
+        if args.low_latency:  # MotionStream's tasks again, with the low-latency decoder
+            tasks += [replace(t, low_latency=True) for t in tasks if t.path == "stream"]
         result = measure(args.bundle, tasks, args.jobs)
         result["lengths"] = {c: (minutes, seeds) for c in result["columns"]}
     text = report(result)

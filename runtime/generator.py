@@ -44,8 +44,7 @@ from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import MAX_GENERATE_SECONDS, StepDecoderGraph, io_types
 from mogo.motion.features import JointStream
-from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
-from mogo.motion.feet import FootPlanter, planted
+from mogo.motion.feet import SHORT, WINDOW, FootPlanter, planted
 from mogo.motion.untrusted import checked_finite
 from mogo.progress import Progress
 from mogo.repertoire import Familiarity
@@ -572,8 +571,9 @@ class MotionStream:
     final (joints (n, J, 3); none while the decoder waits for its right context, then bursts of
     STREAM_DECODE_EVERY). Memory and step time stay constant: the KV cache slides over the
     last `window` steps, or, re-anchored (`anchoring`, mogo.anchoring), holds at most its span.
-    Planting the feet holds each frame back until the frames of its lookahead
-    (mogo.motion.feet.LOOKAHEAD) are decoded."""
+    Planting the feet holds each frame back until the frames of its lookahead are decoded
+    (mogo.motion.feet: 8 frames; 2 for a low-latency stream, whose decoder waits a few tokens,
+    not 31)."""
 
     def __init__(
         self,
@@ -601,7 +601,11 @@ class MotionStream:
         )
         self.decoder = generator.streaming_decoder(decoder_session, low_latency=low_latency)
         self._joints = JointStream(generator.skeleton)
-        self.feet = FootPlanter(generator.skeleton) if plant_feet else None  # issue 25
+        self.feet = (  # issue 25
+            FootPlanter(generator.skeleton, window=SHORT if low_latency else WINDOW)
+            if plant_feet
+            else None
+        )
         self.frames_emitted = 0
         self._skip = 0
         self._unread = np.zeros((0, generator.skeleton.num_joints, 3), np.float32)
@@ -697,8 +701,8 @@ class MotionStream:
         levels = g.tokens.num_levels
         with self._lock:
             left = self._pending_frames() - self._skip  # the frames still to come out
-            feet = self.feet_steps
-            drawn = [self._next_tokens() for _ in range(feet + self.decoder.lookahead)]
+            feet = self.lookahead_steps - self.decoder.lookahead
+            drawn = [self._next_tokens() for _ in range(self.lookahead_steps)]
             ahead = np.reshape(drawn, (-1, levels))
             features = np.concatenate(
                 [self.decoder.push(ahead[:feet]), self.decoder.flush(ahead[feet:])]
@@ -715,12 +719,12 @@ class MotionStream:
         return Motion(features, joints, g.fps, tokens, g.skeleton, list(self.prompts), self.seed)
 
     @property
-    def feet_steps(self) -> int:
-        """Token steps the foot planter reads ahead of a frame it releases (0: feet as
-        decoded); the server paces a stream by it and the decoder's lookahead."""
-        if self.feet is None:
-            return 0
-        return math.ceil(FEET_LOOKAHEAD / self.generator.down_factor)
+    def lookahead_steps(self) -> int:
+        """Token steps drawn past a token before its frames are final: the decoder's
+        lookahead and the foot planter's (one frame a token: a new stream's first frame comes at
+        step this + 1)."""
+        feet = 0 if self.feet is None else self.feet.lookahead
+        return self.decoder.lookahead + math.ceil(feet / self.generator.down_factor)
 
     def _next_tokens(self) -> np.ndarray:
         return self.drawn(self.tokens.step())
@@ -746,7 +750,7 @@ class MotionStream:
 
     def _final(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Decoded rows in, the rows now final out with their joints: the feet planted when
-        asked, LOOKAHEAD frames later."""
+        asked, the planter's lookahead later."""
         joints = self._joints.push(features)
         if self.feet is None:
             return features, joints

@@ -29,7 +29,6 @@ import numpy as np
 
 from mogo.anchoring import Anchoring
 from mogo.manifest import MANIFEST
-from mogo.motion.feet import LOOKAHEAD
 from mogo.sampling import Sampling
 
 if TYPE_CHECKING:
@@ -311,8 +310,9 @@ def _restore_feet(f: _Fields, feet, g) -> None:
     feet._released = f.array("released", "<f8", (3,), contacts, exact=contacts)
     feet._shift = f.array("shift", "<f8", (), 3, exact=3)
     feet._backs = f.array("backs", "<f8", (3,), len(feet._backs), exact=len(feet._backs))
-    feet._features = f.array("features", "<f4", (g.manifest.feature_dim,), LOOKAHEAD)
-    joints = f.array("rows", "<f4", (g.skeleton.num_joints, 3), LOOKAHEAD)
+    held = feet.lookahead  # the frames a planter of this stream's window holds back at most
+    feet._features = f.array("features", "<f4", (g.manifest.feature_dim,), held)
+    joints = f.array("rows", "<f4", (g.skeleton.num_joints, 3), held)
     if len(joints) != len(feet._features):
         raise StateError("state field 'feet': as many joint rows as feature rows needed")
     feet._joints = joints.astype(np.float64)

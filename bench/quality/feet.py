@@ -3,6 +3,7 @@ runtime's foot planting (mogo.motion.feet), beside the corpus's real clips, the 
 both ways (with --data), and what planting costs a stream per frame against one token step:
 
     python -m mogo.bench.quality.feet [--data DIR] [--per-primitive 20]
+    python -m mogo.bench.quality.feet --windows   # the lookahead a stream waits, against quality
 
 A contact frame of a foot joint (ankle or toe, t -> t+1) is one where the clip's contact
 channel is above 0.5 and its decoded velocity is under HumanML3D's contact threshold (what a
@@ -40,8 +41,17 @@ import numpy as np
 
 from mogo.arguments import PromptWarning
 from mogo.generator import STREAM_DECODE_EVERY, MotionGenerator
-from mogo.motion.features import FOOT_CONTACT_THRESHOLD, feature_layout
-from mogo.motion.feet import BODY_STEP, LOOKAHEAD, FootPlanter, leg_joints, planted
+from mogo.motion.features import FOOT_CONTACT_THRESHOLD, JointStream, feature_layout
+from mogo.motion.feet import (
+    BODY_STEP,
+    LOOKAHEAD,
+    SHORT,
+    WINDOW,
+    FootPlanter,
+    Window,
+    leg_joints,
+    planted,
+)
 from mogo.motion.rig import rest_offsets
 
 LOCOMOTION = (
@@ -74,6 +84,19 @@ TRADE_OFF = (  # (hold_step, body_step), m a frame: the --trade-off table's plan
     (np.inf, 0.067),
     (0.10, FOOT_CONTACT_THRESHOLD**0.5),
     (FOOT_CONTACT_THRESHOLD**0.5, 0.0),
+)
+
+WINDOWS = (  # the --windows table's planters: (blend_in, pin_frames), lookahead 8 down to 2
+    WINDOW,
+    Window(2, 5),
+    Window(3, 3),
+    Window(2, 3),
+    Window(1, 4),
+    Window(3, 2),
+    Window(2, 2),
+    Window(1, 3),
+    Window(1, 2),
+    Window(2, 1),
 )
 
 
@@ -149,16 +172,22 @@ def _path(joints: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(joints[:, 0, [0, 2]], axis=0), axis=-1).sum())
 
 
-@functools.lru_cache(maxsize=2)
+@functools.lru_cache(maxsize=4)
 def locomotion(
-    generator: MotionGenerator, first_seed: int = 0
+    generator: MotionGenerator, first_seed: int = 0, low_latency: bool = False
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The 24 clips as decoded: (joints, features, joints) each (made once per generator)."""
+    """The 24 clips as decoded: (joints, features, joints) each (made once per generator);
+    `low_latency`: their tokens decoded by the bundle's low-latency decoder, as its streams'."""
     clips = []
     for prompt in LOCOMOTION:
         for seed in range(first_seed, first_seed + SEEDS):
             motion = generator.generate(prompt, seconds=SECONDS, seed=seed, plant_feet=False)
-            clips.append((motion.joints, motion.features, motion.joints))
+            features, joints = motion.features, motion.joints
+            if low_latency:
+                decoder = generator.streaming_decoder(low_latency=True)
+                features = generator._denormalised(decoder.decode_offline(motion.tokens))
+                joints = JointStream(generator.skeleton).push(features)
+            clips.append((joints, features, joints))
     return clips
 
 
@@ -273,6 +302,45 @@ def trade_off(generator: MotionGenerator) -> str:
             f"{row['pelvis_pop']:.3f} | {row['travel']:+.1f}% "
             f"({row['travel_most']:+.0f}%) | "
             f"{foot_measures(other, skeleton, False)['speed']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def windows(generator: MotionGenerator, low_latency: bool = False) -> str:
+    """The default planter with each of WINDOWS (what a stream waits for its feet) against
+    the slide and the pops, on the 24 clips (the slide on 24 others too); `low_latency`: the
+    clips decoded by the bundle's low-latency decoder."""
+    skeleton = generator.skeleton
+    lines = [
+        "| blend-in + pin frames | lookahead (frames) | slide in contact (cm/s) | channel alone "
+        "| > 10 cm/s, channel alone | foot pop, worst per clip | p99 | leg bone error | "
+        f"leg joint change (cm) | slide, channel alone, seeds {SEEDS}-{2 * SEEDS - 1} |",
+        "|---" * 10 + "|",
+    ]
+    for window in (None, *WINDOWS):
+        main, other = (
+            [
+                (j if window is None else planted(f, j, skeleton, window=window), f, j)
+                for j, f, _ in clips
+            ]
+            for clips in (
+                locomotion(generator, 0, low_latency),
+                locomotion(generator, SEEDS, low_latency),
+            )
+        )
+        confirmed, alone = (foot_measures(main, skeleton, c) for c in (True, False))
+        name = (
+            "as decoded"
+            if window is None
+            else f"{window.blend_in} + {window.pin_frames}"
+            + " (default)" * (window == WINDOW)
+            + " (low-latency streams)" * (window == SHORT)
+        )
+        lines.append(
+            f"| {name} | {'-' if window is None else window.lookahead} | "
+            f"{confirmed['speed']:.1f} | {alone['speed']:.1f} | {alone['sliding']:.1f}% | "
+            f"{alone['pop']:.3f} | {alone['pop_p99']:.3f} | {alone['bone_error']:.2f}% | "
+            f"{alone['change_legs']:.2f} | {foot_measures(other, skeleton, False)['speed']:.1f} |"
         )
     return "\n".join(lines)
 
@@ -407,10 +475,21 @@ def main() -> None:
         action="store_true",
         help="only the table of planters: slide against pop and travel",
     )
+    parser.add_argument(
+        "--windows",
+        action="store_true",
+        help="only the table of planting windows: the lookahead a stream waits against "
+        "slide and pop",
+    )
     args = parser.parse_args()
     generator = MotionGenerator.load(args.bundle)
     if args.trade_off:
         print(trade_off(generator))
+        return
+    if args.windows:
+        print(f"Decoded by the centred decoder:\n\n{windows(generator)}\n")
+        if generator.manifest.vq.low_latency_decoder is not None:
+            print(f"Decoded by the low-latency decoder:\n\n{windows(generator, True)}\n")
         return
     print(
         f"{len(LOCOMOTION) * SEEDS} generated clips of {SECONDS:g} s ({', '.join(LOCOMOTION)}; "

@@ -2,7 +2,8 @@
 (no torch). The CPU and the instruction sets that pick onnxruntime's kernels (the bundle's level
 graphs are int8: VNNI does their multiply-adds in one instruction, plain AVX2 in several), then
 the shipped bundle's time to first frame, a 9.8-s clip and one token step (the six level graphs
-at batch 1 and the sampler), at 1 and 2 threads, beside the README's figures.
+at batch 1 and the sampler), at 1 and 2 threads, beside the README's figures; and the first
+frame of a low-latency stream where the bundle has that decoder.
 
     mogo bench quick [--bundle DIR] [--threads 1 2]
 """
@@ -37,7 +38,7 @@ FEATURES = {
 }
 VNNI = {"avx512_vnni", "avx_vnni", "asimddp"}  # int8 dot products in one instruction
 TOKEN_STEPS = 16  # token steps per timed call
-ROUNDS, BUDGET_S = 5, 10.0  # a round past the budget only if fewer than 3 ran
+ROUNDS, BUDGET_S = 7, 10.0  # a round past the budget only if fewer than 3 ran
 
 
 def cpu() -> tuple[str, set[str] | None]:
@@ -62,10 +63,10 @@ def features_line(flags: set[str] | None) -> str:
     return ", ".join(f"{FEATURES[flag]} {'yes' if flag in flags else 'no'}" for flag in names)
 
 
-def time_to_first_frame(generator: MotionGenerator, seed: int) -> None:
+def time_to_first_frame(generator: MotionGenerator, seed: int, low_latency: bool = False) -> None:
     """A new stream up to its first frame (the prompt encoded, the decoder's and the feet's
-    lookahead drawn, decoded)."""
-    stream = generator.stream(PROMPT, seed=seed)
+    lookahead drawn, decoded); `low_latency`: decoded by the bundle's low-latency decoder."""
+    stream = generator.stream(PROMPT, seed=seed, low_latency=low_latency)
     while not len(stream.step()):
         pass
 
@@ -89,8 +90,9 @@ def token_steps(generator: MotionGenerator):
     return run
 
 
-def measure(bundle: Path, threads: tuple[int, ...]) -> dict[int, dict[str, float]]:
-    """threads -> first_ms, clip_s, step_ms: medians of interleaved rounds."""
+def measure(bundle: Path, threads: tuple[int, ...]) -> dict[int, dict[str, float | None]]:
+    """threads -> first_ms, clip_s, step_ms, low_latency_first_ms (None: the bundle has no
+    such decoder): medians of interleaved rounds."""
     generators = {t: MotionGenerator.load(bundle, threads=t) for t in threads}
     seconds = MAX_FRAMES / next(iter(generators.values())).fps
     calls = {}
@@ -98,11 +100,14 @@ def measure(bundle: Path, threads: tuple[int, ...]) -> dict[int, dict[str, float
         calls[f"first {t}"] = lambda g=g: time_to_first_frame(g, seed=0)
         calls[f"clip {t}"] = lambda g=g: g.generate(PROMPT, seconds=seconds, seed=0)
         calls[f"step {t}"] = token_steps(g)
+        if g.manifest.vq.low_latency_decoder is not None:
+            calls[f"low {t}"] = lambda g=g: time_to_first_frame(g, seed=0, low_latency=True)
     log(f"first frame, a {seconds:g}-s clip and {TOKEN_STEPS} token steps, threads {threads}")
     medians = interleaved(calls, ROUNDS, BUDGET_S)
     return {
         t: dict(
             first_ms=1e3 * medians[f"first {t}"],
+            low_latency_first_ms=1e3 * medians[f"low {t}"] if f"low {t}" in medians else None,
             clip_s=medians[f"clip {t}"],
             step_ms=1e3 * medians[f"step {t}"] / TOKEN_STEPS,
         )
@@ -110,7 +115,7 @@ def measure(bundle: Path, threads: tuple[int, ...]) -> dict[int, dict[str, float
     }
 
 
-def report(rows: dict[int, dict[str, float]], model: str, flags: set[str] | None) -> str:
+def report(rows: dict[int, dict[str, float | None]], model: str, flags: set[str] | None) -> str:
     lines = [
         f"this machine: {model}, {os.cpu_count()} cores, Python "
         f"{platform.python_version()}, onnxruntime {onnxruntime.__version__}",
@@ -118,14 +123,16 @@ def report(rows: dict[int, dict[str, float]], model: str, flags: set[str] | None
         f"README: {README_MACHINE}",
         "",
         "| threads | first frame, here / README | 9.8-s clip, here / README "
-        "| token step (6 level graphs), here |",
-        "|---:|---:|---:|---:|",
+        "| token step (6 level graphs), here | first frame, low-latency decoder |",
+        "|---:|---:|---:|---:|---:|",
     ]
     for t, row in rows.items():
         first, clip = README.get(t, (None, None))
+        low = row["low_latency_first_ms"]
         lines.append(
             f"| {t} | {_beside(row['first_ms'], first, '{:.0f} ms')} | "
-            f"{_beside(row['clip_s'], clip, '{:.3f} s')} | {row['step_ms']:.2f} ms |"
+            f"{_beside(row['clip_s'], clip, '{:.3f} s')} | {row['step_ms']:.2f} ms | "
+            f"{'-' if low is None else f'{low:.0f} ms'} |"
         )
     lines.append("")
     lines.append(

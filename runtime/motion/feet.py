@@ -14,11 +14,12 @@ asked, moves the body):
 - each contact joint is held while its channel is above CONTACT and its decoded step is under
   HOLD_STEP, HumanML3D's contact threshold (a foot swinging faster is not believed planted:
   holding it squeezes its stride into the frames left, a pop), the frame after too (a contact
-  is "still from t to t+1"), at its mean position over the first PIN_FRAMES frames of the
-  contact; its height is never below that pin (a heel may rise, a foot never sinks);
-- it eases onto the pin over BLEND_IN frames before the contact and back onto its path over
-  BLEND_OUT frames after it, by blending offsets with a smoothstep: neither position nor
-  speed jumps;
+  is "still from t to t+1"), at its mean position over the contact's first frames (its
+  Window's pin_frames); its height is never below that pin (a heel may rise, a foot never
+  sinks);
+- it eases onto the pin over the Window's blend_in frames before the contact and back onto
+  its path over BLEND_OUT frames after it, by blending offsets with a smoothstep: neither
+  position nor speed jumps;
 - the foot stays rigid (ankle to toe at the foot's length, the more planted end held) and on or
   above the floor (y >= 0);
 - each leg is solved by analytic two-bone IK: hip as the (shifted) body's, knee in the plane of
@@ -27,11 +28,15 @@ asked, moves the body):
   stop stretching. A target out of the leg's reach is pulled towards the hip (the foot slides
   rather than the pelvis dropping).
 
-It reads LOOKAHEAD frames ahead, so a stream emits a frame LOOKAHEAD frames after it is decoded.
-Any chunking of `push` (then `flush`) gives the output of one push of the whole clip.
+It reads blend_in + pin_frames - 1 frames ahead (Window.lookahead), so a stream emits a frame
+that many frames after it is decoded: 8 with the default WINDOW (one burst of the centred
+decoder), 2 with SHORT, the low-latency streams' (docs/feet.md). Any chunking of `push` (then
+`flush`) gives the output of one push of the whole clip.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -45,10 +50,26 @@ CONTACT = 0.5  # a contact channel above this holds its joint
 HOLD_STEP = FOOT_CONTACT_THRESHOLD**0.5
 BODY_STEP = 0.067  # m a frame (1.34 m/s): the body step measured best, when one is asked for
 BODY_FRAMES = 3  # frames each such step back is spread over (the body slows, it does not jerk)
-BLEND_IN = 3  # frames to ease onto a pin before its contact starts
 BLEND_OUT = 8  # frames to ease back onto the decoded path after a contact (no lookahead)
-PIN_FRAMES = 6  # the pin: mean position over the first frames of a contact
-LOOKAHEAD = BLEND_IN + PIN_FRAMES - 1  # frames read ahead: 8, one decoder burst
+
+
+@dataclass(frozen=True)
+class Window:
+    """What the planter reads ahead: it eases onto a pin over `blend_in` frames before its
+    contact starts, the pin being the mean position over the contact's first `pin_frames`."""
+
+    blend_in: int
+    pin_frames: int
+
+    @property
+    def lookahead(self) -> int:
+        """Frames read ahead: a frame is final once this many frames after it are decoded."""
+        return self.blend_in + self.pin_frames - 1
+
+
+WINDOW = Window(blend_in=3, pin_frames=6)  # 8 frames ahead, one burst of the centred decoder
+SHORT = Window(blend_in=2, pin_frames=1)  # 2 frames ahead: low-latency streams (docs/feet.md)
+LOOKAHEAD = WINDOW.lookahead  # the default planter's: generate, centred streams, the serve engine
 MAX_REACH = 0.9995  # share of thigh + shin the IK may stretch a leg to
 KNEE_FORWARD = 0.1  # metres the knee's bend plane leans forward: a straight leg bends forward
 
@@ -106,8 +127,15 @@ class FootPlanter:
     """Cleans feet frame by frame: `push` decoded rows (features (n, D), joints (n, J, 3)),
     get back the rows whose frames are final, with planted feet; `flush` at the end."""
 
-    def __init__(self, skeleton: Skeleton, hold_step: float = HOLD_STEP, body_step: float = np.inf):
+    def __init__(
+        self,
+        skeleton: Skeleton,
+        hold_step: float = HOLD_STEP,
+        body_step: float = np.inf,
+        window: Window = WINDOW,
+    ):
         self.hold_step, self.body_step = hold_step, body_step  # the bench compares others
+        self.window = window
         self.legs = leg_joints(skeleton)  # (2, 4)
         self.contacts = self.legs[:, 2:].reshape(-1)  # left ankle, left toe, right ...
         start = dict((name, start) for name, start, _ in feature_layout(skeleton))
@@ -127,6 +155,11 @@ class FootPlanter:
         self._lengths = rest[self.legs[0, 1:]]  # thigh, shin, foot (left and right averaged)
 
     @property
+    def lookahead(self) -> int:
+        """Frames held back: a pushed frame comes out once this many more are pushed."""
+        return self.window.lookahead
+
+    @property
     def pending(self) -> int:
         """Frames pushed but not yet returned."""
         return len(self._joints)
@@ -137,7 +170,7 @@ class FootPlanter:
             # a stream pushes nothing on 7 of every 8 token steps
             return self._features[:0], np.zeros((0, *self._joints.shape[1:]), np.float32)
         self._buffer(features, joints)
-        return self._clean(max(0, len(self._joints) - LOOKAHEAD))
+        return self._clean(max(0, len(self._joints) - self.lookahead))
 
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """The remaining rows (the clip ends: no lookahead past them)."""
@@ -194,13 +227,14 @@ class FootPlanter:
         if not ready:
             return np.zeros((0, 4, 3)), np.zeros((0, 4))
         n, frames = len(flags), np.arange(len(flags))[:, None]
+        blend_in, pin_frames = self.window.blend_in, self.window.pin_frames
         held = flags | np.concatenate([self._flag[None], flags[:-1]])
         starts = held & ~np.concatenate([self._held[None], held[:-1]])
         pins = np.repeat(self._pin[None], n, 0)  # a contact going on from earlier frames
         for i, k in zip(
-            *np.nonzero(starts[: ready + BLEND_IN]), strict=False
+            *np.nonzero(starts[: ready + blend_in]), strict=False
         ):  # each contact: its pin
-            length = np.cumprod(held[i : i + PIN_FRAMES, k]).sum()
+            length = np.cumprod(held[i : i + pin_frames, k]).sum()
             pins[i, k] = paths[i : i + length, k].mean(0)
         run = np.maximum.accumulate(np.where(starts, frames, -1), axis=0)  # its start
         pins = np.where((run >= 0)[..., None], pins[np.maximum(run, 0), np.arange(4)], pins)
@@ -214,7 +248,7 @@ class FootPlanter:
         out = _ease(1.0 - since / (BLEND_OUT + 1))
         upcoming = np.minimum.accumulate(np.where(flags, frames, n)[::-1], axis=0)[::-1]
         following = np.concatenate([upcoming[1:], np.full((1, 4), n)])  # first flag after
-        into = np.where(following < n, _ease(1.0 - (following - frames) / (BLEND_IN + 1)), 0.0)
+        into = np.where(following < n, _ease(1.0 - (following - frames) / (blend_in + 1)), 0.0)
         start_offset = held_offset[np.minimum(following, n - 1), np.arange(4)]
         offset = out[..., None] * released + into[..., None] * start_offset
         weight = out + into
@@ -268,11 +302,9 @@ def _offset(pin: np.ndarray, position: np.ndarray) -> np.ndarray:
     return offset
 
 
-def planted(
-    features: np.ndarray, joints: np.ndarray, skeleton: Skeleton, **steps: float
-) -> np.ndarray:
+def planted(features: np.ndarray, joints: np.ndarray, skeleton: Skeleton, **options) -> np.ndarray:
     """The joints (T, J, 3) float32 of a whole clip with planted feet (one push and a flush);
-    `steps`: FootPlanter's hold_step and body_step."""
-    planter = FootPlanter(skeleton, **steps)
+    `options`: FootPlanter's hold_step, body_step and window."""
+    planter = FootPlanter(skeleton, **options)
     first = planter.push(features, joints)[1]
     return np.concatenate([first, planter.flush()[1]])

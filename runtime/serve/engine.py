@@ -79,10 +79,9 @@ class ServedStream(MotionStream):
         self.start_tick = start_tick
         self.send_from = 0  # frames before this one are not sent (a resume's client has them)
         self.low_latency = low_latency
-        # its first frame after this many steps, then frames a burst (`every` steps) apart:
-        # two bursts more keep its frames ahead of their time
-        first_frame = self.decoder.lookahead + 1 + self.feet_steps
-        self.lead = first_frame + 2 * self.decoder.every
+        # its first frame after this many steps (its own decoder's and planter's lookahead),
+        # then frames a burst (`every` steps) apart: two bursts more keep them ahead of time
+        self.lead = self.lookahead_steps + 1 + 2 * self.decoder.every
 
     @property
     def prompt(self) -> str:

@@ -1,7 +1,10 @@
 """The foot measures of mogo.bench.quality.feet on clips whose answers are known."""
 
+from types import SimpleNamespace
+
 import numpy as np
 
+from mogo.bench.quality import feet
 from mogo.bench.quality.feet import contacts, foot_measures, format_feet
 from mogo.motion.features import feature_layout
 from mogo.motion.skeleton import SMPL_22
@@ -57,3 +60,21 @@ def test_a_body_that_travels_less_changes_travel_not_the_pose():
     assert abs(result["travel"] + 50.0) < 1e-6 and abs(result["travel_most"] + 50.0) < 1e-6
     assert result["change"] < 1e-9 and result["change_legs"] < 1e-9
     assert "| -50.0% (-50%) |" in format_feet({"x": result})
+
+
+def test_the_windows_table_plants_with_each_window(monkeypatch):
+    """`--windows`: a row as decoded, then one per window, the default's and the low-latency
+    streams' named; a foot gliding 1 cm a frame in contact is held by every window."""
+    joints, features = _clip(0.01, frames=40)
+    joints[10, FEET, 1] = joints[9, FEET, 1]  # no dip: the floor is not what this measures
+
+    def clips(generator, first_seed=0, low_latency=False):
+        return [(joints, features, joints)]
+
+    monkeypatch.setattr(feet, "locomotion", clips)
+    rows = feet.windows(SimpleNamespace(skeleton=SMPL_22)).splitlines()[2:]
+    assert len(rows) == 1 + len(feet.WINDOWS)
+    assert rows[0].startswith("| as decoded | - | 20.0 | 20.0 |")
+    assert rows[1].startswith("| 3 + 6 (default) | 8 |")
+    assert any(row.startswith("| 2 + 1 (low-latency streams) | 2 |") for row in rows)
+    assert all(float(row.split("|")[3]) < 5.0 for row in rows[1:])  # held: 20 cm/s down to ~2

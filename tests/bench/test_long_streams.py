@@ -2,6 +2,8 @@
 path), a run of chosen actions, and the window checks it rests on, judged against the procedural animator's own performance."""
 
 import json
+import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,7 +18,9 @@ from mogo.bench.quality.stream_checks import (
     reference,
     window_passes,
 )
+from mogo.bundle import read_manifest, write_manifest
 from mogo.cli import main
+from mogo.generator import DEFAULT_BUNDLE
 
 
 def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
@@ -30,6 +34,8 @@ def test_the_quick_run_writes_its_tables_figures_and_plot(tmp_path, capsys):
     assert {r["column"] for r in kinds["action"]} == set(result["columns"])
     assert all(len(r["passes"]) == 2 for r in kinds["action"])  # 20 s: two 10-s windows
     assert all(len(s["reactions"]) == 1 for s in kinds["switches"])
+    assert all(len(s["visible"]) == 1 for s in kinds["switches"])  # as the caller received it
+    assert "| switch visible in the received frames |" in printed
     assert Image.open(tmp_path / "long_streams.png").size[0] > 0
 
 
@@ -126,3 +132,19 @@ def test_a_still_figure_holds_and_does_not_walk():
     assert window_passes(WindowCheck(walk, 200), still) == [False, False]
     figures = drift(still)
     assert figures["slide"] == 0 and figures["pelvis_low"] == figures["pelvis_high"]
+
+
+def test_low_latency_needs_the_stream_path_and_a_bundle_with_that_decoder(tmp_path, capsys):
+    argv = ["bench", "long-streams", "--quick", "--low-latency", "--out", str(tmp_path / "out")]
+    assert main([*argv, "--path", "generate"]) == 2
+    assert "--low-latency runs the stream path again" in capsys.readouterr().err
+    bundle = tmp_path / "centred"  # the shipped bundle without its low-latency decoder
+    shutil.copytree(DEFAULT_BUNDLE, bundle)
+    vq = read_manifest(bundle).vq
+    for graph in (vq.low_latency_decoder, vq.low_latency_step):
+        (bundle / graph.file).unlink()
+    vq = replace(vq, low_latency_decoder=None, low_latency_step=None)
+    write_manifest(bundle, replace(read_manifest(bundle), vq=vq))
+    assert main([*argv, "--bundle", str(bundle)]) == 2
+    assert "this bundle has no low-latency decoder" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -20,6 +20,7 @@ from mogo.export.onnx import bundle as onnx_bundle
 from mogo.export.onnx.vq_graphs import vq_from_bundle
 from mogo.generator import MotionGenerator
 from mogo.manifest import SkeletonSpec
+from mogo.motion.feet import LOOKAHEAD, SHORT, planted
 from mogo.motion.skeleton import SMPL_22
 from mogo.sampling import Sampling
 from mogo.stream_decoder import StepDecoder, StreamingDecoder
@@ -383,40 +384,27 @@ def test_a_bundles_decoder_is_fine_tuned_and_replaced_without_its_runs(runs, tmp
     assert not np.allclose(old_motion.features, new_motion.features)
 
 
-def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path, capsys):
-    bundle, data = runs / "bundle", runs / "data"
-    tuned, new = tmp_path / "tuned", tmp_path / "new"
-    assert (
-        main(
-            [
-                "train",
-                "vq",
-                "--out",
-                str(tuned),
-                "--init",
-                str(bundle),
-                "--tune",
-                "decoder",
-                "--decoder-lookahead",
-                "1",
-                "--data",
-                str(data),
-                "--config",
-                "tiny",
-                "--batch-size",
-                "4",
-                "--steps",
-                "2",
-                "--val-clips",
-                "2",
-                "--warmup",
-                "0",
-                "--crop-frames",
-                "40",
-            ]
-        )
-        == 0
-    )
+@pytest.fixture(scope="module")
+def low_latency_bundle(runs, tmp_path_factory):
+    """The tiny bundle with a low-latency decoder (1 token ahead) beside its centred one:
+    `mogo train vq --tune decoder --decoder-lookahead 1`, then `mogo export decoder`."""
+    root = tmp_path_factory.mktemp("low_latency")
+    tuned = [
+        *("train", "vq", "--out", str(root / "tuned"), "--init", str(runs / "bundle")),
+        *("--tune", "decoder", "--decoder-lookahead", "1", "--data", str(runs / "data")),
+        *("--config", "tiny", "--batch-size", "4", "--steps", "2", "--val-clips", "2"),
+        *("--warmup", "0", "--crop-frames", "40"),
+    ]
+    assert main(tuned) == 0
+    export = ["export", "decoder", "--vq", str(root / "tuned"), "--bundle", str(runs / "bundle")]
+    assert main([*export, "--out", str(root / "new")]) == 0
+    return root / "new"
+
+
+def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(
+    runs, low_latency_bundle, tmp_path, capsys
+):
+    bundle, data, new = runs / "bundle", runs / "data", low_latency_bundle
     assert (
         main(
             [
@@ -441,10 +429,6 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path,
         == 2
     )  # the encoder would change
     assert "differs from None of --init" in capsys.readouterr().err
-    assert (
-        main(["export", "decoder", "--vq", str(tuned), "--bundle", str(bundle), "--out", str(new)])
-        == 0
-    )
     old, written = read_manifest(bundle), read_manifest(new)
     assert written.files.keys() - old.files.keys() == {
         "vq_decoder_low_latency.onnx",
@@ -476,6 +460,47 @@ def test_a_shorter_lookahead_decoder_goes_beside_the_centred_one(runs, tmp_path,
     window = StreamingDecoder(new / low.file, low.left_context, 1, written.vq.codebook_size)
     assert isinstance(stepped, StepDecoder)
     np.testing.assert_allclose(stepped.push(ids), window.decode_offline(ids)[:49], atol=1e-4)
+
+
+def test_a_low_latency_stream_plants_its_feet_with_the_short_window(low_latency_bundle):
+    """Its frames wait the decoder's token and SHORT's 2 frames, not 8; however they are read
+    (step by step, frames() in uneven chunks, finish() of a cut) they are the one-pass
+    planting of its own decoded frames, and a resumed stream goes on with the same bytes."""
+    generator = MotionGenerator.load(low_latency_bundle)
+    ahead = generator.manifest.vq.low_latency_decoder.lookahead
+
+    def stream(**options):
+        return generator.stream(PROMPT, seed=5, low_latency=True, **options)
+
+    stepped = stream()
+    assert stepped.feet.lookahead == SHORT.lookahead < LOOKAHEAD
+    assert stepped.lookahead_steps == ahead + SHORT.lookahead
+    out = [stepped.step() for _ in range(60)]
+    wait = ahead + SHORT.lookahead  # steps drawn before the first frame is final
+    assert [len(frames) for frames in out] == [0] * wait + [1] * (60 - wait)
+    frames = np.concatenate(out)
+    raw = stream(plant_feet=False)
+    raw.advance(60)
+    raw = raw.finish()
+    offline = planted(raw.features, raw.joints, generator.skeleton, window=SHORT)
+    assert np.array_equal(frames, offline[: len(frames)])
+    read, rng = stream(), np.random.default_rng(0)
+    chunks = [list(read.frames(int(rng.integers(0, 9)))) for _ in range(12)]
+    read_frames = [frame for chunk in chunks for frame in chunk]
+    assert np.array_equal(read_frames, offline[: len(read_frames)])
+    cut = stream()
+    cut.advance(40)
+    assert np.array_equal(cut.finish().joints, frames[:40])  # as the stream goes on
+    for taken_at in (0, 3, 9, 30):  # before the first frame, and with frames held back
+        original = stream()
+        for _ in range(taken_at):
+            original.step()
+        resumed = generator.resume(original.state())
+        for k in range(25):
+            if k == 4:
+                original.set_prompt("a person jumps.")
+                resumed.set_prompt("a person jumps.")
+            np.testing.assert_array_equal(resumed.step(), original.step())
 
 
 def test_replacing_a_bundles_decoder_refuses_what_does_not_fit(runs, tmp_path, capsys):
@@ -615,3 +640,22 @@ def test_a_bundle_of_two_frames_per_token_runs_through_the_generator(tmp_path):
     going_on.continue_from(motion)
     going_on.advance(6)
     assert going_on.finish().joints.shape == (12, 22, 3)
+
+
+def test_the_long_stream_bench_counts_a_switch_from_the_frames_received(
+    low_latency_bundle, monkeypatch
+):
+    """`mogo bench long-streams --low-latency`'s streams: at each set_prompt the caller has
+    every frame drawn but those the stream's decoder and feet still hold (and a burst)."""
+    from mogo.bench import long_streams
+
+    monkeypatch.setattr(long_streams, "_generator", None)  # the worker's, of this bundle
+    generator = MotionGenerator.load(low_latency_bundle)
+    schedule = ((PROMPT, 60), ("a person jumps.", 40), (PROMPT, 40))
+    for low in (False, True):
+        task = long_streams.Task("switches", "stream", "on", 0, schedule, low_latency=low)
+        made = long_streams._stream(str(low_latency_bundle), task)
+        stream = generator.stream(PROMPT, low_latency=low)
+        held = stream.lookahead_steps * generator.down_factor  # frames drawn, not yet out
+        lags = [start - got for start, got in zip(made.switches, made.received, strict=True)]
+        assert len(lags) == 2 and all(held <= lag < held + stream.decoder.every for lag in lags)

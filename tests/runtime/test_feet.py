@@ -13,8 +13,10 @@ from mogo.motion.feet import (
     BODY_FRAMES,
     BODY_STEP,
     LOOKAHEAD,
-    PIN_FRAMES,
+    SHORT,
+    WINDOW,
     FootPlanter,
+    Window,
     leg_joints,
     planted,
     two_bone_ik,
@@ -101,7 +103,7 @@ def test_a_foot_is_held_still_through_its_contact_and_eased_in_and_out_without_a
     held = slice(15, 36)  # the contact's frames and the one after (still from t to t+1)
     assert np.ptp(ankle[held], axis=0).max() < 1e-6 and np.ptp(toe[held], axis=0).max() < 1e-6
     steps = np.linalg.norm(np.diff(out[:, LEGS.reshape(-1)], axis=0), axis=-1)
-    released = 0.005 * (35 - (15 + PIN_FRAMES / 2 - 0.5))  # offset from the decoded foot
+    released = 0.005 * (35 - (15 + WINDOW.pin_frames / 2 - 0.5))  # offset from the decoded foot
     assert steps.max() < 0.005 + 1.5 * released / (BLEND_OUT + 1) + 1e-3  # smoothstep, no jump
     far = slice(0, 15 - 3)  # before the foot eases onto its pin: feet where they were decoded
     np.testing.assert_allclose(out[far, CONTACT_JOINTS], joints[far, CONTACT_JOINTS], atol=1e-6)
@@ -142,21 +144,32 @@ def test_a_flagged_foot_stepping_fast_moves_the_body_back_by_the_excess_smoothly
     assert np.abs(np.diff(steps)).max() < excess / BODY_FRAMES + 1e-6  # eased in and out
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_any_chunking_gives_the_offline_result(seed):
+@pytest.mark.parametrize(
+    "seed,window",
+    [
+        (0, WINDOW),
+        (1, WINDOW),
+        (2, WINDOW),
+        (0, SHORT),
+        (1, SHORT),
+        (2, Window(2, 4)),
+        (3, Window(1, 2)),
+    ],
+)
+def test_any_chunking_gives_the_offline_result(seed, window):
     rng = np.random.default_rng(seed)
     joints = _standing(90)  # feet stepping 0-16 cm a frame: some held, some moving the body
     joints[:, CONTACT_JOINTS, 2] += np.cumsum(rng.uniform(0, 0.16, (90, 1)), 0)
     features = _features(joints, rng.uniform(0, 1, (90, 4)) > 0.4)  # contacts on and off often
-    offline = planted(features, joints, SMPL_22, body_step=BODY_STEP)
-    planter, rows, pieces, at = FootPlanter(SMPL_22, body_step=BODY_STEP), [], [], 0
+    offline = planted(features, joints, SMPL_22, body_step=BODY_STEP, window=window)
+    planter, rows, pieces, at = FootPlanter(SMPL_22, body_step=BODY_STEP, window=window), [], [], 0
     while at < len(joints):
         size = int(rng.integers(0, 12))
         out = planter.push(features[at : at + size], joints[at : at + size])
         rows.append(out[0])
         pieces.append(out[1])
         at += size
-        assert planter.pending == min(at, LOOKAHEAD)  # frames held back for their lookahead
+        assert planter.pending == min(at, window.lookahead)  # held back for their lookahead
     rest = planter.flush()
     assert np.array_equal(np.concatenate(rows + [rest[0]]), features)  # rows kept in step
     assert np.array_equal(np.concatenate(pieces + [rest[1]]), offline)
@@ -178,6 +191,24 @@ def test_a_stream_emits_the_offline_result_of_its_own_frames(generator):
     offline = planted(raw.features, raw.joints, generator.skeleton)[:100]
     assert np.array_equal(motion.joints, offline)
     assert np.array_equal(streamed, offline[: len(streamed)])
+
+
+def test_a_low_latency_stream_plants_its_own_frames_two_frames_behind(generator):
+    """The shipped low-latency decoder: its stream's frames are the one-pass planting (SHORT)
+    of its own decoded frames, each out once SHORT's frames after it are decoded."""
+    stream = generator.stream("a person walks in a circle.", seed=3, low_latency=True)
+    counts = [len(stream.step()) for _ in range(60)]
+    wait = generator.manifest.vq.low_latency_decoder.lookahead + SHORT.lookahead
+    assert counts == [0] * wait + [1] * (60 - wait) and stream.lookahead_steps == wait
+    raw = generator.stream(
+        "a person walks in a circle.", seed=3, low_latency=True, plant_feet=False
+    )
+    raw.advance(60)
+    raw = raw.finish()
+    streamed = generator.stream("a person walks in a circle.", seed=3, low_latency=True)
+    streamed.advance(60)
+    offline = planted(raw.features, raw.joints, generator.skeleton, window=SHORT)
+    assert np.array_equal(streamed.finish().joints, offline)
 
 
 def test_planted_feet_add_their_lookahead_to_the_first_frame(generator):

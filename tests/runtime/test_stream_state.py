@@ -55,6 +55,14 @@ def test_across_fresh_clips_holds_and_a_second_resume(generator):
     same_from_here(generator, resumed, 20, {5: "a person spins to the left."})
 
 
+def test_a_low_latency_stream_resumes_with_the_frames_its_feet_hold(generator):
+    stream = generator.stream("a person walks forward.", seed=4, anchoring=SMALL, low_latency=True)
+    for _ in range(9):
+        stream.step()
+    assert stream.feet.pending == stream.feet.lookahead == 2  # its short window's frames
+    same_from_here(generator, stream, 40, {10: "a person jumps."})
+
+
 def test_guided_unanchored_and_unplanted_streams_resume(generator):
     for options in (
         dict(guidance=2.0),

@@ -49,7 +49,7 @@ def test_low_latency_and_centred_streams_share_rounds_and_keep_their_frames(
         for stream, _, joints in engine.round([low, centred]):
             firsts.setdefault(stream.id, stream.steps)
             got[stream.id].append(joints)
-    lookahead = {s.id: s.decoder.lookahead + s.feet_steps + 1 for s in (low, centred)}
+    lookahead = {s.id: s.lookahead_steps + 1 for s in (low, centred)}
     assert firsts == lookahead
     assert g.manifest.vq.low_latency_decoder.lookahead == low.decoder.lookahead
     assert low.decoder.lookahead < centred.decoder.lookahead
