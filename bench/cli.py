@@ -217,6 +217,13 @@ def _serve_arguments(serve: argparse.ArgumentParser) -> None:
         'protocol\'s "binary": false)',
     )
     serve.add_argument(
+        "--low-latency",
+        action="store_true",
+        help="also clients that ask for the bundle's low-latency decoder, each burst and "
+        "count in turn with the centred one (with --engine-only: both; with --profile: "
+        "low-latency streams)",
+    )
+    serve.add_argument(
         "--profile",
         type=int,
         metavar="N",

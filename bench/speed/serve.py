@@ -15,6 +15,10 @@ and the clients' never share a process), warms the server, then:
   real time when every client got >= 97% of the frame rate and p99 lateness stayed within one
   frame (50 ms).
 
+With `--low-latency` every burst and count runs twice in turn on the same server, the clients
+asking for the centred decoder, then for the bundle's low-latency one (the protocol's
+"low_latency": true): the two compared in one run, under the same load.
+
 Frames are binary (the protocol's "binary": true) unless asked for JSON. Between counts the
 bench waits until the server's /v1/health reports no stream left, so each count starts from
 an empty server. The clients run on the same machine: their CPU use is part of the load.
@@ -24,8 +28,9 @@ past their first frames stepped on the engine's clock, CPU time (all threads) pe
 step, wall time per tick and the cores used (CPU over wall). CPU time shows what N costs
 even on a busy machine; 1000 / (fps * CPU ms) streams per core is the ceiling it sets.
 `engine_first_frame` times a new stream's first frame on a warm engine, no sockets, in CPU
-and wall time (`--engine-only` runs these two alone). `engine_profile` (`--profile N`) splits a stream step's
-CPU among its parts (the level graphs, sampling, the VQ decoder, joints, foot planting).
+and wall time, and splits its CPU among the parts of a step (`--engine-only` runs these two
+alone). `engine_profile` (`--profile N`) splits a stream step's CPU among its parts (the level
+graphs, sampling, the VQ decoder, joints, foot planting).
 """
 
 from __future__ import annotations
@@ -64,13 +69,18 @@ PROMPTS = [
     "a person bows",
 ]
 FPS = SMPL_22.fps  # the shipped bundle's: the server's clock ticks at it
+DECODERS = {False: "centred", True: "low latency"}  # a stream's "low_latency" -> its name
 WARM_CLIENTS = 4
-PARTS = {  # the parts of a served stream step (--profile): the function whose time is each
-    "level graphs (onnxruntime)": ("token_generator.py", "run"),
-    "sampling": ("sampling.py", "choose_tokens"),
-    "VQ decoder (onnxruntime)": ("stream_decoder.py", "_decode_windows"),
-    "joints from features": ("motion/features.py", "push"),
-    "foot planting": ("motion/feet.py", "push"),
+PARTS = {  # the parts of a served stream step (--profile): the functions whose time is each
+    "level graphs (onnxruntime)": {("token_generator.py", "run")},
+    "sampling": {("sampling.py", "choose_tokens")},
+    # windows (the centred decoder), or a token a call (a low-latency decoder's step graph)
+    "VQ decoder (onnxruntime)": {
+        ("stream_decoder.py", "_decode_windows"),
+        ("stream_decoder.py", "_step_many"),
+    },
+    "joints from features": {("motion/features.py", "push")},
+    "foot planting": {("motion/feet.py", "push")},
 }
 
 
@@ -118,18 +128,21 @@ async def client(
     binary: bool = True,
     delay: float = 0.0,
     first_only: bool = False,
+    low_latency: bool = False,
 ) -> tuple[float, list[float]]:
     """One client, `delay` seconds from now: its first-frame latency (seconds from its start
     message) and its frame arrival times (seconds, monotonic), frame by frame, for `seconds`
     (or until the first frame, `first_only`); `binary`: frames as the protocol's binary bursts
-    (a header of index and count, then float32 joints), else JSON."""
+    (a header of index and count, then float32 joints), else JSON; `low_latency`: its stream
+    asks for the bundle's low-latency decoder."""
     import aiohttp
 
     await asyncio.sleep(delay)
     arrivals: list[float] = []
     async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
         sent = time.monotonic()
-        await ws.send_json({"prompt": PROMPTS[k % len(PROMPTS)], "seed": k, "binary": binary})
+        start = {"prompt": PROMPTS[k % len(PROMPTS)], "seed": k, "binary": binary}
+        await ws.send_json(start | ({"low_latency": True} if low_latency else {}))
         end = sent + seconds
         switched = switch_at is None
         while (left := end - time.monotonic()) > 0 and not (first_only and arrivals):
@@ -150,7 +163,12 @@ async def client(
 
 
 def clients_process(
-    url: str, delays: list[float], seconds: float, binary: bool, first_only: bool = False
+    url: str,
+    delays: list[float],
+    seconds: float,
+    binary: bool,
+    first_only: bool = False,
+    low_latency: bool = False,
 ) -> list[tuple[float, list[float]]]:
     """What the clients' process runs: one client a delay, all on one event loop; client k
     switches its prompt once, between 30% and 70% of `seconds`."""
@@ -167,6 +185,7 @@ def clients_process(
                     binary,
                     delay,
                     first_only,
+                    low_latency,
                 )
                 for k, delay in enumerate(delays)
             )
@@ -199,17 +218,19 @@ def percentiles_ms(seconds: list[float]) -> dict:
     return dict(percentiles, max=float(values.max()))
 
 
-def burst(pool: ProcessPoolExecutor, base: str, size: int, binary: bool) -> dict:
+def burst(
+    pool: ProcessPoolExecutor, base: str, size: int, binary: bool, low_latency: bool = False
+) -> dict:
     """`size` clients connecting at once to the idle server; their first-frame latencies
     (size 1: 7 times)."""
     firsts = []
     for _ in range(7 if size == 1 else 1):
         results = pool.submit(
-            clients_process, f"{base}/v1/stream", [0.0] * size, 60.0, binary, True
+            clients_process, f"{base}/v1/stream", [0.0] * size, 60.0, binary, True, low_latency
         ).result()
         firsts += [first for first, _ in results]
         wait_until_empty(base)
-    return dict(burst=size, first_frame_ms=percentiles_ms(firsts))
+    return dict(burst=size, decoder=DECODERS[low_latency], first_frame_ms=percentiles_ms(firsts))
 
 
 def measure(
@@ -220,12 +241,15 @@ def measure(
     seconds: float,
     spread: float,
     binary: bool = True,
+    low_latency: bool = False,
 ) -> dict:
     """N clients arriving evenly over `spread` seconds; their frame rate, lateness and first
     frames, the server's CPU use."""
     delays = [spread * k / clients for k in range(clients)]
     cpu, wall = cpu_seconds(pid), time.monotonic()
-    results = pool.submit(clients_process, f"{base}/v1/stream", delays, seconds, binary).result()
+    results = pool.submit(
+        clients_process, f"{base}/v1/stream", delays, seconds, binary, False, low_latency
+    ).result()
     cpu, wall = cpu_seconds(pid) - cpu, time.monotonic() - wall
     wait_until_empty(base)
     rates, late = [], []
@@ -239,10 +263,11 @@ def measure(
     late = np.concatenate(late) if late else np.array([np.inf])
     row = dict(
         clients=clients,
+        decoder=DECODERS[low_latency],
         fps=float(np.mean(rates)),
         fps_min=float(np.min(rates)),
-        p50_ms=float(np.percentile(late, 50) * 1e3),
-        p99_ms=float(np.percentile(late, 99) * 1e3),
+        p50_ms=float(np.percentile(late, 50, method="higher") * 1e3),
+        p99_ms=float(np.percentile(late, 99, method="higher") * 1e3),
         cpu_cores=cpu / wall,
         first_frame_ms=percentiles_ms([first for first, _ in results]),
     )
@@ -251,18 +276,26 @@ def measure(
 
 
 def engine_cost(
-    clients: int, threads: int, ticks: int = 40, profile: cProfile.Profile | None = None
+    clients: int,
+    threads: int,
+    ticks: int = 40,
+    profile: cProfile.Profile | None = None,
+    low_latency: bool = False,
+    bundle: str | None = None,
 ) -> dict:
     """CPU ms per stream step and wall ms per tick of the Engine alone, streams past their
     first frames; `profile` records the measured ticks."""
     from mogo.generator import MotionGenerator
     from mogo.serve.engine import Engine
 
-    generator = MotionGenerator.load(threads=threads)
+    generator = MotionGenerator.load(bundle, threads=threads)
     engine = Engine(generator, threads)
     for k in range(clients):
-        engine.open(PROMPTS[k % len(PROMPTS)], k, generator.sampling(None), 0.0)
-    now, ready = 0.0, engine.lead + 2 * generator.streaming_decoder().every  # frames flow
+        stream = engine.open(
+            PROMPTS[k % len(PROMPTS)], k, generator.sampling(None), 0.0, low_latency=low_latency
+        )
+    d = stream.decoder  # ready: frames flow, and every window is full (a steady state)
+    now, ready = 0.0, max(stream.lead, d.left_context + d.lookahead) + 2 * d.every
 
     def run_until(end: float) -> int:
         nonlocal now
@@ -288,6 +321,7 @@ def engine_cost(
     engine.shutdown()
     return dict(
         clients=clients,
+        decoder=DECODERS[low_latency],
         steps=steps,
         cpu_ms_per_step=cpu * 1e3 / steps,
         wall_ms_per_tick=wall * 1e3 / ticks,
@@ -295,12 +329,19 @@ def engine_cost(
     )
 
 
-def engine_profile(clients: int) -> list[tuple[str, float]]:
+def engine_profile(
+    clients: int, bundle: str | None = None, low_latency: bool = False
+) -> list[tuple[str, float]]:
     """Where a stream step's CPU goes: (part, ms per stream step) for the parts of PARTS, the
     rest (the engine's and streams' own Python) and the whole, from cProfile on one thread
     (cProfile's own cost inflates the Python-heavy parts)."""
     profile = cProfile.Profile()
-    steps = engine_cost(clients, 1, profile=profile)["steps"]
+    steps = engine_cost(clients, 1, profile=profile, bundle=bundle, low_latency=low_latency)
+    return _split(profile, steps["steps"], "a stream step")
+
+
+def _split(profile: cProfile.Profile, per: int, whole_name: str) -> list[tuple[str, float]]:
+    """A profile's CPU as (part, ms per `per`): the parts of PARTS, the rest, the whole."""
     stats = pstats.Stats(profile).stats  # (file, line, name) -> (..., total, cumulative, ...)
     whole = sum(entry[2] for entry in stats.values())
     parts = [
@@ -309,51 +350,73 @@ def engine_profile(clients: int) -> list[tuple[str, float]]:
             sum(
                 entry[3]
                 for (file, _, name), entry in stats.items()
-                if file.endswith(module) and name == function
+                if any(file.endswith(module) and name == f for module, f in functions)
             ),
         )
-        for part, (module, function) in PARTS.items()
+        for part, functions in PARTS.items()
     ]
     parts.append(("the rest: the engine's and streams' Python", whole - sum(s for _, s in parts)))
-    return [(part, seconds * 1e3 / steps) for part, seconds in parts + [("a stream step", whole)]]
+    return [(part, seconds * 1e3 / per) for part, seconds in parts + [(whole_name, whole)]]
 
 
-def profile_table(rows: list[tuple[str, float]]) -> str:
+def profile_table(rows: list[tuple[str, float]], per: str = "CPU per stream step") -> str:
     whole = rows[-1][1]
-    lines = ["| part | CPU per stream step | share |", "|---|---:|---:|"]
+    lines = [f"| part | {per} | share |", "|---|---:|---:|"]
     lines += [f"| {part} | {ms:.3f} ms | {100 * ms / whole:.0f}% |" for part, ms in rows]
     return "\n".join(lines)
 
 
-def engine_first_frame(threads: int, repeats: int = 7) -> dict:
+def engine_first_frame(
+    threads: int, repeats: int = 7, bundle: str | None = None, low_latency: bool = False
+) -> dict:
     """Median CPU and wall ms from a new stream's open to its first frame, one stream on a
-    warm engine (its graphs have run once), no sockets."""
+    warm engine (its graphs have run once), no sockets; the token steps it took, and where
+    its CPU went (cProfile over the repeats, a separate pass: ms per first frame)."""
     from mogo.generator import MotionGenerator
     from mogo.serve.engine import Engine
 
-    generator = MotionGenerator.load(threads=threads)
+    generator = MotionGenerator.load(bundle, threads=threads)
     engine = Engine(generator, threads)
+
+    def first_frame(k: int) -> int:
+        stream = engine.open(
+            PROMPTS[0], k, generator.sampling(None), time.monotonic(), low_latency=low_latency
+        )
+        while not engine.round(engine.due(time.monotonic())):
+            pass
+        engine.close(stream)
+        return stream.steps
+
     times = []
     for k in range(repeats + 1):  # the first one warms the graphs
         cpu, wall = time.process_time(), time.perf_counter()
-        stream = engine.open(PROMPTS[0], k, generator.sampling(None), time.monotonic())
-        while not engine.round(engine.due(time.monotonic())):
-            pass
+        steps = first_frame(k)
         times.append(((time.process_time() - cpu) * 1e3, (time.perf_counter() - wall) * 1e3))
-        engine.close(stream)
+    profile = cProfile.Profile()
+    profile.enable()
+    for k in range(repeats):
+        first_frame(k)
+    profile.disable()
     engine.shutdown()
     cpu, wall = np.median(times[1:], axis=0)
-    return dict(cpu_ms=float(cpu), wall_ms=float(wall))
+    return dict(
+        decoder=DECODERS[low_latency],
+        cpu_ms=float(cpu),
+        wall_ms=float(wall),
+        steps=steps,
+        parts=_split(profile, repeats, "a first frame"),
+    )
 
 
 def engine_table(rows: list[dict]) -> str:
     lines = [
-        "| streams | CPU per stream step | wall per tick (real time: <= 50 ms) | cores used |",
-        "|---:|---:|---:|---:|",
+        "| streams | decoder | CPU per stream step | wall per tick (real time: <= 50 ms) "
+        "| cores used |",
+        "|---:|:---|---:|---:|---:|",
     ]
     lines += [
-        f"| {r['clients']} | {r['cpu_ms_per_step']:.2f} ms | {r['wall_ms_per_tick']:.1f} ms "
-        f"| {r['cores']:.2f} |"
+        f"| {r['clients']} | {r['decoder']} | {r['cpu_ms_per_step']:.2f} ms "
+        f"| {r['wall_ms_per_tick']:.1f} ms | {r['cores']:.2f} |"
         for r in rows
     ]
     return "\n".join(lines)
@@ -361,14 +424,14 @@ def engine_table(rows: list[dict]) -> str:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| clients | frames/s per client (mean / min) | lateness p50 | lateness p99 | "
+        "| clients | decoder | frames/s per client (mean / min) | lateness p50 | lateness p99 | "
         "first frame p50 / p99 | server CPU (cores) | real time |",
-        "|---:|---:|---:|---:|---:|---:|:---:|",
+        "|---:|:---|---:|---:|---:|---:|---:|:---:|",
     ]
     for r in rows:
         first = r["first_frame_ms"]
         lines.append(
-            f"| {r['clients']} | {r['fps']:.1f} / {r['fps_min']:.1f} | "
+            f"| {r['clients']} | {r['decoder']} | {r['fps']:.1f} / {r['fps_min']:.1f} | "
             f"{r['p50_ms']:.0f} ms | {r['p99_ms']:.0f} ms | {first['p50']:.0f} / "
             f"{first['p99']:.0f} ms | {r['cpu_cores']:.2f} | "
             f"{'yes' if r['real_time'] else 'no'} |"
@@ -378,11 +441,11 @@ def table(rows: list[dict]) -> str:
 
 def burst_table(rows: list[dict]) -> str:
     lines = [
-        "| clients arriving at once | first frame p50 | p90 | p99 | max |",
-        "|---:|---:|---:|---:|---:|",
+        "| clients arriving at once | decoder | first frame p50 | p90 | p99 | max |",
+        "|---:|:---|---:|---:|---:|---:|",
     ]
     lines += [
-        f"| {r['burst']} | "
+        f"| {r['burst']} | {r['decoder']} | "
         + " | ".join(f"{r['first_frame_ms'][p]:.0f} ms" for p in ("p50", "p90", "p99", "max"))
         + " |"
         for r in rows
@@ -399,42 +462,78 @@ def run(
     bundle: str | None,
     out: Path,
     binary: bool = True,
+    low_latency: bool = False,
 ) -> dict:
+    """`low_latency`: every burst and count twice in turn, centred then low-latency clients."""
+    decoders = [False, True] if low_latency else [False]
     with (
         serving(bundle, max(*clients, *bursts, WARM_CLIENTS), threads) as (base, pid),
         ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool,
     ):
-        measure(pool, base, pid, WARM_CLIENTS, 4.0, 0.0, binary)  # graphs run once
+        for low in decoders:  # graphs run once
+            measure(pool, base, pid, WARM_CLIENTS, 4.0, 0.0, binary, low)
         bursts_measured = []
         for size in bursts:
-            bursts_measured.append(burst(pool, base, size, binary))
-            print(burst_table(bursts_measured[-1:]).splitlines()[-1], flush=True)
+            for low in decoders:
+                bursts_measured.append(burst(pool, base, size, binary, low))
+                print(burst_table(bursts_measured[-1:]).splitlines()[-1], flush=True)
         rows = []
         for n in clients:
-            rows.append(measure(pool, base, pid, n, seconds, spread, binary))
-            print(table(rows[-1:]).splitlines()[-1], flush=True)
-    held = [r["clients"] for r in rows if r["real_time"]]
-    engine = [engine_cost(n, threads or 2) for n in clients]
+            for low in decoders:
+                rows.append(measure(pool, base, pid, n, seconds, spread, binary, low))
+                print(table(rows[-1:]).splitlines()[-1], flush=True)
+    engine = [
+        engine_cost(n, threads or 2, low_latency=low, bundle=bundle)
+        for n in clients
+        for low in decoders
+    ]
+    largest = {}
+    for low in decoders:
+        held = [r["clients"] for r in rows if r["real_time"] and r["decoder"] == DECODERS[low]]
+        largest[DECODERS[low]] = max(held, default=0)
     result = dict(
         bursts=bursts_measured,
         rows=rows,
         engine=engine,
-        largest_real_time=max(held) if held else 0,
+        largest_real_time=largest,
         seconds=seconds,
         spread=spread,
         binary=binary,
     )
     out.mkdir(parents=True, exist_ok=True)
     (out / "serve_bench.json").write_text(json.dumps(result, indent=1))
+    _charts(out, rows, bursts_measured, spread)
+    return result
+
+
+def _charts(out: Path, rows: list[dict], bursts: list[dict], spread: float) -> None:
+    """serve_bench.png (the counts) and serve_bursts.png, a line per decoder measured; a
+    value that is not finite (no client of a count got two frames) is left out."""
+    names = sorted({r["decoder"] for r in rows + bursts})
+
+    def line(measured: list[dict], x: str, value, floor: float, name: str) -> list:
+        return [
+            (r[x], max(value(r), floor))
+            for r in measured
+            if r["decoder"] == name and math.isfinite(value(r))
+        ]
+
+    def named(series: str, name: str) -> str:
+        return series if len(names) == 1 else f"{series}, {name}"
+
     log_line_chart(
         out / "serve_bench.png",
         f"mogo serve: N clients arriving over {spread:g} s",
         "clients",
         "see legend",
         {
-            "frames/s per client": [(r["clients"], max(r["fps"], 0.1)) for r in rows],
-            "p99 lateness, ms (min 1)": [(r["clients"], max(r["p99_ms"], 1.0)) for r in rows],
-            "server CPU, % of a core": [(r["clients"], max(100 * r["cpu_cores"], 1)) for r in rows],
+            named(series, name): line(rows, "clients", value, floor, name)
+            for name in names
+            for series, value, floor in (
+                ("frames/s per client", lambda r: r["fps"], 0.1),
+                ("p99 lateness, ms (min 1)", lambda r: r["p99_ms"], 1.0),
+                ("server CPU, % of a core", lambda r: 100 * r["cpu_cores"], 1.0),
+            )
         },
     )
     log_line_chart(
@@ -443,19 +542,28 @@ def run(
         "clients arriving at once",
         "first frame, ms",
         {
-            f"{p}": [(r["burst"], max(r["first_frame_ms"][p], 1.0)) for r in bursts_measured]
+            named(p, name): line(bursts, "burst", lambda r, p=p: r["first_frame_ms"][p], 1.0, name)
+            for name in names
             for p in ("p50", "p99", "max")
         },
     )
-    return result
 
 
-def engine_only(clients: list[int], threads: int | None, out: Path) -> dict:
+def engine_only(
+    clients: list[int], threads: int | None, out: Path, bundle=None, low_latency=False
+) -> dict:
     threads = threads or 2
+    decoders = [False, True] if low_latency else [False]
     result = dict(
         threads=threads,
-        first_frame=engine_first_frame(threads),
-        engine=[engine_cost(n, threads) for n in clients],
+        first_frame=[
+            engine_first_frame(threads, bundle=bundle, low_latency=low) for low in decoders
+        ],
+        engine=[
+            engine_cost(n, threads, low_latency=low, bundle=bundle)
+            for n in clients
+            for low in decoders
+        ],
     )
     out.mkdir(parents=True, exist_ok=True)
     (out / "serve_engine.json").write_text(json.dumps(result, indent=1))
@@ -466,22 +574,27 @@ def main_from_args(args) -> None:
     if args.profile:
         print(
             f"Where the CPU of a stream step goes: {args.profile} streams past their first "
-            "frames, the engine alone on one thread, cProfile:\n"
+            f"frames ({DECODERS[args.low_latency]} decoder), the engine alone on one thread, "
+            "cProfile:\n"
         )
-        print(profile_table(engine_profile(args.profile)))
+        print(profile_table(engine_profile(args.profile, args.bundle, args.low_latency)))
         return
     if args.engine_only:
-        result = engine_only(args.clients, args.threads, Path(args.out))
+        result = engine_only(
+            args.clients, args.threads, Path(args.out), args.bundle, args.low_latency
+        )
         print(
             f"The engine alone (no sockets, {result['threads']} threads), streams past "
             "their first frames:\n"
         )
         print(engine_table(result["engine"]))
-        first = result["first_frame"]
-        print(
-            f"\nfirst frame, one stream, engine warm: {first['wall_ms']:.0f} ms wall, "
-            f"{first['cpu_ms']:.0f} ms CPU (medians of 7)"
-        )
+        for first in result["first_frame"]:
+            print(
+                f"\nfirst frame, one stream, {first['decoder']} decoder, engine warm: "
+                f"{first['wall_ms']:.0f} ms wall, {first['cpu_ms']:.0f} ms CPU (medians of 7), "
+                f"{first['steps']} token steps; its CPU (cProfile):\n"
+            )
+            print(profile_table(first["parts"], "CPU per first frame"))
         print(f"wrote {Path(args.out) / 'serve_engine.json'}")
         return
     result = run(
@@ -493,6 +606,7 @@ def main_from_args(args) -> None:
         args.bundle,
         Path(args.out),
         not args.json,
+        args.low_latency,
     )
     print(
         f"Clients arriving at once on the idle server ({'JSON' if args.json else 'binary'} "
@@ -503,5 +617,6 @@ def main_from_args(args) -> None:
     print(table(result["rows"]))
     print("\nThe engine alone (no sockets), streams past their first frames:\n")
     print(engine_table(result["engine"]))
-    print(f"\nlargest N in real time: {result['largest_real_time']}")
+    for name, largest in result["largest_real_time"].items():
+        print(f"\nlargest N in real time, {name} decoder: {largest}")
     print(f"wrote {Path(args.out) / 'serve_bench.json'}, serve_bench.png and serve_bursts.png")

@@ -4,11 +4,12 @@ A served stream is a MotionStream (re-anchored, mogo.anchoring), the same stream
 `mogo stream`'s: its level graphs are only rewritten (mogo.serve.pooled) so that streams at any
 step of their clips share a call without their numbers mixing, their caches rows of one pool
 (mogo.kv_pool). Every stream is paced to real time on a shared tick (one token step per frame,
-`fps` ticks a second), `lead` steps ahead so that its frames leave before they are due. A new
-stream catches up at once (its first frame comes after the decoder's lookahead), in rounds
-shared with every other new stream, its first round with the running streams too. The windows
-due are decoded in one call (mogo.stream_decoder.push_many). Not thread-safe: the server calls
-it from one thread.
+`fps` ticks a second), its `lead` steps ahead so that its frames leave before they are due. A
+new stream catches up at once (its first frame comes after the decoder's lookahead and the
+feet's), in rounds shared with every other new stream, its first round with the running
+streams too. What is due is decoded in one call per decoder (mogo.stream_decoder.push_many):
+the centred one's windows, and the low-latency one's tokens (its step graph) for streams that
+ask for it. Not thread-safe: the server calls it from one thread.
 """
 
 from __future__ import annotations
@@ -22,7 +23,6 @@ import numpy as np
 from mogo._session import graph_session
 from mogo.anchoring import Anchoring
 from mogo.generator import MotionGenerator, MotionStream
-from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
 from mogo.serve.interior import interior_session
 from mogo.serve.pooled import pooled_graph, pooled_levels
 from mogo.stream_decoder import push_many
@@ -44,9 +44,11 @@ class ServedStream(MotionStream):
         sampling,
         start_tick: int,
         plant_feet: bool,
+        low_latency: bool = False,
         resumed: State | None = None,
     ):
-        """`resumed`: a stream state (mogo.stream_state) to go on from, read and checked."""
+        """`resumed`: a stream state (mogo.stream_state) to go on from, read and checked;
+        `low_latency`: decoded by the bundle's low-latency decoder (ValueError: it has none)."""
         g = engine.generator
         # guided: alone on the bundle's own graphs, which quantise its two rows (conditional
         # and not) together, as MotionStream's do; the row-wise graphs would not. The others
@@ -63,18 +65,23 @@ class ServedStream(MotionStream):
             resumed.window if resumed else g.defaults.window,
             plant_feet,
             resumed.anchoring if resumed else Anchoring(),
+            low_latency,
             # a restored cache is made in a pool of its own, off the engine's thread; `resume`
             # moves it into the shard's on that thread
             tokens=self.shard
             if resumed is None or self.shard is None
             else self.shard.with_own_pool(),
-            decoder_session=engine.decoder_session,
+            decoder_session=engine.decoder_session(low_latency),
         )
         if resumed is not None:
             resumed.restore(self)
         self.id = next(engine._ids)
         self.start_tick = start_tick
         self.send_from = 0  # frames before this one are not sent (a resume's client has them)
+        self.low_latency = low_latency
+        # its first frame after this many steps (its own decoder's and planter's lookahead),
+        # then frames a burst (`every` steps) apart: two bursts more keep them ahead of time
+        self.lead = self.lookahead_steps + 1 + 2 * self.decoder.every
 
     @property
     def prompt(self) -> str:
@@ -108,16 +115,34 @@ class Engine:
         # one thread a call: the shards fill the cores, and a second intra-op thread measured
         # ~30% more CPU a decode for no gain in time (the same features)
         path = generator.bundle.path(decoder.file)
-        self.decoder_session = graph_session(path, decoder, 1)
+        self._centred = graph_session(path, decoder, 1)
         # full windows unpadded: ~half the CPU (None: a decoder it cannot cut, whole windows)
-        self.interior = interior_session(
-            path, decoder, self.decoder_session, generator.codebook_size
+        self.interior = interior_session(path, decoder, self._centred, generator.codebook_size)
+        # its own session, only if the bundle has one: the graph MotionGenerator steps
+        # low-latency streams with (a token a call where the bundle has it, else windows)
+        low = generator._low_latency
+        self._low_latency = (
+            None if low is None else graph_session(generator.bundle.path(low.file), low, 1)
         )
-        first_frame = decoder.lookahead + 1 + math.ceil(FEET_LOOKAHEAD / generator.down_factor)
-        self.lead = first_frame + 2 * generator.streaming_decoder().every
         self.streams: dict[int, ServedStream] = {}
         self._pool = ThreadPoolExecutor(1, "mogo-shard") if threads > 1 else None
         self._ids = itertools.count(1)
+
+    @property
+    def low_latency(self) -> bool:
+        """Whether this engine's bundle has a low-latency decoder (streams may ask for it)."""
+        return self._low_latency is not None
+
+    def decoder_session(self, low_latency: bool):
+        """The session of the decoder a stream asks for: ValueError where there is none."""
+        if not low_latency:
+            return self._centred
+        if self._low_latency is None:
+            raise ValueError(
+                "this server's bundle has no low-latency decoder (manifest "
+                "vq.low_latency_decoder); stream without low latency"
+            )
+        return self._low_latency
 
     def shutdown(self) -> None:
         if self._pool is not None:
@@ -127,10 +152,17 @@ class Engine:
         return math.floor(now * self.fps)
 
     def open(
-        self, prompt: str, seed: int, sampling, now: float, plant_feet: bool = True
+        self,
+        prompt: str,
+        seed: int,
+        sampling,
+        now: float,
+        plant_feet: bool = True,
+        low_latency: bool = False,
     ) -> ServedStream:
-        """A new stream (prompt and sampling already checked by the caller)."""
-        stream = ServedStream(self, prompt, seed, sampling, self.tick(now), plant_feet)
+        """A new stream (prompt and sampling already checked by the caller); ValueError for
+        `low_latency` where the bundle has no such decoder."""
+        stream = ServedStream(self, prompt, seed, sampling, self.tick(now), plant_feet, low_latency)
         self.streams[stream.id] = stream
         return stream
 
@@ -138,7 +170,14 @@ class Engine:
         """A stream going on from `state` (its prompt checked by the caller), its cache made
         again (tens of ms: on any thread, the engine's goes on stepping); `resume` starts it."""
         return ServedStream(
-            self, state.prompt, state.seed, state.sampling, 0, state.plant_feet, state
+            self,
+            state.prompt,
+            state.seed,
+            state.sampling,
+            0,
+            state.plant_feet,
+            state.low_latency,
+            state,
         )
 
     def resume(self, stream: ServedStream, now: float, send_from: int) -> None:
@@ -164,7 +203,7 @@ class Engine:
         return [
             stream
             for stream in self.streams.values()
-            if stream.steps < self.lead + tick - stream.start_tick
+            if stream.steps < stream.lead + tick - stream.start_tick
         ]
 
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
@@ -181,14 +220,19 @@ class Engine:
 
     def _step(self, due: list[ServedStream]) -> list[tuple]:
         """MotionStream.step for many streams: the token rows of one layout drawn in one call,
-        the windows due decoded in one call."""
+        the windows due decoded in one call per decoder."""
         rows = [
             stream.drawn(row)
             for stream, row in zip(
                 due, step_together([stream.tokens for stream in due]), strict=False
             )
         ]
-        decoded = push_many([s.decoder for s in due], [row[None] for row in rows], self.interior)
+        decoded = [None] * len(due)
+        for low_latency, interior in ((False, self.interior), (True, None)):
+            ks = [k for k, stream in enumerate(due) if stream.low_latency is low_latency]
+            frames = push_many([due[k].decoder for k in ks], [rows[k][None] for k in ks], interior)
+            for k, features in zip(ks, frames, strict=True):
+                decoded[k] = features
         made = []
         for stream, row, features in zip(due, rows, decoded, strict=False):
             first = stream.frames_emitted

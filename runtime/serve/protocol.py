@@ -2,7 +2,8 @@
 
 Client -> server, JSON text messages:
     {"prompt": "...", "seed": 1, "temperature": .., "top_k": .., "top_p": .., "guidance": ..,
-     "binary": false}                        first message: starts the stream (seed optional)
+     "binary": false, "plant_feet": true, "low_latency": false}
+                                             first message: starts the stream (seed optional)
     {"resume": STATE, "from": i, "binary": false}
                                              first message instead: goes on with the stream a
                                              "state" message gave, sending frames from i on
@@ -38,7 +39,14 @@ from mogo.stream_state import MAX_STATE_CHARS
 
 MAX_MESSAGE_CHARS = 4096  # longer messages get an error (a prompt: text.max_length tokens, 128)
 MAX_FIRST_CHARS = MAX_STATE_CHARS + 1024  # a socket's first message: it may resume a state
-START_FIELDS = {"prompt", "seed", "binary", "plant_feet", *Sampling.__dataclass_fields__}
+START_FIELDS = {
+    "prompt",
+    "seed",
+    "binary",
+    "plant_feet",
+    "low_latency",
+    *Sampling.__dataclass_fields__,
+}
 RESUME_FIELDS = {"resume", "from", "binary"}
 LATER_FIELDS = {"prompt", "stop", "state"}
 STATE = "state"  # what `later` returns for a state request
@@ -75,6 +83,7 @@ class Start:
     options: dict[str, Any]
     binary: bool
     plant_feet: bool  # as the API's plant_feet (mogo.motion.feet): on unless turned off
+    low_latency: bool  # as the API's stream(low_latency=...): the bundle's low-latency decoder
 
 
 @dataclass
@@ -132,11 +141,16 @@ def start(message: dict) -> Start:
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
         raise ProtocolError(f'"seed" must be an integer >= 0, got {seed!r}')
     plant_feet = message.get("plant_feet", True)
-    for name, value in (("binary", binary), ("plant_feet", plant_feet)):
+    low_latency = message.get("low_latency", False)
+    for name, value in (
+        ("binary", binary),
+        ("plant_feet", plant_feet),
+        ("low_latency", low_latency),
+    ):
         if not isinstance(value, bool):
             raise ProtocolError(f'"{name}" must be true or false, got {value!r}')
     options = {k: v for k, v in message.items() if k in Sampling.__dataclass_fields__}
-    return Start(_text(prompt), seed, options, binary, plant_feet)
+    return Start(_text(prompt), seed, options, binary, plant_feet, low_latency)
 
 
 def resume(message: dict) -> Resume:

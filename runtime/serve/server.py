@@ -236,7 +236,13 @@ class Server:
         except (TypeError, ValueError) as error:
             raise protocol.ProtocolError(str(error)) from None
         seed = checked_seed(start.seed)
-        return self.engine.open(text, seed, sampling, self.clock(), start.plant_feet), notes
+        try:
+            stream = self.engine.open(
+                text, seed, sampling, self.clock(), start.plant_feet, start.low_latency
+            )
+        except ValueError as error:  # no low-latency decoder
+            raise protocol.ProtocolError(str(error)) from None
+        return stream, notes
 
     async def resume(self, resume: protocol.Resume) -> tuple[ServedStream, list[str]]:
         """A stream going on from a client's state (mogo.stream_state), refused with one
@@ -257,8 +263,11 @@ class Server:
         self.admit()
         try:
             state = read_state(resume.state, self.generator)
-            if state.low_latency:
-                raise StateError("the state is of a low-latency stream; the server's are not")
+            if state.low_latency and not self.engine.low_latency:
+                raise StateError(
+                    "the state is of a low-latency stream; this server's bundle has no "
+                    "low-latency decoder"
+                )
             window = self.generator.defaults.window  # what a resume may replay: bounded
             if state.window is None or state.window > window:
                 raise StateError(f"the state's window is larger than this server's ({window})")

@@ -1,0 +1,30 @@
+"""`mogo bench serve --low-latency` end to end at its smallest: a real `mogo serve` and a
+client process, each burst and count run for both decoders; the tables, the JSON and the
+charts it writes."""
+
+import json
+
+import pytest
+
+from mogo.cli import main
+
+pytest.importorskip("aiohttp")
+pytest.importorskip("onnx")
+
+
+def test_the_smallest_low_latency_run_compares_both_decoders(tmp_path, capsys):
+    argv = ["bench", "serve", "--low-latency", "--burst", "1", "--clients", "1"]
+    assert main([*argv, "--seconds", "3", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "| 1 | centred |" in printed and "| 1 | low latency |" in printed
+    result = json.loads((tmp_path / "serve_bench.json").read_text())
+    decoders = ["centred", "low latency"]
+    for measured in (result["bursts"], result["rows"], result["engine"]):
+        assert [r["decoder"] for r in measured] == decoders
+    first = {r["decoder"]: r["first_frame_ms"]["p50"] for r in result["bursts"]}
+    assert 0 < first["low latency"] < float("inf") and 0 < first["centred"] < float("inf")
+    assert all(r["fps"] > 0 for r in result["rows"])
+    assert set(result["largest_real_time"]) == set(decoders)
+    assert (tmp_path / "serve_bench.png").stat().st_size and (
+        tmp_path / "serve_bursts.png"
+    ).exists()
