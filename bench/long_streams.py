@@ -544,6 +544,7 @@ def _stream_figures(streams: list[dict]) -> dict[str, str]:
             f"{100 * np.mean([x['slide'] for x in d]):.1f} / "
             f"{100 * np.mean([r['short_slide'] for r in streams]):.1f}"
         ),
+        "mean joint acceleration (m/s^2)": f"{np.mean([x['acceleration'] for x in d]):.2f}",
         "ms per step, first / last minute (serve: paced to real time)": (
             f"{1000 * np.mean(firsts):.2f} / {1000 * np.mean(lasts):.2f}" if firsts else "-"
         ),

@@ -141,8 +141,9 @@ def joint_speed(joints: np.ndarray) -> np.ndarray:
 
 
 def drift(joints: np.ndarray) -> dict:
-    """Pelvis height band (1st, 99th percentile, m), the deepest foot under the floor (m) and
-    foot sliding while in contact (mean horizontal foot speed, m/s)."""
+    """Pelvis height band (1st, 99th percentile, m), the deepest foot under the floor (m),
+    foot sliding while in contact (mean horizontal foot speed, m/s) and jitter (mean joint
+    acceleration, m/s^2: what less lookahead, in the decoder or the feet, shows as)."""
     pelvis = joints[:, S.J["pelvis"], 1]
     feet = joints[:, FEET]
     speed = np.linalg.norm(np.diff(feet[:, :, [0, 2]], axis=0), axis=2) * FPS
@@ -152,4 +153,5 @@ def drift(joints: np.ndarray) -> dict:
         pelvis_high=float(np.percentile(pelvis, 99)),
         under_floor=float(max(0.0, -feet[:, :, 1].min())),
         slide=float(speed[contact].mean()) if contact.any() else 0.0,
+        acceleration=float(np.linalg.norm(np.diff(joints, 2, axis=0), axis=2).mean() * FPS**2),
     )

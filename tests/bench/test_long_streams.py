@@ -132,6 +132,14 @@ def test_a_still_figure_holds_and_does_not_walk():
     assert window_passes(WindowCheck(walk, 200), still) == [False, False]
     figures = drift(still)
     assert figures["slide"] == 0 and figures["pelvis_low"] == figures["pelvis_high"]
+    assert figures["acceleration"] == 0
+
+
+def test_jitter_is_the_mean_joint_acceleration():
+    t = np.arange(40, dtype=np.float32) / 20  # seconds at 20 fps
+    joints = np.zeros((40, 22, 3), np.float32)
+    joints[:, :, 1] = 1.0 + 0.5 * 3.0 * t[:, None] ** 2  # every joint rises at 3 m/s^2
+    assert abs(drift(joints)["acceleration"] - 3.0) < 1e-3
 
 
 def test_low_latency_needs_the_stream_path_and_a_bundle_with_that_decoder(tmp_path, capsys):
