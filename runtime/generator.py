@@ -383,7 +383,7 @@ class MotionGenerator:
         shown.close()
         return stream.finish()
 
-    def _denormalised(self, normalised: np.ndarray) -> np.ndarray:
+    def denormalised(self, normalised: np.ndarray) -> np.ndarray:
         """The decoder's normalised features in the bundle's units (clips and streams alike)."""
         return normalised * self.bundle.std + self.bundle.mean
 
@@ -402,7 +402,7 @@ class MotionGenerator:
         the cut being the clip's end."""
         decoder = self.streaming_decoder()
         normalised = decoder.decode_offline(tokens)[:frames]
-        features = self._denormalised(normalised)
+        features = self.denormalised(normalised)
         joints = JointStream(self.skeleton).push(features)
         if checked_bool(plant_feet, "plant_feet"):  # foot cleanup (issue 25)
             joints = planted(features, joints, self.skeleton)
@@ -673,7 +673,7 @@ class MotionStream:
                 self.tokens.continue_from(tokens)
             else:
                 self.anchor.continued(tokens)
-            self._final(self.generator._denormalised(self.decoder.push(tokens)))
+            self._final(self.generator.denormalised(self.decoder.push(tokens)))
             self._skip = self._pending_frames()  # the clip's own last frames: not again
 
     def state(self) -> str:
@@ -739,7 +739,7 @@ class MotionStream:
         self, tokens: np.ndarray, normalised: np.ndarray, limit: int | None = None
     ) -> np.ndarray:
         """The frames that became final from decoded rows (at most `limit`: `finish`)."""
-        features, joints = self._final(self.generator._denormalised(normalised))
+        features, joints = self._final(self.generator.denormalised(normalised))
         skip = min(self._skip, len(joints))
         features, joints, self._skip = features[skip:], joints[skip:], self._skip - skip
         features, joints = features[:limit], joints[:limit]

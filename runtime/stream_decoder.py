@@ -222,6 +222,14 @@ class StepDecoder(StreamingDecoder):
         self.reset()
         return frames
 
+    def decode_offline(self, ids: np.ndarray) -> np.ndarray:
+        """Not for a step decoder, which has no end padding: decode whole clips with the
+        decoder's window graph (the manifest's vq.low_latency_decoder)."""
+        raise ValueError(
+            "a step decoder decodes streams a token at a time; decode whole clips with "
+            "the window graph (vq.low_latency_decoder)"
+        )
+
     def _step(self, row: np.ndarray) -> np.ndarray:
         """One token row (L,) through the graph: the frame of token `_stepped` - lookahead."""
         names = self.graph.inputs

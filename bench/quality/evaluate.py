@@ -33,6 +33,7 @@ from mogo.export.data.humanml3d import DatasetError, HumanML3DFolder
 from mogo.generator import MotionGenerator
 from mogo.motion.skeleton import MAX_FRAMES, MIN_FRAMES
 from mogo.progress import Progress
+from mogo.stream_decoder import StreamingDecoder
 
 COLUMNS = ("R-Precision Top-1", "Top-2", "Top-3", "FID", "MM-Dist", "Diversity", "MultiModality")
 
@@ -125,11 +126,22 @@ def reconstruct(
         tokens = generator.encode_motion(real)
         if not low_latency:
             return generator.decode(tokens, [], len(features)).features
-        decoder = generator.streaming_decoder(low_latency=True)
-        normalised = decoder.decode_offline(tokens)[: len(features)]
-        return normalised * generator.bundle.std + generator.bundle.mean
+        return generator.denormalised(window.decode_offline(tokens)[: len(features)])
 
+    window = low_latency_window(generator) if low_latency else None
     return parallel_map(one, clips, threads, "VQ reconstruction", "clips")
+
+
+def low_latency_window(generator: MotionGenerator) -> StreamingDecoder:
+    """The bundle's low-latency decoder as its window graph, which decodes whole clips (its
+    streams step the same decoder a token a call, mogo.stream_decoder.StepDecoder, which has
+    no end padding): the frames of a low-latency stream of the same tokens, to float rounding,
+    but at the clip's end."""
+    graph = generator.manifest.vq.low_latency_decoder
+    if graph is None:
+        raise ValueError("this bundle has no low-latency decoder (manifest vq.low_latency_decoder)")
+    path = generator.bundle.path(graph.file)
+    return StreamingDecoder(path, graph.left_context, graph.lookahead, generator.codebook_size)
 
 
 @dataclass

@@ -40,6 +40,7 @@ import warnings
 import numpy as np
 
 from mogo.arguments import PromptWarning
+from mogo.bench.quality.evaluate import low_latency_window
 from mogo.generator import STREAM_DECODE_EVERY, MotionGenerator
 from mogo.motion.features import FOOT_CONTACT_THRESHOLD, JointStream, feature_layout
 from mogo.motion.feet import (
@@ -178,14 +179,13 @@ def locomotion(
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The 24 clips as decoded: (joints, features, joints) each (made once per generator);
     `low_latency`: their tokens decoded by the bundle's low-latency decoder, as its streams'."""
-    clips = []
+    clips, window = [], low_latency_window(generator) if low_latency else None
     for prompt in LOCOMOTION:
         for seed in range(first_seed, first_seed + SEEDS):
             motion = generator.generate(prompt, seconds=SECONDS, seed=seed, plant_feet=False)
             features, joints = motion.features, motion.joints
             if low_latency:
-                decoder = generator.streaming_decoder(low_latency=True)
-                features = generator._denormalised(decoder.decode_offline(motion.tokens))
+                features = generator.denormalised(window.decode_offline(motion.tokens))
                 joints = JointStream(generator.skeleton).push(features)
             clips.append((joints, features, joints))
     return clips

@@ -82,3 +82,15 @@ def test_many_streams_step_in_one_call_as_each_alone(generator):
     for k in range(3):
         expected = alone[k].push(rows[k][: 4 + 4 * k])
         np.testing.assert_allclose(np.concatenate(together[k]), expected, atol=1e-5)
+
+
+def test_whole_clips_decode_with_the_window_graph_not_the_step_graph(generator):
+    from mogo.bench.quality.evaluate import reconstruct
+
+    with pytest.raises(ValueError, match="decode whole clips with the window graph"):
+        generator.streaming_decoder(low_latency=True).decode_offline(_ids(generator, 10))
+    features = generator.generate("a person walks forward.", seconds=2, seed=0).features
+    centred, low = (reconstruct(generator, [features], low_latency=b)[0] for b in (False, True))
+    assert low.shape == centred.shape == features.shape
+    scale = np.abs(features).mean()  # both decoders reconstruct the clip, neither exactly
+    assert np.abs(low - features).mean() < 0.2 * scale and not np.array_equal(low, centred)
