@@ -174,9 +174,9 @@ class StreamingDecoder:
 
 class StepDecoder(StreamingDecoder):
     """The low-latency decoder a token a call (mogo.export.onnx.vq_step_graph, the manifest's
-    vq.low_latency_step): each token runs one column of every layer against a state that holds
-    the layers' past inputs, about a twentieth of a window decode's work, and gives the window
-    decoder's frames to a float rounding. Token rows are kept as StreamingDecoder keeps them (the
+    vq.low_latency_step): each token runs one column of every layer, where a window decode runs
+    63, against a state that holds the layers' past inputs, and gives the window decoder's
+    frames to a float rounding. Token rows are kept as StreamingDecoder keeps them (the
     last left_context + lookahead), so a stream restored from them (mogo.stream_state) rebuilds
     the state by replaying them, one token a call as they first ran: the same frames, bit for
     bit."""
@@ -230,18 +230,6 @@ class StepDecoder(StreamingDecoder):
             "the window graph (vq.low_latency_decoder)"
         )
 
-    def _step(self, row: np.ndarray) -> np.ndarray:
-        """One token row (L,) through the graph: the frame of token `_stepped` - lookahead."""
-        names = self.graph.inputs
-        feed = {
-            names[0]: row[None, None],
-            names[1]: np.array([self._stepped]),
-            names[2]: self._state,
-        }
-        features, self._state = self.session.run(None, feed)
-        self._stepped += 1
-        return features[0]
-
     def _catch_up(self) -> None:
         """After a restore: run the kept token rows, as the stream first ran them."""
         if self._stepped == self.pushed:
@@ -249,7 +237,7 @@ class StepDecoder(StreamingDecoder):
         self._state = np.zeros_like(self._state)
         self._stepped = self._start
         for row in self._tokens:
-            self._step(row)
+            _run_steps([self], row[None])
 
     def _taken(self, ids: np.ndarray, outputs: list[np.ndarray]) -> np.ndarray:
         """Account for `ids` pushed, their steps' `outputs`: the frames that became final."""
@@ -314,18 +302,25 @@ def _step_many(decoders: list[StepDecoder], ids: list[np.ndarray]) -> list[np.nd
     outputs: list[list[np.ndarray]] = [[] for _ in decoders]
     for depth in range(max(map(len, ids), default=0)):
         ks = [k for k, i in enumerate(ids) if depth < len(i)]
-        group = [decoders[k] for k in ks]
-        names = group[0].graph.inputs
-        feed = {
-            names[0]: np.stack([ids[k][depth] for k in ks])[:, None],
-            names[1]: np.array([d._stepped for d in group]),
-            names[2]: np.concatenate([d._state for d in group]),
-        }
-        features, states = group[0].session.run(None, feed)
-        for row, (k, d) in enumerate(zip(ks, group, strict=True)):
-            d._state, d._stepped = states[row : row + 1], d._stepped + 1
-            outputs[k].append(features[row])
+        features = _run_steps([decoders[k] for k in ks], np.stack([ids[k][depth] for k in ks]))
+        for k, frame in zip(ks, features, strict=True):
+            outputs[k].append(frame)
     return [d._taken(i, out) for d, i, out in zip(decoders, ids, outputs, strict=True)]
+
+
+def _run_steps(group: list[StepDecoder], rows: np.ndarray) -> np.ndarray:
+    """One call of the step graph: each decoder's token row (rows (B, L)) at its own position,
+    its state a row of the call's; -> the frames (B, 1, D) of each position - lookahead."""
+    names = group[0].graph.inputs
+    feed = {
+        names[0]: rows[:, None],
+        names[1]: np.array([d._stepped for d in group]),
+        names[2]: np.concatenate([d._state for d in group]),
+    }
+    features, states = group[0].session.run(None, feed)
+    for row, d in enumerate(group):
+        d._state, d._stepped = states[row : row + 1], d._stepped + 1
+    return features
 
 
 def _static_last_dim(args: list[ort.NodeArg], name: str) -> int:
