@@ -99,15 +99,15 @@ class MotionGenerator:
             io_types(manifest, self._decoder),
         )
         # what low-latency streams decode with: the step graph, else the window graph; None: none
-        self._low_latency = manifest.vq.low_latency_step or manifest.vq.low_latency_decoder
+        self.low_latency_graph = manifest.vq.low_latency_step or manifest.vq.low_latency_decoder
         self._low_latency_session = (
             None
-            if self._low_latency is None
+            if self.low_latency_graph is None
             else graph_session(
-                bundle.path(self._low_latency.file),
-                self._low_latency,
+                bundle.path(self.low_latency_graph.file),
+                self.low_latency_graph,
                 1 if manifest.vq.low_latency_step else threads,  # a column a layer: too small
-                io_types(manifest, self._low_latency),
+                io_types(manifest, self.low_latency_graph),
             )
         )
         self._vq_encoder = NamedGraph(bundle, manifest.vq.encoder, threads)
@@ -476,7 +476,7 @@ class MotionGenerator:
                 f"anchoring must be True, False or an Anchoring, got {type(anchoring).__name__}"
             )
         low_latency = checked_bool(low_latency, "low_latency")
-        if low_latency and self._low_latency is None:
+        if low_latency and self.low_latency_graph is None:
             raise ValueError(
                 "this bundle has no low-latency decoder (manifest "
                 "vq.low_latency_decoder); stream without low latency"
@@ -499,7 +499,7 @@ class MotionGenerator:
         ValueError (mogo.stream_state.StateError) naming the problem. Costs a prefill and
         a step per token step since the stream's clip started or re-anchored (tens of ms)."""
         resumed = read_state(state, self)
-        if resumed.low_latency and self._low_latency is None:
+        if resumed.low_latency and self.low_latency_graph is None:
             raise StateError(
                 "the state is of a low-latency stream; this bundle has no such decoder"
             )
@@ -522,16 +522,16 @@ class MotionGenerator:
         """`session`: another session of the bundle's decoder graph (None: this generator's);
         `low_latency`: the low-latency decoder's, decoding every token (a token a call where
         the bundle has its step graph)."""
-        if low_latency and isinstance(self._low_latency, StepDecoderGraph):
+        if low_latency and isinstance(self.low_latency_graph, StepDecoderGraph):
             window = self.manifest.vq.low_latency_decoder
             return StepDecoder(
                 session or self._low_latency_session,
-                self._low_latency,
+                self.low_latency_graph,
                 window.left_context,
                 self.codebook_size,
             )
         d, own = (
-            (self._low_latency, self._low_latency_session)
+            (self.low_latency_graph, self._low_latency_session)
             if low_latency
             else (self._decoder, self._decoder_session)
         )

@@ -120,7 +120,7 @@ class Engine:
         self.interior = interior_session(path, decoder, self._centred, generator.codebook_size)
         # its own session, only if the bundle has one: the graph MotionGenerator steps
         # low-latency streams with (a token a call where the bundle has it, else windows)
-        low = generator._low_latency
+        low = generator.low_latency_graph
         self._low_latency = (
             None if low is None else graph_session(generator.bundle.path(low.file), low, 1)
         )
