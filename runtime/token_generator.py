@@ -28,14 +28,13 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from mogo._session import graph_session
-from mogo.kv_pool import KVPool
+from mogo.kv_pool import KVPool, StagedSession
 from mogo.manifest import BundleError, Graph
 from mogo.motion.skeleton import MAX_FRAMES
 from mogo.progress import Progress
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 
 LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"]  # then the pasts
-SHORT = 0.75  # pooled calls read a bucket's first slots alone where they use less than this
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
 
 
@@ -48,7 +47,7 @@ class TokenGenerator:
 
     def __init__(
         self,
-        level_paths: Sequence[str | os.PathLike],
+        level_paths: Sequence[str | os.PathLike] | Sequence[Sequence[bytes]],
         graphs: Sequence[Graph],
         end_token: int,
         intra_op_threads: int = 1,
@@ -57,20 +56,23 @@ class TokenGenerator:
     ):
         """graphs[l]: the input and output names of level l (protocol order).
         level_workers > 1 runs the levels of a step in that many groups at once, balanced by
-        layer count (each session then keeps `intra_op_threads`, best 1). pooled: the graphs
-        of mogo.serve.pooled (rows never mix, each row its own positions, new slots out): the
-        streams keep their caches in one KVPool and share calls (`step_together`)."""
+        layer count (each session then keeps `intra_op_threads`, best 1). pooled: each level
+        the stages of mogo.serve.pooled (rows never mix, each row its own positions, new slots
+        out, the pasts read in place): the streams keep their caches in one KVPool and share
+        calls (`step_together`)."""
         if level_workers < 1:
             raise ValueError(f"level_workers must be >= 1, got {level_workers}")
         if len(level_paths) != len(graphs):
             raise ValueError(f"{len(level_paths)} graph files for {len(graphs)} graph entries")
         self.sessions = [
-            graph_session(path, graph, intra_op_threads)
+            StagedSession(path, graph, intra_op_threads)
+            if pooled
+            else graph_session(path, graph, intra_op_threads)
             for path, graph in zip(level_paths, graphs, strict=False)
         ]
         self.graphs = list(graphs)
         self.cache_shapes = [
-            _cache_shape(session, path, pooled)
+            _cache_shape(session, path)
             for session, path in zip(self.sessions, level_paths, strict=False)
         ]
         self.end_token = end_token
@@ -469,11 +471,7 @@ def _pooled_call(g: TokenGenerator, group: list[TokenStream], bucket, rows) -> l
     token_ids = np.stack([s.last for s in group])[:, None]
     query = np.array([[s.steps] for s in group], np.int64)
     slots = np.array([[len(s.positions)] for s in group], np.int64)
-    # the call copies the slots it reads (in the graph): where the group uses less than
-    # SHORT of its bucket (new streams, fresh clips), a copy of just those slots costs less
-    used = int(slots.max()) + 1
-    cut = slice(None) if used > SHORT * bucket.capacity else slice(0, used)
-    keys = bucket.positions[rows, cut].copy()
+    keys = bucket.positions[rows].copy()
     keys[np.arange(len(group)), slots[:, 0]] = query[:, 0]
     return g.each_level(
         lambda level: g.run(
@@ -483,7 +481,8 @@ def _pooled_call(g: TokenGenerator, group: list[TokenStream], bucket, rows) -> l
             token_ids,
             query,
             keys,
-            [np.ascontiguousarray(held[rows, :, cut]) for held in bucket.arrays[level]],
+            # read in place where the rows are a run, the new slots written there
+            [np.ascontiguousarray(held[rows]) for held in bucket.arrays[level]],
             slots,
         )
     )
@@ -548,11 +547,11 @@ def balanced_groups(layers: Sequence[int], groups: int) -> list[list[int]]:
     return sorted((sorted(members) for _, members in loads if members), key=lambda m: m[0])
 
 
-def _cache_shape(session, path, pooled: bool = False) -> tuple[int, int, int]:
+def _cache_shape(session, path) -> tuple[int, int, int]:
     """(layers, heads, head_dim) of a level graph: its past inputs, key and value per layer,
-    are (batch, heads, past, head_dim) with heads and head_dim fixed (pooled: `slots` last)."""
+    are (batch, heads, past, head_dim) with heads and head_dim fixed."""
     inputs = session.get_inputs()
-    pasts = inputs[len(LEVEL_INPUTS) : len(inputs) - pooled]
+    pasts = inputs[len(LEVEL_INPUTS) :]
     shape = pasts[0].shape if pasts else []
     if (
         not pasts

@@ -24,7 +24,7 @@ from mogo._session import graph_session
 from mogo.anchoring import Anchoring
 from mogo.generator import MotionGenerator, MotionStream
 from mogo.serve.interior import interior_session
-from mogo.serve.pooled import pooled_graph, pooled_levels
+from mogo.serve.pooled import pooled_levels, pooled_stages
 from mogo.stream_decoder import push_many
 from mogo.stream_state import State
 from mogo.token_generator import TokenGenerator, step_together
@@ -102,7 +102,7 @@ class Engine:
         levels = manifest.t2m.levels
         if tokens is None:
             tokens = TokenGenerator(
-                [pooled_graph(generator.bundle.path(g.file)) for g in levels],
+                [pooled_stages(generator.bundle.path(g.file)) for g in levels],
                 pooled_levels(levels),
                 manifest.end_token,
                 intra_op_threads=1,  # the shards run in parallel

@@ -11,12 +11,14 @@ returns each layer's cache with the new slots appended (a Concat of the whole pa
   rows whose caches differ in length and step share one call.
 - a last input `slots` (batch, seq) says where each row's new slots go: right after its own,
   so the attention sums what the exported graph sums, in the same order, plus zeros;
-- `present.L.key` / `.value` are the new slots only (batch, heads, seq, head_dim), which the
-  caller writes into its pool.
-
-The copy of the past stays (a ScatterElements where the Concat was): an attention that read the
-past in place and added the new slot's terms apart rounded differently (products of other
-widths) and changed a served stream's tokens within 80 steps.
+- `present.L.key` / `.value` are the new slots only (batch, heads, seq, head_dim);
+- the graph is cut into stages after each layer's presents, and each layer's attention reads
+  its past input as it is: mogo.kv_pool.StagedSession writes the new slots into the pasts
+  between stages. So a call reads its rows of the pool in place, where a graph writing them
+  itself would copy every slot it reads (a ScatterElements where the Concat was). The
+  attention still sees one cache with the new slot in it, so it rounds as the exported graph
+  does; one that added the new slot's terms apart rounded differently (products of other
+  widths) and changed a served stream's tokens within 80 steps.
 
 The rewrite knows the exporter's pattern (mogo.export.onnx.t2m_graphs) and refuses another.
 """
@@ -40,14 +42,15 @@ def pooled_levels(levels: list[Graph]) -> list[Graph]:
     return [replace(graph, inputs=(*graph.inputs, "slots")) for graph in levels]
 
 
-def pooled_graph(path: str | os.PathLike) -> bytes:
-    """The level graph at `path`, made row-wise, with per-row positions and new slots out."""
+def pooled_stages(path: str | os.PathLike) -> list[bytes]:
+    """The level graph at `path`, made row-wise, with per-row positions and new slots out, cut
+    into stages (mogo.kv_pool.StagedSession runs them), serialised for onnxruntime."""
     model = onnx.load_from_string(rowwise_graph(path))
     graph = model.graph
     before: dict[str, list] = {}  # nodes to insert before a node (by its first output)
     try:
         reshaped = _row_positions(graph, before)
-        _new_slots_out(graph, before)
+        pairs = _new_slots_out(graph)
     except (KeyError, IndexError, ValueError) as error:
         raise BundleError(f"{path}: not a level graph the server can pool ({error})") from None
     # the nodes keep their order: onnxruntime's fusions depend on it (a re-sorted graph fused
@@ -60,11 +63,69 @@ def pooled_graph(path: str | os.PathLike) -> bytes:
     kept = [value for value in graph.value_info if value.name not in reshaped]
     graph.ClearField("value_info")
     graph.value_info.extend(kept)
-    read = {name for node in graph.node for name in node.input}
-    used = [init for init in graph.initializer if init.name in read]  # axes the rewrite
-    graph.ClearField("initializer")  # replaced: onnxruntime warns of unused ones on stderr
-    graph.initializer.extend(used)
-    return model.SerializeToString()
+    try:
+        return _stages(model, pairs)
+    except ValueError as error:
+        raise BundleError(f"{path}: not a level graph the server can pool ({error})") from None
+
+
+def _stages(model, pairs: list[tuple[str, str]]) -> list[bytes]:
+    """`model` cut after each layer's presents (`pairs`: (past input, present output) of each
+    key and value, in node order), each stage a graph of its own: it takes what it reads of
+    the graph's inputs and of earlier stages' values, and gives what later stages read and the
+    graph outputs it makes. Constants go with every stage that reads them, so each stage folds
+    them as the whole graph did. ValueError where a stage would read a past before the stage
+    that makes its new slots ends."""
+    graph = model.graph
+    cuts = {present for _, present in pairs[1::2]}
+    ends = [k + 1 for k, node in enumerate(graph.node) if node.output[0] in cuts]
+    spans = list(zip([0, *ends], [*ends, len(graph.node)], strict=True))
+    constants = {node.output[0]: node for node in graph.node if node.op_type == "Constant"}
+    stages = [[n for n in graph.node[a:b] if n.op_type != "Constant"] for a, b in spans]
+    reads = [{name for node in nodes for name in node.input if name} for nodes in stages]
+    for k, nodes in enumerate(stages):
+        nodes[:0] = [constants[name] for name in sorted(reads[k] & constants.keys())]
+    makes = [{name for node in nodes for name in node.output} for nodes in stages]
+    made_in = {name: k for k, names in enumerate(makes) for name in names}
+    for past, present in pairs:
+        readers = [
+            k
+            for k, nodes in enumerate(stages)
+            if any(past in node.input and node.op_type != "Shape" for node in nodes)
+        ]
+        if min(readers, default=len(stages)) <= made_in[present]:
+            raise ValueError(f"{past} is read before its new slots are made")
+    inferred = onnx.shape_inference.infer_shapes(model).graph
+    values = {v.name: v for v in [*inferred.value_info, *graph.input, *graph.output]}
+    known = {v.name: v for v in graph.value_info}
+    initializers = {init.name: init for init in graph.initializer}
+    later = [set().union(*reads[k + 1 :]) for k in range(len(stages))]
+    outputs = {value.name for value in graph.output}
+    serialised = []
+    for k, nodes in enumerate(stages):
+        taken = sorted(reads[k] - makes[k] - initializers.keys(), key=_order(graph.input))
+        given = sorted(makes[k] & (later[k] | outputs), key=_order(graph.output))
+        stage = helper.make_graph(
+            nodes,
+            f"{graph.name}/stage{k}",
+            [values[name] for name in taken],
+            [values[name] for name in given],
+            [initializers[name] for name in sorted(reads[k] & initializers.keys())],
+            value_info=[known[name] for name in sorted(makes[k] & known.keys())],
+        )
+        serialised.append(
+            helper.make_model(
+                stage, opset_imports=model.opset_import, ir_version=model.ir_version
+            ).SerializeToString()
+        )
+    return serialised
+
+
+def _order(values):
+    """Sort key: the names of `values` (a graph's inputs or outputs) first, in their order,
+    then other names alphabetically."""
+    order = {value.name: k for k, value in enumerate(values)}
+    return lambda name: (order.get(name, len(order)), name)
 
 
 def _constant(graph, name: str, value) -> str:
@@ -120,43 +181,34 @@ def _row_positions(graph, before: dict[str, list]) -> set[str]:
     }
 
 
-def _new_slots_out(graph, before: dict[str, list]) -> None:
-    """Each layer's Concat(past, new) becomes a ScatterElements of the new slots into the past
-    at `slots` (batch, seq), so a row's slots keep the order its own cache would give them
-    (its slots, the new ones, then masked ones: the attention's sums then run over the same
-    numbers in the same order, plus zeros); the present output is the new slots only."""
+def _new_slots_out(graph) -> list[tuple[str, str]]:
+    """Each layer's Concat(past, new) goes: its readers read the past input, into which the
+    caller has written the new slots (at `slots`, right after the row's own) before the stage
+    that reads it runs; the present output is the new slots only (an Identity where the Concat
+    was). Returns (past input, present output) of each Concat, in node order."""
     users = consumer_map(graph)
     outputs = {value.name for value in graph.output}
     graph.input.append(
         helper.make_tensor_value_info("slots", onnx.TensorProto.INT64, ["batch", "seq"])
     )
-    _constant(graph, "pooled/axes13", [1, 3])
-    slots = helper.make_node("Unsqueeze", ["slots", "pooled/axes13"], ["pooled/slots4"])
     concats = [
         node
         for node in graph.node
         if node.op_type == "Concat" and node.output[0] in outputs and node.output[0] != "logits"
     ]
-    if not concats:
-        raise ValueError("no present made by a Concat")
-    for k, cat in enumerate(concats):
+    if not concats or len(concats) % 2:  # a key and a value a layer
+        raise ValueError("no key and value presents made by a Concat")
+    pairs = []
+    for cat in concats:
         past, new = cat.input
         present = cat.output[0]
-        whole = present + "/pooled"
+        pairs.append((past, present))
         for user in users[present]:
-            user.input[:] = [whole if name == present else name for name in user.input]
-        cat.op_type = "ScatterElements"
+            user.input[:] = [past if name == present else name for name in user.input]
+        cat.op_type = "Identity"
         del cat.attribute[:]
-        cat.attribute.append(helper.make_attribute("axis", 2))
-        cat.input[:] = [past, whole + "/index", new]
-        cat.output[:] = [whole]
-        before[whole] = [slots] * (k == 0) + (
-            [
-                helper.make_node("Shape", [new], [whole + "/shape"]),
-                helper.make_node("Expand", ["pooled/slots4", whole + "/shape"], [whole + "/index"]),
-                helper.make_node("Identity", [new], [present]),
-            ]
-        )
+        cat.input[:] = [new]
     for value in graph.output:
         if value.name != "logits":
             value.type.tensor_type.shape.dim[2].dim_param = "seq"
+    return pairs
