@@ -81,23 +81,21 @@ def _rowwise_quantize(x: str, rank: int, p: str) -> list[onnx.NodeProto]:
         constant("c255", 255.0, np.float32),
         constant("tiny", 1e-30, np.float32),
         constant("axes", list(range(1, rank)), np.int64),
-        node("ReduceMax", [x, p + "axes"], [p + "max0"], keepdims=1),
-        node("ReduceMin", [x, p + "axes"], [p + "min0"], keepdims=1),
+        node("ReduceMax", [x, p + "axes"], [p + "max0"], keepdims=0),  # (B,)
+        node("ReduceMin", [x, p + "axes"], [p + "min0"], keepdims=0),
         node("Max", [p + "max0", p + "c0"], [p + "max"]),
         node("Min", [p + "min0", p + "c0"], [p + "min"]),
         node("Sub", [p + "max", p + "min"], [p + "range"]),
         node("Div", [p + "range", p + "c255"], [p + "scale0"]),
-        node("Max", [p + "scale0", p + "tiny"], [p + "scale"]),  # an all-zero row: any scale
+        node("Max", [p + "scale0", p + "tiny"], [p + "scale_rows"]),  # all-zero rows: any
         node("Neg", [p + "min"], [p + "neg_min"]),
-        node("Div", [p + "neg_min", p + "scale"], [p + "zero_ratio"]),
-        node("Round", [p + "zero_ratio"], [p + "zero_round"]),
-        node("Clip", [p + "zero_round", p + "c0", p + "c255"], [p + "zero_f"]),
-        node("Cast", [p + "zero_f"], [p + "zero"], to=onnx.TensorProto.INT32),
-        node("Div", [x, p + "scale"], [p + "ratio"]),
-        node("Round", [p + "ratio"], [p + "round"]),
-        node("Add", [p + "round", p + "zero_f"], [p + "shifted"]),
-        node("Clip", [p + "shifted", p + "c0", p + "c255"], [p + "clipped"]),
-        node("Cast", [p + "clipped"], [p + "q"], to=onnx.TensorProto.UINT8),
+        # saturate(round(-min / scale)), and x quantised with its row's scale and zero point:
+        # each one pass, as onnxruntime's DynamicQuantizeLinear does it with the tensor's
+        node("QuantizeLinear", [p + "neg_min", p + "scale_rows"], [p + "zero_rows"], axis=0),
+        node("QuantizeLinear", [x, p + "scale_rows", p + "zero_rows"], [p + "q"], axis=0),
+        node("Unsqueeze", [p + "scale_rows", p + "axes"], [p + "scale"]),
+        node("Cast", [p + "zero_rows"], [p + "zero_rows_int"], to=onnx.TensorProto.INT32),
+        node("Unsqueeze", [p + "zero_rows_int", p + "axes"], [p + "zero"]),
     ]
 
 
