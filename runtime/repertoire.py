@@ -128,20 +128,20 @@ class KnownCaptions:
             )
         if self.prompts is not None:  # the cosine's denominators and what captions say, once
             self._prompt_norms = np.linalg.norm(self.prompts, axis=1)
-            self._says = [what_it_says(caption) for caption in self.captions]
+            self._says = _said_codes([what_it_says(caption) for caption in self.captions])
 
     def nearest(self, prompt: np.ndarray, text: str) -> int:
         """The index of the known prompt embedding at the highest cosine with `prompt`
         (1, text_dim), the adapted embedding of `text`, with the steps, sides, ways and counts
         `text` says agreeing (SAY_WEIGHT): the level graphs play the exact embeddings they were
         trained on far better than an adapter's approximation of them (docs/text_encoder.md)."""
-        says = what_it_says(text)
-        agreement = [
-            sum(1 if said[kind] == value else -1 for kind, value in says.items() if kind in said)
-            for said in self._says
-        ]
+        agreement = np.zeros(len(self.captions))
+        for kind, value in what_it_says(text).items():
+            if kind in self._says:  # +1 where a caption says the same, -1 where another
+                codes, said = self._says[kind]
+                agreement += np.where(said < 0, 0, np.where(said == codes.get(value, -2), 1, -1))
         similarity = self.prompts @ prompt[0] / self._prompt_norms / np.linalg.norm(prompt)
-        return int(np.argmax(similarity + SAY_WEIGHT * np.array(agreement)))
+        return int(np.argmax(similarity + SAY_WEIGHT * agreement))
 
     def familiarity(
         self, sentence: np.ndarray, played: str | None = None, count: int = 3
@@ -168,6 +168,17 @@ class KnownCaptions:
 def shown_caption(caption: str) -> str:
     """A caption as the user sees it: without its final full stop."""
     return caption.strip().rstrip(".")
+
+
+def _said_codes(says: list[dict[str, frozenset]]) -> dict[str, tuple[dict, np.ndarray]]:
+    """Per kind: a code for each value the captions say, and each caption's code (-1: it says
+    none of that kind), so a prompt is compared with every caption in a few array operations."""
+    out = {}
+    for kind in {kind for said in says for kind in said}:
+        codes: dict[frozenset, int] = {}
+        said = [codes.setdefault(s[kind], len(codes)) if kind in s else -1 for s in says]
+        out[kind] = codes, np.array(said)
+    return out
 
 
 def what_it_says(text: str) -> dict[str, frozenset]:
