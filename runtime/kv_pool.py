@@ -123,9 +123,17 @@ class KVPool:
         if slots > self.place[id(stream)][0].capacity:
             self._move(stream, _capacity(slots))
 
-    def write(self, streams: Sequence, slots: Sequence[int], new: list[list[np.ndarray]]) -> None:
+    def write(
+        self,
+        streams: Sequence,
+        slots: Sequence[int],
+        new: list[list[np.ndarray]],
+        written: Sequence[bool] | None = None,
+    ) -> None:
         """After a call: stream k's new slot, `new[l][i][k]` (heads, 1, head_dim) per level and
-        layer, into `slots[k]` of its row, at the position the stream gave it."""
+        layer, into `slots[k]` of its row, at the position the stream gave it. written[k]: the
+        call read stream k's row in place and wrote the slot there already (its position
+        alone is set)."""
         if not streams:
             return
         buckets: dict[int, list[int]] = {}
@@ -136,10 +144,13 @@ class KVPool:
             bucket = self.place[id(streams[ks[0]])][0]
             rows = np.array([self.place[id(streams[k])][1] for k in ks])
             at = slots[ks]
-            for arrays, level in zip(bucket.arrays, new, strict=True):
-                for array, present in zip(arrays, level, strict=True):
-                    array[rows, :, at] = present[ks, :, -1]
             bucket.positions[rows, at] = [streams[k].positions[slots[k]] for k in ks]
+            copied = [i for i, k in enumerate(ks) if written is None or not written[k]]
+            if copied:
+                ks, rows, at = [ks[i] for i in copied], rows[copied], at[copied]
+                for arrays, level in zip(bucket.arrays, new, strict=True):
+                    for array, present in zip(arrays, level, strict=True):
+                        array[rows, :, at] = present[ks, :, -1]
 
     def _move(self, stream, capacity: int) -> tuple[_Bucket, int]:
         """Give `stream` a row in the bucket of `capacity`, its live slots copied along."""

@@ -499,16 +499,19 @@ def _step_pooled(members: list[TokenStream]) -> list[np.ndarray | None]:
     for bucket, ks, rows in pool.groups(members):
         group = [members[k] for k in ks]
         uniforms = [step_uniforms(s.rng, g.num_levels) for s in group]
+        # a run of rows is read in place, each new slot written after the row's own
+        called = [len(s.positions) if isinstance(rows, slice) else -1 for s in group]
         outputs = _pooled_call(g, group, bucket, rows)
-        rows = _sampled_together(group, _level_logits(g, outputs), uniforms)
-        took, slots = [], []
-        for i, (k, s, row) in enumerate(zip(ks, group, rows, strict=True)):
+        sampled = _sampled_together(group, _level_logits(g, outputs), uniforms)
+        took, slots, written = [], [], []
+        for i, (k, s, row) in enumerate(zip(ks, group, sampled, strict=True)):
             drawn[k] = s._ends(row)
             if drawn[k] is not None:
                 took.append(i)
                 slots.append(s._took(drawn[k]))
+                written.append(slots[-1] == called[i])  # not where a full window's oldest was
         new = [[present[took] for present in presents] for _, presents in outputs]
-        pool.write([group[i] for i in took], slots, new)
+        pool.write([group[i] for i in took], slots, new, written)
     return drawn
 
 
