@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .quaternion import qbetween, qinv, qmul, qrot, qto_cont6d, qyaw
+from .quaternion import cross, qbetween, qinv, qmul, qrot, qto_cont6d, qyaw
 from .skeleton import SMPL_22, Skeleton, skeleton_for_feature_dim
 
 FOOT_CONTACT_THRESHOLD = 0.002  # squared per-frame displacement (m^2), as in HumanML3D
@@ -150,7 +150,7 @@ def facing_directions(
         - positions[:, l_shoulder]
     )
     across /= _safe_norm(across, "the hips and shoulders give no left-right direction")
-    forward = np.cross(np.array([0.0, 1.0, 0.0]), across)
+    forward = cross(np.array([0.0, 1.0, 0.0]), across)
     if facing_sigma > 0:
         forward = _gaussian_smooth(forward, facing_sigma)
     return forward / _safe_norm(

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mogo.motion.quaternion import qbetween, qnormalize, qto_matrix
+from mogo.motion.quaternion import cross, qbetween, qnormalize, qto_matrix
 from mogo.motion.skeleton import SMPL_22, Skeleton
 
 X, Y, Z = np.eye(3)
@@ -235,7 +235,7 @@ def _aim(
         reference += left * weight * across / np.maximum(length, 1e-12)
         left = left * (1.0 - weight)
     reference += left * (swing @ rest_ref)
-    fallback = np.linalg.norm(np.cross(direction, reference), axis=-1) < 1e-6
+    fallback = np.linalg.norm(cross(direction, reference), axis=-1) < 1e-6
     reference[fallback] = (swing @ rest_ref)[fallback]
     return _frame(direction, reference) @ _frame(_unit(rest_bone), rest_ref).T
 
@@ -267,8 +267,8 @@ def _leaf(
 
 def _frame(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
     """Orthonormal frames (..., 3, 3): columns primary, primary x secondary, and their cross."""
-    second = _unit(np.cross(primary, secondary))
-    return np.stack([primary, second, np.cross(primary, second)], axis=-1)
+    second = _unit(cross(primary, secondary))
+    return np.stack([primary, second, cross(primary, second)], axis=-1)
 
 
 def _kabsch(rest: np.ndarray, observed: np.ndarray) -> np.ndarray:
