@@ -35,6 +35,7 @@ from mogo.progress import Progress
 from mogo.sampling import Sampling, choose_tokens, make_rng, step_uniforms
 
 LEVEL_INPUTS = ["prompt", "uncond", "token_ids", "positions", "past_positions"]  # then the pasts
+SHORT = 0.75  # pooled calls read a bucket's first slots alone where they use less than this
 Cache = list[np.ndarray]  # one level: key, value, key, value, ... (batch, heads, slots, head_dim)
 
 
@@ -463,17 +464,25 @@ def _step_alone(s: TokenStream) -> np.ndarray | None:
     return row
 
 
-def _pooled_call(g: TokenGenerator, group: list[TokenStream], bucket, rows) -> list[tuple]:
+def _pooled_call(
+    g: TokenGenerator, group: list[TokenStream], bucket, rows
+) -> tuple[list[tuple], bool]:
     """Every level graph once for `group`, whose caches lie at `rows` of `bucket`: each
-    stream's new slot follows its slots in the call, as in its own cache."""
+    stream's new slot follows its slots in the call, as in its own cache. Returns the levels'
+    outputs, and whether the call read the rows in place (so wrote the new slots there)."""
     prompt = np.concatenate([s.prompt for s in group])
     uncond = np.zeros(len(group), bool)
     token_ids = np.stack([s.last for s in group])[:, None]
     query = np.array([[s.steps] for s in group], np.int64)
     slots = np.array([[len(s.positions)] for s in group], np.int64)
-    keys = bucket.positions[rows].copy()
+    # where the group uses less than SHORT of its bucket (new streams, fresh clips), a copy
+    # of just the slots used: a cache of n slots read as n, not padded to the bucket, rounds
+    # as the stream's own cache does (padding to a multiple of 8 can change the last bit)
+    used = int(slots.max()) + 1
+    cut = slice(None) if used > SHORT * bucket.capacity else slice(0, used)
+    keys = bucket.positions[rows, cut].copy()
     keys[np.arange(len(group)), slots[:, 0]] = query[:, 0]
-    return g.each_level(
+    outputs = g.each_level(
         lambda level: g.run(
             level,
             prompt,
@@ -481,11 +490,12 @@ def _pooled_call(g: TokenGenerator, group: list[TokenStream], bucket, rows) -> l
             token_ids,
             query,
             keys,
-            # read in place where the rows are a run, the new slots written there
-            [np.ascontiguousarray(held[rows]) for held in bucket.arrays[level]],
+            # a run of rows, all slots: read in place, the new slots written there
+            [np.ascontiguousarray(held[rows, :, cut]) for held in bucket.arrays[level]],
             slots,
         )
     )
+    return outputs, isinstance(rows, slice) and cut == slice(None)
 
 
 def _step_pooled(members: list[TokenStream]) -> list[np.ndarray | None]:
@@ -499,9 +509,8 @@ def _step_pooled(members: list[TokenStream]) -> list[np.ndarray | None]:
     for bucket, ks, rows in pool.groups(members):
         group = [members[k] for k in ks]
         uniforms = [step_uniforms(s.rng, g.num_levels) for s in group]
-        # a run of rows is read in place, each new slot written after the row's own
-        called = [len(s.positions) if isinstance(rows, slice) else -1 for s in group]
-        outputs = _pooled_call(g, group, bucket, rows)
+        called = [len(s.positions) for s in group]  # where each new slot went in the call
+        outputs, in_place = _pooled_call(g, group, bucket, rows)
         sampled = _sampled_together(group, _level_logits(g, outputs), uniforms)
         took, slots, written = [], [], []
         for i, (k, s, row) in enumerate(zip(ks, group, sampled, strict=True)):
@@ -509,7 +518,7 @@ def _step_pooled(members: list[TokenStream]) -> list[np.ndarray | None]:
             if drawn[k] is not None:
                 took.append(i)
                 slots.append(s._took(drawn[k]))
-                written.append(slots[-1] == called[i])  # not where a full window's oldest was
+                written.append(in_place and slots[-1] == called[i])  # not a full window's
         new = [[present[took] for present in presents] for _, presents in outputs]
         pool.write([group[i] for i in took], slots, new, written)
     return drawn
