@@ -107,12 +107,16 @@ def _cmd_long_streams(args: argparse.Namespace) -> None:
 
 
 def _require_low_latency(args: argparse.Namespace) -> None:
-    """--low-latency runs MotionStream's tasks again with the bundle's low-latency decoder."""
+    """--low-latency runs MotionStream's and served tasks again with the bundle's low-latency
+    decoder."""
+    from mogo.bench.long_streams import LOW_LATENCY
     from mogo.bundle import read_manifest
     from mogo.generator import DEFAULT_BUNDLE
 
-    if "stream" not in args.path:
-        raise CliError("--low-latency runs the stream path again: add --path stream")
+    if not set(args.path) & set(LOW_LATENCY):
+        raise CliError(
+            "--low-latency runs the stream and serve paths again: add --path stream or serve"
+        )
     if read_manifest(Path(args.bundle or DEFAULT_BUNDLE)).vq.low_latency_decoder is None:
         raise CliError(
             "--low-latency: this bundle has no low-latency decoder (manifest "
@@ -304,8 +308,8 @@ def _long_streams_arguments(streams: argparse.ArgumentParser) -> None:
     streams.add_argument(
         "--low-latency",
         action="store_true",
-        help="the stream path again with the bundle's low-latency decoder: a column of its "
-        "own, and the switch as received beside the centred decoder's",
+        help="the stream and serve paths again with the bundle's low-latency decoder: columns "
+        "of their own, and the switch as received beside the centred decoder's",
     )
 
 

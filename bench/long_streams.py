@@ -56,6 +56,7 @@ ONE_OFF_SECONDS = 2.0  # the target: a one-off action under way within this
 ONE_OFF_LEAD = ("a person walks forward.", 5 * FPS)  # what a one-off action follows
 MODES = {"off": False, "on": True}  # MotionStream's re-anchoring
 PATHS = ("stream", "generate", "play", "continue", "serve")
+LOW_LATENCY = ("stream", "serve")  # the paths --low-latency runs again with that decoder
 KINDS = {  # the paths that can play each kind of schedule
     "action": ("stream", "generate", "play", "serve"),
     "switches": ("stream", "play", "continue", "serve"),
@@ -84,13 +85,12 @@ class Task:
     seed: int
     schedule: tuple[tuple[str, int], ...]  # (prompt, frames) entries
     action: str = ""  # the judged action (the one-off's, an action's); switches: none
-    low_latency: bool = False  # path "stream": the bundle's low-latency decoder
+    low_latency: bool = False  # paths "stream" and "serve": the bundle's low-latency decoder
 
     @property
     def column(self) -> str:
-        if self.path != "stream":
-            return self.path
-        return f"stream, anchoring {self.mode}" + ", low-latency decoder" * self.low_latency
+        name = f"stream, anchoring {self.mode}" if self.path == "stream" else self.path
+        return name + ", low-latency decoder" * self.low_latency
 
 
 @dataclass
@@ -104,7 +104,7 @@ class Made:
     seams: list[int] | None = None
     fresh: int = 0
     step_seconds: list[float] = field(default_factory=list)  # by minute (or overall)
-    received: list[int] | None = None  # MotionStream's: frames the caller had at each switch
+    received: list[int] | None = None  # frames the caller had at each switch (stream, serve)
 
 
 def _stream(bundle, task: Task) -> Made:
@@ -173,10 +173,13 @@ async def _served(url: str, task: Task) -> Made:
     reach its entry's first frame, taking effect at the frame the server names (`switched`)."""
     import aiohttp
 
-    chunks, switches, received = [], [], 0
+    chunks, switches, received, sent_at = [], [], 0, []
     (prompt, end), later = task.schedule[0], list(task.schedule[1:])
+    start = {"prompt": prompt, "seed": task.seed, "binary": True}
+    if task.low_latency:
+        start["low_latency"] = True
     async with aiohttp.ClientSession() as session, session.ws_connect(url) as ws:
-        await ws.send_json({"prompt": prompt, "seed": task.seed, "binary": True})
+        await ws.send_json(start)
         asked = False
         while later or received < end:
             message = await ws.receive()
@@ -195,8 +198,9 @@ async def _served(url: str, task: Task) -> Made:
                 end, asked = body["index"] + later.pop(0)[1], False
             if later and not asked and received >= end:
                 await ws.send_json({"prompt": later[0][0]})
+                sent_at.append(received)
                 asked = True
-    return Made(np.concatenate(chunks)[:end], switches)
+    return Made(np.concatenate(chunks)[:end], switches, received=sent_at)
 
 
 MAKERS = {"stream": _stream, "continue": _stream, "generate": _generated, "play": _played}
@@ -351,13 +355,13 @@ def _agreement(made: dict[Task, Made]) -> dict[str, dict]:
     largest difference among those (m), and the frame where each other one leaves it (a
     token drawn otherwise at a near tie: the motion goes its own way from there)."""
     reference = {
-        (t.kind, t.seed, t.schedule): m
+        (t.kind, t.seed, t.schedule, t.low_latency): m
         for t, m in made.items()
-        if t.column == "stream, anchoring on"
+        if t.path == "stream" and t.mode == "on"
     }
     out: dict[str, dict] = {}
     for task, motion in made.items():
-        ref = reference.get((task.kind, task.seed, task.schedule))
+        ref = reference.get((task.kind, task.seed, task.schedule, task.low_latency))
         if task.path in ("stream", "continue") or ref is None or ref.switches != motion.switches:
             continue
         n = min(len(ref.joints), len(motion.joints))
@@ -645,8 +649,8 @@ def main(args: argparse.Namespace) -> None:
         result = merged(args.tables_from)
     else:
         tasks = schedules(args.path, args.modes, actions, minutes, seeds, switches, one_offs)
-        if args.low_latency:  # MotionStream's tasks again, with the low-latency decoder
-            tasks += [replace(t, low_latency=True) for t in tasks if t.path == "stream"]
+        if args.low_latency:  # MotionStream's and served tasks again, the low-latency decoder
+            tasks += [replace(t, low_latency=True) for t in tasks if t.path in LOW_LATENCY]
         result = measure(args.bundle, tasks, args.jobs)
         result["lengths"] = {c: (minutes, seeds) for c in result["columns"]}
     text = report(result)

@@ -72,6 +72,24 @@ def test_every_path_plays_the_schedules_it_can_with_motionstreams_frames(tmp_pat
     assert agreement["serve"]["largest"] < 1e-4  # row-wise graphs round otherwise
 
 
+def test_served_low_latency_switches_are_measured_as_the_client_received_them(tmp_path, capsys):
+    """--low-latency runs the served streams again, asking for the low-latency decoder: their
+    switches counted from the frames the client had when it sent the new prompt, beside the
+    centred decoder's."""
+    pytest.importorskip("aiohttp")
+    argv = ["bench", "long-streams", "--quick", "--path", "serve", "--low-latency"]
+    assert main([*argv, "--one-offs", "0", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    result = json.loads((tmp_path / "long_streams.json").read_text())
+    switches = {r["column"]: r for r in result["rows"] if r["kind"] == "switches"}
+    assert set(switches) == {"serve", "serve, low-latency decoder"}
+    for row in switches.values():
+        (visible,), (reaction,) = row["visible"], row["reactions"]
+        # the server switches at or after the frames the client had when it asked
+        assert reaction is None or visible >= reaction
+    assert "| serve | 1 |" in printed and "| serve, low-latency decoder | 1 |" in printed
+
+
 def test_a_run_of_chosen_actions_without_switches(tmp_path, capsys):
     assert (
         main(
@@ -142,10 +160,12 @@ def test_jitter_is_the_mean_joint_acceleration():
     assert abs(drift(joints)["acceleration"] - 3.0) < 1e-3
 
 
-def test_low_latency_needs_the_stream_path_and_a_bundle_with_that_decoder(tmp_path, capsys):
+def test_low_latency_needs_the_stream_or_serve_path_and_a_bundle_with_that_decoder(
+    tmp_path, capsys
+):
     argv = ["bench", "long-streams", "--quick", "--low-latency", "--out", str(tmp_path / "out")]
     assert main([*argv, "--path", "generate"]) == 2
-    assert "--low-latency runs the stream path again" in capsys.readouterr().err
+    assert "--low-latency runs the stream and serve paths again" in capsys.readouterr().err
     bundle = tmp_path / "centred"  # the shipped bundle without its low-latency decoder
     shutil.copytree(DEFAULT_BUNDLE, bundle)
     vq = read_manifest(bundle).vq
