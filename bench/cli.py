@@ -35,6 +35,8 @@ def _cmd_bench_serve(args: argparse.Namespace) -> None:
 
     if min(args.clients + args.burst) < 1 or args.seconds <= 0 or args.spread < 0:
         raise CliError("--clients and --burst take numbers >= 1, --seconds > 0, --spread >= 0")
+    if args.beside < 0:
+        raise CliError(f"--beside must be >= 0 (0: bursts on the idle server), got {args.beside}")
     require_serve_extra()
     from mogo.bench.speed.serve import main_from_args
 
@@ -195,6 +197,14 @@ def _serve_arguments(serve: argparse.ArgumentParser) -> None:
         default=[1, 10, 50],
         help="clients connecting at once to the idle server, for the first-frame "
         "latency of each burst size (default 1 10 50)",
+    )
+    serve.add_argument(
+        "--beside",
+        type=int,
+        default=0,
+        metavar="N",
+        help="each burst while N clients stream (arrived over 2 s, settled 3 s), and their "
+        "p99 lateness after it (default 0: the idle server)",
     )
     serve.add_argument(
         "--seconds", type=float, default=15.0, help="how long each count streams (default 15)"

@@ -500,9 +500,9 @@ def figures_table(result: dict) -> str:
         reactions = [r for s in _kind(result, "switches", c) for r in s["reactions"]]
         seconds = np.array([np.inf if r is None else r / FPS for r in reactions])
         figures = {**_switch_figures(seconds), **_stream_figures(streams)}
-        figures[f"frames as `stream, anchoring on`'s (within {1000 * AGREE:g} mm)"] = _agreed(
-            result.get("agreement", {}).get(c)
-        )
+        figures[
+            f"frames as `stream, anchoring on`'s, same decoder (within {1000 * AGREE:g} mm)"
+        ] = _agreed(result.get("agreement", {}).get(c))
         for name, value in figures.items():
             rows.setdefault(name, {})[c] = value
     lines += [

@@ -5,7 +5,9 @@ and the clients' never share a process), warms the server, then:
 
 - bursts: for each burst size B, B WebSocket clients connect at once to the idle server; each
   one's first-frame latency (start message sent -> first frame received). Percentiles over the
-  clients (B = 1 repeated 7 times).
+  clients (B = 1 repeated 7 times). With `--beside N` the burst comes while N clients stream
+  (arrived over 2 s, settled 3 s): their p99 lateness over the frames after the burst's start
+  says whether the burst made them fall behind.
 - counts: for each N, N clients arrive spread evenly over `spread` seconds, each with its own
   prompt and seed and one prompt switch, and for `seconds` record when every frame arrives.
   Frame i of a client is due at t0 + i / fps, t0 the arrival of its frame 0; a frame's
@@ -70,6 +72,8 @@ PROMPTS = [
 ]
 FPS = SMPL_22.fps  # the shipped bundle's: the server's clock ticks at it
 DECODERS = {False: "centred", True: "low latency"}  # a stream's "low_latency" -> its name
+BESIDE_SPREAD, BESIDE_SETTLE, BESIDE_AFTER = 2.0, 3.0, 10.0  # --beside: the streaming clients
+# arrive over 2 s, the burst 3 s later, and they stream 10 s past it
 WARM_CLIENTS = 4
 PARTS = {  # the parts of a served stream step (--profile): the functions whose time is each
     "level graphs (onnxruntime)": {("token_generator.py", "run")},
@@ -167,11 +171,12 @@ def clients_process(
     delays: list[float],
     seconds: float,
     binary: bool,
-    first_only: bool = False,
+    firsts: int = 0,
     low_latency: bool = False,
 ) -> list[tuple[float, list[float]]]:
-    """What the clients' process runs: one client a delay, all on one event loop; client k
-    switches its prompt once, between 30% and 70% of `seconds`."""
+    """What the clients' process runs: one client a delay, all on one event loop; the last
+    `firsts` want their first frame alone, the others stream for `seconds`, client k
+    switching its prompt once, between 30% and 70% of them."""
 
     async def run():
         n = len(delays)
@@ -181,13 +186,14 @@ def clients_process(
                     url,
                     k,
                     seconds,
-                    None if first_only else seconds * (0.3 + 0.4 * k / n),
+                    None if first else seconds * (0.3 + 0.4 * k / n),
                     binary,
                     delay,
-                    first_only,
+                    first,
                     low_latency,
                 )
                 for k, delay in enumerate(delays)
+                for first in [k >= n - firsts]
             )
         )
 
@@ -219,18 +225,48 @@ def percentiles_ms(seconds: list[float]) -> dict:
 
 
 def burst(
-    pool: ProcessPoolExecutor, base: str, size: int, binary: bool, low_latency: bool = False
+    pool: ProcessPoolExecutor,
+    base: str,
+    size: int,
+    binary: bool,
+    low_latency: bool = False,
+    beside: int = 0,
 ) -> dict:
-    """`size` clients connecting at once to the idle server; their first-frame latencies
-    (size 1: 7 times)."""
-    firsts = []
+    """`size` clients connecting at once (size 1: 7 times), to the idle server or while
+    `beside` clients stream (settled first); their first-frame latencies, and the streaming
+    clients' lateness after the burst began."""
+    settled = BESIDE_SPREAD + BESIDE_SETTLE  # the burst's delay where others stream
+    delays = [BESIDE_SPREAD * k / max(beside, 1) for k in range(beside)]
+    delays += [settled if beside else 0.0] * size
+    firsts, late = [], []
     for _ in range(7 if size == 1 else 1):
         results = pool.submit(
-            clients_process, f"{base}/v1/stream", [0.0] * size, 60.0, binary, True, low_latency
+            clients_process,
+            f"{base}/v1/stream",
+            delays,
+            settled + BESIDE_AFTER if beside else 60.0,
+            binary,
+            size,
+            low_latency,
         ).result()
-        firsts += [first for first, _ in results]
+        arrived = [(first, times) for first, times in results[beside:] if times]
+        firsts += [first for first, _ in results[beside:]]
+        start = min((times[0] - first for first, times in arrived), default=math.inf)
+        late += [t for _, times in results[:beside] for t in _lateness(times, start)]
         wait_until_empty(base)
-    return dict(burst=size, decoder=DECODERS[low_latency], first_frame_ms=percentiles_ms(firsts))
+    row = dict(burst=size, decoder=DECODERS[low_latency], first_frame_ms=percentiles_ms(firsts))
+    if beside:  # no frame after the burst's start (none came): inf, never a pass
+        late_ms = np.percentile(late, 99, method="higher") * 1e3 if late else math.inf
+        row |= dict(beside=beside, beside_p99_ms=float(late_ms))
+    return row
+
+
+def _lateness(times: list[float], since: float) -> list[float]:
+    """How late each frame of a client came (seconds; frame i due at its first frame's
+    arrival + i / FPS), for the frames that arrived from `since` on."""
+    times = np.asarray(times)
+    late = np.maximum(0.0, times - (times[0] + np.arange(len(times)) / FPS))
+    return list(late[times >= since])
 
 
 def measure(
@@ -248,7 +284,7 @@ def measure(
     delays = [spread * k / clients for k in range(clients)]
     cpu, wall = cpu_seconds(pid), time.monotonic()
     results = pool.submit(
-        clients_process, f"{base}/v1/stream", delays, seconds, binary, False, low_latency
+        clients_process, f"{base}/v1/stream", delays, seconds, binary, 0, low_latency
     ).result()
     cpu, wall = cpu_seconds(pid) - cpu, time.monotonic() - wall
     wait_until_empty(base)
@@ -259,7 +295,7 @@ def measure(
             rates.append(0.0)
             continue
         rates.append((len(times) - 1) / (times[-1] - times[0]) if times[-1] > times[0] else FPS)
-        late.append(np.maximum(0.0, times - (times[0] + np.arange(len(times)) / FPS)))
+        late.append(_lateness(times, -math.inf))
     late = np.concatenate(late) if late else np.array([np.inf])
     row = dict(
         clients=clients,
@@ -440,13 +476,17 @@ def table(rows: list[dict]) -> str:
 
 
 def burst_table(rows: list[dict]) -> str:
+    """The bursts' first frames; where others streamed beside, their p99 lateness after it."""
+    beside = any("beside" in r for r in rows)
+    extra = " | clients streaming | their lateness p99 after it" if beside else ""
     lines = [
-        "| clients arriving at once | decoder | first frame p50 | p90 | p99 | max |",
-        "|---:|:---|---:|---:|---:|---:|",
+        f"| clients arriving at once | decoder | first frame p50 | p90 | p99 | max{extra} |",
+        "|---:|:---|---:|---:|---:|---:|" + "---:|---:|" * beside,
     ]
     lines += [
         f"| {r['burst']} | {r['decoder']} | "
         + " | ".join(f"{r['first_frame_ms'][p]:.0f} ms" for p in ("p50", "p90", "p99", "max"))
+        + (f" | {r['beside']} | {r['beside_p99_ms']:.0f} ms" if beside else "")
         + " |"
         for r in rows
     ]
@@ -463,11 +503,14 @@ def run(
     out: Path,
     binary: bool = True,
     low_latency: bool = False,
+    beside: int = 0,
 ) -> dict:
-    """`low_latency`: every burst and count twice in turn, centred then low-latency clients."""
+    """`low_latency`: every burst and count twice in turn, centred then low-latency clients;
+    `beside`: each burst while that many clients stream."""
     decoders = [False, True] if low_latency else [False]
+    most = max(*clients, *(b + beside for b in bursts), WARM_CLIENTS)
     with (
-        serving(bundle, max(*clients, *bursts, WARM_CLIENTS), threads) as (base, pid),
+        serving(bundle, most, threads) as (base, pid),
         ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool,
     ):
         for low in decoders:  # graphs run once
@@ -475,7 +518,7 @@ def run(
         bursts_measured = []
         for size in bursts:
             for low in decoders:
-                bursts_measured.append(burst(pool, base, size, binary, low))
+                bursts_measured.append(burst(pool, base, size, binary, low, beside))
                 print(burst_table(bursts_measured[-1:]).splitlines()[-1], flush=True)
         rows = []
         for n in clients:
@@ -607,9 +650,11 @@ def main_from_args(args) -> None:
         Path(args.out),
         not args.json,
         args.low_latency,
+        args.beside,
     )
+    where = f"while {args.beside} clients stream" if args.beside else "on the idle server"
     print(
-        f"Clients arriving at once on the idle server ({'JSON' if args.json else 'binary'} "
+        f"Clients arriving at once {where} ({'JSON' if args.json else 'binary'} "
         "frames), first-frame latency:\n"
     )
     print(burst_table(result["bursts"]))

@@ -28,3 +28,20 @@ def test_the_smallest_low_latency_run_compares_both_decoders(tmp_path, capsys):
     assert (tmp_path / "serve_bench.png").stat().st_size and (
         tmp_path / "serve_bursts.png"
     ).exists()
+
+
+def test_a_burst_beside_streaming_clients_reports_their_lateness_after_it(tmp_path, capsys):
+    argv = ["bench", "serve", "--burst", "2", "--beside", "1", "--clients", "1"]
+    assert main([*argv, "--seconds", "2", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "Clients arriving at once while 1 clients stream" in printed
+    assert "| clients streaming | their lateness p99 after it |" in printed
+    (row,) = json.loads((tmp_path / "serve_bench.json").read_text())["bursts"]
+    assert row["burst"] == 2 and row["beside"] == 1
+    assert 0 < row["first_frame_ms"]["max"] < float("inf")
+    assert 0 <= row["beside_p99_ms"] < float("inf")  # the streaming client had frames after it
+
+
+def test_beside_takes_no_negative_count(capsys):
+    assert main(["bench", "serve", "--beside", "-1"]) == 2
+    assert "--beside must be >= 0" in capsys.readouterr().err
