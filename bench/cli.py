@@ -218,12 +218,7 @@ def _serve_arguments(serve: argparse.ArgumentParser) -> None:
     add_threads(serve, "the server's --threads (default its own)")
     add_bundle(serve)
     add_out(serve, "folder for serve_bench.json and serve_bench.png", default="bench_out")
-    serve.add_argument(
-        "--engine-only",
-        action="store_true",
-        help="no server: the engine's CPU per stream step and wall per tick for "
-        "each --clients, and one stream's first frame (serve_engine.json)",
-    )
+    _engine_arguments(serve)
     serve.add_argument(
         "--json",
         action="store_true",
@@ -236,6 +231,16 @@ def _serve_arguments(serve: argparse.ArgumentParser) -> None:
         help="also clients that ask for the bundle's low-latency decoder, each burst and "
         "count in turn with the centred one (with --engine-only: both; with --profile: "
         "low-latency streams)",
+    )
+
+
+def _engine_arguments(serve: argparse.ArgumentParser) -> None:
+    """bench serve's runs with no server: the engine alone."""
+    serve.add_argument(
+        "--engine-only",
+        action="store_true",
+        help="no server: the engine's CPU per stream step and wall per tick for "
+        "each --clients, and one stream's first frame (serve_engine.json)",
     )
     serve.add_argument(
         "--profile",
