@@ -72,9 +72,9 @@ class TokenGenerator:
             for path, graph in zip(level_paths, graphs, strict=False)
         ]
         self.graphs = list(graphs)
-        self.cache_shapes = [
-            _cache_shape(session, path)
-            for session, path in zip(self.sessions, level_paths, strict=False)
+        self.cache_shapes = [  # pooled: the graph's file names what its stages came from
+            _cache_shape(session, graph.file if pooled else path)
+            for session, path, graph in zip(self.sessions, level_paths, graphs, strict=False)
         ]
         self.end_token = end_token
         self.num_levels = len(graphs)

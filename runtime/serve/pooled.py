@@ -65,7 +65,7 @@ def pooled_stages(path: str | os.PathLike) -> list[bytes]:
     graph.value_info.extend(kept)
     try:
         return _stages(model, pairs)
-    except ValueError as error:
+    except (KeyError, ValueError) as error:  # KeyError: a value shape inference cannot type
         raise BundleError(f"{path}: not a level graph the server can pool ({error})") from None
 
 

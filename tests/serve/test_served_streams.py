@@ -214,3 +214,30 @@ def test_a_pooled_stream_draws_what_it_draws_on_its_own_cache(generator, engine_
         rows = step_together([pooled, *others[: n % 3]])
         assert np.array_equal(rows[0], own.step()), f"step {n}"
     assert len(tokens.pool.buckets) >= 2  # rows moved to a larger bucket
+
+
+def test_a_pooled_call_writes_each_rows_new_slot_into_the_pasts_it_reads(engine_parts):
+    """The stages read the pasts they are given, in place: each row's new key and value land
+    at its `slots` before the next layer reads them, and no other slot changes."""
+    layers, heads, head_dim = engine_parts.cache_shapes[0]
+    prompt = np.random.default_rng(0).standard_normal((2, 128)).astype(np.float32)
+    slots = np.array([[1], [3]])  # row 0 holds the prefix alone, row 1 three slots
+    keys = np.full((2, 8), 2**62)  # MASKED past each row's slots
+    keys[0, :2], keys[1, :4] = [0, 1], [0, 1, 2, 3]
+    past = [np.full((2, heads, 8, head_dim), 0.5, np.float32) for _ in range(2 * layers)]
+    before = [p.copy() for p in past]
+    ids = np.zeros((2, 1, engine_parts.num_levels), np.int64)
+    _, presents = engine_parts.run(0, prompt, np.zeros(2, bool), ids, slots, keys, past, slots)
+    for held, was, new in zip(past, before, presents, strict=True):
+        for row, slot in enumerate(slots[:, 0]):
+            assert np.array_equal(held[row, :, slot], new[row, :, 0])
+            held[row, :, slot] = was[row, :, slot]
+        assert np.array_equal(held, was)  # nothing else written
+
+
+def test_a_graph_the_server_cannot_pool_is_refused_in_one_line(generator):
+    from mogo.manifest import BundleError
+    from mogo.serve.pooled import pooled_stages
+
+    with pytest.raises(BundleError, match="vq_decoder.onnx: not a level graph the server can "):
+        pooled_stages(generator.bundle.path(generator.manifest.vq.decoder.file))
