@@ -6,8 +6,9 @@ step of their clips share a call without their numbers mixing, their caches rows
 (mogo.kv_pool). Every stream is paced to real time on a shared tick (one token step per frame,
 `fps` ticks a second), its `lead` steps ahead so that its frames leave before they are due. A
 new stream catches up at once (its first frame comes after the decoder's lookahead and the
-feet's), in rounds shared with every other new stream, its first round with the running
-streams too. What is due is decoded in one call per decoder (mogo.stream_decoder.push_many):
+feet's), in rounds shared with every other new stream and with the running streams; while
+streams run, a round takes in only as many new ones as leave it about a tick long (`due`), so
+a burst of arrivals does not hold the running ones back. What is due is decoded in one call per decoder (mogo.stream_decoder.push_many):
 the centred one's windows, and the low-latency one's tokens (its step graph) for streams that
 ask for it. Not thread-safe: the server calls it from one thread.
 """
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -31,6 +33,9 @@ from mogo.token_generator import TokenGenerator, step_together
 
 SHARD_FROM = 16  # due streams from which a round runs its two shards on two threads: a
 # thread hand-off costs more than it gains for a few streams
+ROUND_TICKS = 1.0  # with streams running, a round lasts about this many ticks at most: the
+# streams catching up (new ones) share what the running ones leave of it
+MIN_CATCH_UP = 4  # streams catching up in a round at the least, however busy the server
 
 
 class ServedStream(MotionStream):
@@ -125,6 +130,7 @@ class Engine:
             None if low is None else graph_session(generator.bundle.path(low.file), low, 1)
         )
         self.streams: dict[int, ServedStream] = {}
+        self._step_seconds: float | None = None  # wall time per stream step, rounds' mean
         self._pool = ThreadPoolExecutor(1, "mogo-shard") if threads > 1 else None
         self._ids = itertools.count(1)
 
@@ -198,17 +204,31 @@ class Engine:
             stream.shard.pool.remove(stream.tokens)
 
     def due(self, now: float) -> list[ServedStream]:
-        """The streams behind their target at `now`."""
+        """The streams behind their target at `now` that the next round steps: every running
+        one (its frames flowing), and of those catching up (no frame yet: new streams) the
+        oldest, as many as fit beside them in a round of ROUND_TICKS. So a burst of arrivals
+        catches up in the time the running streams leave, and they keep their clock."""
         tick = self.tick(now)
-        return [
-            stream
-            for stream in self.streams.values()
-            if stream.steps < stream.lead + tick - stream.start_tick
-        ]
+        behind = [s for s in self.streams.values() if s.steps < s.lead + tick - s.start_tick]
+        if self._step_seconds is None or not any(s.frames_emitted for s in self.streams.values()):
+            return behind  # an idle server: the whole burst at once
+        running = [s for s in behind if s.frames_emitted]  # due now (or none: a round between)
+        room = ROUND_TICKS / self.fps / self._step_seconds - len(running)
+        catching_up = [s for s in behind if not s.frames_emitted]
+        return running + catching_up[: max(MIN_CATCH_UP, int(room))]
 
     def round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         """One step of each stream in `due`: (stream, index of its first new frame, joints
         (n, J, 3)) for each that made frames."""
+        start = time.perf_counter()
+        made = self._round(due)
+        if due:  # a running mean, for `due`
+            seconds = (time.perf_counter() - start) / len(due)
+            last = self._step_seconds
+            self._step_seconds = seconds if last is None else 0.8 * last + 0.2 * seconds
+        return made
+
+    def _round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
         if self._pool is None or len(due) < SHARD_FROM:
             return self._step(due)
         # two shards, each its own calls, sampling and decoding, on two threads: onnxruntime

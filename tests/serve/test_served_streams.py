@@ -51,6 +51,31 @@ def test_a_burst_of_new_streams_all_start(generator, engine_parts):
     assert started == {stream.id for stream in burst}
 
 
+def test_a_burst_beside_running_streams_takes_what_they_leave_of_a_round(generator, engine_parts):
+    """With streams running, a round steps every running one due and only as many new ones as
+    fit beside them in about a tick (at the rounds' measured cost a step), the oldest first,
+    never fewer than MIN_CATCH_UP; on an idle server every new one."""
+    engine = Engine(generator, 1, tokens=engine_parts)
+    sampling = generator.sampling(None)
+    running = [engine.open("a person walks forward.", k, sampling, 0.0) for k in range(6)]
+    now = 0.0
+    while not all(s.frames_emitted for s in running) or engine.due(now):
+        due = engine.due(now)
+        engine.round(due) if due else None
+        now = round(now + (0 if due else 0.05), 6)
+    burst = [engine.open("a person waves.", 10 + k, sampling, now) for k in range(20)]
+    tick = 1 / engine.fps
+    engine._step_seconds = tick / 16  # a round of a tick holds 16 steps: 6 running, 10 new
+    due = engine.due(now + tick)
+    assert due[:6] == running and due[6:] == burst[:10]
+    engine._step_seconds = tick / 5  # the running ones fill it: the new ones' least
+    assert engine.due(now + tick)[6:] == burst[: engine_module.MIN_CATCH_UP]
+    assert engine.due(now) == burst[:5]  # a round between ticks, none running due: 5 new
+    for stream in running:  # the running ones gone: the burst steps whole
+        engine.close(stream)
+    assert engine.due(now + tick) == burst
+
+
 STREAMS = [
     ("a person walks forward.", 3, {}),
     ("a person jogs forward.", 4, {"guidance": 2.0}),
