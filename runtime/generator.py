@@ -43,7 +43,7 @@ from mogo.arguments import (
 from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import MAX_GENERATE_SECONDS, StepDecoderGraph, io_types
-from mogo.motion.features import JointStream
+from mogo.motion.features import JointStream, joints_together
 from mogo.motion.feet import SHORT, WINDOW, FootPlanter, planted
 from mogo.motion.untrusted import checked_finite
 from mogo.progress import Progress
@@ -739,7 +739,12 @@ class MotionStream:
         self, tokens: np.ndarray, normalised: np.ndarray, limit: int | None = None
     ) -> np.ndarray:
         """The frames that became final from decoded rows (at most `limit`: `finish`)."""
-        features, joints = self._final(self.generator.denormalised(normalised))
+        return self._emit(tokens, *self._final(self.generator.denormalised(normalised)), limit)
+
+    def _emit(
+        self, tokens: np.ndarray, features: np.ndarray, joints: np.ndarray, limit: int | None
+    ) -> np.ndarray:
+        """`emit` of rows made final (features and joints, the feet planted where asked)."""
         skip = min(self._skip, len(joints))
         features, joints, self._skip = features[skip:], joints[skip:], self._skip - skip
         features, joints = features[:limit], joints[:limit]
@@ -748,10 +753,14 @@ class MotionStream:
             self._record.append((tokens, features.astype(np.float32), joints))
         return joints
 
-    def _final(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Decoded rows in, the rows now final out with their joints: the feet planted when
-        asked, the planter's lookahead later."""
-        joints = self._joints.push(features)
+    def _final(
+        self, features: np.ndarray, joints: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Decoded rows in (with their joints where `emit_together` made them), the rows now
+        final out with their joints: the feet planted when asked, the planter's lookahead
+        later."""
+        if joints is None:
+            joints = self._joints.push(features)
         if self.feet is None:
             return features, joints
         return self.feet.push(features, joints)
@@ -761,6 +770,29 @@ class MotionStream:
         frames the foot planter holds back)."""
         held = 0 if self.feet is None else self.feet.pending
         return (self.decoder.pushed - self.decoder.emitted) * self.generator.down_factor + held
+
+
+def emit_together(
+    streams: Sequence[MotionStream], tokens: list[np.ndarray], normalised: list[np.ndarray]
+) -> list[np.ndarray]:
+    """`emit` of each stream's decoded rows (the server's round): the joints of the streams
+    with as many rows made in one pass (mogo.motion.features.joints_together: the same
+    numbers), then each stream's feet. Returns each stream's frames made final."""
+    features = [s.generator.denormalised(rows) for s, rows in zip(streams, normalised, strict=True)]
+    joints: list[np.ndarray | None] = [None] * len(streams)
+    alike: dict[int, list[int]] = {}  # streams by rows decoded
+    for k, rows in enumerate(features):
+        alike.setdefault(len(rows), []).append(k)
+    for ks in alike.values():
+        made = joints_together(
+            [streams[k]._joints for k in ks], np.stack([features[k] for k in ks])
+        )
+        for k, rows in zip(ks, made, strict=True):
+            joints[k] = rows
+    return [
+        s._emit(t, *s._final(f, j), None)
+        for s, t, f, j in zip(streams, tokens, features, joints, strict=True)
+    ]
 
 
 def checked_seed(seed: object) -> int:

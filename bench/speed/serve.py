@@ -83,7 +83,7 @@ PARTS = {  # the parts of a served stream step (--profile): the functions whose 
         ("stream_decoder.py", "_decode_windows"),
         ("stream_decoder.py", "_step_many"),
     },
-    "joints from features": {("motion/features.py", "push")},
+    "joints from features": {("motion/features.py", "joints_together")},
     "foot planting": {("motion/feet.py", "push")},
 }
 

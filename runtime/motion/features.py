@@ -67,15 +67,31 @@ class JointStream:
 
     def push(self, features: np.ndarray) -> np.ndarray:
         """features (n, D) -> joints (n, J, 3) float32."""
-        f = np.asarray(features, dtype=np.float64)
-        _checked_skeleton(f, self.skeleton)
-        if len(f) == 0:
-            return np.zeros((0, self.skeleton.num_joints, 3), np.float32)
-        joints = _joints(f, self.skeleton, np.float64(self.half_angle), self.xz)
+        return joints_together([self], np.asarray(features)[None])[0]
+
+    def _advance(self, f: np.ndarray, joints: np.ndarray) -> None:
+        """The root's yaw and XZ after rows f (n, D) float64 whose joints are `joints`."""
         self.half_angle += f[:, 0].sum()
         step = qrot(qinv(qyaw(2 * self.half_angle)), np.array([f[-1, 1], 0.0, f[-1, 2]]))
         self.xz = joints[-1, 0, [0, 2]] + step[[0, 2]]
-        return joints.astype(np.float32)
+
+
+def joints_together(streams: list[JointStream], features: np.ndarray) -> np.ndarray:
+    """`push` of as many rows to each of several streams of one skeleton at once (the server's
+    streams of a round): features (B, n, D) -> joints (B, n, J, 3) float32, the numbers of B
+    pushes (the maths is elementwise per stream) in one pass of numpy calls, not B."""
+    skeleton = streams[0].skeleton
+    if any(stream.skeleton is not skeleton for stream in streams):
+        raise ValueError("joints_together needs streams of one skeleton")
+    f = np.asarray(features, dtype=np.float64)
+    _checked_skeleton(f, skeleton)
+    if f.shape[1] == 0:
+        return np.zeros((*f.shape[:2], skeleton.num_joints, 3), np.float32)
+    half_angles = np.array([stream.half_angle for stream in streams], np.float64)
+    joints = _joints(f, skeleton, half_angles, np.array([stream.xz for stream in streams]))
+    for stream, rows, made in zip(streams, f, joints, strict=True):
+        stream._advance(rows, made)
+    return joints.astype(np.float32)
 
 
 def _checked_skeleton(features: np.ndarray, skeleton: Skeleton | None) -> Skeleton:

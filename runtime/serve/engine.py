@@ -24,7 +24,7 @@ import numpy as np
 
 from mogo._session import graph_session
 from mogo.anchoring import Anchoring
-from mogo.generator import MotionGenerator, MotionStream
+from mogo.generator import MotionGenerator, MotionStream, emit_together
 from mogo.serve.interior import interior_session
 from mogo.serve.pooled import pooled_levels, pooled_stages
 from mogo.stream_decoder import push_many
@@ -253,10 +253,10 @@ class Engine:
             frames = push_many([due[k].decoder for k in ks], [rows[k][None] for k in ks], interior)
             for k, features in zip(ks, frames, strict=True):
                 decoded[k] = features
-        made = []
-        for stream, row, features in zip(due, rows, decoded, strict=False):
-            first = stream.frames_emitted
-            joints = stream.emit(row[None], features)
-            if len(joints):
-                made.append((stream, first, joints))
-        return made
+        firsts = [stream.frames_emitted for stream in due]
+        frames = emit_together(due, [row[None] for row in rows], decoded)
+        return [
+            (stream, first, joints)
+            for stream, first, joints in zip(due, firsts, frames, strict=True)
+            if len(joints)
+        ]

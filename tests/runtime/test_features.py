@@ -8,6 +8,7 @@ from mogo.motion.features import (
     facing_directions,
     features_to_joints,
     joints_to_features,
+    joints_together,
 )
 from mogo.motion.mirror import mirror_joints, mirror_text
 from mogo.motion.skeleton import KIT_21, SMPL_22
@@ -160,3 +161,25 @@ def test_joint_stream_equals_one_recovery_whatever_the_chunks():
     pieces = [stream.push(chunk) for chunk in np.split(features, cuts)]
     assert stream.push(features[:0]).shape == (0, 22, 3)
     np.testing.assert_allclose(np.concatenate(pieces), whole, atol=1e-5)
+
+
+@pytest.mark.parametrize("rows", [1, 8])
+def test_joints_together_are_each_streams_own_pushes_bit_for_bit(rows):
+    """Streams at other yaws and places, pushed together chunk after chunk (the server's
+    rounds: a token's frame or a window's 8), give the joints and keep the state that each
+    stream pushed alone does."""
+    rng = np.random.default_rng(rows)
+    clips = [
+        joints_to_features(travelling_clip(rng, turn_degrees=90.0 * k), SMPL_22)[0][: 4 * rows]
+        for k in range(5)
+    ]
+    alone, together = [JointStream(SMPL_22) for _ in clips], [JointStream(SMPL_22) for _ in clips]
+    for start in range(0, 4 * rows, rows):
+        chunk = np.stack([clip[start : start + rows] for clip in clips])
+        made = joints_together(together, chunk)
+        for stream, rows_in, joints in zip(alone, chunk, made, strict=True):
+            assert np.array_equal(stream.push(rows_in), joints)
+    for a, b in zip(alone, together, strict=True):
+        assert a.half_angle == b.half_angle and np.array_equal(a.xz, b.xz)
+    with pytest.raises(ValueError, match="one skeleton"):
+        joints_together([JointStream(SMPL_22), JointStream(KIT_21)], chunk[:2])
