@@ -8,9 +8,11 @@ step of their clips share a call without their numbers mixing, their caches rows
 new stream catches up at once (its first frame comes after the decoder's lookahead and the
 feet's), in rounds shared with every other new stream and with the running streams; while
 streams run, a round takes in only as many new ones as leave it about a tick long (`due`), so
-a burst of arrivals does not hold the running ones back. What is due is decoded in one call per decoder (mogo.stream_decoder.push_many):
-the centred one's windows, and the low-latency one's tokens (its step graph) for streams that
-ask for it. Not thread-safe: the server calls it from one thread.
+a burst of arrivals does not hold the running ones back. What is due is decoded in one call
+per decoder (mogo.stream_decoder.push_many): the centred one's windows, and the low-latency
+one's tokens (its step graph) for streams that ask for it; the joints of a round's streams
+come in one pass (mogo.generator.emit_together). Not thread-safe: the server calls it from
+one thread.
 """
 
 from __future__ import annotations
