@@ -579,9 +579,11 @@ def _charts(out: Path, rows: list[dict], bursts: list[dict], spread: float) -> N
             )
         },
     )
+    beside = max((r.get("beside", 0) for r in bursts), default=0)
     log_line_chart(
         out / "serve_bursts.png",
-        "mogo serve: first frame of clients arriving at once",
+        "mogo serve: first frame of clients arriving at once"
+        + (f", while {beside} clients stream" if beside else ""),
         "clients arriving at once",
         "first frame, ms",
         {
