@@ -594,6 +594,15 @@ def _charts(out: Path, rows: list[dict], bursts: list[dict], spread: float) -> N
     )
 
 
+def weights_note() -> str:
+    """Which int8 products the engine's level graphs use on this CPU (mogo.serve.rowwise)."""
+    from mogo.serve.rowwise import signed_products_exact
+
+    if signed_products_exact():
+        return "level graphs' weights: int8 (this CPU multiplies uint8 by int8 exactly)"
+    return "level graphs' weights: uint8 (this CPU's uint8 by int8 products saturate)"
+
+
 def engine_only(
     clients: list[int], threads: int | None, out: Path, bundle=None, low_latency=False
 ) -> dict:
@@ -623,6 +632,7 @@ def main_from_args(args) -> None:
             "cProfile:\n"
         )
         print(profile_table(engine_profile(args.profile, args.bundle, args.low_latency)))
+        print(f"\n{weights_note()}")
         return
     if args.engine_only:
         result = engine_only(
@@ -633,6 +643,7 @@ def main_from_args(args) -> None:
             "their first frames:\n"
         )
         print(engine_table(result["engine"]))
+        print(f"\n{weights_note()}")
         for first in result["first_frame"]:
             print(
                 f"\nfirst frame, one stream, {first['decoder']} decoder, engine warm: "
@@ -664,6 +675,7 @@ def main_from_args(args) -> None:
     print(table(result["rows"]))
     print("\nThe engine alone (no sockets), streams past their first frames:\n")
     print(engine_table(result["engine"]))
+    print(f"\n{weights_note()}")
     for name, largest in result["largest_real_time"].items():
         print(f"\nlargest N in real time, {name} decoder: {largest}")
     print(f"wrote {Path(args.out) / 'serve_bench.json'}, serve_bench.png and serve_bursts.png")

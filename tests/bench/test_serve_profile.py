@@ -17,3 +17,4 @@ def test_the_command_prints_the_table(capsys):
     assert main(["bench", "serve", "--profile", "1"]) == 0
     out = capsys.readouterr().out
     assert "| level graphs (onnxruntime) |" in out and "| a stream step |" in out
+    assert "level graphs' weights: " in out  # which int8 products this CPU's numbers used

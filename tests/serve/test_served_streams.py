@@ -266,3 +266,44 @@ def test_a_graph_the_server_cannot_pool_is_refused_in_one_line(generator):
 
     with pytest.raises(BundleError, match="vq_decoder.onnx: not a level graph the server can "):
         pooled_stages(generator.bundle.path(generator.manifest.vq.decoder.file))
+
+
+def test_signed_weights_give_the_numbers_of_unsigned_ones(generator):
+    """Where this CPU's onnxruntime multiplies uint8 by int8 exactly, the row-wise level graphs
+    hold their weights as int8 (faster products): the same outputs, bit for bit."""
+    import onnx
+
+    from mogo._session import cpu_session
+    from mogo.serve.rowwise import rowwise_graph, signed_products_exact
+
+    if not signed_products_exact():
+        pytest.skip("this CPU's onnxruntime saturates uint8 x int8 products: weights stay uint8")
+    path = generator.bundle.path(generator.manifest.t2m.levels[2].file)
+    graphs = {signed: rowwise_graph(path, signed) for signed in (False, True)}
+    for signed, graph in graphs.items():
+        model = onnx.load_from_string(graph).graph
+        initializers = {init.name: init.data_type for init in model.initializer}
+        weights = {
+            initializers[node.input[1]] for node in model.node if node.op_type == "MatMulInteger"
+        }
+        assert weights == {onnx.TensorProto.INT8 if signed else onnx.TensorProto.UINT8}
+    rng = np.random.default_rng(0)
+    rows, slots = 5, 7
+    session = cpu_session(graphs[False])
+    feed = {}
+    for arg in session.get_inputs():
+        if arg.name == "prompt":
+            feed[arg.name] = rng.standard_normal((rows, arg.shape[1])).astype(np.float32)
+        elif arg.name == "uncond":
+            feed[arg.name] = np.zeros(rows, bool)
+        elif arg.name == "token_ids":
+            feed[arg.name] = rng.integers(0, 512, (rows, 1, arg.shape[2]))
+        elif arg.name == "positions":
+            feed[arg.name] = np.array([slots])
+        elif arg.name == "past_positions":
+            feed[arg.name] = np.arange(slots)
+        else:  # a past key or value (rows, heads, slots, head_dim)
+            shape = (rows, arg.shape[1], slots, arg.shape[3])
+            feed[arg.name] = rng.standard_normal(shape).astype(np.float32)
+    unsigned, signed = (cpu_session(graphs[s]).run(None, feed) for s in (False, True))
+    assert all(np.array_equal(a, b) for a, b in zip(unsigned, signed, strict=True))
