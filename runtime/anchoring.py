@@ -131,19 +131,17 @@ class Anchor:
         self.recent = np.asarray(tokens, np.int64)[-self.anchoring.keep :]
         self._reanchor(self.anchoring.switch_keep)
 
-    def step(self) -> np.ndarray:
-        """The next token step, starting a fresh clip, re-anchoring or settling where due."""
-        return self.after(self._tokens.step())
+    def clip_ended(self) -> None:
+        """The model ended its clip (never at step 0): a fresh one, of the prompt or, after a
+        one-off, of the hold. Its first step is drawn next (mogo.generator.drawn_together)."""
+        if self.one_off:
+            self._hold()
+        else:
+            self._restart()
 
-    def after(self, row: np.ndarray | None) -> np.ndarray:
-        """`step` once the token stream has drawn `row` (None: the model ended its clip; the
-        server draws the rows of many streams in shared calls)."""
-        if row is None:  # the model ended its clip (never at step 0: the row comes)
-            if self.one_off:
-                self._hold()
-            else:
-                self._restart()
-            row = self._tokens.step()
+    def after(self, row: np.ndarray) -> np.ndarray:
+        """The step's tokens once the token stream has drawn `row`: re-anchoring or settling
+        where due."""
         self.recent = np.concatenate([self.recent, row[None]])[-self.anchoring.keep :]
         if self.one_off:
             if self._tokens.steps >= self.one_off_steps:

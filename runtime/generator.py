@@ -54,7 +54,7 @@ from mogo.stream_state import StateError
 from mogo.stream_state import read as read_state
 from mogo.stream_state import write as write_state
 from mogo.text_side import TextSide
-from mogo.token_generator import Stopped, TokenGenerator, TokenStream
+from mogo.token_generator import Stopped, TokenGenerator, TokenStream, step_together
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
@@ -727,13 +727,7 @@ class MotionStream:
         return self.decoder.lookahead + math.ceil(feet / self.generator.down_factor)
 
     def _next_tokens(self) -> np.ndarray:
-        return self.drawn(self.tokens.step())
-
-    def drawn(self, row: np.ndarray | None) -> np.ndarray:
-        """The step's tokens, once its token stream has drawn `row` (the server draws many
-        streams' rows in shared calls): re-anchored where due."""
-        self.steps += 1
-        return row if self.anchor is None else self.anchor.after(row)
+        return drawn_together([self])[0]
 
     def emit(
         self, tokens: np.ndarray, normalised: np.ndarray, limit: int | None = None
@@ -770,6 +764,24 @@ class MotionStream:
         frames the foot planter holds back)."""
         held = 0 if self.feet is None else self.feet.pending
         return (self.decoder.pushed - self.decoder.emitted) * self.generator.down_factor + held
+
+
+def drawn_together(streams: Sequence[MotionStream]) -> list[np.ndarray]:
+    """The next step's tokens (L,) of each stream, re-anchored where due: every stream's row
+    in shared calls (mogo.token_generator.step_together), and the first steps of the fresh
+    clips of those whose clips ended in a second."""
+    rows = step_together([s.tokens for s in streams])
+    ended = [k for k, row in enumerate(rows) if row is None and streams[k].anchor is not None]
+    for k in ended:
+        streams[k].anchor.clip_ended()
+    for k, row in zip(ended, step_together([streams[k].tokens for k in ended]), strict=True):
+        rows[k] = row
+    for s in streams:
+        s.steps += 1
+    return [
+        row if s.anchor is None else s.anchor.after(row)
+        for s, row in zip(streams, rows, strict=True)
+    ]
 
 
 def emit_together(

@@ -26,12 +26,12 @@ import numpy as np
 
 from mogo._session import graph_session
 from mogo.anchoring import Anchoring
-from mogo.generator import MotionGenerator, MotionStream, emit_together
+from mogo.generator import MotionGenerator, MotionStream, drawn_together, emit_together
 from mogo.serve.interior import interior_session
 from mogo.serve.pooled import pooled_levels, pooled_stages
 from mogo.stream_decoder import push_many
 from mogo.stream_state import State
-from mogo.token_generator import TokenGenerator, step_together
+from mogo.token_generator import TokenGenerator
 
 SHARD_FROM = 16  # due streams from which a round runs its two shards on two threads: a
 # thread hand-off costs more than it gains for a few streams
@@ -243,12 +243,7 @@ class Engine:
     def _step(self, due: list[ServedStream]) -> list[tuple]:
         """MotionStream.step for many streams: the token rows of one layout drawn in one call,
         the windows due decoded in one call per decoder."""
-        rows = [
-            stream.drawn(row)
-            for stream, row in zip(
-                due, step_together([stream.tokens for stream in due]), strict=False
-            )
-        ]
+        rows = drawn_together(due)
         decoded = [None] * len(due)
         for low_latency, interior in ((False, self.interior), (True, None)):
             ks = [k for k, stream in enumerate(due) if stream.low_latency is low_latency]

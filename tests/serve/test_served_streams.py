@@ -7,9 +7,10 @@ import pytest
 
 pytest.importorskip("onnx")
 
+from mogo import generator as generator_module
 from mogo.serve import engine as engine_module
 from mogo.serve.engine import Engine
-from mogo.token_generator import TokenGenerator, step_together
+from mogo.token_generator import TokenGenerator, TokenStream, step_together
 
 
 def served(engine, prompts: dict[int, str], seed: int, steps: int) -> np.ndarray:
@@ -196,7 +197,7 @@ def test_streams_at_any_step_share_one_call_of_each_level_graph(
         return drawn
 
     monkeypatch.setattr(TokenGenerator, "run", counted)
-    monkeypatch.setattr(engine_module, "step_together", drawn_counted)
+    monkeypatch.setattr(generator_module, "step_together", drawn_counted)
     engine = Engine(generator, 1, tokens=engine_parts)
     sampling = generator.sampling(None)
     streams = [engine.open("a person walks forward.", k, sampling, 0.0) for k in range(4)]
@@ -212,10 +213,37 @@ def test_streams_at_any_step_share_one_call_of_each_level_graph(
     for steps, buckets, made in rounds:
         for level in range(levels):
             at = [a for lv, a in made if lv == level]
-            assert len(at) <= len(buckets)  # one call per bucket (a fresh clip's own step
-            assert sorted(sum(at, ())) == sorted(steps)  # comes after the round)
+            assert len(at) <= len(buckets)  # one call per bucket (fresh clips' first steps
+            assert sorted(sum(at, ())) == sorted(steps)  # come in a second shared call)
     together = [at for _, _, made in rounds for _, at in made if len(at) == 5]
     assert any(len(set(at)) > 1 for at in together)  # five streams at other steps, one call
+
+
+def test_clips_ending_in_one_round_start_again_in_one_call(generator, engine_parts, monkeypatch):
+    """Streams whose clips end in the same round draw their fresh clips' first steps in one
+    shared call of each level graph, not one call each."""
+    ends = TokenStream._ends
+    monkeypatch.setattr(  # every clip ends at its step 6 (the model's end token, forced)
+        TokenStream, "_ends", lambda self, row: None if self.steps == 6 else ends(self, row)
+    )
+    engine = Engine(generator, 1, tokens=engine_parts)
+    sampling = generator.sampling(None)
+    streams = [engine.open("a person walks forward.", k, sampling, 0.0) for k in range(3)]
+    for _ in range(6):
+        engine.round(streams)
+    calls: list[tuple[int, tuple]] = []
+    run = TokenGenerator.run
+
+    def counted(self, level, prompt, uncond, token_ids, positions, *args):
+        calls.append((level, tuple(positions[:, 0])))
+        return run(self, level, prompt, uncond, token_ids, positions, *args)
+
+    monkeypatch.setattr(TokenGenerator, "run", counted)
+    engine.round(streams)
+    assert [s.tokens.steps for s in streams] == [1, 1, 1]  # fresh clips, a step each
+    assert all(s.anchor.fresh == 1 for s in streams)
+    for level in range(generator.tokens.num_levels):  # the round's rows, then the 3 firsts
+        assert [at for lv, at in calls if lv == level] == [(6, 6, 6), (0, 0, 0)]
 
 
 @pytest.mark.parametrize("window", [8, None], ids=["ring-window", "no-window"])
