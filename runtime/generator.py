@@ -44,7 +44,7 @@ from mogo.bundle import Bundle, BundleError
 from mogo.clip import Motion
 from mogo.manifest import MAX_GENERATE_SECONDS, StepDecoderGraph, io_types
 from mogo.motion.features import JointStream, joints_together
-from mogo.motion.feet import SHORT, WINDOW, FootPlanter, planted
+from mogo.motion.feet import SHORT, WINDOW, FootPlanter, planted, push_together
 from mogo.motion.untrusted import checked_finite
 from mogo.progress import Progress
 from mogo.repertoire import Familiarity
@@ -747,14 +747,10 @@ class MotionStream:
             self._record.append((tokens, features.astype(np.float32), joints))
         return joints
 
-    def _final(
-        self, features: np.ndarray, joints: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Decoded rows in (with their joints where `emit_together` made them), the rows now
-        final out with their joints: the feet planted when asked, the planter's lookahead
-        later."""
-        if joints is None:
-            joints = self._joints.push(features)
+    def _final(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Decoded rows in, the rows now final out with their joints: the feet planted when
+        asked, the planter's lookahead later (emit_together: the same for many streams)."""
+        joints = self._joints.push(features)
         if self.feet is None:
             return features, joints
         return self.feet.push(features, joints)
@@ -788,8 +784,10 @@ def emit_together(
     streams: Sequence[MotionStream], tokens: list[np.ndarray], normalised: list[np.ndarray]
 ) -> list[np.ndarray]:
     """`emit` of each stream's decoded rows (the server's round): the joints of the streams
-    with as many rows made in one pass (mogo.motion.features.joints_together: the same
-    numbers), then each stream's feet. Returns each stream's frames made final."""
+    with as many rows made in one pass (mogo.motion.features.joints_together), the legs of
+    the frames whose feet are planted in one pass per skeleton (mogo.motion.feet.
+    push_together): the same numbers as one `emit` each. Returns each stream's frames made
+    final."""
     features = [s.generator.denormalised(rows) for s, rows in zip(streams, normalised, strict=True)]
     joints: list[np.ndarray | None] = [None] * len(streams)
     alike: dict[int, list[int]] = {}  # streams by rows decoded
@@ -801,10 +799,18 @@ def emit_together(
         )
         for k, rows in zip(ks, made, strict=True):
             joints[k] = rows
-    return [
-        s._emit(t, *s._final(f, j), None)
-        for s, t, f, j in zip(streams, tokens, features, joints, strict=True)
-    ]
+    final = list(zip(features, joints, strict=True))
+    planted: dict[int, list[int]] = {}  # streams that plant feet, by skeleton
+    for k, s in enumerate(streams):
+        if s.feet is not None:
+            planted.setdefault(id(s.generator.skeleton), []).append(k)
+    for ks in planted.values():
+        made = push_together(
+            [streams[k].feet for k in ks], [features[k] for k in ks], [joints[k] for k in ks]
+        )
+        for k, rows in zip(ks, made, strict=True):
+            final[k] = rows
+    return [s._emit(t, f, j, None) for s, t, (f, j) in zip(streams, tokens, final, strict=True)]
 
 
 def checked_seed(seed: object) -> int:

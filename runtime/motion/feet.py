@@ -36,6 +36,7 @@ decoder), 2 with SHORT, the low-latency streams' (docs/feet.md). Any chunking of
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -166,32 +167,29 @@ class FootPlanter:
 
     def push(self, features: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows in, the rows now final out: (features, joints float32) with the feet planted."""
-        if not len(features):  # no row in, none out (the last push kept just the lookahead):
-            # a stream pushes nothing on 7 of every 8 token steps
-            return self._features[:0], np.zeros((0, *self._joints.shape[1:]), np.float32)
-        self._buffer(features, joints)
-        return self._clean(max(0, len(self._joints) - self.lookahead))
+        return push_together([self], [features], [joints])[0]
 
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """The remaining rows (the clip ends: no lookahead past them)."""
-        return self._clean(len(self._joints))
+        return self._solved(*self._take(len(self._joints)))
 
     def _buffer(self, features: np.ndarray, joints: np.ndarray) -> None:
         self._features = np.concatenate([self._features, features])
         self._joints = np.concatenate([self._joints, np.asarray(joints, np.float64)])
 
-    def _clean(self, ready: int) -> tuple[np.ndarray, np.ndarray]:
-        """Plant the first `ready` buffered frames and drop them from the buffer."""
+    def _take(self, ready: int) -> tuple[np.ndarray, ...]:
+        """The first `ready` buffered frames out of the buffer, the state moved past them:
+        their features, joints, and their contact joints' targets and planted weights."""
         joints = self._joints  # the body as decoded, unless a body step is asked for
         if self.body_step != np.inf:
             joints = joints + self._shifts(ready)[:, None]
         targets, weights = self._targets(self._flags(), joints[:, self.contacts], ready)
-        out = self._solve(
-            joints[:ready], targets, weights, np.broadcast_to(self._lengths, (ready, 3))
-        )
         features = self._features[:ready]
         self._features, self._joints = self._features[ready:], self._joints[ready:]
-        return features, out.astype(np.float32)
+        return features, joints[:ready], targets, weights
+
+    def _solved(self, features, joints, targets, weights) -> tuple[np.ndarray, np.ndarray]:
+        return features, self._solve(joints, targets, weights).astype(np.float32)
 
     def _shifts(self, ready: int) -> np.ndarray:
         """(n, 3) the body's horizontal shift at each buffered frame. Where the channel flags a
@@ -261,10 +259,10 @@ class FootPlanter:
         self._since = np.where(held[end], 0, since[end])
         return (paths + offset)[:ready], weight[:ready]
 
-    def _solve(
-        self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray, lengths: np.ndarray
-    ) -> np.ndarray:
-        """Rigid feet on or above the floor, then two-bone IK, both legs at once."""
+    def _solve(self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Rigid feet on or above the floor, then two-bone IK, both legs at once: each frame on
+        its own (so frames of many planters of one skeleton can be solved together)."""
+        lengths = np.broadcast_to(self._lengths, (len(joints), 3))
         out = joints.copy()
         hip, knee, ankle, toe = self.legs.T  # each (2,): left, right
         right, left = self._hips
@@ -287,6 +285,34 @@ class FootPlanter:
         )
         out[:, toe] = out[:, ankle] + foot * along
         return out
+
+
+def push_together(
+    planters: Sequence[FootPlanter], features: Sequence[np.ndarray], joints: Sequence[np.ndarray]
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """FootPlanter.push of many planters of one skeleton (the server's round): each one's
+    contacts and targets on its own, then the legs of all their final frames solved in one
+    pass (the same numbers as one push each: frames never mix)."""
+    out: list = [None] * len(planters)
+    taken, ks = [], []
+    for k, (planter, rows, positions) in enumerate(zip(planters, features, joints, strict=True)):
+        if not len(rows):  # no row in, none out (the last push kept just the lookahead): a
+            # stream pushes nothing on 7 of every 8 token steps
+            shape = (0, *planter._joints.shape[1:])
+            out[k] = planter._features[:0], np.zeros(shape, np.float32)
+            continue
+        planter._buffer(rows, positions)
+        taken.append(planter._take(max(0, len(planter._joints) - planter.lookahead)))
+        ks.append(k)
+    if len(ks) == 1:
+        out[ks[0]] = planters[ks[0]]._solved(*taken[0])
+    elif ks:
+        cuts = np.cumsum([len(t[1]) for t in taken])[:-1]
+        legs = (np.concatenate([t[i] for t in taken]) for i in (1, 2, 3))
+        solved = np.split(planters[ks[0]]._solve(*legs), cuts)
+        for k, t, solved_joints in zip(ks, taken, solved, strict=True):
+            out[k] = t[0], solved_joints.astype(np.float32)
+    return out
 
 
 def _ease(x: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ from mogo.motion.feet import (
     Window,
     leg_joints,
     planted,
+    push_together,
     two_bone_ik,
 )
 from mogo.motion.rig import rest_offsets
@@ -173,6 +174,34 @@ def test_any_chunking_gives_the_offline_result(seed, window):
     rest = planter.flush()
     assert np.array_equal(np.concatenate(rows + [rest[0]]), features)  # rows kept in step
     assert np.array_equal(np.concatenate(pieces + [rest[1]]), offline)
+
+
+def test_planters_pushed_together_give_what_each_gives_alone():
+    """push_together (the server's round) solves the legs of many planters' frames in one pass:
+    bit for bit each planter's own push, whatever each holds, pushes (nothing included) and
+    looks ahead."""
+    rng = np.random.default_rng(4)
+    windows = [WINDOW, SHORT, WINDOW, Window(2, 4)]
+    clips = []
+    for _ in windows:
+        joints = _standing(60)
+        joints[:, CONTACT_JOINTS, 2] += np.cumsum(rng.uniform(0, 0.16, (60, 1)), 0)
+        clips.append((_features(joints, rng.uniform(0, 1, (60, 4)) > 0.4), joints))
+    alone = [FootPlanter(SMPL_22, body_step=BODY_STEP, window=w) for w in windows]
+    together = [FootPlanter(SMPL_22, body_step=BODY_STEP, window=w) for w in windows]
+    at = [0] * len(windows)
+    for _ in range(12):
+        sizes = [int(rng.integers(0, 8)) for _ in windows]
+        pieces = [
+            (f[a : a + n], j[a : a + n]) for (f, j), a, n in zip(clips, at, sizes, strict=True)
+        ]
+        made = push_together(together, [f for f, _ in pieces], [j for _, j in pieces])
+        for planter, (f, j), (rows, legs) in zip(alone, pieces, made, strict=True):
+            want_rows, want_legs = planter.push(f, j)
+            assert np.array_equal(rows, want_rows) and np.array_equal(legs, want_legs)
+            assert legs.dtype == want_legs.dtype
+        at = [a + n for a, n in zip(at, sizes, strict=True)]
+    assert any(len(legs) for _, legs in made)
 
 
 def test_a_stream_emits_the_offline_result_of_its_own_frames(generator):
