@@ -1,6 +1,7 @@
 """The viewer page in a real browser: headless Chromium loads it from a running server, starts
-two characters, and frames arrive and are drawn on the canvas, with no error in the browser's
-console (a missing /favicon.ico was one). Skipped without Chromium."""
+two characters, and frames arrive and are drawn on the canvas, a third with the low-latency
+box ticked starts too, with no error in the browser's console (a missing /favicon.ico was
+one). Skipped without Chromium."""
 
 import os
 import shutil
@@ -77,6 +78,16 @@ def test_the_viewer_streams_and_draws_characters(tmp_path):
             "return n"
         )
         assert lit > 500  # the characters' orange strokes, not only the dark floor
+        browser.find_element("css selector", "#low").click()  # a third, low-latency character
+        browser.find_element("css selector", "#add").click()
+        before = browser.execute_script("return window.mogoStats")["frames"]
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            stats = browser.execute_script("return window.mogoStats")
+            if stats["lowLatency"] == 1 and stats["frames"] >= before + 60:
+                break
+            time.sleep(0.2)
+        assert stats["lowLatency"] == 1 and not stats["errors"], stats  # started: accepted
         console = [
             entry["message"] for entry in browser.get_log("browser") if entry["level"] == "SEVERE"
         ]
