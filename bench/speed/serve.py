@@ -84,7 +84,7 @@ PARTS = {  # the parts of a served stream step (--profile): the functions whose 
         ("stream_decoder.py", "_step_many"),
     },
     "joints from features": {("motion/features.py", "joints_together")},
-    "foot planting": {("motion/feet.py", "push")},
+    "foot planting": {("motion/feet.py", "push_together")},
 }
 
 
