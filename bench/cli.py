@@ -240,7 +240,8 @@ def _engine_arguments(serve: argparse.ArgumentParser) -> None:
         "--engine-only",
         action="store_true",
         help="no server: the engine's CPU per stream step and wall per tick for "
-        "each --clients, and one stream's first frame (serve_engine.json)",
+        "each --clients (the counts in turn, medians of 8 blocks of 10 ticks), and one "
+        "stream's first frame (serve_engine.json)",
     )
     serve.add_argument(
         "--profile",

@@ -25,10 +25,12 @@ Frames are binary (the protocol's "binary": true) unless asked for JSON. Between
 bench waits until the server's /v1/health reports no stream left, so each count starts from
 an empty server. The clients run on the same machine: their CPU use is part of the load.
 
-`engine_cost` measures the compute alone, in this process, with no sockets: N streams
+`engine_costs` measures the compute alone, in this process, with no sockets: N streams
 past their first frames stepped on the engine's clock, CPU time (all threads) per stream
-step, wall time per tick and the cores used (CPU over wall). CPU time shows what N costs
-even on a busy machine; 1000 / (fps * CPU ms) streams per core is the ceiling it sets.
+step, wall time per tick and the cores used (CPU over wall), each count on an engine of its
+own, the counts taking turns in blocks of 10 ticks (medians of 8), so that a busy machine's
+drift hits every count alike and their ratios hold. CPU time shows what N costs even on a
+busy machine; 1000 / (fps * CPU ms) streams per core is the ceiling it sets.
 `engine_first_frame` times a new stream's first frame on a warm engine, no sockets, in CPU
 and wall time, and splits its CPU among the parts of a step (`--engine-only` runs these two
 alone). `engine_profile` (`--profile N`) splits a stream step's CPU among its parts (the level
@@ -311,58 +313,75 @@ def measure(
     return row
 
 
-def engine_cost(
-    clients: int,
-    threads: int,
-    ticks: int = 40,
-    profile: cProfile.Profile | None = None,
-    low_latency: bool = False,
-    bundle: str | None = None,
-) -> dict:
-    """CPU ms per stream step and wall ms per tick of the Engine alone, streams past their
-    first frames; `profile` records the measured ticks."""
-    from mogo.generator import MotionGenerator
-    from mogo.serve.engine import Engine
+class _EngineRun:
+    """`clients` streams on an Engine of their own, stepped on its clock past their first
+    frames (every decoder window full: a steady state), then `ticks` at a time."""
 
-    generator = MotionGenerator.load(bundle, threads=threads)
-    engine = Engine(generator, threads)
-    for k in range(clients):
-        stream = engine.open(
-            PROMPTS[k % len(PROMPTS)], k, generator.sampling(None), 0.0, low_latency=low_latency
-        )
-    d = stream.decoder  # ready: frames flow, and every window is full (a steady state)
-    now, ready = 0.0, max(stream.lead, d.left_context + d.lookahead) + 2 * d.every
+    def __init__(self, clients: int, threads: int, low_latency: bool, bundle: str | None):
+        from mogo.generator import MotionGenerator
+        from mogo.serve.engine import Engine
 
-    def run_until(end: float) -> int:
-        nonlocal now
-        steps = 0
-        while now < end:
-            due = engine.due(now)
+        generator = MotionGenerator.load(bundle, threads=threads)
+        self.clients, self.low_latency = clients, low_latency
+        self.engine = Engine(generator, threads)
+        for k in range(clients):
+            stream = self.engine.open(
+                PROMPTS[k % len(PROMPTS)], k, generator.sampling(None), 0.0, low_latency=low_latency
+            )
+        d = stream.decoder
+        self.now, ready = 0.0, max(stream.lead, d.left_context + d.lookahead) + 2 * d.every
+        while min(s.steps for s in self.engine.streams.values()) < ready:
+            self.ticks(1)
+
+    def ticks(self, ticks: int) -> int:
+        """Step `ticks` ticks of the clock; the stream steps taken."""
+        end, steps = self.now + ticks / self.engine.fps, 0
+        while self.now < end:
+            due = self.engine.due(self.now)
             if due:
-                engine.round(due)
+                self.engine.round(due)
                 steps += len(due)
             else:
-                now += 1 / engine.fps
+                self.now += 1 / self.engine.fps
         return steps
 
-    while min(s.steps for s in engine.streams.values()) < ready:
-        run_until(now + 1 / engine.fps)
-    cpu, wall = time.process_time(), time.perf_counter()
-    if profile is not None:
-        profile.enable()
-    steps = run_until(now + ticks / engine.fps)
-    if profile is not None:
-        profile.disable()
-    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
-    engine.shutdown()
-    return dict(
-        clients=clients,
-        decoder=DECODERS[low_latency],
-        steps=steps,
-        cpu_ms_per_step=cpu * 1e3 / steps,
-        wall_ms_per_tick=wall * 1e3 / ticks,
-        cores=cpu / wall,
-    )
+
+def engine_costs(
+    runs: list[tuple[int, bool]],
+    threads: int,
+    bundle: str | None = None,
+    blocks: int = 8,
+    ticks: int = 10,
+    profile: cProfile.Profile | None = None,
+) -> list[dict]:
+    """For each (clients, low_latency) of `runs`: CPU ms per stream step and wall ms per tick
+    of the Engine alone, medians over `blocks` of `ticks`. The runs take turns block by block,
+    so a busy machine's drift hits each alike (compare counts within one call); `profile`
+    records the measured blocks."""
+    engines = [_EngineRun(clients, threads, low, bundle) for clients, low in runs]
+    measured: list[list[tuple[float, float, int]]] = [[] for _ in engines]
+    for _ in range(blocks):
+        for run, out in zip(engines, measured, strict=True):
+            cpu, wall = time.process_time(), time.perf_counter()
+            if profile is not None:
+                profile.enable()
+            steps = run.ticks(ticks)
+            if profile is not None:
+                profile.disable()
+            out.append((time.process_time() - cpu, time.perf_counter() - wall, steps))
+    for run in engines:
+        run.engine.shutdown()
+    return [
+        dict(
+            clients=run.clients,
+            decoder=DECODERS[run.low_latency],
+            steps=sum(steps for _, _, steps in out),
+            cpu_ms_per_step=float(np.median([cpu * 1e3 / steps for cpu, _, steps in out])),
+            wall_ms_per_tick=float(np.median([wall * 1e3 / ticks for _, wall, _ in out])),
+            cores=sum(cpu for cpu, _, _ in out) / sum(wall for _, wall, _ in out),
+        )
+        for run, out in zip(engines, measured, strict=True)
+    ]
 
 
 def engine_profile(
@@ -372,7 +391,7 @@ def engine_profile(
     rest (the engine's and streams' own Python) and the whole, from cProfile on one thread
     (cProfile's own cost inflates the Python-heavy parts)."""
     profile = cProfile.Profile()
-    steps = engine_cost(clients, 1, profile=profile, bundle=bundle, low_latency=low_latency)
+    (steps,) = engine_costs([(clients, low_latency)], 1, bundle, 1, 40, profile)
     return _split(profile, steps["steps"], "a stream step")
 
 
@@ -525,11 +544,7 @@ def run(
             for low in decoders:
                 rows.append(measure(pool, base, pid, n, seconds, spread, binary, low))
                 print(table(rows[-1:]).splitlines()[-1], flush=True)
-    engine = [
-        engine_cost(n, threads or 2, low_latency=low, bundle=bundle)
-        for n in clients
-        for low in decoders
-    ]
+    engine = engine_costs([(n, low) for n in clients for low in decoders], threads or 2, bundle)
     largest = {}
     for low in decoders:
         held = [r["clients"] for r in rows if r["real_time"] and r["decoder"] == DECODERS[low]]
@@ -613,11 +628,7 @@ def engine_only(
         first_frame=[
             engine_first_frame(threads, bundle=bundle, low_latency=low) for low in decoders
         ],
-        engine=[
-            engine_cost(n, threads, low_latency=low, bundle=bundle)
-            for n in clients
-            for low in decoders
-        ],
+        engine=engine_costs([(n, low) for n in clients for low in decoders], threads, bundle),
     )
     out.mkdir(parents=True, exist_ok=True)
     (out / "serve_engine.json").write_text(json.dumps(result, indent=1))

@@ -45,3 +45,15 @@ def test_a_burst_beside_streaming_clients_reports_their_lateness_after_it(tmp_pa
 def test_beside_takes_no_negative_count(capsys):
     assert main(["bench", "serve", "--beside", "-1"]) == 2
     assert "--beside must be >= 0" in capsys.readouterr().err
+
+
+def test_engine_costs_measure_each_run_in_turn():
+    """The engine alone, counts and decoders measured in turn block by block: one row per run,
+    in order, each stream stepping at least once a tick."""
+    from mogo.bench.speed.serve import engine_costs
+
+    rows = engine_costs([(1, False), (3, True)], 1, blocks=2, ticks=3)
+    assert [(r["clients"], r["decoder"]) for r in rows] == [(1, "centred"), (3, "low latency")]
+    for row in rows:
+        assert row["steps"] >= row["clients"] * 2 * 3
+        assert row["cpu_ms_per_step"] > 0 and row["wall_ms_per_tick"] > 0 and row["cores"] > 0
