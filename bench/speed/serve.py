@@ -28,8 +28,9 @@ an empty server. The clients run on the same machine: their CPU use is part of t
 `engine_costs` measures the compute alone, in this process, with no sockets: N streams
 past their first frames stepped on the engine's clock, CPU time (all threads) per stream
 step, wall time per tick and the cores used (CPU over wall), each count on an engine of its
-own, the counts taking turns in blocks of 10 ticks (medians of 8), so that a busy machine's
-drift hits every count alike and their ratios hold. CPU time shows what N costs even on a
+own, the counts taking turns in blocks of 10 ticks (medians of 8, each block after two
+unmeasured ticks that warm what the others left cold), so that a busy machine's drift hits
+every count alike and their ratios hold. CPU time shows what N costs even on a
 busy machine; 1000 / (fps * CPU ms) streams per core is the ceiling it sets.
 `engine_first_frame` times a new stream's first frame on a warm engine, no sockets, in CPU
 and wall time, and splits its CPU among the parts of a step (`--engine-only` runs these two
@@ -356,12 +357,14 @@ def engine_costs(
 ) -> list[dict]:
     """For each (clients, low_latency) of `runs`: CPU ms per stream step and wall ms per tick
     of the Engine alone, medians over `blocks` of `ticks`. The runs take turns block by block,
-    so a busy machine's drift hits each alike (compare counts within one call); `profile`
-    records the measured blocks."""
+    so a busy machine's drift hits each alike (compare counts within one call), each block
+    after two unmeasured ticks; `profile` records the measured blocks."""
     engines = [_EngineRun(clients, threads, low, bundle) for clients, low in runs]
     measured: list[list[tuple[float, float, int]]] = [[] for _ in engines]
     for _ in range(blocks):
         for run, out in zip(engines, measured, strict=True):
+            run.ticks(2)  # unmeasured: the caches the other runs left cold (a 1-stream step
+            # read 11 ms in blocks of 10 ticks right after 200 streams' blocks, 8 in blocks of 40)
             cpu, wall = time.process_time(), time.perf_counter()
             if profile is not None:
                 profile.enable()

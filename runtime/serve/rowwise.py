@@ -18,6 +18,7 @@ weights are stored as int8, W - 128 with w_z - 128: the same W - w_z, so the sam
 and 5-7x faster products at 100 rows than uint8 by uint8 (AVX-512 VNNI or AMX do them in one
 instruction). Where a CPU has only AVX2, onnxruntime's uint8 by int8 kernel adds pairs of
 products in 16 bits and can saturate, so the weights stay uint8 there.
+
 Needs the `onnx` package (the serve extra), which the base runtime does not.
 """
 
