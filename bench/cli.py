@@ -38,6 +38,16 @@ def _cmd_bench_serve(args: argparse.Namespace) -> None:
     if args.beside < 0:
         raise CliError(f"--beside must be >= 0 (0: bursts on the idle server), got {args.beside}")
     require_serve_extra()
+    if args.both_weights:
+        from mogo.serve.rowwise import signed_products_exact
+
+        if not args.engine_only:
+            raise CliError("--both-weights goes with --engine-only")
+        if not signed_products_exact():
+            raise CliError(
+                "--both-weights: this CPU's uint8 by int8 products saturate, so the server "
+                "keeps uint8 weights here; there is nothing to compare"
+            )
     from mogo.bench.speed.serve import main_from_args
 
     main_from_args(args)
@@ -242,6 +252,12 @@ def _engine_arguments(serve: argparse.ArgumentParser) -> None:
         help="no server: the engine's CPU per stream step and wall per tick for "
         "each --clients (the counts in turn, medians of 8 blocks of 10 ticks), and one "
         "stream's first frame (serve_engine.json)",
+    )
+    serve.add_argument(
+        "--both-weights",
+        action="store_true",
+        help="with --engine-only: each count with the level graphs' int8 weights and with "
+        "uint8 ones, in turn (where this CPU multiplies uint8 by int8 exactly)",
     )
     serve.add_argument(
         "--profile",

@@ -318,13 +318,24 @@ class _EngineRun:
     """`clients` streams on an Engine of their own, stepped on its clock past their first
     frames (every decoder window full: a steady state), then `ticks` at a time."""
 
-    def __init__(self, clients: int, threads: int, low_latency: bool, bundle: str | None):
+    def __init__(
+        self,
+        clients: int,
+        threads: int,
+        low_latency: bool,
+        bundle: str | None,
+        signed: bool | None = None,
+    ):
+        """signed: the level graphs' weights int8 or uint8 (None: the server's choice)."""
         from mogo.generator import MotionGenerator
-        from mogo.serve.engine import Engine
+        from mogo.serve.engine import Engine, pooled_tokens
+        from mogo.serve.rowwise import signed_products_exact
 
         generator = MotionGenerator.load(bundle, threads=threads)
         self.clients, self.low_latency = clients, low_latency
-        self.engine = Engine(generator, threads)
+        signed = signed_products_exact() if signed is None else signed
+        self.weights = "int8" if signed else "uint8"
+        self.engine = Engine(generator, threads, pooled_tokens(generator, signed))
         for k in range(clients):
             stream = self.engine.open(
                 PROMPTS[k % len(PROMPTS)], k, generator.sampling(None), 0.0, low_latency=low_latency
@@ -348,18 +359,19 @@ class _EngineRun:
 
 
 def engine_costs(
-    runs: list[tuple[int, bool]],
+    runs: list[tuple[int, bool]] | list[tuple[int, bool, bool | None]],
     threads: int,
     bundle: str | None = None,
     blocks: int = 8,
     ticks: int = 10,
     profile: cProfile.Profile | None = None,
 ) -> list[dict]:
-    """For each (clients, low_latency) of `runs`: CPU ms per stream step and wall ms per tick
+    """For each (clients, low_latency[, signed weights]) of `runs`: CPU ms per stream step and
+    wall ms per tick
     of the Engine alone, medians over `blocks` of `ticks`. The runs take turns block by block,
     so a busy machine's drift hits each alike (compare counts within one call), each block
     after two unmeasured ticks; `profile` records the measured blocks."""
-    engines = [_EngineRun(clients, threads, low, bundle) for clients, low in runs]
+    engines = [_EngineRun(run[0], threads, run[1], bundle, *run[2:]) for run in runs]
     measured: list[list[tuple[float, float, int]]] = [[] for _ in engines]
     for _ in range(blocks):
         for run, out in zip(engines, measured, strict=True):
@@ -378,6 +390,7 @@ def engine_costs(
         dict(
             clients=run.clients,
             decoder=DECODERS[run.low_latency],
+            weights=run.weights,
             steps=sum(steps for _, _, steps in out),
             cpu_ms_per_step=float(np.median([cpu * 1e3 / steps for cpu, _, steps in out])),
             wall_ms_per_tick=float(np.median([wall * 1e3 / ticks for _, wall, _ in out])),
@@ -468,12 +481,12 @@ def engine_first_frame(
 
 def engine_table(rows: list[dict]) -> str:
     lines = [
-        "| streams | decoder | CPU per stream step | wall per tick (real time: <= 50 ms) "
+        "| streams | decoder | weights | CPU per stream step | wall per tick (real time: <= 50 ms) "
         "| cores used |",
-        "|---:|:---|---:|---:|---:|",
+        "|---:|:---|:---|---:|---:|---:|",
     ]
     lines += [
-        f"| {r['clients']} | {r['decoder']} | {r['cpu_ms_per_step']:.2f} ms "
+        f"| {r['clients']} | {r['decoder']} | {r['weights']} | {r['cpu_ms_per_step']:.2f} ms "
         f"| {r['wall_ms_per_tick']:.1f} ms | {r['cores']:.2f} |"
         for r in rows
     ]
@@ -622,16 +635,24 @@ def weights_note() -> str:
 
 
 def engine_only(
-    clients: list[int], threads: int | None, out: Path, bundle=None, low_latency=False
+    clients: list[int],
+    threads: int | None,
+    out: Path,
+    bundle=None,
+    low_latency=False,
+    both_weights=False,
 ) -> dict:
     threads = threads or 2
     decoders = [False, True] if low_latency else [False]
+    weights = [True, False] if both_weights else [None]
     result = dict(
         threads=threads,
         first_frame=[
             engine_first_frame(threads, bundle=bundle, low_latency=low) for low in decoders
         ],
-        engine=engine_costs([(n, low) for n in clients for low in decoders], threads, bundle),
+        engine=engine_costs(
+            [(n, low, w) for n in clients for low in decoders for w in weights], threads, bundle
+        ),
     )
     out.mkdir(parents=True, exist_ok=True)
     (out / "serve_engine.json").write_text(json.dumps(result, indent=1))
@@ -650,14 +671,18 @@ def main_from_args(args) -> None:
         return
     if args.engine_only:
         result = engine_only(
-            args.clients, args.threads, Path(args.out), args.bundle, args.low_latency
+            args.clients,
+            args.threads,
+            Path(args.out),
+            args.bundle,
+            args.low_latency,
+            args.both_weights,
         )
         print(
             f"The engine alone (no sockets, {result['threads']} threads), streams past "
             "their first frames:\n"
         )
         print(engine_table(result["engine"]))
-        print(f"\n{weights_note()}")
         for first in result["first_frame"]:
             print(
                 f"\nfirst frame, one stream, {first['decoder']} decoder, engine warm: "
@@ -689,7 +714,6 @@ def main_from_args(args) -> None:
     print(table(result["rows"]))
     print("\nThe engine alone (no sockets), streams past their first frames:\n")
     print(engine_table(result["engine"]))
-    print(f"\n{weights_note()}")
     for name, largest in result["largest_real_time"].items():
         print(f"\nlargest N in real time, {name} decoder: {largest}")
     print(f"wrote {Path(args.out) / 'serve_bench.json'}, serve_bench.png and serve_bursts.png")

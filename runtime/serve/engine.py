@@ -96,26 +96,31 @@ class ServedStream(MotionStream):
         return self.prompts[-1][1]
 
 
+def pooled_tokens(generator: MotionGenerator, signed: bool | None = None) -> TokenGenerator:
+    """The bundle's level graphs pooled (mogo.serve.pooled) for an Engine; `signed`: their
+    weights int8 or uint8 (None: int8 where this CPU multiplies them exactly, mogo.serve.rowwise;
+    the bench compares both)."""
+    levels = generator.manifest.t2m.levels
+    return TokenGenerator(
+        [pooled_stages(generator.bundle.path(g.file), signed) for g in levels],
+        pooled_levels(levels),
+        generator.manifest.end_token,
+        intra_op_threads=1,  # the shards run in parallel
+        pooled=True,
+    )
+
+
 class Engine:
     """All live streams of a server over one MotionGenerator."""
 
     def __init__(
         self, generator: MotionGenerator, threads: int = 1, tokens: TokenGenerator | None = None
     ):
-        """`tokens`: the bundle's level graphs pooled (mogo.serve.pooled); None makes them.
+        """`tokens`: the bundle's level graphs pooled (`pooled_tokens`); None makes them.
         Each shard (two with `threads` > 1) has its own pool over the same sessions."""
         self.generator = generator
         manifest = generator.manifest
-        levels = manifest.t2m.levels
-        if tokens is None:
-            tokens = TokenGenerator(
-                [pooled_stages(generator.bundle.path(g.file)) for g in levels],
-                pooled_levels(levels),
-                manifest.end_token,
-                intra_op_threads=1,  # the shards run in parallel
-                pooled=True,
-            )
-        self.tokens = tokens
+        self.tokens = tokens = pooled_tokens(generator) if tokens is None else tokens
         self.shards = [tokens.with_own_pool() for _ in range(2 if threads > 1 else 1)]
         self.fps = generator.fps
         decoder = manifest.vq.decoder

@@ -42,10 +42,11 @@ def pooled_levels(levels: list[Graph]) -> list[Graph]:
     return [replace(graph, inputs=(*graph.inputs, "slots")) for graph in levels]
 
 
-def pooled_stages(path: str | os.PathLike) -> list[bytes]:
-    """The level graph at `path`, made row-wise, with per-row positions and new slots out, cut
-    into stages (mogo.kv_pool.StagedSession runs them), serialised for onnxruntime."""
-    model = onnx.load_from_string(rowwise_graph(path))
+def pooled_stages(path: str | os.PathLike, signed: bool | None = None) -> list[bytes]:
+    """The level graph at `path`, made row-wise (`signed`: mogo.serve.rowwise.rowwise_graph),
+    with per-row positions and new slots out, cut into stages (mogo.kv_pool.StagedSession runs
+    them), serialised for onnxruntime."""
+    model = onnx.load_from_string(rowwise_graph(path, signed))
     graph = model.graph
     before: dict[str, list] = {}  # nodes to insert before a node (by its first output)
     try:

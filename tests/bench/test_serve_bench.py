@@ -57,3 +57,20 @@ def test_engine_costs_measure_each_run_in_turn():
     for row in rows:
         assert row["steps"] >= row["clients"] * 2 * 3
         assert row["cpu_ms_per_step"] > 0 and row["wall_ms_per_tick"] > 0 and row["cores"] > 0
+
+
+def test_both_weights_measures_each_count_with_int8_and_uint8(tmp_path, capsys):
+    from mogo.serve.rowwise import signed_products_exact
+
+    if not signed_products_exact():
+        pytest.skip("this CPU's uint8 by int8 products saturate: no int8 weights to compare")
+    args = ["bench", "serve", "--engine-only", "--both-weights", "--clients", "2"]
+    assert main([*args, "--threads", "1", "--out", str(tmp_path)]) == 0
+    engine = json.loads((tmp_path / "serve_engine.json").read_text())["engine"]
+    assert [(r["clients"], r["weights"]) for r in engine] == [(2, "int8"), (2, "uint8")]
+    assert "| 2 | centred | int8 |" in capsys.readouterr().out
+
+
+def test_both_weights_needs_engine_only(capsys):
+    assert main(["bench", "serve", "--both-weights"]) == 2
+    assert "--both-weights goes with --engine-only" in capsys.readouterr().err
