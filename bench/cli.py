@@ -250,14 +250,13 @@ def _engine_arguments(serve: argparse.ArgumentParser) -> None:
         "--engine-only",
         action="store_true",
         help="no server: the engine's CPU per stream step and wall per tick for "
-        "each --clients (the counts in turn, medians of 8 blocks of 10 ticks), and one "
-        "stream's first frame (serve_engine.json)",
+        "each --clients, and one stream's first frame (serve_engine.json)",
     )
     serve.add_argument(
         "--both-weights",
         action="store_true",
-        help="with --engine-only: each count with the level graphs' int8 weights and with "
-        "uint8 ones, in turn (where this CPU multiplies uint8 by int8 exactly)",
+        help="with --engine-only: each count with the level graphs' int8 weights, then with "
+        "uint8 ones (where this CPU multiplies uint8 by int8 exactly)",
     )
     serve.add_argument(
         "--profile",

@@ -28,10 +28,8 @@ an empty server. The clients run on the same machine: their CPU use is part of t
 `engine_costs` measures the compute alone, in this process, with no sockets: N streams
 past their first frames stepped on the engine's clock, CPU time (all threads) per stream
 step, wall time per tick and the cores used (CPU over wall), each count on an engine of its
-own, the counts taking turns in blocks of 10 ticks (medians of 8, each block after two
-unmeasured ticks that warm what the others left cold), so that a busy machine's drift hits
-every count alike and their ratios hold. CPU time shows what N costs even on a
-busy machine; 1000 / (fps * CPU ms) streams per core is the ceiling it sets.
+own, one after another. CPU time shows what N costs even on a busy machine; 1000 / (fps *
+CPU ms) streams per core is the ceiling it sets.
 `engine_first_frame` times a new stream's first frame on a warm engine, no sockets, in CPU
 and wall time, and splits its CPU among the parts of a step (`--engine-only` runs these two
 alone). `engine_profile` (`--profile N`) splits a stream step's CPU among its parts (the level
@@ -362,42 +360,37 @@ def engine_costs(
     runs: list[tuple[int, bool]] | list[tuple[int, bool, bool | None]],
     threads: int,
     bundle: str | None = None,
-    blocks: int = 8,
-    ticks: int = 10,
+    ticks: int = 40,
     profile: cProfile.Profile | None = None,
 ) -> list[dict]:
-    """For each (clients, low_latency[, signed weights]) of `runs`: CPU ms per stream step and
-    wall ms per tick
-    of the Engine alone, medians over `blocks` of `ticks`. The runs take turns block by block,
-    so a busy machine's drift hits each alike (compare counts within one call), each block
-    after two unmeasured ticks; `profile` records the measured blocks."""
-    engines = [_EngineRun(run[0], threads, run[1], bundle, *run[2:]) for run in runs]
-    measured: list[list[tuple[float, float, int]]] = [[] for _ in engines]
-    for _ in range(blocks):
-        for run, out in zip(engines, measured, strict=True):
-            run.ticks(2)  # unmeasured: the caches the other runs left cold (a 1-stream step
-            # read 11 ms in blocks of 10 ticks right after 200 streams' blocks, 8 in blocks of 40)
-            cpu, wall = time.process_time(), time.perf_counter()
-            if profile is not None:
-                profile.enable()
-            steps = run.ticks(ticks)
-            if profile is not None:
-                profile.disable()
-            out.append((time.process_time() - cpu, time.perf_counter() - wall, steps))
-    for run in engines:
-        run.engine.shutdown()
-    return [
-        dict(
-            clients=run.clients,
-            decoder=DECODERS[run.low_latency],
-            weights=run.weights,
-            steps=sum(steps for _, _, steps in out),
-            cpu_ms_per_step=float(np.median([cpu * 1e3 / steps for cpu, _, steps in out])),
-            wall_ms_per_tick=float(np.median([wall * 1e3 / ticks for _, wall, _ in out])),
-            cores=sum(cpu for cpu, _, _ in out) / sum(wall for _, wall, _ in out),
+    """For each (clients, low_latency[, signed weights]) of `runs`, one after another, each on
+    an engine of its own: CPU ms per stream step and wall ms per tick of the Engine alone over
+    `ticks`; `profile` records the measured ticks. (Engines stepped in turn in one process
+    were tried: a lone stream's step read 12-17% more beside a 200-stream engine than alone,
+    whatever the warm-up, docs/history.md.)"""
+    rows = []
+    for run in runs:
+        engine = _EngineRun(run[0], threads, run[1], bundle, *run[2:])
+        cpu, wall = time.process_time(), time.perf_counter()
+        if profile is not None:
+            profile.enable()
+        steps = engine.ticks(ticks)
+        if profile is not None:
+            profile.disable()
+        cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+        engine.engine.shutdown()
+        rows.append(
+            dict(
+                clients=engine.clients,
+                decoder=DECODERS[engine.low_latency],
+                weights=engine.weights,
+                steps=steps,
+                cpu_ms_per_step=cpu * 1e3 / steps,
+                wall_ms_per_tick=wall * 1e3 / ticks,
+                cores=cpu / wall,
+            )
         )
-        for run, out in zip(engines, measured, strict=True)
-    ]
+    return rows
 
 
 def engine_profile(
@@ -407,7 +400,7 @@ def engine_profile(
     rest (the engine's and streams' own Python) and the whole, from cProfile on one thread
     (cProfile's own cost inflates the Python-heavy parts)."""
     profile = cProfile.Profile()
-    (steps,) = engine_costs([(clients, low_latency)], 1, bundle, 1, 40, profile)
+    (steps,) = engine_costs([(clients, low_latency)], 1, bundle, 40, profile)
     return _split(profile, steps["steps"], "a stream step")
 
 
