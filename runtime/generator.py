@@ -783,11 +783,11 @@ def drawn_together(streams: Sequence[MotionStream]) -> list[np.ndarray]:
 def emit_together(
     streams: Sequence[MotionStream], tokens: list[np.ndarray], normalised: list[np.ndarray]
 ) -> list[np.ndarray]:
-    """`emit` of each stream's decoded rows (the server's round): the joints of the streams
-    with as many rows made in one pass (mogo.motion.features.joints_together), the legs of
-    the frames whose feet are planted in one pass per skeleton (mogo.motion.feet.
-    push_together): the same numbers as one `emit` each. Returns each stream's frames made
-    final."""
+    """`emit` of each stream's decoded rows (the server's round; streams of one skeleton):
+    the joints of the streams with as many rows made in one pass (mogo.motion.features.
+    joints_together), the legs of the frames whose feet are planted in one pass (mogo.motion.
+    feet.push_together): the same numbers as one `emit` each. Returns each stream's frames
+    made final."""
     features = [s.generator.denormalised(rows) for s, rows in zip(streams, normalised, strict=True)]
     joints: list[np.ndarray | None] = [None] * len(streams)
     alike: dict[int, list[int]] = {}  # streams by rows decoded
@@ -800,16 +800,12 @@ def emit_together(
         for k, rows in zip(ks, made, strict=True):
             joints[k] = rows
     final = list(zip(features, joints, strict=True))
-    planted: dict[int, list[int]] = {}  # streams that plant feet, by skeleton
-    for k, s in enumerate(streams):
-        if s.feet is not None:
-            planted.setdefault(id(s.generator.skeleton), []).append(k)
-    for ks in planted.values():
-        made = push_together(
-            [streams[k].feet for k in ks], [features[k] for k in ks], [joints[k] for k in ks]
-        )
-        for k, rows in zip(ks, made, strict=True):
-            final[k] = rows
+    ks = [k for k, s in enumerate(streams) if s.feet is not None]  # those that plant feet
+    made = push_together(
+        [streams[k].feet for k in ks], [features[k] for k in ks], [joints[k] for k in ks]
+    )
+    for k, rows in zip(ks, made, strict=True):
+        final[k] = rows
     return [s._emit(t, f, j, None) for s, t, (f, j) in zip(streams, tokens, final, strict=True)]
 
 

@@ -171,7 +171,8 @@ class FootPlanter:
 
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """The remaining rows (the clip ends: no lookahead past them)."""
-        return self._solved(*self._take(len(self._joints)))
+        features, joints, targets, weights = self._take(len(self._joints))
+        return features, self._solve(joints, targets, weights).astype(np.float32)
 
     def _buffer(self, features: np.ndarray, joints: np.ndarray) -> None:
         self._features = np.concatenate([self._features, features])
@@ -187,9 +188,6 @@ class FootPlanter:
         features = self._features[:ready]
         self._features, self._joints = self._features[ready:], self._joints[ready:]
         return features, joints[:ready], targets, weights
-
-    def _solved(self, features, joints, targets, weights) -> tuple[np.ndarray, np.ndarray]:
-        return features, self._solve(joints, targets, weights).astype(np.float32)
 
     def _shifts(self, ready: int) -> np.ndarray:
         """(n, 3) the body's horizontal shift at each buffered frame. Where the channel flags a
@@ -304,9 +302,7 @@ def push_together(
         planter._buffer(rows, positions)
         taken.append(planter._take(max(0, len(planter._joints) - planter.lookahead)))
         ks.append(k)
-    if len(ks) == 1:
-        out[ks[0]] = planters[ks[0]]._solved(*taken[0])
-    elif ks:
+    if ks:
         cuts = np.cumsum([len(t[1]) for t in taken])[:-1]
         legs = (np.concatenate([t[i] for t in taken]) for i in (1, 2, 3))
         solved = np.split(planters[ks[0]]._solve(*legs), cuts)
