@@ -97,9 +97,9 @@ class ServedStream(MotionStream):
 
 
 def pooled_tokens(generator: MotionGenerator, signed: bool | None = None) -> TokenGenerator:
-    """The bundle's level graphs pooled (mogo.serve.pooled) for an Engine; `signed`: their
-    weights int8 or uint8 (None: int8 where this CPU multiplies them exactly, mogo.serve.rowwise;
-    the bench compares both)."""
+    """The bundle's level graphs pooled (mogo.serve.pooled) for an Engine, a call of one row on
+    the generator's own (`alone`); `signed`: the pooled graphs' weights int8 or uint8 (None:
+    int8 where this CPU multiplies them exactly, mogo.serve.rowwise; the bench compares both)."""
     levels = generator.manifest.t2m.levels
     return TokenGenerator(
         [pooled_stages(generator.bundle.path(g.file), signed) for g in levels],
@@ -107,6 +107,7 @@ def pooled_tokens(generator: MotionGenerator, signed: bool | None = None) -> Tok
         generator.manifest.end_token,
         intra_op_threads=1,  # the shards run in parallel
         pooled=True,
+        alone=generator.tokens.with_level_workers(1),  # its sessions: no second copy
     )
 
 

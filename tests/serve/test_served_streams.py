@@ -184,8 +184,10 @@ def test_streams_at_any_step_share_one_call_of_each_level_graph(
     run = TokenGenerator.run
 
     def counted(self, level, prompt, uncond, token_ids, positions, *args):
-        if positions.ndim == 2:  # a step (a prefill has one vector of positions)
-            calls.append((level, tuple(positions[:, 0])))
+        # a step: pooled, or a lone row on the graphs as exported (a pooled stream's prefill
+        # has one vector of positions too, on the pooled graphs)
+        if positions.ndim == 2 or self.pool is None:
+            calls.append((level, tuple(positions.reshape(len(prompt), -1)[:, 0])))
         return run(self, level, prompt, uncond, token_ids, positions, *args)
 
     def drawn_counted(streams):
@@ -267,6 +269,34 @@ def test_a_pooled_stream_draws_what_it_draws_on_its_own_cache(generator, engine_
         rows = step_together([pooled, *others[: n % 3]])
         assert np.array_equal(rows[0], own.step()), f"step {n}"
     assert len(tokens.pool.buckets) >= 2  # rows moved to a larger bucket
+
+
+def test_a_lone_row_steps_on_the_graphs_as_exported(generator, engine_parts, monkeypatch):
+    """A call of one pooled row runs the bundle's graphs as exported, as a stream's own cache
+    does (cheaper than the row-wise stages at one row): the same tokens, and the same slots in
+    its row of the pool as in the own cache, bit for bit, past a full window."""
+    tokens = engine_parts.with_own_pool()
+    on_exported: list[bool] = []
+    run = TokenGenerator.run
+
+    def counted(self, level, *args):
+        if self is not generator.tokens:  # the pooled stream's calls, not the own one's
+            on_exported.append(self is tokens.alone)
+        return run(self, level, *args)
+
+    (walk,) = generator.embed(["a person walks forward."])
+    sampling = generator.sampling(None)
+    pooled = tokens.start(walk, 3, sampling, 8, allow_end=False)
+    own = generator.tokens.start(walk, 3, sampling, 8, allow_end=False)
+    monkeypatch.setattr(TokenGenerator, "run", counted)
+    for n in range(20):
+        assert np.array_equal(pooled.step(), own.step()), f"step {n}"
+    assert len(on_exported) == 20 * generator.tokens.num_levels and all(on_exported)
+    bucket, row = tokens.pool.place[id(pooled)]
+    held = len(own.positions)
+    for level, cache in enumerate(own.caches):
+        for array, slots in zip(bucket.arrays[level], cache, strict=True):
+            assert np.array_equal(array[row : row + 1, :, :held], slots)
 
 
 def test_a_pooled_call_writes_each_rows_new_slot_into_the_pasts_it_reads(engine_parts):
