@@ -96,11 +96,16 @@ class TokenGenerator:
         return twin
 
     def with_own_pool(self) -> TokenGenerator:
-        """The same sessions with a KVPool of its own (the server's shards: rows of one call
-        lie in one pool)."""
+        """The same sessions with a KVPool of its own (each server engine's, and a resumed
+        stream's while its cache is made off the engine's thread)."""
         twin = copy.copy(self)
         twin.pool = KVPool(self.cache_shapes)
         return twin
+
+    def shutdown(self) -> None:
+        """End the threads of its level groups (the sessions stay with their other users)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
 
     def _spread_levels(self, level_workers: int) -> None:
         self.level_groups = balanced_groups(

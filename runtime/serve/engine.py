@@ -11,8 +11,10 @@ streams run, a round takes in only as many new ones as leave it about a tick lon
 a burst of arrivals does not hold the running ones back. What is due is decoded in one call
 per decoder (mogo.stream_decoder.push_many): the centred one's windows, and the low-latency
 one's tokens (its step graph) for streams that ask for it; the joints of a round's streams
-come in one pass (mogo.generator.emit_together). Not thread-safe: the server calls it from
-one thread.
+come in one pass (mogo.generator.emit_together). With two threads a call's levels run in two
+groups at once, every row in each (TokenGenerator level workers): rows split into two halves,
+each stepped on its own thread, cost 40-55% more CPU a stream step for less gain (smaller calls,
+docs/serve.md). Not thread-safe: the server calls it from one thread.
 """
 
 from __future__ import annotations
@@ -20,7 +22,6 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -33,8 +34,6 @@ from mogo.stream_decoder import push_many
 from mogo.stream_state import State
 from mogo.token_generator import TokenGenerator
 
-SHARD_FROM = 16  # due streams from which a round runs its two shards on two threads: a
-# thread hand-off costs more than it gains for a few streams
 ROUND_TICKS = 1.0  # with streams running, a round lasts about this many ticks at most: the
 # streams catching up (new ones) share what the running ones leave of it
 MIN_CATCH_UP = 4  # streams catching up in a round at the least, however busy the server
@@ -58,12 +57,11 @@ class ServedStream(MotionStream):
         `low_latency`: decoded by the bundle's low-latency decoder (ValueError: it has none)."""
         g = engine.generator
         # guided: alone on the bundle's own graphs, which quantise its two rows (conditional
-        # and not) together, as MotionStream's do; the row-wise graphs would not. The others
-        # go to the first shard while a round runs whole (one call per bucket, not two), then
-        # to the shard with fewer streams.
-        few = len(engine.streams) < SHARD_FROM
-        shards = engine.shards[:1] if few else engine.shards
-        self.shard = None if sampling.guided else min(shards, key=lambda t: len(t.pool))
+        # and not) together, as MotionStream's do; the row-wise graphs would not
+        self.pooled = not sampling.guided
+        tokens = engine.tokens if self.pooled else None
+        if resumed is not None and self.pooled:  # its cache made in a pool of its own, off
+            tokens = tokens.with_own_pool()  # the engine's thread; `resume` moves it in
         super().__init__(
             g,
             prompt,
@@ -73,11 +71,7 @@ class ServedStream(MotionStream):
             plant_feet,
             resumed.anchoring if resumed else Anchoring(),
             low_latency,
-            # a restored cache is made in a pool of its own, off the engine's thread; `resume`
-            # moves it into the shard's on that thread
-            tokens=self.shard
-            if resumed is None or self.shard is None
-            else self.shard.with_own_pool(),
+            tokens=tokens,
             decoder_session=engine.decoder_session(low_latency),
         )
         if resumed is not None:
@@ -105,7 +99,7 @@ def pooled_tokens(generator: MotionGenerator, signed: bool | None = None) -> Tok
         [pooled_stages(generator.bundle.path(g.file), signed) for g in levels],
         pooled_levels(levels),
         generator.manifest.end_token,
-        intra_op_threads=1,  # the shards run in parallel
+        intra_op_threads=1,  # the level groups run in parallel
         pooled=True,
         alone=generator.tokens.with_level_workers(1),  # its sessions: no second copy
     )
@@ -118,14 +112,14 @@ class Engine:
         self, generator: MotionGenerator, threads: int = 1, tokens: TokenGenerator | None = None
     ):
         """`tokens`: the bundle's level graphs pooled (`pooled_tokens`); None makes them.
-        Each shard (two with `threads` > 1) has its own pool over the same sessions."""
+        The engine's own pool over their sessions, a call's levels in `threads` groups."""
         self.generator = generator
         manifest = generator.manifest
-        self.tokens = tokens = pooled_tokens(generator) if tokens is None else tokens
-        self.shards = [tokens.with_own_pool() for _ in range(2 if threads > 1 else 1)]
+        tokens = pooled_tokens(generator) if tokens is None else tokens
+        self.tokens = tokens.with_own_pool().with_level_workers(threads)
         self.fps = generator.fps
         decoder = manifest.vq.decoder
-        # one thread a call: the shards fill the cores, and a second intra-op thread measured
+        # one thread a call: the level groups fill the cores, and a second intra-op thread measured
         # ~30% more CPU a decode for no gain in time (the same features)
         path = generator.bundle.path(decoder.file)
         self._centred = graph_session(path, decoder, 1)
@@ -139,7 +133,6 @@ class Engine:
         )
         self.streams: dict[int, ServedStream] = {}
         self._step_seconds: float | None = None  # wall time per stream step, rounds' mean
-        self._pool = ThreadPoolExecutor(1, "mogo-shard") if threads > 1 else None
         self._ids = itertools.count(1)
 
     @property
@@ -159,8 +152,7 @@ class Engine:
         return self._low_latency
 
     def shutdown(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+        self.tokens.shutdown()
 
     def tick(self, now: float) -> int:
         return math.floor(now * self.fps)
@@ -200,16 +192,16 @@ class Engine:
         ahead = max(0, send_from - stream.frames_emitted) // self.generator.down_factor
         stream.start_tick = self.tick(now) - stream.steps - ahead
         stream.send_from = send_from
-        if stream.shard is not None:
-            stream.tokens.move_to(stream.shard)
+        if stream.pooled:
+            stream.tokens.move_to(self.tokens)
         self.streams[stream.id] = stream
 
     def switch(self, stream: ServedStream, prompt: str) -> None:
         stream.switch_prompt(prompt)
 
     def close(self, stream: ServedStream) -> None:
-        if self.streams.pop(stream.id, None) is not None and stream.shard is not None:
-            stream.shard.pool.remove(stream.tokens)
+        if self.streams.pop(stream.id, None) is not None and stream.pooled:
+            self.tokens.pool.remove(stream.tokens)
 
     def due(self, now: float) -> list[ServedStream]:
         """The streams behind their target at `now` that the next round steps: every running
@@ -229,22 +221,12 @@ class Engine:
         """One step of each stream in `due`: (stream, index of its first new frame, joints
         (n, J, 3)) for each that made frames."""
         start = time.perf_counter()
-        made = self._round(due)
+        made = self._step(due)
         if due:  # a running mean, for `due`
             seconds = (time.perf_counter() - start) / len(due)
             last = self._step_seconds
             self._step_seconds = seconds if last is None else 0.8 * last + 0.2 * seconds
         return made
-
-    def _round(self, due: list[ServedStream]) -> list[tuple[ServedStream, int, np.ndarray]]:
-        if self._pool is None or len(due) < SHARD_FROM:
-            return self._step(due)
-        # two shards, each its own calls, sampling and decoding, on two threads: onnxruntime
-        # releases the GIL, so one shard's graphs run beside the other's Python. A stream's
-        # numbers do not depend on its shard (rows never mix).
-        second = self.shards[1]
-        other = self._pool.submit(self._step, [s for s in due if s.shard is second])
-        return self._step([s for s in due if s.shard is not second]) + other.result()
 
     def _step(self, due: list[ServedStream]) -> list[tuple]:
         """MotionStream.step for many streams: the token rows of one layout drawn in one call,

@@ -22,7 +22,7 @@ def served(engine, prompts: dict[int, str], seed: int, steps: int) -> np.ndarray
             engine.switch(stream, prompts[stream.steps])
         frames += [joints for _, _, joints in engine.round([stream])]
     engine.close(stream)
-    assert not any(len(shard.pool) for shard in engine.shards)  # its cache's row freed
+    assert not len(engine.tokens.pool)  # its cache's row freed
     return np.concatenate(frames)
 
 
@@ -87,12 +87,10 @@ SWITCHES = {0: (100, "a person jumps on the spot."), 1: (150, "a person turns le
 STEPS = 128 + 2 * 8 + 30  # past the shipped window and two of the old stepper's compactions
 
 
-def drawn_served(generator, engine_parts, shard: bool, monkeypatch) -> list[np.ndarray]:
-    """Each stream's token rows, all stepped together by one engine (in two shards: every
-    round on two threads), a later stream and switches included."""
-    if shard:
-        monkeypatch.setattr(engine_module, "SHARD_FROM", 2)
-    engine = Engine(generator, 2 if shard else 1, tokens=engine_parts)
+def drawn_served(generator, engine_parts, threads: int) -> list[np.ndarray]:
+    """Each stream's token rows, all stepped together by one engine (on two threads: every
+    call's levels in two groups at once), a later stream and switches included."""
+    engine = Engine(generator, threads, tokens=engine_parts)
     streams = [
         engine.open(prompt, seed, generator.sampling(None, **options), 0.0)
         for prompt, seed, options in STREAMS
@@ -112,12 +110,12 @@ def drawn_served(generator, engine_parts, shard: bool, monkeypatch) -> list[np.n
     return [np.array(r) for r in rows]
 
 
-@pytest.mark.parametrize("shard", [False, True], ids=["one-thread", "two-shards"])
-def test_served_streams_draw_the_tokens_of_mogo_stream(generator, engine_parts, shard, monkeypatch):
+@pytest.mark.parametrize("threads", [1, 2], ids=["one-thread", "two-threads"])
+def test_served_streams_draw_the_tokens_of_mogo_stream(generator, engine_parts, threads):
     """The shipped bundle's window (128) is beyond its relative distances (64); re-anchored,
     fresh clips and holds included: the same rows as a MotionStream of the same prompt, seed,
     sampling and switches (guided streams step alone on the bundle's own graphs)."""
-    served = drawn_served(generator, engine_parts, shard, monkeypatch)
+    served = drawn_served(generator, engine_parts, threads)
     anchors = 0
     for k, (prompt, seed, options) in enumerate(STREAMS):
         stream = generator.stream(prompt, seed=seed, **options)

@@ -14,7 +14,6 @@ pytest.importorskip("onnx")
 
 from aiohttp import ClientSession, WSMsgType  # noqa: E402
 
-from mogo.serve import engine as engine_module  # noqa: E402
 from mogo.serve import protocol  # noqa: E402
 from mogo.serve.engine import Engine  # noqa: E402
 from mogo.serve.server import QUEUED_BURSTS, SERVER, Access, Server, listen, make_app, stop  # noqa: E402
@@ -236,13 +235,10 @@ def test_generate_returns_the_file(generator, engine_parts):
     serving(generator, engine_parts, test)
 
 
-def test_a_stream_gives_the_same_frames_alone_and_among_others(
-    generator, engine_parts, monkeypatch
-):
+def test_a_stream_gives_the_same_frames_alone_and_among_others(generator, engine_parts):
     """On the engine's own clock (no wall time): others start before, with and after it; the
     switch lands on a fixed step of the stream (where it lands is the one thing a client's
-    timing decides). Among others every round runs as two shards on two threads."""
-    monkeypatch.setattr(engine_module, "SHARD_FROM", 2)
+    timing decides). Every round runs a call's levels in two groups on two threads."""
 
     def play(others: list[float], seconds: float = 12.0) -> np.ndarray:
         engine = Engine(generator, 2, tokens=engine_parts)
