@@ -12,9 +12,8 @@ a burst of arrivals does not hold the running ones back. What is due is decoded 
 per decoder (mogo.stream_decoder.push_many): the centred one's windows, and the low-latency
 one's tokens (its step graph) for streams that ask for it; the joints of a round's streams
 come in one pass (mogo.generator.emit_together). With two threads a call's levels run in two
-groups at once, every row in each (TokenGenerator level workers): rows split into two halves,
-each stepped on its own thread, cost 40-55% more CPU a stream step for less gain (smaller calls,
-docs/serve.md). Not thread-safe: the server calls it from one thread.
+groups at once, every row in each (TokenGenerator level workers), so calls stay whole: each
+has a fixed cost. Not thread-safe: the server calls it from one thread.
 """
 
 from __future__ import annotations
