@@ -23,6 +23,8 @@ from mogo.manifest import Graph
 
 MASKED = 2**62  # a slot's position after any query's: the graphs mask it out
 SLOTS = 32  # bucket capacities are multiples of this
+ROWS = 256  # rows a bucket is made with: np.zeros takes memory only as rows are written, while
+# growing copies every row held, a stall of every stream (0.1-0.5 s from 64 or 128 rows)
 
 
 class StagedSession:
@@ -180,7 +182,7 @@ class _Bucket:
     def __init__(self, capacity: int, cache_shapes: Sequence[tuple[int, int, int]]):
         self.capacity, self.cache_shapes = capacity, cache_shapes
         self.members: list = []
-        self._allocate(8)
+        self._allocate(ROWS)
 
     def _allocate(self, rows: int) -> None:
         old = getattr(self, "arrays", None)

@@ -8,6 +8,7 @@ import pytest
 pytest.importorskip("onnx")
 
 from mogo import generator as generator_module
+from mogo import kv_pool
 from mogo.serve import engine as engine_module
 from mogo.serve.engine import Engine
 from mogo.token_generator import TokenGenerator, TokenStream, step_together
@@ -295,6 +296,26 @@ def test_a_lone_row_steps_on_the_graphs_as_exported(generator, engine_parts, mon
     for level, cache in enumerate(own.caches):
         for array, slots in zip(bucket.arrays[level], cache, strict=True):
             assert np.array_equal(array[row : row + 1, :, :held], slots)
+
+
+def test_a_bucket_grown_past_its_rows_keeps_every_streams_slots(
+    generator, engine_parts, monkeypatch
+):
+    """A bucket made with fewer rows than its streams (mogo.kv_pool.ROWS) grows, the slots of
+    its rows copied along: every stream draws on as on its own cache."""
+    monkeypatch.setattr(kv_pool, "ROWS", 2)
+    sampling = generator.sampling(None)
+    prompts = generator.embed(["a person walks forward.", "a person waves.", "a person jumps."])
+    tokens = engine_parts.with_own_pool()
+    pooled, own = [], []
+    for n in range(12):
+        if n in (0, 4, 6):  # the third stream grows the bucket past two rows of slots
+            seed = len(pooled)
+            pooled.append(tokens.start(prompts[seed], seed, sampling, None, allow_end=False))
+            own.append(generator.tokens.start(prompts[seed], seed, sampling, None, False))
+        for row, stream in zip(step_together(pooled), own, strict=True):
+            assert np.array_equal(row, stream.step()), f"step {n}"
+    assert [len(bucket.positions) for bucket in tokens.pool.buckets.values()] == [4]
 
 
 def test_a_pooled_call_writes_each_rows_new_slot_into_the_pasts_it_reads(engine_parts):
