@@ -92,6 +92,7 @@ def drawn_served(generator, engine_parts, threads: int) -> list[np.ndarray]:
     """Each stream's token rows, all stepped together by one engine (on two threads: every
     call's levels in two groups at once), a later stream and switches included."""
     engine = Engine(generator, threads, tokens=engine_parts)
+    assert len(engine.tokens.level_groups) == threads
     streams = [
         engine.open(prompt, seed, generator.sampling(None, **options), 0.0)
         for prompt, seed, options in STREAMS
