@@ -14,6 +14,7 @@ outgrows its bucket moves to the next one (one row copied); a restart moves it b
 
 from __future__ import annotations
 
+import mmap
 from collections.abc import Sequence
 
 import numpy as np
@@ -23,8 +24,9 @@ from mogo.manifest import Graph
 
 MASKED = 2**62  # a slot's position after any query's: the graphs mask it out
 SLOTS = 32  # bucket capacities are multiples of this
-ROWS = 256  # rows a bucket is made with: np.zeros takes memory only as rows are written, while
-# growing copies every row held, a stall of every stream (0.1-0.5 s from 64 or 128 rows)
+ROWS = 256  # rows a bucket is made with: its arrays take memory only as rows are written
+# (`_zeros`), while growing copies every row held, a stall of every stream (0.1-0.5 s from
+# 64 or 128 rows)
 
 
 class StagedSession:
@@ -187,10 +189,7 @@ class _Bucket:
     def _allocate(self, rows: int) -> None:
         old = getattr(self, "arrays", None)
         self.arrays = [
-            [
-                np.zeros((rows, heads, self.capacity, head_dim), np.float32)
-                for _ in range(2 * layers)
-            ]
+            [_zeros((rows, heads, self.capacity, head_dim)) for _ in range(2 * layers)]
             for layers, heads, head_dim in self.cache_shapes
         ]
         positions = np.full((rows, self.capacity), MASKED, np.int64)
@@ -222,6 +221,16 @@ class _Bucket:
             moved = self.members[row] = self.members[last]
         self.members.pop()
         return moved
+
+
+def _zeros(shape: tuple[int, ...]) -> np.ndarray:
+    """float32 zeros in anonymous memory, taken page by page as they are written, in small
+    pages: where the system backs memory with 2 MB pages (Linux's transparent huge pages),
+    numpy's zeros of ROWS rows took 2 MB of every array for a stream's first slot."""
+    buffer = mmap.mmap(-1, max(1, 4 * int(np.prod(shape))))
+    if hasattr(mmap, "MADV_NOHUGEPAGE"):
+        buffer.madvise(mmap.MADV_NOHUGEPAGE)
+    return np.frombuffer(buffer, np.float32, int(np.prod(shape))).reshape(shape)
 
 
 def _capacity(slots: int) -> int:
