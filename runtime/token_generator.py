@@ -409,11 +409,17 @@ class TokenStream:
         ]
 
     def _call_levels(
-        self, tokens: np.ndarray, position: np.ndarray, past: np.ndarray, caches: list[Cache]
+        self,
+        tokens: np.ndarray,
+        position: np.ndarray,
+        past: np.ndarray,
+        caches: list[Cache],
+        graphs: TokenGenerator | None = None,
     ) -> list[tuple]:
         """Every level graph once for this stream alone: the step at `position` fed `tokens`
-        (L,), over the slots at `past` held in `caches` -> (logits, presents) per level."""
-        g = self.generator
+        (L,), over the slots at `past` held in `caches` -> (logits, presents) per level.
+        graphs: those to run (None: the stream's generator's)."""
+        g = self.generator if graphs is None else graphs
         ids = np.repeat(tokens[None, None], len(self.uncond), axis=0)
         return g.each_level(
             lambda level: g.run(level, self.prompt, self.uncond, ids, position, past, caches[level])
@@ -515,21 +521,11 @@ def _alone_call(alone: TokenGenerator, s: TokenStream, bucket, rows) -> list[tup
     Returns the levels' logits and new slots (1, heads, 1, head_dim), as a pooled call does."""
     row = rows.start if isinstance(rows, slice) else rows[0]
     held = len(s.positions)
-    ids, query = s.last[None, None], np.array([s.steps], np.int64)
-    outputs = alone.each_level(
-        lambda level: alone.run(
-            level,
-            s.prompt,
-            s.uncond,
-            ids,
-            query,
-            s.positions,
-            [
-                np.ascontiguousarray(array[row : row + 1, :, :held])
-                for array in bucket.arrays[level]
-            ],
-        )
-    )
+    caches = [
+        [np.ascontiguousarray(array[row : row + 1, :, :held]) for array in level]
+        for level in bucket.arrays
+    ]
+    outputs = s._call_levels(s.last, np.array([s.steps], np.int64), s.positions, caches, alone)
     return [
         (logits, [present[:, :, held:] for present in presents]) for logits, presents in outputs
     ]
