@@ -227,10 +227,11 @@ def _zeros(shape: tuple[int, ...]) -> np.ndarray:
     """float32 zeros in anonymous memory, taken page by page as they are written, in small
     pages: where the system backs memory with 2 MB pages (Linux's transparent huge pages),
     numpy's zeros of ROWS rows took 2 MB of every array for a stream's first slot."""
-    buffer = mmap.mmap(-1, max(1, 4 * int(np.prod(shape))))
+    count = int(np.prod(shape))
+    buffer = mmap.mmap(-1, max(1, 4 * count))
     if hasattr(mmap, "MADV_NOHUGEPAGE"):
         buffer.madvise(mmap.MADV_NOHUGEPAGE)
-    return np.frombuffer(buffer, np.float32, int(np.prod(shape))).reshape(shape)
+    return np.frombuffer(buffer, np.float32, count).reshape(shape)
 
 
 def _capacity(slots: int) -> int:
