@@ -12,7 +12,8 @@ import mogo
 RUNTIME_DIR = Path(mogo.__file__).parent
 ROOT = RUNTIME_DIR.parent
 ALLOWED_THIRD_PARTY = {"numpy", "onnxruntime", "tokenizers", "PIL"}
-SERVE_EXTRA = {"aiohttp", "onnx"}  # runtime/serve/ only: `pip install 'mogo-edge[serve]'`
+# runtime/serve/ only: `pip install 'mogo-edge[serve]'`
+SERVE_EXTRA = {"aiohttp", "onnx", "threadpoolctl"}
 
 # Each room (a package, with the packages under it) -> the mogo modules its files may import,
 # lazily or not, and the exceptions to that. No room imports one above it: runtime < export <

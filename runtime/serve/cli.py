@@ -77,7 +77,7 @@ def add_commands(commands) -> None:
 
 def require_serve_extra() -> None:
     """A clear line instead of an ImportError where the serve extra is missing."""
-    if any(importlib.util.find_spec(name) is None for name in ("aiohttp", "onnx")):
+    if any(importlib.util.find_spec(name) is None for name in ("aiohttp", "onnx", "threadpoolctl")):
         raise CliError(needs_extra("serve", "serve"))
 
 

@@ -23,6 +23,7 @@ import math
 import time
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from mogo._session import graph_session
 from mogo.anchoring import Anchoring
@@ -114,6 +115,9 @@ class Engine:
         The engine's own pool over their sessions, a call's levels in `threads` groups."""
         self.generator = generator
         manifest = generator.manifest
+        # numpy's BLAS on one thread while the engine runs: its level groups fill the cores, and
+        # OpenBLAS's own workers, woken by the rounds' small products, spun beside them
+        self._blas = threadpool_limits(1, user_api="blas")
         tokens = pooled_tokens(generator) if tokens is None else tokens
         self.tokens = tokens.with_own_pool().with_level_workers(threads)
         self.fps = generator.fps
@@ -152,6 +156,7 @@ class Engine:
 
     def shutdown(self) -> None:
         self.tokens.shutdown()
+        self._blas.restore_original_limits()
 
     def tick(self, now: float) -> int:
         return math.floor(now * self.fps)
