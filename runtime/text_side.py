@@ -49,6 +49,8 @@ class TextSide:
             )
         )
         self._encoded = functools.lru_cache(ENCODED_PROMPTS)(self._encode_one)
+        # scored when a prompt is read and again when asked (a server's notes): ~0.2 ms each
+        self.familiarity = functools.lru_cache(ENCODED_PROMPTS)(self._familiarity)
 
     def embed(self, texts: Sequence[str]) -> np.ndarray:
         """Prompt embeddings (B, text_dim) float32."""
@@ -64,8 +66,9 @@ class TextSide:
         tokenizer = self.tokenizer if self._trained is None else self._trained[0]
         return {w for w in tokenizer.get_vocab() if w.isalpha()}
 
-    def familiarity(self, text: str) -> Familiarity:
-        """The repertoire's score of a checked prompt (a bundle with a repertoire)."""
+    def _familiarity(self, text: str) -> Familiarity:
+        """The repertoire's score of a checked prompt (a bundle with a repertoire): `familiarity`,
+        cached."""
         encoded = self._encoded(text)
         return self.repertoire.familiarity(encoded.sentence[0], encoded.played)
 

@@ -27,6 +27,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 
 from mogo.arguments import PromptWarning, UnknownPromptWarning
 from mogo.generator import MotionGenerator, checked_seed
+from mogo.sampling import Sampling
 from mogo.serve import protocol
 from mogo.serve.engine import Engine, ServedStream
 from mogo.stream_state import StateError
@@ -44,6 +45,15 @@ LOG_EVERY_SECONDS = 10.0  # one log line of a kind per this, at most (no log flo
 LOCAL_NAMES = {"localhost"}  # with every loopback address
 RESUME_AHEAD_SECONDS = 30.0  # a resume's "from" at most this far past its state
 DRAIN_SECONDS = 5.0  # on SIGTERM: what the clients get to read their states and go
+
+
+@dataclass(frozen=True)
+class Opening:
+    """A start message's stream, read: its prompt as the model reads it, sampling, seed."""
+
+    text: str
+    sampling: Sampling
+    seed: int
 
 
 @dataclass(frozen=True)
@@ -161,6 +171,9 @@ class Server:
         self.clip_workers = threads
         self.clips = ThreadPoolExecutor(threads, "mogo-generate")
         self.restores = ThreadPoolExecutor(1, "mogo-resume")  # resumed streams' caches
+        # prompts read (a new one's text graphs: ~10 ms) off the engine's thread, which would
+        # hold every stream meanwhile; one at a time, since catch_warnings is process-wide
+        self.prompts = ThreadPoolExecutor(1, "mogo-prompt")
         self.clip_jobs = 0  # running and waiting
         self.wake = asyncio.Event()
         self.queues: dict[int, asyncio.Queue] = {}
@@ -203,6 +216,10 @@ class Server:
         """Run on the engine's thread, between rounds."""
         return await asyncio.get_running_loop().run_in_executor(self.thread, function, *args)
 
+    async def reading(self, function, *args):
+        """Run on the prompts' thread: what reads a client's prompt."""
+        return await asyncio.get_running_loop().run_in_executor(self.prompts, function, *args)
+
     def checked_prompt(self, prompt: str) -> tuple[str, list[str]]:
         """A prompt the model can read, and notes for words it cannot and for the known
         caption it is played as; ProtocolError else."""
@@ -228,27 +245,37 @@ class Server:
                 "(mogo serve --max-streams); try again later"
             )
 
-    def open(self, start: protocol.Start) -> tuple[ServedStream, list[str]]:
+    def read_start(self, start: protocol.Start) -> tuple[Opening, list[str]]:
+        """A start message's prompt, sampling and seed checked (ProtocolError else), and the
+        prompt's notes: on the prompts' thread."""
         self.admit()
         text, notes = self.checked_prompt(start.prompt)
         try:
             sampling = self.generator.sampling(None, **start.options)
         except (TypeError, ValueError) as error:
             raise protocol.ProtocolError(str(error)) from None
-        seed = checked_seed(start.seed)
+        return Opening(text, sampling, checked_seed(start.seed)), notes
+
+    def open(self, start: protocol.Start, opening: Opening) -> ServedStream:
+        """The stream of a start message read by `read_start`: on the engine's thread."""
+        self.admit()  # again: other streams may have come while its prompt was read
         try:
-            stream = self.engine.open(
-                text, seed, sampling, self.clock(), start.plant_feet, start.low_latency
+            return self.engine.open(
+                opening.text,
+                opening.seed,
+                opening.sampling,
+                self.clock(),
+                start.plant_feet,
+                start.low_latency,
             )
         except ValueError as error:  # no low-latency decoder
             raise protocol.ProtocolError(str(error)) from None
-        return stream, notes
 
     async def resume(self, resume: protocol.Resume) -> tuple[ServedStream, list[str]]:
         """A stream going on from a client's state (mogo.stream_state), refused with one
         error where the state is not one this server goes on from. Its cache is made again
         on a thread of its own: the engine goes on stepping the others meanwhile."""
-        state, first, notes = await self.call(self._resumable, resume)
+        state, first, notes = await self.reading(self._resumable, resume)
         try:
             stream = await asyncio.get_running_loop().run_in_executor(
                 self.restores, self.engine.restore, state
@@ -284,11 +311,11 @@ class Server:
         self.admit()  # again: other streams may have come while its cache was made
         self.engine.resume(stream, self.clock(), first)
 
-    def switch(self, stream: ServedStream, prompt: str) -> tuple[int, list[str]]:
-        """The switch played: the first frame that follows it, and the prompt's notes."""
-        text, notes = self.checked_prompt(prompt)
+    def switch(self, stream: ServedStream, text: str) -> int:
+        """The switch to a prompt read by `checked_prompt` played: the first frame that
+        follows it."""
         self.engine.switch(stream, text)
-        return stream.prompts[-1][0], notes
+        return stream.prompts[-1][0]
 
     def state(self, stream: ServedStream, drain: bool = False) -> str:
         """The stream's state message (on the engine's thread, between rounds)."""
@@ -356,7 +383,8 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
                             f"too many switches: at most {SWITCHES_PER_SECOND} a second "
                             f"({SWITCH_BURST} at once); this one was not played"
                         )
-                    index, notes = await server.call(server.switch, stream, prompt)
+                    text, notes = await server.reading(server.checked_prompt, prompt)
+                    index = await server.call(server.switch, stream, text)
                     await ws.send_str(protocol.switched(prompt, index))
                     await server.offer_state(stream)  # a resume then knows of the switch
                 for note in notes:
@@ -384,7 +412,8 @@ async def _opened(server: Server, body: dict):
         stream, notes = await server.resume(start)
     else:
         start = protocol.start(body)
-        stream, notes = await server.call(server.open, start)
+        opening, notes = await server.reading(server.read_start, start)
+        stream = await server.call(server.open, start, opening)
     return stream, notes, start
 
 
@@ -485,7 +514,7 @@ async def generate(request: web.Request) -> web.Response:
     server.clip_jobs += 1
     stop = threading.Event()
     try:
-        prompt, _ = await server.call(server.checked_prompt, clip.prompt)
+        prompt, _ = await server.reading(server.checked_prompt, clip.prompt)
         data = await asyncio.get_running_loop().run_in_executor(
             server.clips, _clip_file, server.generator, prompt, clip, stop
         )
@@ -544,6 +573,7 @@ def make_app(
         server.engine.shutdown()
         server.clips.shutdown(wait=False, cancel_futures=True)
         server.restores.shutdown(wait=False, cancel_futures=True)
+        server.prompts.shutdown(wait=False, cancel_futures=True)
 
     async def close_sockets(app):
         """On SIGINT/SIGTERM: every client gets a close frame (1001, going away), not a 1006."""
