@@ -5,6 +5,7 @@ the same frames for a stream alone and among others. Every test is bounded in ti
 import asyncio
 import io
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -77,6 +78,29 @@ def test_a_stream_starts_switches_and_stops(generator, engine_parts):
         async with ClientSession() as session:
             health = await (await session.get(url + "/v1/health")).json()
         assert health["status"] == "ok" and health["streams"] == 0
+
+    serving(generator, engine_parts, test)
+
+
+def test_prompts_are_read_off_the_engines_thread(generator, engine_parts):
+    """A new prompt's text graphs take milliseconds: read on the engine's thread, they would
+    hold every stream meanwhile."""
+
+    async def test(url, server):
+        threads = []
+        checked = server.checked_prompt
+
+        def recorded(prompt):
+            threads.append(threading.current_thread().name)
+            return checked(prompt)
+
+        server.checked_prompt = recorded
+        async with ClientSession() as session, session.ws_connect(url + "/v1/stream") as ws:
+            await ws.send_json({"prompt": "a person walks forward", "seed": 4})
+            await frames(ws, 1)
+            await ws.send_json({"prompt": "a person jumps"})
+            await next_of(ws, "switched")
+        assert len(threads) == 2 and all(n.startswith("mogo-prompt") for n in threads), threads
 
     serving(generator, engine_parts, test)
 
