@@ -352,7 +352,7 @@ async def stream_socket(request: web.Request) -> web.WebSocketResponse:
     await ws.prepare(request)
     server.sockets.add(ws)
     stream, sender = None, None
-    switches = Rate(SWITCHES_PER_SECOND, SWITCH_BURST)  # each: a prompt check, engine thread
+    switches = Rate(SWITCHES_PER_SECOND, SWITCH_BURST)  # each: a prefill, engine's thread
     loop = asyncio.get_running_loop()
     deadline = loop.time() + REQUEST_SECONDS  # to start a stream
     try:
