@@ -673,7 +673,7 @@ class MotionStream:
                 self.tokens.continue_from(tokens)
             else:
                 self.anchor.continued(tokens)
-            self._final(self.generator.denormalised(self.decoder.push(tokens)))
+            final_together([self], [self.generator.denormalised(self.decoder.push(tokens))])
             self._skip = self._pending_frames()  # the clip's own last frames: not again
 
     def state(self) -> str:
@@ -733,7 +733,7 @@ class MotionStream:
         self, tokens: np.ndarray, normalised: np.ndarray, limit: int | None = None
     ) -> np.ndarray:
         """The frames that became final from decoded rows (at most `limit`: `finish`)."""
-        return self._emit(tokens, *self._final(self.generator.denormalised(normalised)), limit)
+        return emit_together([self], [tokens], [normalised], limit)[0]
 
     def _emit(
         self, tokens: np.ndarray, features: np.ndarray, joints: np.ndarray, limit: int | None
@@ -746,14 +746,6 @@ class MotionStream:
         if self._record is not None:
             self._record.append((tokens, features.astype(np.float32), joints))
         return joints
-
-    def _final(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Decoded rows in, the rows now final out with their joints: the feet planted when
-        asked, the planter's lookahead later (emit_together: the same for many streams)."""
-        joints = self._joints.push(features)
-        if self.feet is None:
-            return features, joints
-        return self.feet.push(features, joints)
 
     def _pending_frames(self) -> int:
         """Frames drawn as tokens but not yet emitted (the decoder's lookahead, and the
@@ -781,14 +773,28 @@ def drawn_together(streams: Sequence[MotionStream]) -> list[np.ndarray]:
 
 
 def emit_together(
-    streams: Sequence[MotionStream], tokens: list[np.ndarray], normalised: list[np.ndarray]
+    streams: Sequence[MotionStream],
+    tokens: list[np.ndarray],
+    normalised: list[np.ndarray],
+    limit: int | None = None,
 ) -> list[np.ndarray]:
-    """`emit` of each stream's decoded rows (the server's round; streams of one skeleton):
-    the joints of the streams with as many rows made in one pass (mogo.motion.features.
-    joints_together), the legs of the frames whose feet are planted in one pass (mogo.motion.
-    feet.push_together): the same numbers as one `emit` each. Returns each stream's frames
-    made final."""
+    """`emit` of each stream's decoded rows: each stream's frames made final (at most `limit`
+    each). The one path of a stream's frames, for one stream or a server's round."""
     features = [s.generator.denormalised(rows) for s, rows in zip(streams, normalised, strict=True)]
+    return [
+        s._emit(t, f, j, limit)
+        for s, t, (f, j) in zip(streams, tokens, final_together(streams, features), strict=True)
+    ]
+
+
+def final_together(
+    streams: Sequence[MotionStream], features: list[np.ndarray]
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each stream's decoded rows (denormalised) in, its rows now final out with their joints,
+    the feet planted where asked (the planter's lookahead later); streams of one skeleton. The
+    joints of the streams with as many rows in one pass (mogo.motion.features.joints_together),
+    the legs of the frames whose feet are planted in one pass (mogo.motion.feet.push_together):
+    the numbers of one stream at a time."""
     joints: list[np.ndarray | None] = [None] * len(streams)
     alike: dict[int, list[int]] = {}  # streams by rows decoded
     for k, rows in enumerate(features):
@@ -806,7 +812,7 @@ def emit_together(
     )
     for k, rows in zip(ks, made, strict=True):
         final[k] = rows
-    return [s._emit(t, f, j, None) for s, t, (f, j) in zip(streams, tokens, final, strict=True)]
+    return final
 
 
 def checked_seed(seed: object) -> int:
