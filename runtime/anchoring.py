@@ -117,12 +117,14 @@ class Anchor:
         self.kind(text)
 
     def switch(self, text: str, embedding: np.ndarray) -> None:
-        """A new prompt: a fresh clip under it at once, from the last `switch_keep` steps."""
-        self._tokens.set_prompt(embedding)
+        """A new prompt: a fresh clip under it at once, from the last `switch_keep` steps (the
+        cache prefilled once, for those steps)."""
         self.holding = False
         self.kind(text)
         if len(self.recent):
-            self._reanchor(self.anchoring.switch_keep)
+            self._reanchor(self.anchoring.switch_keep, embedding)
+        else:
+            self._tokens.set_prompt(embedding)
 
     def continued(self, tokens: np.ndarray) -> None:
         """The stream goes on from these steps (MotionStream.continue_from): as at a switch,
@@ -171,6 +173,7 @@ class Anchor:
         self.anchors += 1
         self.fresh += 1
 
-    def _reanchor(self, keep: int | None = None) -> None:
-        self._tokens.continue_from(self.recent[-(keep or self.anchoring.keep) :])
+    def _reanchor(self, keep: int | None = None, embedding: np.ndarray | None = None) -> None:
+        """A fresh clip from the last `keep` steps, under `embedding` where given."""
+        self._tokens.continue_from(self.recent[-(keep or self.anchoring.keep) :], embedding)
         self.anchors += 1

@@ -304,9 +304,10 @@ class TokenStream:
         if len(self.positions):  # before the first step there is nothing cached yet
             self._prefill()
 
-    def continue_from(self, tokens: np.ndarray) -> None:
+    def continue_from(self, tokens: np.ndarray, prompt_embedding: np.ndarray | None = None) -> None:
         """Take `tokens` (n, L) as the steps drawn so far (a clip to continue), in place of
-        anything drawn before: the next step is step n, seeing them as its past."""
+        anything drawn before: the next step is step n, seeing them as its past; under
+        `prompt_embedding` where given (a switch that re-anchors: one prefill, not two)."""
         tokens = np.asarray(tokens, np.int64)
         L = self.generator.num_levels
         if tokens.ndim != 2 or tokens.shape[1] != L or len(tokens) == 0:
@@ -319,6 +320,8 @@ class TokenStream:
             keep = np.r_[0, n - self.window : n]
             self.positions, self.slot_tokens = self.positions[keep], self.slot_tokens[keep]
         self._oldest = 1
+        if prompt_embedding is not None:
+            self.prompt = self._batch(prompt_embedding)
         self._prefill()
 
     def restart(self) -> None:

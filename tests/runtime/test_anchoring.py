@@ -80,8 +80,11 @@ def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
     stream = generator.stream("a person walks forward.", seed=2, anchoring=SMALL)
     stream.advance(13)
     before = stream.anchor.anchors
+    prefills = []
+    stream.tokens._prefill = lambda prefill=stream.tokens._prefill: prefills.append(prefill())
     stream.set_prompt("a person waves with the right hand.")
     assert stream.anchor.anchors == before + 1
+    assert len(prefills) == 1  # the cache made for the kept steps only, under the new prompt
     assert stream.tokens.steps == SMALL.switch_keep  # a fresh clip from the last step
     recent = stream.anchor.recent.copy()
     assert np.array_equal(recent, stream.finish().tokens[13 - SMALL.keep : 13])
