@@ -163,10 +163,10 @@ class Anchor:
         """A fresh clip of the hold prompt: one re-anchored from the end of a turn went on
         turning slowly."""
         hold = self.anchoring.hold_prompt
+        self._restart()  # first: the prompt then has no held step to prefill
         self._tokens.set_prompt(self._embed(hold))
         self.holding = True
         self.kind(hold)
-        self._restart()
 
     def _restart(self) -> None:
         self._tokens.restart()

@@ -93,7 +93,13 @@ def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
 def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator):
     stream = generator.stream("a person bows.", seed=0, anchoring=SMALL)
     assert stream.anchor.one_off and stream.tokens.allow_end and not stream.anchor.holding
-    stream.advance(stream.anchor.one_off_steps + 1)
+    prefills = []
+    stream.tokens._prefill = lambda prefill=stream.tokens._prefill: prefills.append(prefill())
+    while not stream.anchor.holding and stream.steps <= stream.anchor.one_off_steps:
+        before = len(prefills)
+        stream.advance(1)
+    assert len(prefills) == before  # a fresh clip of the hold: nothing held to prefill
+    stream.advance(stream.anchor.one_off_steps + 1 - stream.steps)
     assert stream.anchor.holding and not stream.anchor.one_off and stream.anchor.fresh == 1
     assert not stream.tokens.allow_end  # the hold stands still: the model does not end it
     assert stream.tokens.steps <= SMALL.span
