@@ -69,12 +69,6 @@ class JointStream:
         """features (n, D) -> joints (n, J, 3) float32."""
         return joints_together([self], np.asarray(features)[None])[0]
 
-    def _advance(self, f: np.ndarray, joints: np.ndarray) -> None:
-        """The root's yaw and XZ after rows f (n, D) float64 whose joints are `joints`."""
-        self.half_angle += f[:, 0].sum()
-        step = qrot(qinv(qyaw(2 * self.half_angle)), np.array([f[-1, 1], 0.0, f[-1, 2]]))
-        self.xz = joints[-1, 0, [0, 2]] + step[[0, 2]]
-
 
 def joints_together(streams: list[JointStream], features: np.ndarray) -> np.ndarray:
     """`push` of as many rows to each of several streams of one skeleton at once (the server's
@@ -89,8 +83,14 @@ def joints_together(streams: list[JointStream], features: np.ndarray) -> np.ndar
         return np.zeros((*f.shape[:2], skeleton.num_joints, 3), np.float32)
     half_angles = np.array([stream.half_angle for stream in streams], np.float64)
     joints = _joints(f, skeleton, half_angles, np.array([stream.xz for stream in streams]))
-    for stream, rows, made in zip(streams, f, joints, strict=True):
-        stream._advance(rows, made)
+    # each root's yaw and XZ after its rows (each stream's own sum: the order of its terms)
+    half_angles += [rows[:, 0].sum() for rows in f]
+    last = f[:, -1]
+    velocity = np.stack([last[:, 1], np.zeros(len(f)), last[:, 2]], -1)
+    step = qrot(qinv(qyaw(2 * half_angles)), velocity)
+    xz = joints[:, -1, 0, ::2] + step[:, ::2]
+    for stream, half_angle, position in zip(streams, half_angles, xz, strict=True):
+        stream.half_angle, stream.xz = half_angle, position
     return joints.astype(np.float32)
 
 
