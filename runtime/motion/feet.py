@@ -171,23 +171,12 @@ class FootPlanter:
 
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """The remaining rows (the clip ends: no lookahead past them)."""
-        features, joints, targets, weights = self._take(len(self._joints))
+        features, joints, targets, weights = _take_together([self], len(self._joints))[0]
         return features, self._solve(joints, targets, weights).astype(np.float32)
 
     def _buffer(self, features: np.ndarray, joints: np.ndarray) -> None:
         self._features = np.concatenate([self._features, features])
         self._joints = np.concatenate([self._joints, np.asarray(joints, np.float64)])
-
-    def _take(self, ready: int) -> tuple[np.ndarray, ...]:
-        """The first `ready` buffered frames out of the buffer, the state moved past them:
-        their features, joints, and their contact joints' targets and planted weights."""
-        joints = self._joints  # the body as decoded, unless a body step is asked for
-        if self.body_step != np.inf:
-            joints = joints + self._shifts(ready)[:, None]
-        targets, weights = self._targets(self._flags(), joints[:, self.contacts], ready)
-        features = self._features[:ready]
-        self._features, self._joints = self._features[ready:], self._joints[ready:]
-        return features, joints[:ready], targets, weights
 
     def _shifts(self, ready: int) -> np.ndarray:
         """(n, 3) the body's horizontal shift at each buffered frame. Where the channel flags a
@@ -207,55 +196,6 @@ class FootPlanter:
         shifts = self._shift + np.concatenate([np.zeros((1, 3)), np.cumsum(spread, 0)])
         self._shift, self._backs = shifts[ready], backs[ready : ready + BODY_FRAMES - 1]
         return shifts[:n]
-
-    def _flags(self) -> np.ndarray:
-        """(n, 4) contacts of the buffered frames: the channel says so and the decoded joint
-        steps less than HOLD_STEP (a swinging foot the channel calls planted is not held:
-        holding it squeezes its stride into the frames before the next contact, docs/feet.md)."""
-        speed = np.sum(self._features[:, self._velocity].astype(np.float64) ** 2, -1)
-        return (self._features[:, -4:] > CONTACT) & (speed < self.hold_step**2)
-
-    def _targets(
-        self, flags: np.ndarray, paths: np.ndarray, ready: int
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Targets (ready, 4, 3) and planted weights (ready, 4) of the contact joints in the
-        first `ready` buffered frames, from their flags (n, 4) and paths (n, 4, 3)."""
-        if not ready:
-            return np.zeros((0, 4, 3)), np.zeros((0, 4))
-        n, frames = len(flags), np.arange(len(flags))[:, None]
-        blend_in, pin_frames = self.window.blend_in, self.window.pin_frames
-        held = flags | np.concatenate([self._flag[None], flags[:-1]])
-        starts = held & ~np.concatenate([self._held[None], held[:-1]])
-        pins = np.repeat(self._pin[None], n, 0)  # a contact going on from earlier frames
-        for i, k in zip(
-            *np.nonzero(starts[: ready + blend_in]), strict=False
-        ):  # each contact: its pin
-            length = np.cumprod(held[i : i + pin_frames, k]).sum()
-            pins[i, k] = paths[i : i + length, k].mean(0)
-        run = np.maximum.accumulate(np.where(starts, frames, -1), axis=0)  # its start
-        pins = np.where((run >= 0)[..., None], pins[np.maximum(run, 0), np.arange(4)], pins)
-        held_offset = _offset(pins, paths)  # meaningful where held
-        last = np.maximum.accumulate(np.where(held, frames, -1), axis=0)  # last held frame
-        last = np.concatenate([np.full((1, 4), -1), last[:-1]])  # ... before this one
-        since = np.where(last >= 0, frames - last, self._since + frames + 1)
-        released = np.where(
-            (last >= 0)[..., None], held_offset[np.maximum(last, 0), np.arange(4)], self._released
-        )
-        out = _ease(1.0 - since / (BLEND_OUT + 1))
-        upcoming = np.minimum.accumulate(np.where(flags, frames, n)[::-1], axis=0)[::-1]
-        following = np.concatenate([upcoming[1:], np.full((1, 4), n)])  # first flag after
-        into = np.where(following < n, _ease(1.0 - (following - frames) / (blend_in + 1)), 0.0)
-        start_offset = held_offset[np.minimum(following, n - 1), np.arange(4)]
-        offset = out[..., None] * released + into[..., None] * start_offset
-        weight = out + into
-        offset /= np.maximum(weight, 1.0)[..., None]  # contacts close together share frames
-        offset = np.where(held[..., None], held_offset, offset)
-        weight = np.where(held, 1.0, np.minimum(weight, 1.0))
-        end = ready - 1  # the state after the last frame out
-        self._flag, self._held, self._pin = flags[end], held[end], pins[end]
-        self._released = np.where(held[end, :, None], held_offset[end], released[end])
-        self._since = np.where(held[end], 0, since[end])
-        return (paths + offset)[:ready], weight[:ready]
 
     def _solve(self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Rigid feet on or above the floor, then two-bone IK, both legs at once: each frame on
@@ -292,7 +232,7 @@ def push_together(
     contacts and targets on its own, then the legs of all their final frames solved in one
     pass (the same numbers as one push each: frames never mix)."""
     out: list = [None] * len(planters)
-    taken, ks = [], []
+    alike: dict[tuple, list[int]] = {}  # planters by frames buffered and taken, and settings
     for k, (planter, rows, positions) in enumerate(zip(planters, features, joints, strict=True)):
         if not len(rows):  # no row in, none out (the last push kept just the lookahead): a
             # stream pushes nothing on 7 of every 8 token steps
@@ -300,8 +240,14 @@ def push_together(
             out[k] = planter._features[:0], np.zeros(shape, np.float32)
             continue
         planter._buffer(rows, positions)
-        taken.append(planter._take(max(0, len(planter._joints) - planter.lookahead)))
-        ks.append(k)
+        n = len(planter._joints)
+        ready = max(0, n - planter.lookahead)
+        key = (n, ready, planter.window, planter.hold_step, planter.body_step)
+        alike.setdefault(key, []).append(k)
+    taken, ks = [], []
+    for (_, ready, *_), members in alike.items():
+        taken += _take_together([planters[k] for k in members], ready)
+        ks += members
     if ks:
         cuts = np.cumsum([len(t[1]) for t in taken])[:-1]
         legs = (np.concatenate([t[i] for t in taken]) for i in (1, 2, 3))
@@ -309,6 +255,101 @@ def push_together(
         for k, t, solved_joints in zip(ks, taken, solved, strict=True):
             out[k] = t[0], solved_joints.astype(np.float32)
     return out
+
+
+def _take_together(planters: Sequence[FootPlanter], ready: int) -> list[tuple[np.ndarray, ...]]:
+    """The first `ready` buffered frames of each planter (all with as many buffered, and one
+    window, hold step and body step) out of its buffer, its state moved past them: their
+    features, joints, and their contact joints' targets and planted weights."""
+    first = planters[0]
+    joints = np.stack([p._joints for p in planters])  # (B, n, J, 3): the body as decoded,
+    if first.body_step != np.inf:  # unless a body step is asked for
+        joints = joints + np.stack([p._shifts(ready) for p in planters])[:, :, None]
+    buffered = np.stack([p._features for p in planters])  # (B, n, D)
+    targets, weights = _targets_together(
+        planters, _flags(first, buffered), joints[:, :, first.contacts], ready
+    )
+    taken = []
+    for b, planter in enumerate(planters):
+        taken.append((planter._features[:ready], joints[b, :ready], targets[b], weights[b]))
+        planter._features, planter._joints = planter._features[ready:], planter._joints[ready:]
+    return taken
+
+
+def _flags(planter: FootPlanter, features: np.ndarray) -> np.ndarray:
+    """(B, n, 4) contacts of buffered frames (B, n, D): the channel says so and the decoded
+    joint steps less than the hold step (a swinging foot the channel calls planted is not held:
+    holding it squeezes its stride into the frames before the next contact, docs/feet.md)."""
+    speed = np.sum(features[..., planter._velocity].astype(np.float64) ** 2, -1)
+    return (features[..., -4:] > CONTACT) & (speed < planter.hold_step**2)
+
+
+def _targets_together(
+    planters: Sequence[FootPlanter], flags: np.ndarray, paths: np.ndarray, ready: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Targets (B, ready, 4, 3) and planted weights (B, ready, 4) of the contact joints in the
+    first `ready` buffered frames of each planter, from their flags (B, n, 4) and paths
+    (B, n, 4, 3); each planter's state moved past them. Elementwise per planter: the numbers
+    of one planter at a time."""
+    B, n = flags.shape[:2]
+    if not ready:
+        return np.zeros((B, 0, 4, 3)), np.zeros((B, 0, 4))
+    frames, bs, ks = np.arange(n)[:, None], np.arange(B)[:, None, None], np.arange(4)
+    blend_in = planters[0].window.blend_in
+    last_flag, last_held, last_since = (
+        np.stack([getattr(p, a) for p in planters]) for a in ("_flag", "_held", "_since")
+    )
+    held = flags | np.concatenate([last_flag[:, None], flags[:, :-1]], 1)
+    starts = held & ~np.concatenate([last_held[:, None], held[:, :-1]], 1)
+    pins = _pins(planters, held, starts[:, : ready + blend_in], paths)
+    run = np.maximum.accumulate(np.where(starts, frames, -1), axis=1)  # its start
+    pins = np.where((run >= 0)[..., None], pins[bs, np.maximum(run, 0), ks], pins)
+    held_offset = _offset(pins, paths)  # meaningful where held
+    last = np.maximum.accumulate(np.where(held, frames, -1), axis=1)  # last held frame
+    last = np.concatenate([np.full((B, 1, 4), -1), last[:, :-1]], 1)  # ... before this one
+    since = np.where(last >= 0, frames - last, last_since[:, None] + frames + 1)
+    released = np.where(
+        (last >= 0)[..., None],
+        held_offset[bs, np.maximum(last, 0), ks],
+        np.stack([p._released for p in planters])[:, None],
+    )
+    out = _ease(1.0 - since / (BLEND_OUT + 1))
+    upcoming = np.minimum.accumulate(np.where(flags, frames, n)[:, ::-1], axis=1)[:, ::-1]
+    following = np.concatenate([upcoming[:, 1:], np.full((B, 1, 4), n)], 1)  # first flag after
+    into = np.where(following < n, _ease(1.0 - (following - frames) / (blend_in + 1)), 0.0)
+    start_offset = held_offset[bs, np.minimum(following, n - 1), ks]
+    offset = out[..., None] * released + into[..., None] * start_offset
+    weight = out + into
+    offset /= np.maximum(weight, 1.0)[..., None]  # contacts close together share frames
+    offset = np.where(held[..., None], held_offset, offset)
+    weight = np.where(held, 1.0, np.minimum(weight, 1.0))
+    end = ready - 1  # the state after the last frame out
+    for b, p in enumerate(planters):
+        p._flag, p._held, p._pin = flags[b, end], held[b, end], pins[b, end]
+        p._released = np.where(held[b, end, :, None], held_offset[b, end], released[b, end])
+        p._since = np.where(held[b, end], 0, since[b, end])
+    return (paths + offset)[:, :ready], weight[:, :ready]
+
+
+def _pins(
+    planters: Sequence[FootPlanter], held: np.ndarray, starts: np.ndarray, paths: np.ndarray
+) -> np.ndarray:
+    """(B, n, 4, 3) each planter's pin before its frames, and at each contact's start frame
+    (`starts`, the first frames of `held`) the mean position over the contact's first frames
+    (at most the window's pin_frames), summed in frame order as numpy's mean does."""
+    n = held.shape[1]
+    pins = np.repeat(np.stack([p._pin for p in planters])[:, None], n, 1)
+    b, i, k = np.nonzero(starts)
+    idx = i[:, None] + np.arange(planters[0].window.pin_frames)  # (S, P)
+    inside = idx < n
+    idx = np.minimum(idx, n - 1)
+    run = np.logical_and.accumulate(held[b[:, None], idx, k[:, None]] & inside, axis=1)
+    window = paths[b[:, None], idx, k[:, None]]  # (S, P, 3)
+    total = window[:, 0]
+    for j in range(1, window.shape[1]):
+        total = np.where(run[:, j, None], total + window[:, j], total)
+    pins[b, i, k] = total / run.sum(1)[:, None]
+    return pins
 
 
 def _ease(x: np.ndarray) -> np.ndarray:
