@@ -228,9 +228,9 @@ class FootPlanter:
 def push_together(
     planters: Sequence[FootPlanter], features: Sequence[np.ndarray], joints: Sequence[np.ndarray]
 ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """FootPlanter.push of many planters of one skeleton (the server's round): each one's
-    contacts and targets on its own, then the legs of all their final frames solved in one
-    pass (the same numbers as one push each: frames never mix)."""
+    """FootPlanter.push of many planters of one skeleton (the server's round): the contacts
+    and targets of those with as many frames buffered in one pass, then the legs of all their
+    final frames in one pass (the same numbers as one push each: frames never mix)."""
     out: list = [None] * len(planters)
     alike: dict[tuple, list[int]] = {}  # planters by frames buffered and taken, and settings
     for k, (planter, rows, positions) in enumerate(zip(planters, features, joints, strict=True)):
