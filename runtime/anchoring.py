@@ -148,8 +148,8 @@ class Anchor:
         if self.one_off:
             if self._tokens.steps >= self.one_off_steps:
                 self._hold()
-        elif self._tokens.steps >= self.anchoring.span:
-            self._reanchor(self.anchoring.still_keep if self.still else None)
+        elif self._tokens.steps >= self.anchoring.span:  # its cache made with the round's
+            self._reanchor(self.anchoring.still_keep if self.still else None, prefill=False)
         return row
 
     def kind(self, text: str) -> None:
@@ -173,7 +173,11 @@ class Anchor:
         self.anchors += 1
         self.fresh += 1
 
-    def _reanchor(self, keep: int | None = None, embedding: np.ndarray | None = None) -> None:
-        """A fresh clip from the last `keep` steps, under `embedding` where given."""
-        self._tokens.continue_from(self.recent[-(keep or self.anchoring.keep) :], embedding)
+    def _reanchor(
+        self, keep: int | None = None, embedding: np.ndarray | None = None, prefill: bool = True
+    ) -> None:
+        """A fresh clip from the last `keep` steps, under `embedding` where given (prefill:
+        TokenStream.continue_from's)."""
+        recent = self.recent[-(keep or self.anchoring.keep) :]
+        self._tokens.continue_from(recent, embedding, prefill)
         self.anchors += 1

@@ -54,7 +54,13 @@ from mogo.stream_state import StateError
 from mogo.stream_state import read as read_state
 from mogo.stream_state import write as write_state
 from mogo.text_side import TextSide
-from mogo.token_generator import Stopped, TokenGenerator, TokenStream, step_together
+from mogo.token_generator import (
+    Stopped,
+    TokenGenerator,
+    TokenStream,
+    prefill_together,
+    step_together,
+)
 
 DEFAULT_BUNDLE = Path(__file__).parent / "default_bundle"
 MAX_THREADS = 256  # more cores than a CPU has: beyond, the thread pools alone exhaust memory
@@ -766,10 +772,12 @@ def drawn_together(streams: Sequence[MotionStream]) -> list[np.ndarray]:
         rows[k] = row
     for s in streams:
         s.steps += 1
-    return [
+    rows = [
         row if s.anchor is None else s.anchor.after(row)
         for s, row in zip(streams, rows, strict=True)
     ]
+    prefill_together([s.tokens for s in streams if s.tokens.unfilled])  # the re-anchored
+    return rows
 
 
 def emit_together(

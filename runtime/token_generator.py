@@ -304,10 +304,17 @@ class TokenStream:
         if len(self.positions):  # before the first step there is nothing cached yet
             self._prefill()
 
-    def continue_from(self, tokens: np.ndarray, prompt_embedding: np.ndarray | None = None) -> None:
+    def continue_from(
+        self,
+        tokens: np.ndarray,
+        prompt_embedding: np.ndarray | None = None,
+        prefill: bool = True,
+    ) -> None:
         """Take `tokens` (n, L) as the steps drawn so far (a clip to continue), in place of
         anything drawn before: the next step is step n, seeing them as its past; under
-        `prompt_embedding` where given (a switch that re-anchors: one prefill, not two)."""
+        `prompt_embedding` where given (a switch that re-anchors: one prefill, not two).
+        prefill=False leaves the cache to `prefill_together` before the next step (a round's
+        re-anchors share its calls)."""
         tokens = np.asarray(tokens, np.int64)
         L = self.generator.num_levels
         if tokens.ndim != 2 or tokens.shape[1] != L or len(tokens) == 0:
@@ -322,7 +329,9 @@ class TokenStream:
         self._oldest = 1
         if prompt_embedding is not None:
             self.prompt = self._batch(prompt_embedding)
-        self._prefill()
+        self.unfilled = True
+        if prefill:
+            prefill_together([self])
 
     def restart(self) -> None:
         """Forget every step drawn (not the random state): the next step is step 0 of a fresh
@@ -335,6 +344,7 @@ class TokenStream:
         self.ended = False
         self._oldest = 1  # with a full window: the slot the next step overwrites
         self.prefilled = 0  # leading slots the last prefill made (the others: one step each)
+        self.unfilled = False  # slots set by continue_from, their cache not yet made
         self._keep(None)
 
     def _keep(self, caches: list[Cache] | None) -> None:
@@ -359,24 +369,11 @@ class TokenStream:
         """Recompute every level's cache for the held slots under the current prompt."""
         self._keep(self._prefilled())
         self.prefilled = len(self.positions)
+        self.unfilled = False
 
     def _prefilled(self) -> list[Cache]:
         """Every level's cache for the held slots under the current prompt, computed."""
-        g = self.generator
-        token_ids = np.repeat(self.slot_tokens[None], len(self.uncond), axis=0)
-        none = np.zeros(0, np.int64)
-        outputs = g.each_level(
-            lambda level: g.run(
-                level,
-                self.prompt,
-                self.uncond,
-                token_ids,
-                self.positions,
-                none,
-                g.empty_cache(level, len(self.uncond)),
-            )
-        )
-        return [present for _, present in outputs]
+        return _prefilled_together([self])[0]
 
     def rebuild(self) -> None:
         """The cache of the held slots made again as it was made (a resumed stream,
@@ -453,6 +450,47 @@ def step_together(streams: Sequence[TokenStream]) -> list[np.ndarray | None]:
         for k, row in zip(ks, _step_pooled([streams[k] for k in ks]), strict=True):
             drawn[k] = row
     return drawn
+
+
+def prefill_together(streams: Sequence[TokenStream]) -> None:
+    """Each stream's cache made for its held slots under its prompt (`TokenStream._prefill`):
+    streams on pooled graphs with the same slots in one call of each level graph (rows never
+    mix there), any other alone (the bundle's graphs quantise a call's rows together)."""
+    alike: dict[tuple, list[TokenStream]] = {}
+    for s in streams:
+        pooled = s.generator.pool is not None
+        key = (id(s.generator), s.positions.tobytes()) if pooled else (id(s),)
+        alike.setdefault(key, []).append(s)
+    for group in alike.values():
+        for s, caches in zip(group, _prefilled_together(group), strict=True):
+            s._keep(caches)
+            s.prefilled, s.unfilled = len(s.positions), False
+
+
+def _prefilled_together(streams: list[TokenStream]) -> list[list[Cache]]:
+    """Every level's cache for the held slots (the same for all) of each stream under its
+    prompt, computed in one call of each level graph: each stream's rows of the presents."""
+    g, positions = streams[0].generator, streams[0].positions
+    token_ids = np.concatenate(
+        [np.repeat(s.slot_tokens[None], len(s.uncond), axis=0) for s in streams]
+    )
+    rows = len(token_ids)
+    outputs = g.each_level(
+        lambda level: g.run(
+            level,
+            np.concatenate([s.prompt for s in streams]),
+            np.concatenate([s.uncond for s in streams]),
+            token_ids,
+            positions,
+            np.zeros(0, np.int64),
+            g.empty_cache(level, rows),
+        )
+    )
+    cuts = np.cumsum([len(s.uncond) for s in streams])
+    return [
+        [[present[cut - len(s.uncond) : cut] for present in presents] for _, presents in outputs]
+        for s, cut in zip(streams, cuts, strict=True)
+    ]
 
 
 def _level_logits(g: TokenGenerator, outputs: list[tuple]) -> np.ndarray:

@@ -6,7 +6,7 @@ clips the model ends starting afresh, one-off prompts settling into the hold."""
 import numpy as np
 import pytest
 
-from mogo import Anchoring, MotionGenerator
+from mogo import Anchoring, MotionGenerator, token_generator
 from mogo.anchoring import settles
 from mogo.motion.features import facing_directions
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
@@ -76,12 +76,22 @@ def test_a_re_anchored_stream_holds_at_most_its_span(generator):
         assert len(stream.anchor.recent) == min(SMALL.keep, held.steps)
 
 
-def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
+def counted_prefills(monkeypatch) -> list:
+    """Each cache prefill computed from now on (mogo.token_generator), appended."""
+    prefills, compute = [], token_generator._prefilled_together
+    monkeypatch.setattr(
+        token_generator,
+        "_prefilled_together",
+        lambda streams: prefills.append(streams) or compute(streams),
+    )
+    return prefills
+
+
+def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator, monkeypatch):
     stream = generator.stream("a person walks forward.", seed=2, anchoring=SMALL)
     stream.advance(13)
     before = stream.anchor.anchors
-    prefills = []
-    stream.tokens._prefill = lambda prefill=stream.tokens._prefill: prefills.append(prefill())
+    prefills = counted_prefills(monkeypatch)
     stream.set_prompt("a person waves with the right hand.")
     assert stream.anchor.anchors == before + 1
     assert len(prefills) == 1  # the cache made for the kept steps only, under the new prompt
@@ -90,11 +100,10 @@ def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator):
     assert np.array_equal(recent, stream.finish().tokens[13 - SMALL.keep : 13])
 
 
-def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator):
+def test_a_one_off_prompt_settles_into_a_fresh_clip_of_the_hold(generator, monkeypatch):
     stream = generator.stream("a person bows.", seed=0, anchoring=SMALL)
     assert stream.anchor.one_off and stream.tokens.allow_end and not stream.anchor.holding
-    prefills = []
-    stream.tokens._prefill = lambda prefill=stream.tokens._prefill: prefills.append(prefill())
+    prefills = counted_prefills(monkeypatch)
     while not stream.anchor.holding and stream.steps <= stream.anchor.one_off_steps:
         before = len(prefills)
         stream.advance(1)

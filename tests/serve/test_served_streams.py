@@ -7,8 +7,8 @@ import pytest
 
 pytest.importorskip("onnx")
 
+from mogo import Anchoring, kv_pool, token_generator
 from mogo import generator as generator_module
-from mogo import kv_pool
 from mogo.serve import engine as engine_module
 from mogo.serve.engine import Engine
 from mogo.token_generator import TokenGenerator, TokenStream, step_together
@@ -246,6 +246,29 @@ def test_clips_ending_in_one_round_start_again_in_one_call(generator, engine_par
     assert all(s.anchor.fresh == 1 for s in streams)
     for level in range(generator.tokens.num_levels):  # the round's rows, then the 3 firsts
         assert [at for lv, at in calls if lv == level] == [(6, 6, 6), (0, 0, 0)]
+
+
+def test_streams_re_anchored_in_one_round_prefill_in_one_call(generator, engine_parts, monkeypatch):
+    """Streams that reach their anchoring span in the same round make their fresh clips'
+    caches in one shared prefill, not one each (what they draw then: the test above)."""
+    anchoring = Anchoring()
+    engine = Engine(generator, 1, tokens=engine_parts)
+    sampling = generator.sampling(None)
+    streams = [engine.open("a person walks forward.", k, sampling, 0.0) for k in range(3)]
+    for stream in streams:
+        stream.tokens.allow_end = False  # no clip ends first
+    for _ in range(anchoring.span - 1):
+        engine.round(streams)
+    prefills: list[int] = []
+    compute = token_generator._prefilled_together
+    monkeypatch.setattr(
+        token_generator,
+        "_prefilled_together",
+        lambda group: prefills.append(len(group)) or compute(group),
+    )
+    engine.round(streams)
+    assert [s.tokens.steps for s in streams] == [anchoring.keep] * 3  # each re-anchored
+    assert prefills == [3]
 
 
 @pytest.mark.parametrize("window", [8, None], ids=["ring-window", "no-window"])
