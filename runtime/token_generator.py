@@ -331,7 +331,7 @@ class TokenStream:
             self.prompt = self._batch(prompt_embedding)
         self.unfilled = True
         if prefill:
-            prefill_together([self])
+            self._prefill()
 
     def restart(self) -> None:
         """Forget every step drawn (not the random state): the next step is step 0 of a fresh
@@ -367,9 +367,7 @@ class TokenStream:
 
     def _prefill(self) -> None:
         """Recompute every level's cache for the held slots under the current prompt."""
-        self._keep(self._prefilled())
-        self.prefilled = len(self.positions)
-        self.unfilled = False
+        prefill_together([self])
 
     def _prefilled(self) -> list[Cache]:
         """Every level's cache for the held slots under the current prompt, computed."""
