@@ -53,6 +53,19 @@ def _cmd_bench_serve(args: argparse.Namespace) -> None:
     main_from_args(args)
 
 
+def _cmd_avx2(args: argparse.Namespace) -> None:
+    from mogo.bench.speed.avx2_only import Unavailable, run
+    from mogo.bench.speed.quick import cpu
+
+    if not args.command:
+        raise CliError("mogo bench avx2 needs a command, e.g. mogo bench avx2 mogo bench quick")
+    try:
+        status = run(args.command, cpu()[1])
+    except Unavailable as why:
+        raise CliError(str(why)) from None
+    raise SystemExit(status)
+
+
 def _cmd_deploy(args: argparse.Namespace) -> None:
     from mogo.serve.cli import require_serve_extra
 
@@ -184,6 +197,14 @@ def _latency_arguments(bench: argparse.ArgumentParser) -> None:
         "--smoke",
         action="store_true",
         help="a smoke run: tiny model, few lengths and rounds (for tests)",
+    )
+
+
+def _avx2_arguments(avx2: argparse.ArgumentParser) -> None:
+    avx2.add_argument(
+        "command",
+        nargs=argparse.REMAINDER,
+        help="the command and its arguments, e.g. mogo bench serve --engine-only",
     )
 
 
@@ -415,6 +436,13 @@ WHATS = (  # name, its arguments, what runs it, its help line
         _cmd_deploy,
         "the cost of resuming a stream (docs/deploy.md), and characters in real time "
         "against `mogo serve --workers`",
+    ),
+    (
+        "avx2",
+        _avx2_arguments,
+        _cmd_avx2,
+        "run a command as on a CPU with AVX2 but no AVX-512, AVX-VNNI or AMX (onnxruntime's "
+        "and numpy's AVX2 kernels; Linux x86-64 with CPUID faulting, and a C compiler)",
     ),
     (
         "long-streams",

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import onnxruntime
 
+from mogo.bench.speed import avx2_only
 from mogo.bench.speed.timing import interleaved, log
 from mogo.generator import DEFAULT_BUNDLE, MotionGenerator
 from mogo.motion.skeleton import MAX_FRAMES
@@ -42,7 +43,8 @@ ROUNDS, BUDGET_S = 7, 10.0  # a round past the budget only if fewer than 3 ran
 
 
 def cpu() -> tuple[str, set[str] | None]:
-    """The CPU's model name and its /proc/cpuinfo flags (None where there is no such file)."""
+    """The CPU's model name and its /proc/cpuinfo flags (None where there is no such file),
+    less those `mogo bench avx2` hides where it runs this process."""
     try:
         with open("/proc/cpuinfo") as info:
             lines = [line.split(":", 1) for line in info if ":" in line]
@@ -52,7 +54,12 @@ def cpu() -> tuple[str, set[str] | None]:
     for key, value in lines:  # the first processor's
         fields.setdefault(key.strip(), value.strip())
     model = fields.get("model name") or fields.get("Model") or platform.machine()
-    return model, set((fields.get("flags") or fields.get("Features") or "").split())
+    flags = set((fields.get("flags") or fields.get("Features") or "").split())
+    if avx2_only.masked():
+        return f"{model} (AVX-512, AVX-VNNI and AMX hidden)", {
+            f for f in flags if not avx2_only.hidden(f)
+        }
+    return model, flags
 
 
 def features_line(flags: set[str] | None) -> str:
