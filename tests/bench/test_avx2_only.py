@@ -1,9 +1,13 @@
-"""`mogo bench avx2`: a command run as on a CPU with AVX2 alone. Where this machine cannot hide
-its features (no CPUID faulting, no C compiler, not x86-64 Linux) the runs are skipped; where
+"""`mogo bench avx2`: a command run as on a CPU with AVX2 alone, and what the suite proves with
+it: the golden contract and the served streams' tokens hold on onnxruntime's AVX2 kernels,
+those of the machines where the byte-pinned tests of old failed. Where this machine cannot
+hide its features (no CPUID faulting, no C compiler, not x86-64 Linux) these runs skip; where
 it has AVX-512 VNNI, the hiding must change which kernels onnxruntime picks."""
 
+import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -11,6 +15,7 @@ from mogo.bench.speed import avx2_only
 from mogo.bench.speed.quick import cpu
 
 FLAGS = cpu()[1]
+TESTS = Path(__file__).resolve().parents[1]
 
 
 def _unavailable() -> str | None:
@@ -90,3 +95,31 @@ def test_an_unfit_machine_is_named():
     if sys.platform == "linux" and avx2_only.platform.machine() == "x86_64":
         with pytest.raises(avx2_only.Unavailable, match="CPUID faulting"):
             avx2_only.check_machine({"avx2"})
+
+
+def _pytest_on_avx2_kernels(*tests: str) -> str:
+    """pytest on `tests` (node ids under tests/) in a process that sees AVX2 alone; its output.
+    pytest's faulthandler would take SIGSEGV, which the mask answers CPUID with."""
+    command = [sys.executable, "-m", "pytest", *(str(TESTS / test) for test in tests)]
+    command += ["-q", "-rs", "--full", "-p", "no:cacheprovider", "-p", "no:faulthandler"]
+    done = _mogo(*command)
+    return done.stdout + done.stderr
+
+
+@needs_mask
+def test_the_golden_contract_holds_on_avx2_kernels():
+    output = _pytest_on_avx2_kernels(
+        "runtime/test_golden.py::test_the_case_keeps_the_determinism_contract"
+    )
+    cases = len(json.loads((TESTS / "runtime" / "golden.json").read_text())["cases"])
+    assert f"{cases} passed" in output and "failed" not in output, output[-3000:]
+
+
+@needs_mask
+def test_served_streams_draw_mogo_streams_tokens_on_avx2_kernels():
+    """Where AVX2's uint8 x int8 products saturate, the server keeps uint8 weights: its row-wise
+    graphs on them, stepping streams together, still draw `mogo stream`'s tokens."""
+    output = _pytest_on_avx2_kernels(
+        "serve/test_served_streams.py::test_served_streams_draw_the_tokens_of_mogo_stream"
+    )
+    assert "2 passed" in output and "failed" not in output, output[-3000:]

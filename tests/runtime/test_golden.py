@@ -450,40 +450,6 @@ def test_the_contract_holds_on_sse4_kernels():
     assert result.returncode == 0 and "1 passed" in result.stdout, result.stdout[-3000:]
 
 
-def _no_avx2_mask() -> str | None:
-    """Why `mogo bench avx2` cannot run here, or None."""
-    from mogo.bench.speed import avx2_only
-    from mogo.bench.speed.quick import cpu
-
-    try:
-        avx2_only.check_machine(cpu()[1])
-    except avx2_only.Unavailable as why:
-        return str(why)
-    return None
-
-
-@pytest.mark.skipif(os.environ.get("MOGO_GOLDEN_EMULATED") == "1", reason="already emulated")
-@pytest.mark.skipif(_no_avx2_mask() is not None, reason=f"no AVX2 mask: {_no_avx2_mask()}")
-def test_the_contract_holds_on_avx2_kernels():
-    """Every case replayed with this CPU's AVX-512, AVX-VNNI and AMX hidden (`mogo bench
-    avx2`): onnxruntime's and numpy's AVX2 kernels, those of the machines where the byte-pinned
-    tests of old failed, at native speed."""
-    test = f"{__file__}::test_the_case_keeps_the_determinism_contract"
-    command = [sys.executable, "-m", "mogo", "bench", "avx2", sys.executable, "-m", "pytest"]
-    command += [test, "-q", "-p", "no:cacheprovider", "-p", "no:faulthandler"]
-    result = subprocess.run(
-        command,
-        capture_output=True,
-        text=True,
-        timeout=900,
-        env={**os.environ, "MOGO_GOLDEN_EMULATED": "1"},
-        cwd=HERE.parent.parent,
-    )
-    assert result.returncode == 0 and f"{len(RECORDED['cases'])} passed" in result.stdout, (
-        result.stdout[-3000:] + result.stderr[-2000:]
-    )
-
-
 def logit_noise(output: str, against: str | None) -> None:
     """Every replayed draw's conditional logits into `output` (.npz); with `against` (such a
     file from another machine), the largest difference between the two, per scenario."""
