@@ -3,9 +3,11 @@ AMX, so that onnxruntime's and numpy's AVX2 kernels can be timed on a machine th
 a CPU with AVX-512 (VNNI) runs the bundle's int8 graphs on other kernels, and users deploy on
 both. The process and its children see the masked CPUID (avx2_only.c, compiled here with the
 system's C compiler and loaded with LD_PRELOAD); the core is still this machine's, so compare
-ratios measured on it, not milliseconds with a real AVX2-only CPU's. Linux on x86-64 only,
-with CPUID faulting (`cpuid_fault` in /proc/cpuinfo: most Intel CPUs since 2012 and their
-VMs; AMD's since Zen 3, where the hypervisor passes it on)."""
+ratios measured on it, not milliseconds with a real AVX2-only CPU's. Programs with SIGSEGV
+handlers of their own (Python's faulthandler, Node) run under it: the shim keeps theirs aside
+and passes them every real fault. Linux on x86-64 only, with CPUID faulting (`cpuid_fault` in
+/proc/cpuinfo; Intel CPUs have it since Ivy Bridge, in a VM where the hypervisor passes it
+on)."""
 
 from __future__ import annotations
 

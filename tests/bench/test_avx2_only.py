@@ -74,9 +74,15 @@ def test_children_are_masked_too_and_their_status_comes_back():
 
 
 @needs_mask
-def test_a_real_crash_still_crashes():
-    crashed = _mogo(sys.executable, "-c", "import ctypes; ctypes.string_at(0)")
-    assert crashed.returncode == 128 + 11  # SIGSEGV, not swallowed by the CPUID handler
+def test_a_real_crash_still_crashes_and_the_programs_own_handler_sees_it():
+    crash = "import ctypes; ctypes.string_at(0)"
+    assert _mogo(sys.executable, "-c", crash).returncode == 128 + 11  # not swallowed
+    # faulthandler's SIGSEGV handler, set before onnxruntime reads CPUID: kept aside, it
+    # still reports the real fault, and the CPUID reads after it are answered
+    reported = _mogo(sys.executable, "-X", "faulthandler", "-c", f"import onnxruntime; {crash}")
+    assert reported.returncode == 128 + 11 and "Fatal Python error: Segmentation fault" in (
+        reported.stderr
+    )
 
 
 def test_bad_use_is_one_line():
@@ -98,10 +104,10 @@ def test_an_unfit_machine_is_named():
 
 
 def _pytest_on_avx2_kernels(*tests: str) -> str:
-    """pytest on `tests` (node ids under tests/) in a process that sees AVX2 alone; its output.
-    pytest's faulthandler would take SIGSEGV, which the mask answers CPUID with."""
+    """pytest on `tests` (node ids under tests/) in a process that sees AVX2 alone (its
+    faulthandler's SIGSEGV handler kept aside by the shim); its output."""
     command = [sys.executable, "-m", "pytest", *(str(TESTS / test) for test in tests)]
-    command += ["-q", "-rs", "--full", "-p", "no:cacheprovider", "-p", "no:faulthandler"]
+    command += ["-q", "-rs", "--full", "-p", "no:cacheprovider"]
     done = _mogo(*command)
     return done.stdout + done.stderr
 
@@ -122,4 +128,6 @@ def test_served_streams_draw_mogo_streams_tokens_on_avx2_kernels():
     output = _pytest_on_avx2_kernels(
         "serve/test_served_streams.py::test_served_streams_draw_the_tokens_of_mogo_stream"
     )
-    assert "2 passed" in output and "failed" not in output, output[-3000:]
+    assert " passed" in output and "failed" not in output and "skipped" not in output, output[
+        -3000:
+    ]
