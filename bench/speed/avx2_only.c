@@ -94,7 +94,9 @@ static void hide(unsigned leaf, unsigned sub, unsigned *a, unsigned *b, unsigned
 static void on_segv(int signal_number, siginfo_t *info, void *context) {
     greg_t *r = ((ucontext_t *)context)->uc_mcontext.gregs;
     const uint8_t *at = (const uint8_t *)r[REG_RIP];
-    if (at[0] != 0x0f || at[1] != 0xa2) { /* not CPUID: a real fault, or one raised */
+    /* a faulted CPUID comes as SI_KERNEL (a general protection fault) with RIP on it; a page
+     * fault (RIP may not be readable) or a raised SIGSEGV is the program's */
+    if (info->si_code != SI_KERNEL || at[0] != 0x0f || at[1] != 0xa2) {
         pass_on(signal_number, info, context);
         return;
     }
