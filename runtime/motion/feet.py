@@ -172,7 +172,7 @@ class FootPlanter:
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """The remaining rows (the clip ends: no lookahead past them)."""
         features, joints, targets, weights = _take_together([self], len(self._joints))[0]
-        return features, self._solve(joints, targets, weights).astype(np.float32)
+        return features, self._solve(joints, targets, weights)
 
     def _buffer(self, features: np.ndarray, joints: np.ndarray) -> None:
         self._features = np.concatenate([self._features, features])
@@ -199,7 +199,8 @@ class FootPlanter:
 
     def _solve(self, joints: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Rigid feet on or above the floor, then two-bone IK, both legs at once: each frame on
-        its own (so frames of many planters of one skeleton can be solved together)."""
+        its own (so frames of many planters of one skeleton can be solved together); the
+        joints out float32, as a stream hands them on."""
         lengths = np.broadcast_to(self._lengths, (len(joints), 3))
         out = joints.copy()
         hip, knee, ankle, toe = self.legs.T  # each (2,): left, right
@@ -222,7 +223,7 @@ class FootPlanter:
             joints[:, hip], a, joints[:, knee] + forward[:, None], thigh, shin
         )
         out[:, toe] = out[:, ankle] + foot * along
-        return out
+        return out.astype(np.float32)
 
 
 def push_together(
@@ -253,7 +254,7 @@ def push_together(
         legs = (np.concatenate([t[i] for t in taken]) for i in (1, 2, 3))
         solved = np.split(planters[ks[0]]._solve(*legs), cuts)
         for k, t, solved_joints in zip(ks, taken, solved, strict=True):
-            out[k] = t[0], solved_joints.astype(np.float32)
+            out[k] = t[0], solved_joints
     return out
 
 
