@@ -57,10 +57,11 @@ def _cmd_avx2(args: argparse.Namespace) -> None:
     from mogo.bench.speed.avx2_only import Unavailable, run
     from mogo.bench.speed.quick import cpu
 
-    if not args.command:
+    command = args.command[1:] if args.command[:1] == ["--"] else args.command
+    if not command:
         raise CliError("mogo bench avx2 needs a command, e.g. mogo bench avx2 mogo bench quick")
     try:
-        status = run(args.command, cpu()[1])
+        status = run(command, cpu()[1])
     except Unavailable as why:
         raise CliError(str(why)) from None
     raise SystemExit(status)

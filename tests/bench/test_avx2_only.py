@@ -64,6 +64,12 @@ def test_the_command_sees_avx2_alone_and_onnxruntime_takes_other_kernels():
 
 
 @needs_mask
+def test_a_double_dash_ends_its_own_options():
+    done = _mogo("--", sys.executable, "-c", "print('ran')")
+    assert done.returncode == 0 and done.stdout == "ran\n", done.stderr
+
+
+@needs_mask
 def test_children_are_masked_too_and_their_status_comes_back():
     child = "import subprocess, sys; sys.exit(subprocess.run([sys.executable, '-c', sys.argv[1]]).returncode)"
     inner = (
@@ -86,8 +92,12 @@ def test_a_real_crash_still_crashes_and_the_programs_own_handler_sees_it():
 
 
 def test_bad_use_is_one_line():
-    for args, says in [((), "needs a command"), (("no-such-command-here",), "no such command")]:
-        if args and _unavailable():  # the machine is checked first
+    for args, says in [
+        ((), "needs a command"),
+        (("--",), "needs a command"),
+        (("no-such-command-here",), "no such command"),
+    ]:
+        if says == "no such command" and _unavailable():  # the machine is checked first
             says = _unavailable()
         done = _mogo(*args)
         assert done.returncode == 2
