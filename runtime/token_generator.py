@@ -369,10 +369,6 @@ class TokenStream:
         """Recompute every level's cache for the held slots under the current prompt."""
         prefill_together([self])
 
-    def _prefilled(self) -> list[Cache]:
-        """Every level's cache for the held slots under the current prompt, computed."""
-        return _prefilled_together([self])[0]
-
     def rebuild(self) -> None:
         """The cache of the held slots made again as it was made (a resumed stream,
         mogo.stream_state): the prefill of the first `prefilled`, then one step for each slot
@@ -384,7 +380,7 @@ class TokenStream:
         self.positions, self.slot_tokens = positions[:made], tokens[:made]
         rows = len(self.uncond)
         caches = (
-            self._prefilled()
+            _prefilled_together([self])[0]
             if made
             else [g.empty_cache(level, rows) for level in range(g.num_levels)]
         )
