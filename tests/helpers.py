@@ -1,5 +1,6 @@
 """Plain helpers the tests share (fixtures are in conftest.py): tiny data, clips, training-run
-records and the two-process runner. Importable as `helpers` from any test folder."""
+records, the two-process runner and a prefill counter. Importable as `helpers` from any test
+folder."""
 
 import contextlib
 import json
@@ -192,3 +193,17 @@ def _answers(url: str) -> bool:
             return True
     except OSError:
         return False
+
+
+def counted_prefills(monkeypatch) -> list:
+    """Each cache prefill computed from now on (mogo.token_generator): the streams of each
+    call, appended."""
+    from mogo import token_generator
+
+    prefills, compute = [], token_generator._prefilled_together
+    monkeypatch.setattr(
+        token_generator,
+        "_prefilled_together",
+        lambda streams: prefills.append(streams) or compute(streams),
+    )
+    return prefills

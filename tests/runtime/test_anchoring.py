@@ -6,7 +6,8 @@ clips the model ends starting afresh, one-off prompts settling into the hold."""
 import numpy as np
 import pytest
 
-from mogo import Anchoring, MotionGenerator, token_generator
+from helpers import counted_prefills
+from mogo import Anchoring, MotionGenerator
 from mogo.anchoring import settles
 from mogo.motion.features import facing_directions
 from mogo.motion.feet import LOOKAHEAD as FEET_LOOKAHEAD
@@ -74,17 +75,6 @@ def test_a_re_anchored_stream_holds_at_most_its_span(generator):
         assert len(held.positions) <= SMALL.span + 1 and held.positions.max() < SMALL.span
         assert all(cache.shape[2] <= SMALL.span + 1 for level in held.caches for cache in level)
         assert len(stream.anchor.recent) == min(SMALL.keep, held.steps)
-
-
-def counted_prefills(monkeypatch) -> list:
-    """Each cache prefill computed from now on (mogo.token_generator), appended."""
-    prefills, compute = [], token_generator._prefilled_together
-    monkeypatch.setattr(
-        token_generator,
-        "_prefilled_together",
-        lambda streams: prefills.append(streams) or compute(streams),
-    )
-    return prefills
 
 
 def test_a_switch_re_anchors_at_once_under_the_new_prompt(generator, monkeypatch):

@@ -7,7 +7,8 @@ import pytest
 
 pytest.importorskip("onnx")
 
-from mogo import Anchoring, kv_pool, token_generator
+from helpers import counted_prefills
+from mogo import Anchoring, kv_pool
 from mogo import generator as generator_module
 from mogo.serve import engine as engine_module
 from mogo.serve.engine import Engine
@@ -259,16 +260,10 @@ def test_streams_re_anchored_in_one_round_prefill_in_one_call(generator, engine_
         stream.tokens.allow_end = False  # no clip ends first
     for _ in range(anchoring.span - 1):
         engine.round(streams)
-    prefills: list[int] = []
-    compute = token_generator._prefilled_together
-    monkeypatch.setattr(
-        token_generator,
-        "_prefilled_together",
-        lambda group: prefills.append(len(group)) or compute(group),
-    )
+    prefills = counted_prefills(monkeypatch)
     engine.round(streams)
     assert [s.tokens.steps for s in streams] == [anchoring.keep] * 3  # each re-anchored
-    assert prefills == [3]
+    assert [len(group) for group in prefills] == [3]
 
 
 @pytest.mark.parametrize("window", [8, None], ids=["ring-window", "no-window"])
